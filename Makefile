@@ -1,0 +1,44 @@
+# gyro_ekf: `make demo` runs the main job on the bundled bag, `make test` runs the tests.
+# Both create .venv by themselves (Python 3.10-3.13 and PyPI are all they need).
+
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-stamp
+
+# DDS discovery stays on this machine and in the project's own domain, whoever runs make.
+export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+GYRO_EKF_DOMAIN_ID ?= 42
+export ROS_DOMAIN_ID := $(GYRO_EKF_DOMAIN_ID)
+export ROS_LOG_DIR := $(CURDIR)/.ros/log
+export MPLBACKEND := Agg
+
+DEMO_BAG := bags/sim_static_start
+
+.PHONY: venv demo test bags bench lint clean
+
+venv: $(STAMP)
+
+$(STAMP): setup.py package.xml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip setuptools wheel
+	$(BIN)/pip install --quiet -e '.[ros,test,bench]'
+	touch $@
+
+demo: $(STAMP)
+	$(BIN)/gyro-ekf demo $(DEMO_BAG) -o results/demo
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q test
+
+bags: $(STAMP)
+	$(BIN)/gyro-ekf make-bags bags --force
+
+bench: $(STAMP)
+	$(BIN)/gyro-ekf bench -o results/bench.json
+
+lint: $(STAMP)
+	$(BIN)/python -m pytest -q -m linter test
+
+clean:
+	rm -rf build install log results .ros .pytest_cache

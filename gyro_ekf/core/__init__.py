@@ -1,0 +1,1 @@
+"""ROS-free estimation core: numpy and the standard library only."""

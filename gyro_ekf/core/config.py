@@ -1,0 +1,140 @@
+"""Every tunable of the core, declared once with default, unit, description and bounds.
+
+Nodes turn these fields into ROS parameters (`nodes/params.py`); `gyro-ekf run` reads the
+same ROS 2 params YAML, so offline and live runs share one configuration. Values are SI;
+the defaults are the course's 2019 Project 3 figures (see
+`../shared/data/mtrn4010/README.md`, "Noise figures").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+from gyro_ekf.core.errors import CoreError
+
+DEG = math.pi / 180.0
+
+
+def _param(default: Any, unit: str, description: str, low: float | None = None,
+           high: float | None = None, read_only: bool = False) -> Any:
+    return field(default=default, metadata={
+        'unit': unit, 'description': description, 'min': low, 'max': high,
+        'read_only': read_only})
+
+
+@dataclass(frozen=True, slots=True)
+class EkfConfig:
+    """Noise model, initial uncertainty and data association of the EKF."""
+
+    gyro_noise_rad_s: float = _param(
+        1.4 * DEG, 'rad/s', 'Yaw-rate white noise sigma (input noise of the yaw prediction).',
+        0.0, 1.0)
+    speed_noise_m_s: float = _param(
+        0.4, 'm/s', 'Speed noise sigma (input noise of the position prediction).', 0.0, 10.0)
+    range_noise_m: float = _param(
+        0.16, 'm', 'LiDAR range noise sigma of a pole observation.', 1e-4, 10.0)
+    bearing_noise_rad: float = _param(
+        1.1 * DEG, 'rad', 'LiDAR bearing noise sigma of a pole observation.', 1e-5, 1.0)
+    position_process_noise_m_s: float = _param(
+        0.03, 'm/s', 'Extra translation noise q_pos: Q2 adds (q_pos T)^2 to x and y.', 0.0, 10.0)
+    bias_random_walk_rad_s2: float = _param(
+        DEG / 600.0, 'rad/s^2',
+        'Bias random walk q_b: Q2 adds (q_b T)^2 to the bias (1 deg/s per 10 minutes).',
+        0.0, 1.0)
+    initial_bias_rad_s: float = _param(
+        0.0, 'rad/s', 'Bias state at start when no calibration seeds it.', -1.0, 1.0)
+    initial_bias_sigma_rad_s: float = _param(
+        2.0 * DEG, 'rad/s', 'Prior sigma of the bias (P0 bias term).', 0.0, 1.0)
+    initial_position_sigma_m: float = _param(
+        0.0, 'm', 'Prior sigma of x and y (P0); 0 trusts the initial pose exactly.', 0.0, 100.0)
+    initial_yaw_sigma_rad: float = _param(
+        0.0, 'rad', 'Prior sigma of yaw (P0).', 0.0, math.pi)
+    gate_probability: float = _param(
+        0.99, '1', 'Chi-square (2 dof) gate of the nearest-neighbour association.', 0.5,
+        0.999999)
+    max_prediction_step_s: float = _param(
+        0.1, 's', 'Longest single prediction step; longer gaps are split into steps this long.',
+        1e-4, 10.0)
+
+
+@dataclass(frozen=True, slots=True)
+class CalibrationConfig:
+    """Static-window calibration of the gyro bias (course note 000)."""
+
+    window_start_s: float = _param(
+        0.0, 's', 'Start of the static window, after the first IMU sample.', 0.0, 1e6)
+    window_length_s: float = _param(
+        5.0, 's', 'Length of the static window.', 0.1, 1e4)
+    min_samples: int = _param(
+        50, '1', 'Fewest samples a window may have.', 2, 10_000_000)
+    max_gap_s: float = _param(
+        0.1, 's', 'Largest gap between consecutive samples inside the window.', 1e-4, 10.0)
+    max_speed_m_s: float = _param(
+        1e-3, 'm/s', 'Largest |speed| that still counts as static (when speed is known).',
+        0.0, 10.0)
+    max_sigma_rad_s: float = _param(
+        1.0 * DEG, 'rad/s', 'Largest per-axis rate std that still counts as static.', 0.0, 1.0)
+    max_drift_rad_s: float = _param(
+        0.3 * DEG, 'rad/s',
+        'Largest change of the per-axis mean between the first and second half of the window.',
+        0.0, 1.0)
+
+
+@dataclass(frozen=True, slots=True)
+class DetectorConfig:
+    """Pole detection in one 2-D scan."""
+
+    range_jump_m: float = _param(
+        0.15, 'm', 'A range step larger than this between neighbouring beams splits clusters.',
+        0.001, 10.0)
+    min_width_m: float = _param(
+        0.05, 'm', 'Smallest apparent cluster width accepted as a pole (no intensities).',
+        0.0, 10.0)
+    max_width_m: float = _param(
+        0.20, 'm', 'Largest apparent cluster width accepted as a pole.', 0.0, 10.0)
+    pole_radius_m: float = _param(
+        0.05, 'm', 'Pole radius: the centre lies this far behind the mean of the returns.',
+        0.0, 1.0)
+    reflective_intensity: float = _param(
+        1.0, '1', 'Intensity at or above which a return is reflective (pole tape).', 0.0, 1e6)
+    max_range_m: float = _param(
+        50.0, 'm', 'Returns beyond this range are ignored.', 0.1, 1000.0)
+
+
+ConfigT = TypeVar('ConfigT', EkfConfig, CalibrationConfig, DetectorConfig)
+
+
+def config_fields(config_type: type) -> list[dataclasses.Field]:
+    """The dataclass fields of a config class, each with unit/description/bounds metadata."""
+    return list(dataclasses.fields(config_type))
+
+
+def make_config(config_type: type[ConfigT], values: dict[str, Any],
+                source: str = 'parameters') -> ConfigT:
+    """Build a config from a name->value mapping, checking names, types and bounds.
+
+    Raises:
+        CoreError: unknown name, wrong type or value out of bounds; the message names
+            the source and the parameter.
+    """
+    known = {f.name: f for f in dataclasses.fields(config_type)}
+    checked: dict[str, Any] = {}
+    for name, value in values.items():
+        if name not in known:
+            raise CoreError(f'{source}: unknown parameter {name!r} for {config_type.__name__}; '
+                            f'expected one of {sorted(known)}')
+        spec = known[name]
+        default = spec.default
+        if isinstance(default, bool) or not isinstance(value, (int, float)) or isinstance(
+                value, bool):
+            raise CoreError(f'{source}: parameter {name!r} must be a number, got {value!r}')
+        value = int(value) if isinstance(default, int) else float(value)
+        low, high = spec.metadata['min'], spec.metadata['max']
+        if (low is not None and value < low) or (high is not None and value > high):
+            raise CoreError(f'{source}: parameter {name!r} = {value} is outside [{low}, {high}] '
+                            f'{spec.metadata["unit"]}')
+        checked[name] = value
+    return config_type(**checked)
