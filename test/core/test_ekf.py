@@ -1,0 +1,112 @@
+"""The EKF's consistency (Monte Carlo NEES) and an independent step check against filterpy."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from gyro_ekf.core import models
+from gyro_ekf.core.config import EkfConfig
+from gyro_ekf.core.ekf import GyroBiasEkf
+from gyro_ekf.core.types import LidarMount
+
+MOUNT = LidarMount(0.4, 0.1, 0.2)
+LANDMARKS = np.array([[x, y] for x in range(-10, 11, 5) for y in range(-10, 11, 5)], float)
+
+
+def _simulate_and_filter(seed, config, duration_s=60.0, dt_s=0.01, obs_every=20):
+    """Truth from the filter's own discrete model, so a consistent filter has NEES ~ chi2(4)."""
+    rng = np.random.default_rng(seed)
+    true_bias = rng.normal(0.0, config.initial_bias_sigma_rad_s)
+    truth = np.array([0.0, 0.0, 0.3, true_bias])
+    ekf = GyroBiasEkf(config, pose=truth[:3])
+    R_sqrt = np.sqrt(np.diag(ekf.R))
+    steps = int(duration_s / dt_s)
+    nees = []
+    for k in range(steps):
+        t = k * dt_s
+        speed, rate = 0.6 + 0.3 * math.sin(0.3 * t), 0.4 * math.sin(0.2 * t)
+        truth = models.predict_state(truth, speed, rate + truth[3], dt_s)
+        ekf.predict(speed + rng.normal(0, config.speed_noise_m_s),
+                    rate + true_bias + rng.normal(0, config.gyro_noise_rad_s), dt_s)
+        if k % obs_every == 0 and k > 0:
+            xl, yl = models.sensor_position(truth, MOUNT)
+            near = np.hypot(*(LANDMARKS - [xl, yl]).T) < 12.0
+            for landmark in LANDMARKS[near]:
+                z = models.observe(truth, landmark, MOUNT) + rng.normal(0, 1, 2) * R_sqrt
+                ekf.update(z, landmark, MOUNT)
+            error = truth - ekf.x
+            error[2] = (error[2] + math.pi) % (2 * math.pi) - math.pi
+            # The first second is skipped: P0 trusts the pose exactly, so P starts singular.
+            if t >= 1.0:
+                nees.append(float(error @ np.linalg.solve(ekf.P, error)))
+    return np.array(nees), true_bias, ekf
+
+
+CONSISTENT = EkfConfig(gyro_noise_rad_s=math.radians(1.0), speed_noise_m_s=0.05,
+                       range_noise_m=0.05, bearing_noise_rad=math.radians(1.0),
+                       position_process_noise_m_s=0.0, bias_random_walk_rad_s2=0.0)
+
+
+def test_average_nees_inside_chi_square_band_over_monte_carlo():
+    runs = 25
+    nees = np.array([_simulate_and_filter(seed, CONSISTENT)[0] for seed in range(runs)])
+    average = nees.mean(axis=0)
+    low, high = chi2.ppf([0.025, 0.975], 4 * runs) / runs
+    inside = np.mean((average >= low) & (average <= high))
+    print(f'ANEES over {runs} runs: mean {average.mean():.2f}, band [{low:.2f}, {high:.2f}],'
+          f' share inside {inside:.3f}')
+    assert low <= average.mean() <= high
+    assert inside >= 0.9
+
+
+def test_bias_converges_to_truth():
+    for seed in (1, 2, 3):
+        _, true_bias, ekf = _simulate_and_filter(seed, CONSISTENT, duration_s=90.0)
+        sigma = math.sqrt(ekf.P[3, 3])
+        assert abs(ekf.x[3] - true_bias) < 3 * sigma
+        assert sigma < math.radians(0.02)
+
+
+def test_covariance_stays_symmetric_positive_definite():
+    _, _, ekf = _simulate_and_filter(7, EkfConfig(), duration_s=20.0)
+    np.testing.assert_array_equal(ekf.P, ekf.P.T)
+    assert np.all(np.linalg.eigvalsh(ekf.P) > 0)
+
+
+def test_one_cycle_matches_filterpy_extended_kalman_filter():
+    filterpy = pytest.importorskip('filterpy.kalman')
+    config = EkfConfig(initial_position_sigma_m=0.1, initial_yaw_sigma_rad=0.05)
+    ours = GyroBiasEkf(config, pose=[1.0, 2.0, 0.5], bias_rad_s=0.01)
+    theirs = filterpy.ExtendedKalmanFilter(dim_x=4, dim_z=2)
+    theirs.x = ours.x.reshape(4, 1).copy()
+    theirs.P = ours.P.copy()
+    theirs.R = ours.R.copy()
+    speed, rate, dt = 0.8, 0.1, 0.02
+    theirs.F = models.process_jacobian(theirs.x.ravel(), speed, dt)
+    theirs.Q = models.process_noise(theirs.x.ravel(), dt, config.speed_noise_m_s,
+                                    config.gyro_noise_rad_s,
+                                    config.position_process_noise_m_s,
+                                    config.bias_random_walk_rad_s2)
+    theirs.x = models.predict_state(theirs.x.ravel(), speed, rate, dt).reshape(4, 1)
+    theirs.P = theirs.F @ theirs.P @ theirs.F.T + theirs.Q
+    ours.predict(speed, rate, dt)
+    np.testing.assert_allclose(ours.x, theirs.x.ravel(), atol=1e-15)
+    np.testing.assert_allclose(ours.P, theirs.P, rtol=1e-12, atol=1e-18)
+    landmark = np.array([4.0, 5.0])
+    z = models.observe(ours.x, landmark, MOUNT) + [0.05, 0.01]
+    theirs.update(z.reshape(2, 1),
+                  lambda x: models.observation_jacobian(x.ravel(), landmark, MOUNT),
+                  lambda x: models.observe(x.ravel(), landmark, MOUNT).reshape(2, 1))
+    ours.update(z, landmark, MOUNT)
+    np.testing.assert_allclose(ours.x, theirs.x.ravel(), atol=1e-12)
+    np.testing.assert_allclose(ours.P, theirs.P, rtol=1e-9, atol=1e-15)
+
+
+def test_zero_or_negative_step_leaves_the_filter_unchanged():
+    ekf = GyroBiasEkf(EkfConfig(), pose=[1.0, 1.0, 0.0])
+    x, P = ekf.x.copy(), ekf.P.copy()
+    ekf.predict(1.0, 0.5, 0.0)
+    np.testing.assert_array_equal(ekf.x, x)
+    np.testing.assert_array_equal(ekf.P, P)

@@ -1,0 +1,124 @@
+"""Process and observation models against finite differences and the Project 3 report."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gyro_ekf.core import models
+from gyro_ekf.core.ekf import GyroBiasEkf, observe_one
+from gyro_ekf.core.config import EkfConfig
+from gyro_ekf.core.types import LidarMount
+
+RNG = np.random.default_rng(20160101)
+MOUNTS = [LidarMount(), LidarMount(0.46, 0.0, 0.0), LidarMount(0.4, -0.12, math.pi),
+          LidarMount(0.2, 0.3, 0.7)]
+
+
+def _random_state():
+    return np.array([RNG.uniform(-5, 5), RNG.uniform(-5, 5), RNG.uniform(-math.pi, math.pi),
+                     RNG.uniform(-0.05, 0.05)])
+
+
+def _numeric_jacobian(fun, state, eps=1e-6):
+    columns = []
+    for i in range(state.size):
+        step = np.zeros_like(state)
+        step[i] = eps
+        diff = fun(state + step) - fun(state - step)
+        if diff.shape[-1] == 2:  # wrap the bearing difference
+            diff[..., 1] = (diff[..., 1] + math.pi) % (2 * math.pi) - math.pi
+        columns.append(diff / (2 * eps))
+    return np.stack(columns, axis=-1)
+
+
+@pytest.mark.parametrize('trial', range(20))
+def test_process_jacobian_matches_finite_differences(trial):
+    state = _random_state()
+    speed, rate, dt = RNG.uniform(-1, 2), RNG.uniform(-1, 1), RNG.uniform(0.001, 0.2)
+
+    def f(s):
+        out = models.predict_state(s, speed, rate, dt)
+        out[2] = s[2] + dt * (rate - s[3])  # compare unwrapped yaw
+        return out
+
+    np.testing.assert_allclose(models.process_jacobian(state, speed, dt),
+                               _numeric_jacobian(f, state), atol=1e-7)
+
+
+@pytest.mark.parametrize('mount', MOUNTS)
+def test_observation_jacobian_matches_finite_differences(mount):
+    for _ in range(20):
+        state = _random_state()
+        landmark = state[:2] + RNG.uniform(1, 10) * np.array(
+            [math.cos(a := RNG.uniform(-math.pi, math.pi)), math.sin(a)])
+        numeric = _numeric_jacobian(lambda s: models.observe(s, landmark, mount), state)
+        np.testing.assert_allclose(models.observation_jacobian(state, landmark, mount),
+                                   numeric, atol=1e-6)
+        z_hat, H = observe_one(state, landmark, mount)
+        np.testing.assert_allclose(z_hat, models.observe(state, landmark, mount), atol=1e-12)
+        np.testing.assert_allclose(H, numeric, atol=1e-6)
+
+
+def test_vectorised_observation_matches_single():
+    state = _random_state()
+    landmarks = RNG.uniform(-10, 10, size=(7, 2))
+    many = models.observe(state, landmarks, MOUNTS[2])
+    jac = models.observation_jacobian(state, landmarks, MOUNTS[2])
+    for k in range(7):
+        np.testing.assert_allclose(many[k], models.observe(state, landmarks[k], MOUNTS[2]))
+        np.testing.assert_allclose(jac[k],
+                                   models.observation_jacobian(state, landmarks[k], MOUNTS[2]))
+
+
+def test_observation_is_the_reports_h_and_H_with_course_conventions():
+    for _ in range(20):
+        x, y, phi, _b = _random_state()
+        xa, ya = RNG.uniform(-10, 10, size=2)
+        dx, dy = xa - x, ya - y
+        r2 = dx * dx + dy * dy
+        report_h = np.array([math.sqrt(r2), math.atan2(dy, dx) - phi + math.pi / 2])
+        report_H = np.array([[-dx / math.sqrt(r2), -dy / math.sqrt(r2), 0, 0],
+                             [dy / r2, -dx / r2, -1, 0]])
+        state = np.array([x, y, phi, _b])
+        h = models.observe(state, [xa, ya], LidarMount(), bearing_zero_rad=math.pi / 2)
+        assert h[0] == pytest.approx(report_h[0])
+        assert math.cos(h[1] - report_h[1]) == pytest.approx(1.0)
+        np.testing.assert_allclose(models.observation_jacobian(state, [xa, ya]), report_H)
+
+
+def test_jacobians_and_Q_equal_the_report_with_its_numbers():
+    # Report: Pu = diag(0.3^2, (1.7 pi/180)^2), Q2 = diag((0.03T)^2, (0.03T)^2, 0,
+    # (q_b T)^2) with the bias walk read as 1 deg/s per 10 minutes.
+    T, v, phi = 0.005, 0.7, 0.4
+    q_b = (math.pi / 180) / 600
+    J = np.array([[1, 0, -T * v * math.sin(phi), 0], [0, 1, T * v * math.cos(phi), 0],
+                  [0, 0, 1, -T], [0, 0, 0, 1]])
+    Ju = np.array([[T * math.cos(phi), 0], [T * math.sin(phi), 0], [0, T], [0, 0]])
+    Pu = np.diag([0.3 ** 2, (1.7 * math.pi / 180) ** 2])
+    Q = Ju @ Pu @ Ju.T + np.diag([(0.03 * T) ** 2, (0.03 * T) ** 2, 0, (q_b * T) ** 2])
+    state = np.array([1.0, 2.0, phi, 0.01])
+    np.testing.assert_allclose(models.process_jacobian(state, v, T), J)
+    np.testing.assert_allclose(models.input_jacobian(state, T), Ju)
+    np.testing.assert_allclose(models.process_noise(state, T, 0.3, 1.7 * math.pi / 180, 0.03,
+                                                    q_b), Q, rtol=1e-12, atol=0)
+    # The filter's written-out Q is the same: from P = 0 one step gives P = Q.
+    config = EkfConfig(speed_noise_m_s=0.3, gyro_noise_rad_s=1.7 * math.pi / 180,
+                       position_process_noise_m_s=0.03, bias_random_walk_rad_s2=q_b,
+                       initial_bias_sigma_rad_s=0.0)
+    ekf = GyroBiasEkf(config, pose=state[:3], bias_rad_s=state[3])
+    ekf.predict(v, 0.2, T)
+    np.testing.assert_allclose(ekf.P, Q, rtol=1e-12, atol=1e-30)
+    assert config.bias_random_walk_rad_s2 == pytest.approx(q_b)
+    assert EkfConfig().initial_bias_sigma_rad_s == pytest.approx(2 * math.pi / 180)
+
+
+def test_sensor_frame_round_trip():
+    state = _random_state()
+    mount = MOUNTS[3]
+    landmarks = RNG.uniform(-10, 10, size=(5, 2))
+    z = models.observe(state, landmarks, mount)
+    points = np.column_stack([z[:, 0] * np.cos(z[:, 1]), z[:, 0] * np.sin(z[:, 1])])
+    np.testing.assert_allclose(models.sensor_to_map(state, points, mount), landmarks,
+                               atol=1e-9)
+    np.testing.assert_allclose(models.points_to_range_bearing(points), z, atol=1e-12)
