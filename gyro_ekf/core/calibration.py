@@ -117,7 +117,7 @@ def _check_speed(speed_stamps: FloatArray, speeds: FloatArray, start: float, end
     if moving.size:
         first = moving[0]
         raise CalibrationError(
-            f'platform moved: speed {speeds[inside][first]:.3f} m/s at '
+            f'platform moved: speed {speeds[inside][first]:.4g} m/s at '
             f'{speed_stamps[inside][first] - origin:.2f} s inside the static window '
             f'(at most {config.max_speed_m_s} m/s allowed)')
 

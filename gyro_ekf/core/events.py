@@ -1,0 +1,368 @@
+"""Feeds speed, gyro and LiDAR events to the EKF in time order.
+
+The same ``EventDriver`` runs inside the live EKF node and in the offline ``gyro-ekf run``,
+so both produce the same numbers from the same inputs in the same order.
+
+Inputs are held between samples (zero-order hold): on each event the filter is first
+predicted from the previous event's time to this one with the latest speed and yaw rate,
+then the event's value replaces the held one (or, for an observation, updates the filter).
+Events with equal stamps are ordered speed, observation, IMU, so the estimate emitted on an
+IMU sample includes every observation stamped at or before it.
+
+Time going backwards raises TimeWentBackwardsError; the caller decides to reset (a looped
+bag) or to drop the event. It is never silently accepted.
+"""
+
+from __future__ import annotations
+
+import enum
+import heapq
+import itertools
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from gyro_ekf.core.association import AssociationOutcome, AssociationResult, associate
+from gyro_ekf.core.config import DetectorConfig, EkfConfig
+from gyro_ekf.core.detection import detect_poles
+from gyro_ekf.core.ekf import GyroBiasEkf
+from gyro_ekf.core.errors import TimeWentBackwardsError
+from gyro_ekf.core.models import points_to_range_bearing, sensor_to_map
+from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount, ScanSeries, Trip
+
+
+class EventKind(enum.IntEnum):
+    """Event types; the value orders events that share a stamp."""
+
+    SPEED = 0
+    OBSERVATION = 1
+    IMU = 2
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """Filter output after one IMU sample.
+
+    Attributes:
+        stamp_s: s.
+        state: shape (4,): x m, y m, yaw rad, bias rad/s.
+        covariance: shape (4, 4).
+        speed_m_s: held speed, m/s.
+        yaw_rate_rad_s: bias-corrected yaw rate, rad/s.
+    """
+
+    stamp_s: float
+    state: FloatArray
+    covariance: FloatArray
+    speed_m_s: float
+    yaw_rate_rad_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class ObservationReport:
+    """What happened to one scan's detections.
+
+    Attributes:
+        stamp_s: s.
+        points_sensor_m: detections in the sensor frame, shape (k, 2), m.
+        points_map_m: the same at the prior pose in the map frame, shape (k, 2), m.
+        association: outcome per detection, or None without a map.
+        nis: NIS of every applied update, shape (matched,).
+    """
+
+    stamp_s: float
+    points_sensor_m: FloatArray
+    points_map_m: FloatArray
+    association: AssociationResult | None
+    nis: FloatArray
+
+
+@dataclass(slots=True)
+class DriverStats:
+    """Running counts of the driver (mutable; read with ``snapshot``).
+
+    Attributes:
+        imu, speed, scans: events processed per kind.
+        detections: poles detected.
+        outcomes: detections per association outcome name.
+        updates: landmark updates applied.
+        nis_sum: sum of the NIS of all updates.
+        last_association_s: stamp of the last applied update, or None.
+        longest_gap_s: longest time between applied updates (from the first one).
+    """
+
+    imu: int = 0
+    speed: int = 0
+    scans: int = 0
+    detections: int = 0
+    outcomes: dict[str, int] = field(
+        default_factory=lambda: {o.name.lower(): 0 for o in AssociationOutcome})
+    updates: int = 0
+    nis_sum: float = 0.0
+    last_association_s: float | None = None
+    longest_gap_s: float = 0.0
+
+    @property
+    def mean_nis(self) -> float:
+        """Mean NIS of all updates (nan before the first)."""
+        return self.nis_sum / self.updates if self.updates else math.nan
+
+    def snapshot(self) -> dict[str, Any]:
+        """A plain copy for reports."""
+        return {'imu': self.imu, 'speed': self.speed, 'scans': self.scans,
+                'detections': self.detections, 'outcomes': dict(self.outcomes),
+                'updates': self.updates, 'mean_nis': self.mean_nis,
+                'last_association_s': self.last_association_s,
+                'longest_gap_s': self.longest_gap_s}
+
+
+class EventDriver:
+    """Holds the inputs and drives a GyroBiasEkf event by event.
+
+    Attributes:
+        ekf: the filter.
+        stamp_s: stamp of the last processed event, or None before the first.
+        speed_m_s: held speed, m/s.
+        rate_rad_s: held measured yaw rate (bias included), rad/s, or None before the first.
+        landmarks: the map used for association, or None.
+        stats: running counts.
+    """
+
+    def __init__(self, config: EkfConfig | None = None, landmarks: LandmarkMap | None = None,
+                 pose: FloatArray | None = None, bias_rad_s: float | None = None,
+                 detector_config: DetectorConfig | None = None):
+        """Create a filter at a pose with the configured priors."""
+        self.config = config or EkfConfig()
+        self.detector_config = detector_config or DetectorConfig()
+        self.ekf = GyroBiasEkf(self.config, pose, bias_rad_s)
+        self.landmarks = landmarks
+        self.stats = DriverStats()
+        self.stamp_s: float | None = None
+        self.speed_m_s = 0.0
+        self.rate_rad_s: float | None = None
+
+    def reset(self, pose: FloatArray | None = None, bias_rad_s: float | None = None) -> None:
+        """Start over (a looped bag, a ~/reset call): new filter, held inputs and counts."""
+        self.ekf.reset(pose, bias_rad_s)
+        self.stats = DriverStats()
+        self.stamp_s = None
+        self.speed_m_s = 0.0
+        self.rate_rad_s = None
+
+    def _advance(self, stamp_s: float, what: str) -> None:
+        if self.stamp_s is None:
+            self.stamp_s = stamp_s
+            return
+        dt_s = stamp_s - self.stamp_s
+        if dt_s < 0.0:
+            raise TimeWentBackwardsError(
+                f'{what} stamp {stamp_s:.4f} s went back {-dt_s:.4f} s behind the filter')
+        # Before the first gyro sample the heading is held: the yaw rate is taken as the bias.
+        rate = self.ekf.x[3] if self.rate_rad_s is None else self.rate_rad_s
+        step = self.config.max_prediction_step_s
+        while dt_s > step:
+            self.ekf.predict(self.speed_m_s, rate, step)
+            dt_s -= step
+        self.ekf.predict(self.speed_m_s, rate, dt_s)
+        self.stamp_s = stamp_s
+
+    def on_speed(self, stamp_s: float, speed_m_s: float) -> None:
+        """Predict to stamp_s, then hold the new speed (m/s)."""
+        self._advance(stamp_s, 'speed')
+        self.speed_m_s = speed_m_s
+        self.stats.speed += 1
+
+    def on_imu(self, stamp_s: float, yaw_rate_rad_s: float) -> Estimate:
+        """Predict to stamp_s, then hold the new measured yaw rate (rad/s, bias included)."""
+        self._advance(stamp_s, 'imu')
+        self.rate_rad_s = yaw_rate_rad_s
+        self.stats.imu += 1
+        return self.estimate()
+
+    def estimate(self) -> Estimate:
+        """The current estimate (state and covariance are copies)."""
+        rate = 0.0 if self.rate_rad_s is None else self.rate_rad_s - self.ekf.x[3]
+        return Estimate(stamp_s=self.stamp_s if self.stamp_s is not None else 0.0,
+                        state=self.ekf.x.copy(), covariance=self.ekf.P.copy(),
+                        speed_m_s=self.speed_m_s, yaw_rate_rad_s=rate)
+
+    def on_scan(self, stamp_s: float, ranges_m: FloatArray, angles_rad: FloatArray,
+                intensities: FloatArray | None, mount: LidarMount) -> ObservationReport:
+        """Detect poles in one scan, then treat them as observations."""
+        detections = detect_poles(ranges_m, angles_rad, intensities, self.detector_config)
+        return self.on_detections(stamp_s, detections.points_sensor_m, mount)
+
+    def on_detections(self, stamp_s: float, points_sensor_m: FloatArray,
+                      mount: LidarMount) -> ObservationReport:
+        """Predict to stamp_s, associate the detected poles with the map, update.
+
+        Args:
+            stamp_s: scan stamp, s.
+            points_sensor_m: pole centres in the sensor frame, shape (k, 2), m.
+            mount: pose of the sensor on the platform.
+        """
+        self._advance(stamp_s, 'observation')
+        self.stats.scans += 1
+        points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)
+        self.stats.detections += points.shape[0]
+        points_map = sensor_to_map(self.ekf.x, points, mount)
+        if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
+            return ObservationReport(stamp_s, points, points_map, None, np.zeros(0))
+        z = points_to_range_bearing(points)
+        result = associate(z, self.ekf.x, self.ekf.P, self.ekf.R, self.landmarks.xy_m, mount,
+                           self.config.gate_probability)
+        nis = []
+        for match in result.matches:
+            self.stats.outcomes[match.outcome.name.lower()] += 1
+            if match.outcome is AssociationOutcome.MATCHED:
+                nis.append(self.ekf.update(z[match.detection],
+                                           self.landmarks.xy_m[match.landmark], mount))
+        if nis:
+            self.stats.updates += len(nis)
+            self.stats.nis_sum += float(sum(nis))
+            if self.stats.last_association_s is not None:
+                self.stats.longest_gap_s = max(self.stats.longest_gap_s,
+                                               stamp_s - self.stats.last_association_s)
+            self.stats.last_association_s = stamp_s
+        return ObservationReport(stamp_s, points, points_map, result, np.array(nis))
+
+
+class ReorderBuffer:
+    """Releases events in (stamp, kind, arrival) order once they are older than a window.
+
+    Live topics arrive slightly out of order across subscriptions; holding each event for
+    ``window_s`` behind the newest stamp seen restores the order the offline run uses.
+    An event older than one already released is late: ``push`` returns it in ``late``.
+    """
+
+    def __init__(self, window_s: float, max_events: int = 10_000):
+        """Hold events for window_s seconds of stamp time, at most max_events at once."""
+        self.window_s = window_s
+        self.max_events = max_events
+        self._heap: list[tuple[float, int, int, Any]] = []
+        self._arrival = itertools.count()
+        self._newest_s = -math.inf
+        self._released_s = -math.inf
+
+    def __len__(self) -> int:
+        return len(self._heap)
+
+    def push(self, stamp_s: float, kind: EventKind, payload: Any
+             ) -> tuple[list[tuple[float, EventKind, Any]], list[Any]]:
+        """Add an event; return (events now ready in order, late payloads to drop)."""
+        if stamp_s < self._released_s:
+            return [], [payload]
+        heapq.heappush(self._heap, (stamp_s, int(kind), next(self._arrival), payload))
+        self._newest_s = max(self._newest_s, stamp_s)
+        return self._release(self._newest_s - self.window_s), []
+
+    def flush(self) -> list[tuple[float, EventKind, Any]]:
+        """Release everything held."""
+        return self._release(math.inf)
+
+    def clear(self) -> None:
+        """Drop everything and forget the stamps seen (after a reset)."""
+        self._heap.clear()
+        self._newest_s = -math.inf
+        self._released_s = -math.inf
+
+    def _release(self, until_s: float) -> list[tuple[float, EventKind, Any]]:
+        ready = []
+        while self._heap and (self._heap[0][0] <= until_s or len(self._heap) > self.max_events):
+            stamp_s, kind, _, payload = heapq.heappop(self._heap)
+            self._released_s = stamp_s
+            ready.append((stamp_s, EventKind(kind), payload))
+        return ready
+
+
+def iter_trip_events(trip: Trip) -> Iterator[tuple[float, EventKind, int, int]]:
+    """All events of a trip in driver order: (stamp_s, kind, series index, sample index).
+
+    The series index picks the ScanSeries for observations (0 otherwise).
+    """
+    stamps = [trip.speed.stamp_s, trip.imu.stamp_s] + [s.stamp_s for s in trip.scans]
+    kinds = [EventKind.SPEED, EventKind.IMU] + [EventKind.OBSERVATION] * len(trip.scans)
+    series = [0, 0] + list(range(len(trip.scans)))
+    all_stamps = np.concatenate(stamps)
+    all_kinds = np.concatenate([np.full(len(s), int(k)) for s, k in zip(stamps, kinds)])
+    all_series = np.concatenate([np.full(len(s), i) for s, i in zip(stamps, series)])
+    all_index = np.concatenate([np.arange(len(s)) for s in stamps])
+    order = np.lexsort((all_index, all_series, all_kinds, all_stamps))
+    for i in order:
+        yield (float(all_stamps[i]), EventKind(int(all_kinds[i])), int(all_series[i]),
+               int(all_index[i]))
+
+
+@dataclass(frozen=True, slots=True)
+class Estimates:
+    """History of a run: one row per IMU sample.
+
+    Attributes:
+        stamp_s: shape (n,), s.
+        state: shape (n, 4): x m, y m, yaw rad, bias rad/s.
+        covariance: shape (n, 4, 4).
+    """
+
+    stamp_s: FloatArray
+    state: FloatArray
+    covariance: FloatArray
+
+
+@dataclass(frozen=True, slots=True)
+class TripRun:
+    """Result of driving the filter through a whole trip.
+
+    Attributes:
+        estimates: one row per IMU sample.
+        observations: one report per scan, in time order.
+        stats: final counts.
+    """
+
+    estimates: Estimates
+    observations: list[ObservationReport]
+    stats: DriverStats
+
+
+def drive_trip(trip: Trip, driver: EventDriver,
+               progress: Callable[[int], None] | None = None) -> TripRun:
+    """Run every event of a trip through a driver and collect the history.
+
+    Args:
+        trip: the inputs; trip.landmarks is used when the driver has no map.
+        driver: a fresh driver (its pose is the filter's start).
+        progress: called with the number of events processed since the last call.
+    """
+    if driver.landmarks is None:
+        driver.landmarks = trip.landmarks
+    n = len(trip.imu.stamp_s)
+    stamps = np.empty(n)
+    states = np.empty((n, 4))
+    covariances = np.empty((n, 4, 4))
+    observations: list[ObservationReport] = []
+    yaw_rates = trip.imu.yaw_rate_rad_s
+    angles = [scan.angles_rad for scan in trip.scans]
+    row = 0
+    processed = 0
+    for stamp_s, kind, series, index in iter_trip_events(trip):
+        if kind is EventKind.IMU:
+            driver.on_imu(stamp_s, float(yaw_rates[index]))
+            stamps[row] = stamp_s
+            states[row] = driver.ekf.x
+            covariances[row] = driver.ekf.P
+            row += 1
+        elif kind is EventKind.SPEED:
+            driver.on_speed(stamp_s, float(trip.speed.speed_m_s[index]))
+        else:
+            scan: ScanSeries = trip.scans[series]
+            intensities = None if scan.intensities is None else scan.intensities[index]
+            observations.append(driver.on_scan(stamp_s, scan.ranges_m[index], angles[series],
+                                               intensities, scan.mount))
+        processed += 1
+        if progress is not None and processed % 10_000 == 0:
+            progress(10_000)
+    if progress is not None:
+        progress(processed % 10_000)
+    return TripRun(Estimates(stamps, states, covariances), observations, driver.stats)

@@ -1,0 +1,118 @@
+"""Offline static-window calibration: synthetic windows and the real 2016 log."""
+
+import math
+
+import numpy as np
+import pytest
+import scipy.io
+
+from gyro_ekf.core.calibration import StaticWindowCalibrator, estimate_gyro_bias
+from gyro_ekf.core.config import CalibrationConfig
+from gyro_ekf.core.errors import CalibrationError
+
+BIAS = np.array([0.003, -0.002, -0.017])
+SIGMA = np.array([0.004, 0.0045, 0.005])
+
+
+def _static(seed=0, rate_hz=200.0, duration_s=10.0):
+    rng = np.random.default_rng(seed)
+    stamps = np.arange(0.0, duration_s, 1.0 / rate_hz)
+    rates = BIAS + rng.normal(size=(stamps.size, 3)) * SIGMA
+    return stamps, rates
+
+
+def test_static_window_gives_mean_and_sigma_per_axis():
+    stamps, rates = _static()
+    estimate = estimate_gyro_bias(stamps, rates)
+    assert estimate.n_samples == 1001
+    assert estimate.window_start_s == 0.0 and estimate.window_end_s == pytest.approx(5.0)
+    np.testing.assert_allclose(estimate.bias_rad_s, BIAS, atol=4 * SIGMA.max() / math.sqrt(1000))
+    np.testing.assert_allclose(estimate.sigma_rad_s, SIGMA, rtol=0.1)
+    corrected = estimate.correct(rates)
+    np.testing.assert_allclose(corrected[stamps <= 5.0].mean(axis=0), 0.0, atol=1e-12)
+
+
+def test_window_start_and_length_are_configurable():
+    stamps, rates = _static()
+    rates[stamps < 4.0] += 0.5  # spinning at first, still from 4 s on
+    with pytest.raises(CalibrationError, match='not static'):
+        estimate_gyro_bias(stamps, rates)
+    estimate = estimate_gyro_bias(stamps, rates,
+                                  CalibrationConfig(window_start_s=4.0, window_length_s=5.0))
+    assert estimate.window_start_s >= 4.0
+    np.testing.assert_allclose(estimate.bias_rad_s, BIAS, atol=0.001)
+
+
+@pytest.mark.parametrize('change, message', [
+    (lambda s, r: (s[:30], r[:30]), 'needs data until'),
+    (lambda s, r: (s[::40], r[::40]), 'samples, at least'),
+    (lambda s, r: (np.delete(s, range(300, 400)), np.delete(r, range(300, 400), axis=0)),
+     'gap of 0.505 s'),
+    (lambda s, r: (s, r + np.outer(s > 2.5, [0, 0, 0.01])), 'z mean changed'),
+    (lambda s, r: (s, r + np.outer(np.sin(40 * s), [0.1, 0, 0])), 'x spread'),
+])
+def test_bad_windows_are_refused_with_the_reason(change, message):
+    stamps, rates = change(*_static())
+    with pytest.raises(CalibrationError, match=message):
+        estimate_gyro_bias(stamps, rates)
+
+
+def test_speed_inside_the_window_refuses_it():
+    stamps, rates = _static()
+    speeds = np.where(stamps > 3.2, 0.2, 0.0)
+    with pytest.raises(CalibrationError, match=r'moved: speed 0.2.* at 3.2'):
+        estimate_gyro_bias(stamps, rates, speed_stamp_s=stamps, speed_m_s=speeds)
+    estimate_gyro_bias(stamps, rates, CalibrationConfig(window_length_s=3.0),
+                       speed_stamp_s=stamps, speed_m_s=speeds)
+
+
+def test_yaw_only_gyro_reports_only_z():
+    stamps, rates = _static()
+    estimate = estimate_gyro_bias(stamps, rates[:, 2])
+    assert estimate.bias_rad_s[0] == 0.0 and estimate.bias_rad_s[1] == 0.0
+    assert estimate.bias_rad_s[2] == pytest.approx(BIAS[2], abs=0.001)
+
+
+def test_streaming_calibrator_refuses_motion_then_accepts_a_still_window():
+    stamps, rates = _static(duration_s=12.0)
+    calibrator = StaticWindowCalibrator()
+    refused, accepted = [], None
+    for stamp, rate in zip(stamps, rates):
+        calibrator.add_speed(stamp, 0.3 if stamp < 1.0 else 0.0)
+        try:
+            accepted = calibrator.add_imu(stamp, tuple(rate)) or accepted
+        except CalibrationError as err:
+            refused.append((stamp, str(err)))
+    assert len(refused) == 1 and 'moved' in refused[0][1]
+    assert accepted is not None and accepted.window_start_s > 5.0
+    assert calibrator.refusals == 1
+    np.testing.assert_allclose(accepted.bias_rad_s, BIAS, atol=0.001)
+
+
+def _load_2016(shared_data):
+    imu = scipy.io.loadmat(shared_data('2016_project1/IMU_dataC.mat'), squeeze_me=True,
+                           struct_as_record=False)['IMU']
+    speed = scipy.io.loadmat(shared_data('2016_project1/Speed_dataC.mat'), squeeze_me=True,
+                             struct_as_record=False)['Vel']
+    stamps = (imu.times.astype(np.int64) - int(imu.times[0])) * 1e-4
+    # Rows 4-6 are the roll, pitch and yaw rates, rad/s; +row 6 is counter-clockwise yaw.
+    return stamps, imu.DATAf[3:6].T.astype(np.float64), speed.speeds.astype(np.float64)
+
+
+def test_real_2016_log_first_five_seconds(shared_data):
+    stamps, rates, speeds = _load_2016(shared_data)
+    estimate = estimate_gyro_bias(stamps, rates, speed_stamp_s=stamps, speed_m_s=speeds)
+    bias_deg_s = np.rad2deg(estimate.bias_rad_s)
+    print('2016 log, first 5 s: bias x y z = %.4f %.4f %.4f deg/s, sigma = %s deg/s' % (
+        *bias_deg_s, np.round(np.rad2deg(estimate.sigma_rad_s), 4)))
+    assert bias_deg_s[2] == pytest.approx(-0.9748, abs=0.001)
+    assert np.rad2deg(estimate.sigma_rad_s[2]) == pytest.approx(0.234, abs=0.01)
+
+
+def test_real_2016_log_window_with_start_of_motion_is_refused(shared_data):
+    stamps, rates, speeds = _load_2016(shared_data)
+    moving_from_s = stamps[np.argmax(np.abs(speeds) > 1e-3)]
+    assert moving_from_s == pytest.approx(17.93, abs=0.01)
+    with pytest.raises(CalibrationError, match='moved'):
+        estimate_gyro_bias(stamps, rates, CalibrationConfig(window_start_s=15.0),
+                           speed_stamp_s=stamps, speed_m_s=speeds)
