@@ -1,0 +1,212 @@
+"""Pole detection in one 2-D LiDAR scan.
+
+A scan is cut into clusters of neighbouring valid beams; a range step larger than
+``DetectorConfig.range_jump_m`` or an invalid beam (inf, NaN, <= 0 or beyond
+``max_range_m``) ends a cluster. Which clusters are poles depends on the sensor:
+
+* **Intensity mode** (the sensor gives intensities): a cluster holding at least one
+  reflective return (intensity >= ``reflective_intensity``) is a pole, and only its
+  reflective returns are used, so a pole standing close to a wall (same cluster) is still
+  placed on the tape and not dragged towards the wall. The chord of the reflective part
+  must not exceed ``max_width_m`` (a reflective wall is not a pole).
+* **Width mode** (no intensities): a cluster is a pole when its apparent width lies in
+  ``[min_width_m, max_width_m]`` and it stands in front of its neighbours.
+
+Apparent width. The chord between the first and last return underestimates an object's
+width by about one beam footprint: a 10 cm pole at 6 m under 0.5 deg beams is hit by one
+beam, chord 0. Each edge return stands for half a beam spacing beyond it, so the apparent
+width is ``chord + r * dtheta`` (r = range of the cluster centroid, dtheta = beam spacing).
+
+Centre. The returns lie on the pole's front surface. A return at lateral offset u from
+the ray through the cluster centroid lies ``sqrt(R^2 - u^2)`` in front of the centre
+(R = ``pole_radius_m``), so the centroid is pushed back along its ray by the mean of that
+depth. For a single central return this is exactly R, as the course states ("about 5 cm
+behind the mean of its returns"); for a densely sampled pole it is pi/4 R, which removes
+the 1 cm bias a plain push by R would leave.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gyro_ekf.core.config import DetectorConfig
+from gyro_ekf.core.errors import CoreError
+from gyro_ekf.core.types import FloatArray
+
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+
+@dataclass(frozen=True, slots=True)
+class PoleDetections:
+    """Poles found in one scan, in beam order.
+
+    Attributes:
+        points_sensor_m: pole centres in the sensor frame (x forward, y left), shape (k, 2), m.
+        widths_m: apparent width (chord + one beam footprint) of the pole's returns,
+            shape (k,), m.
+        beam_counts: returns used for each pole, shape (k,).
+        first_beams: index of the first beam of each pole's cluster, shape (k,).
+        last_beams: index of the last beam of each pole's cluster, shape (k,).
+        touches_edge: the cluster includes the first or last beam of the scan, so the
+            pole may be cut off (its centre is then less certain), shape (k,).
+        cluster_count: clusters of valid beams in the scan (poles and everything else).
+        used_intensities: True in intensity mode, False in width mode.
+    """
+
+    points_sensor_m: FloatArray
+    widths_m: FloatArray
+    beam_counts: IntArray
+    first_beams: IntArray
+    last_beams: IntArray
+    touches_edge: BoolArray
+    cluster_count: int
+    used_intensities: bool
+
+    def __len__(self) -> int:
+        return int(self.points_sensor_m.shape[0])
+
+    @property
+    def ranges_m(self) -> FloatArray:
+        """Range of each pole centre, shape (k,), m."""
+        return np.hypot(self.points_sensor_m[:, 0], self.points_sensor_m[:, 1])
+
+    @property
+    def bearings_rad(self) -> FloatArray:
+        """Bearing of each pole centre (0 = forward, counter-clockwise), shape (k,), rad."""
+        return np.arctan2(self.points_sensor_m[:, 1], self.points_sensor_m[:, 0])
+
+
+def _empty(cluster_count: int, used_intensities: bool) -> PoleDetections:
+    return PoleDetections(
+        points_sensor_m=np.zeros((0, 2)), widths_m=np.zeros(0),
+        beam_counts=np.zeros(0, dtype=np.int64), first_beams=np.zeros(0, dtype=np.int64),
+        last_beams=np.zeros(0, dtype=np.int64), touches_edge=np.zeros(0, dtype=bool),
+        cluster_count=cluster_count, used_intensities=used_intensities)
+
+
+def detect_poles(ranges_m: FloatArray, angles_rad: FloatArray,
+                 intensities: FloatArray | None, config: DetectorConfig | None = None, *,
+                 require_foreground: bool = True) -> PoleDetections:
+    """Find poles in one scan.
+
+    Args:
+        ranges_m: range of every beam, shape (b,), m; inf, NaN, <= 0 or beyond
+            ``config.max_range_m`` mean no return.
+        angles_rad: bearing of every beam, shape (b,), rad, 0 = forward, counter-clockwise,
+            evenly spaced in beam order.
+        intensities: intensity of every beam, shape (b,), or None when the sensor gives
+            none (then poles are found by width).
+        config: detector settings; defaults when None.
+        require_foreground: width mode only: refuse a cluster whose neighbour beam on
+            either side is valid and closer (a cut-off object, or one beam of a wall seen
+            at a grazing angle, whose beams all split at range jumps). Scan edges and
+            missing returns count as background.
+
+    Returns:
+        The poles, in beam order.
+
+    Raises:
+        CoreError: the arrays do not have matching 1-D shapes.
+    """
+    if config is None:
+        config = DetectorConfig()
+    ranges = np.asarray(ranges_m, dtype=np.float64)
+    angles = np.asarray(angles_rad, dtype=np.float64)
+    use_intensity = intensities is not None
+    if ranges.ndim != 1 or angles.shape != ranges.shape:
+        raise CoreError(f'detect_poles: ranges {ranges.shape} and angles {angles.shape} must '
+                        'be 1-D arrays of the same length')
+    if use_intensity:
+        inten = np.asarray(intensities, dtype=np.float64)
+        if inten.shape != ranges.shape:
+            raise CoreError(f'detect_poles: intensities {inten.shape} do not match ranges '
+                            f'{ranges.shape}')
+    beams = ranges.shape[0]
+    with np.errstate(invalid='ignore'):
+        valid = np.isfinite(ranges) & (ranges > 0.0) & (ranges <= config.max_range_m)
+    idx = np.flatnonzero(valid)
+    n = idx.size
+    if n == 0:
+        return _empty(0, use_intensity)
+
+    r = ranges[idx]
+    a = angles[idx]
+    # A new cluster starts at the first valid beam, after any invalid beam and at a jump.
+    new = np.empty(n, dtype=bool)
+    new[0] = True
+    new[1:] = (np.diff(idx) != 1) | (np.abs(np.diff(r)) > config.range_jump_m)
+    starts = np.flatnonzero(new)
+    ends = np.append(starts[1:], n) - 1
+    cluster_count = int(starts.size)
+    cluster_of = np.cumsum(new) - 1
+
+    x = r * np.cos(a)
+    y = r * np.sin(a)
+    if use_intensity:
+        used = inten[idx] >= config.reflective_intensity
+    else:
+        used = np.ones(n, dtype=bool)
+    w = used.astype(np.float64)
+    counts = np.add.reduceat(w, starts)
+    sum_x = np.add.reduceat(x * w, starts)
+    sum_y = np.add.reduceat(y * w, starts)
+    pos = np.arange(n)
+    first_used = np.minimum.reduceat(np.where(used, pos, n), starts)
+    last_used = np.maximum.reduceat(np.where(used, pos, -1), starts)
+
+    keep = counts > 0
+    if not np.any(keep):
+        return _empty(cluster_count, use_intensity)
+    # Clusters without used returns get dummy indices; they are dropped below.
+    first_used = np.where(keep, first_used, starts)
+    last_used = np.where(keep, last_used, starts)
+    safe_counts = np.maximum(counts, 1.0)
+    mean_x = sum_x / safe_counts
+    mean_y = sum_y / safe_counts
+    mean_r = np.hypot(mean_x, mean_y)
+    chord = np.hypot(x[last_used] - x[first_used], y[last_used] - y[first_used])
+    spacing = float(np.abs(angles[-1] - angles[0]) / (beams - 1)) if beams > 1 else 0.0
+    width = chord + mean_r * spacing
+
+    if use_intensity:
+        keep &= chord <= config.max_width_m
+    else:
+        keep &= (width >= config.min_width_m) & (width <= config.max_width_m)
+        if require_foreground:
+            first_beam = idx[starts]
+            last_beam = idx[ends]
+            left = first_beam - 1
+            right = last_beam + 1
+            left_r = ranges[np.maximum(left, 0)]
+            right_r = ranges[np.minimum(right, beams - 1)]
+            # valid[...] covers inf/NaN/out-of-range neighbours; a valid neighbour in
+            # another cluster differs by more than range_jump_m, so '<' means in front.
+            left_closer = (left >= 0) & valid[np.maximum(left, 0)] & (left_r < r[starts])
+            right_closer = (right < beams) & valid[np.minimum(right, beams - 1)] & (
+                right_r < r[ends])
+            keep &= ~(left_closer | right_closer)
+    sel = np.flatnonzero(keep)
+    if sel.size == 0:
+        return _empty(cluster_count, use_intensity)
+
+    # Push each centroid back along its ray by the mean depth of the pole centre behind
+    # the returns, sqrt(R^2 - u^2), u = lateral offset of a return from that ray.
+    ux = mean_x / np.maximum(mean_r, 1e-12)
+    uy = mean_y / np.maximum(mean_r, 1e-12)
+    lateral = x * uy[cluster_of] - y * ux[cluster_of]
+    radius = config.pole_radius_m
+    depth = np.sqrt(np.maximum(radius * radius - lateral * lateral, 0.0)) * w
+    push = np.add.reduceat(depth, starts) / safe_counts
+    centre = np.column_stack([mean_x + push * ux, mean_y + push * uy])[sel]
+
+    first_beams = idx[starts[sel]].astype(np.int64)
+    last_beams = idx[ends[sel]].astype(np.int64)
+    return PoleDetections(
+        points_sensor_m=centre, widths_m=width[sel], beam_counts=counts[sel].astype(np.int64),
+        first_beams=first_beams, last_beams=last_beams,
+        touches_edge=(first_beams == 0) | (last_beams == beams - 1),
+        cluster_count=cluster_count, used_intensities=use_intensity)

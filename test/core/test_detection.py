@@ -1,0 +1,179 @@
+"""Pole detection on synthetic scans ray-cast against one pole and a wall."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gyro_ekf.core.config import DetectorConfig
+from gyro_ekf.core.detection import PoleDetections, detect_poles
+from gyro_ekf.core.errors import CoreError
+
+INCREMENT = math.radians(0.5)
+ANGLES = -math.pi / 2 + INCREMENT * np.arange(361)
+RADIUS = 0.05
+
+
+def _cast(poles, wall_x=None, angles=ANGLES):
+    """Ranges and intensities of a scan seeing circular poles and a wall x = wall_x."""
+    directions = np.column_stack([np.cos(angles), np.sin(angles)])
+    ranges = np.full(angles.shape, np.inf)
+    intensities = np.zeros(angles.shape)
+    for cx, cy in poles:
+        along = directions @ np.array([cx, cy])
+        miss2 = cx * cx + cy * cy - along * along
+        hit = (miss2 <= RADIUS ** 2) & (along > 0)
+        r = np.where(hit, along - np.sqrt(np.maximum(RADIUS ** 2 - miss2, 0.0)), np.inf)
+        closer = r < ranges
+        ranges = np.where(closer, r, ranges)
+        intensities = np.where(closer, 1.0, intensities)
+    if wall_x is not None:
+        with np.errstate(divide='ignore'):
+            r = np.where(directions[:, 0] > 1e-9, wall_x / directions[:, 0], np.inf)
+        closer = r < ranges
+        ranges = np.where(closer, r, ranges)
+        intensities = np.where(closer, 0.0, intensities)
+    return ranges, intensities
+
+
+def _polar(range_m, bearing_rad):
+    return np.array([range_m * math.cos(bearing_rad), range_m * math.sin(bearing_rad)])
+
+
+@pytest.mark.parametrize('use_intensity', [True, False])
+@pytest.mark.parametrize('range_m', [1.5, 3.0, 5.0, 8.0])
+def test_pole_on_a_beam_is_found_within_millimetres(range_m, use_intensity):
+    # Centred on beam 200, so the beams sample the pole symmetrically.
+    centre = _polar(range_m, ANGLES[200])
+    ranges, intensities = _cast([centre], wall_x=12.0)
+    found = detect_poles(ranges, ANGLES, intensities if use_intensity else None,
+                         DetectorConfig())
+    assert len(found) == 1
+    assert found.used_intensities is use_intensity
+    np.testing.assert_allclose(found.points_sensor_m[0], centre, atol=0.003)
+    assert found.ranges_m[0] == pytest.approx(range_m, abs=0.003)
+    assert found.bearings_rad[0] == pytest.approx(ANGLES[200], abs=1e-3)
+
+
+def test_pole_anywhere_is_found_within_beam_quantisation():
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        range_m = rng.uniform(1.0, 10.0)
+        centre = _polar(range_m, rng.uniform(-1.4, 1.4))
+        ranges, intensities = _cast([centre], wall_x=12.0)
+        for values in (intensities, None):
+            found = detect_poles(ranges, ANGLES, values, DetectorConfig())
+            assert len(found) == 1
+            # Lateral error is bounded by half a beam spacing at that range.
+            error = np.linalg.norm(found.points_sensor_m[0] - centre)
+            assert error < 0.005 + 0.5 * INCREMENT * range_m
+
+
+def test_single_beam_pole_at_long_range_counts_in_width_mode():
+    centre = _polar(9.0, ANGLES[100] + 0.1 * INCREMENT)
+    ranges, _ = _cast([centre], wall_x=14.0)
+    assert np.isfinite(ranges).sum() > 0
+    found = detect_poles(ranges, ANGLES, None, DetectorConfig())
+    assert len(found) == 1
+    assert found.beam_counts[0] <= 2
+    assert DetectorConfig().min_width_m <= found.widths_m[0] <= DetectorConfig().max_width_m
+
+
+def test_wall_is_not_a_pole():
+    ranges, intensities = _cast([], wall_x=3.0)
+    for values in (intensities, None):
+        found = detect_poles(ranges, ANGLES, values, DetectorConfig())
+        assert len(found) == 0
+        assert found.cluster_count >= 1
+
+
+def test_grazing_wall_beams_are_not_poles_in_width_mode():
+    # A wall along the left side: far beams split into single-beam clusters at range jumps,
+    # each narrow enough to pass the width test, but each has a closer neighbour.
+    angles = ANGLES
+    directions = np.column_stack([np.cos(angles), np.sin(angles)])
+    with np.errstate(divide='ignore'):
+        ranges = np.where(directions[:, 1] > 1e-9, 1.0 / directions[:, 1], np.inf)
+    ranges[ranges > 40.0] = np.inf
+    found = detect_poles(ranges, angles, None, DetectorConfig())
+    assert len(found) == 0
+    loose = detect_poles(ranges, angles, None, DetectorConfig(), require_foreground=False)
+    assert len(loose) > 0
+
+
+def test_reflective_wall_is_refused_by_its_chord():
+    ranges, _ = _cast([], wall_x=3.0)
+    ranges[np.abs(ANGLES) > math.radians(30.0)] = np.inf
+    all_reflective = np.ones_like(ranges)
+    found = detect_poles(ranges, ANGLES, all_reflective, DetectorConfig())
+    assert len(found) == 0 and found.cluster_count == 1
+
+
+def test_intensity_mode_uses_only_reflective_returns():
+    # A pole touching the wall joins the wall's cluster; only its reflective returns count.
+    centre = _polar(2.95, ANGLES[180])
+    ranges, intensities = _cast([centre], wall_x=3.0)
+    found = detect_poles(ranges, ANGLES, intensities, DetectorConfig())
+    assert len(found) == 1
+    np.testing.assert_allclose(found.points_sensor_m[0], centre, atol=0.003)
+    assert found.last_beams[0] - found.first_beams[0] > 50  # the wall's cluster
+    # Without intensities the same cluster is as wide as the wall: no pole.
+    assert len(detect_poles(ranges, ANGLES, None, DetectorConfig())) == 0
+
+
+def test_non_reflective_narrow_object_depends_on_mode():
+    centre = _polar(4.0, ANGLES[150])
+    ranges, _ = _cast([centre], wall_x=12.0)
+    zeros = np.zeros_like(ranges)
+    assert len(detect_poles(ranges, ANGLES, zeros, DetectorConfig())) == 0
+    assert len(detect_poles(ranges, ANGLES, None, DetectorConfig())) == 1
+
+
+def test_two_poles_and_edge_clusters():
+    poles = [_polar(2.0, ANGLES[0]), _polar(3.0, ANGLES[180]), _polar(2.5, ANGLES[360])]
+    ranges, intensities = _cast(poles)
+    found = detect_poles(ranges, ANGLES, intensities, DetectorConfig())
+    assert len(found) == 3
+    np.testing.assert_array_equal(found.touches_edge, [True, False, True])
+    assert found.first_beams[0] == 0 and found.last_beams[2] == 360
+    # The middle pole is exact; the cut-off ones lie within a pole radius.
+    np.testing.assert_allclose(found.points_sensor_m[1], poles[1], atol=0.003)
+    for i in (0, 2):
+        assert np.linalg.norm(found.points_sensor_m[i] - poles[i]) < RADIUS
+
+
+def test_invalid_beams_split_clusters():
+    ranges = np.full(361, 5.0)
+    ranges[100:108] = 2.0           # an object in front
+    ranges[104] = np.nan            # split in two by a NaN: 4 + 3 beams, both pole-wide
+    ranges[200:203] = 60.0          # beyond max_range_m
+    found = detect_poles(ranges, ANGLES, None, DetectorConfig())
+    assert found.cluster_count == 5
+    assert len(found) == 2
+
+
+def test_empty_and_all_invalid_scans():
+    for ranges in (np.full(361, np.inf), np.full(361, np.nan), np.zeros(361)):
+        found = detect_poles(ranges, ANGLES, np.zeros(361), DetectorConfig())
+        assert isinstance(found, PoleDetections)
+        assert len(found) == 0 and found.cluster_count == 0
+        assert found.points_sensor_m.shape == (0, 2)
+    found = detect_poles(np.zeros(0), np.zeros(0), None, DetectorConfig())
+    assert len(found) == 0
+
+
+def test_float32_input_and_default_config():
+    centre = _polar(3.0, ANGLES[200])
+    ranges, intensities = _cast([centre], wall_x=12.0)
+    found = detect_poles(ranges.astype(np.float32), ANGLES, intensities.astype(np.float32))
+    assert len(found) == 1
+    np.testing.assert_allclose(found.points_sensor_m[0], centre, atol=0.003)
+
+
+def test_shape_mismatch_is_refused():
+    with pytest.raises(CoreError, match='same length'):
+        detect_poles(np.ones(10), np.ones(9), None)
+    with pytest.raises(CoreError, match='intensities'):
+        detect_poles(np.ones(10), np.ones(10), np.ones(3))
