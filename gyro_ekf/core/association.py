@@ -1,0 +1,210 @@
+"""Nearest-neighbour data association of pole detections to a known landmark map.
+
+For detection i with observation z_i = [range m, bearing rad] (sensor frame, ROS
+convention, see ``models.points_to_range_bearing``) and landmark j::
+
+    h_j = observe(x, l_j, mount)               expected observation, (2,)
+    H_j = observation_jacobian(x, l_j, mount)  (2, 4)
+    S_j = H_j P H_j^T + R                      innovation covariance, (2, 2)
+    y_ij = z_i - h_j, bearing wrapped          innovation, (2,)
+    d2_ij = y_ij^T S_j^-1 y_ij                 squared Mahalanobis distance
+
+Landmark j lies inside detection i's gate when d2_ij <= g, where g is the chi-square
+quantile with 2 degrees of freedom at the gate probability p; for 2 dof it has the closed
+form g = -2 ln(1 - p) (9.2103 at p = 0.99), so no scipy is needed.
+
+Outcomes, per detection:
+
+* UNMATCHED: no landmark inside the gate.
+* AMBIGUOUS: two or more landmarks inside the gate; a wrong pairing would corrupt the
+  filter more than a skipped one helps, so it is refused.
+* DUPLICATE: exactly one landmark inside the gate, but that landmark is also inside the
+  gate of another detection of the same scan (a pole seen twice, or a clutter return next
+  to it); all such detections are refused. AMBIGUOUS takes precedence over DUPLICATE.
+* MATCHED: otherwise; paired with its one gated landmark.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gyro_ekf.core.angles import wrap_angle
+from gyro_ekf.core.errors import CoreError
+from gyro_ekf.core.models import observation_jacobian, observe
+from gyro_ekf.core.types import FloatArray, LidarMount
+
+_NO_MOUNT = LidarMount()
+
+
+class AssociationOutcome(enum.IntEnum):
+    """What happened to one detection."""
+
+    MATCHED = 0
+    UNMATCHED = 1
+    AMBIGUOUS = 2
+    DUPLICATE = 3
+
+
+@dataclass(frozen=True, slots=True)
+class Association:
+    """The association of one detection.
+
+    Attributes:
+        detection_index: row of the detection in the z given to ``associate``.
+        landmark_index: row of the matched landmark, or -1 unless MATCHED.
+        outcome: what happened.
+        mahalanobis_sq: squared Mahalanobis distance to the nearest landmark (the NIS of
+            the pair when MATCHED); inf when the map is empty.
+    """
+
+    detection_index: int
+    landmark_index: int
+    outcome: AssociationOutcome
+    mahalanobis_sq: float
+
+
+@dataclass(frozen=True, slots=True)
+class AssociationResult:
+    """Associations of all detections of one scan.
+
+    Attributes:
+        associations: one per detection, in detection order.
+        gate_threshold: squared Mahalanobis distance of the gate, -2 ln(1 - p).
+        mahalanobis_sq: every detection against every landmark, shape (n, k).
+    """
+
+    associations: tuple[Association, ...]
+    gate_threshold: float
+    mahalanobis_sq: FloatArray
+
+    def __len__(self) -> int:
+        return len(self.associations)
+
+    def count(self, outcome: AssociationOutcome) -> int:
+        """Number of detections with the given outcome."""
+        return sum(1 for item in self.associations if item.outcome is outcome)
+
+    @property
+    def matched_count(self) -> int:
+        """Detections paired with a landmark."""
+        return self.count(AssociationOutcome.MATCHED)
+
+    @property
+    def unmatched_count(self) -> int:
+        """Detections with no landmark inside the gate."""
+        return self.count(AssociationOutcome.UNMATCHED)
+
+    @property
+    def ambiguous_count(self) -> int:
+        """Detections with two or more landmarks inside the gate."""
+        return self.count(AssociationOutcome.AMBIGUOUS)
+
+    @property
+    def duplicate_count(self) -> int:
+        """Detections refused because another detection gated the same landmark."""
+        return self.count(AssociationOutcome.DUPLICATE)
+
+    def matched_pairs(self) -> NDArray[np.int64]:
+        """(detection index, landmark index) of every MATCHED detection, shape (m, 2)."""
+        pairs = [(a.detection_index, a.landmark_index) for a in self.associations
+                 if a.outcome is AssociationOutcome.MATCHED]
+        return np.array(pairs, dtype=np.int64).reshape(-1, 2)
+
+
+def gate_threshold(gate_probability: float) -> float:
+    """Chi-square quantile with 2 dof: -2 ln(1 - p).
+
+    Raises:
+        CoreError: p is not inside (0, 1).
+    """
+    if not 0.0 < gate_probability < 1.0:
+        raise CoreError(f'gate probability {gate_probability} must lie strictly between 0 '
+                        'and 1')
+    return -2.0 * math.log1p(-gate_probability)
+
+
+def mahalanobis_sq(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
+                   landmarks_xy_m: FloatArray, mount: LidarMount = _NO_MOUNT) -> FloatArray:
+    """Squared Mahalanobis distance of every detection to every landmark.
+
+    Args:
+        z: observations, shape (n, 2): range m, bearing rad (ROS convention).
+        state: platform state [x m, y m, yaw rad, bias rad/s], shape (4,).
+        P: state covariance, shape (4, 4).
+        R: observation noise covariance, shape (2, 2), [m^2, rad^2].
+        landmarks_xy_m: landmark positions in the map frame, shape (k, 2), m.
+        mount: the LiDAR's pose on the platform.
+
+    Returns:
+        d2, shape (n, k).
+    """
+    z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
+    landmarks = np.asarray(landmarks_xy_m, dtype=np.float64).reshape(-1, 2)
+    if landmarks.shape[0] == 0 or z.shape[0] == 0:
+        return np.zeros((z.shape[0], landmarks.shape[0]))
+    h = observe(state, landmarks, mount)                       # (k, 2)
+    H = observation_jacobian(state, landmarks, mount)          # (k, 2, 4)
+    S = H @ np.asarray(P, dtype=np.float64) @ np.swapaxes(H, 1, 2) + R  # (k, 2, 2)
+    # Closed-form 2x2 inverse, vectorised over landmarks.
+    a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
+    det = a * d - b * c
+    if np.any(det <= 0.0):
+        raise CoreError('mahalanobis_sq: innovation covariance is not positive definite; '
+                        'check P and R')
+    y0 = z[:, None, 0] - h[None, :, 0]                        # (n, k)
+    y1 = wrap_angle(z[:, None, 1] - h[None, :, 1])            # (n, k)
+    return (d * y0 * y0 - (b + c) * y0 * y1 + a * y1 * y1) / det
+
+
+def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
+              landmarks_xy_m: FloatArray, mount: LidarMount = _NO_MOUNT,
+              gate_probability: float = 0.99) -> AssociationResult:
+    """Associate the detections of one scan with the map.
+
+    Args:
+        z: observations, shape (n, 2): range m, bearing rad (ROS convention, 0 = forward).
+        state: platform state [x m, y m, yaw rad, bias rad/s], shape (4,).
+        P: state covariance, shape (4, 4).
+        R: observation noise covariance, shape (2, 2), [m^2, rad^2].
+        landmarks_xy_m: landmark positions in the map frame, shape (k, 2), m.
+        mount: the LiDAR's pose on the platform.
+        gate_probability: probability mass of the chi-square (2 dof) gate.
+
+    Returns:
+        One association per detection, with counts.
+
+    Raises:
+        CoreError: gate probability outside (0, 1), or S not positive definite.
+    """
+    threshold = gate_threshold(gate_probability)
+    z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
+    d2 = mahalanobis_sq(z, state, P, R, landmarks_xy_m, mount)
+    n, k = d2.shape
+    if k == 0:
+        return AssociationResult(
+            associations=tuple(Association(i, -1, AssociationOutcome.UNMATCHED, math.inf)
+                               for i in range(n)),
+            gate_threshold=threshold, mahalanobis_sq=d2)
+    inside = d2 <= threshold                                   # (n, k)
+    gated_landmarks = inside.sum(axis=1)                       # per detection
+    gating_detections = inside.sum(axis=0)                     # per landmark
+    nearest = np.argmin(d2, axis=1)
+    nearest_d2 = d2[np.arange(n), nearest]
+    outcome = np.full(n, AssociationOutcome.UNMATCHED, dtype=np.int64)
+    single = gated_landmarks == 1
+    contested = single & (gating_detections[nearest] > 1)
+    outcome[single] = AssociationOutcome.MATCHED
+    outcome[contested] = AssociationOutcome.DUPLICATE
+    outcome[gated_landmarks > 1] = AssociationOutcome.AMBIGUOUS
+    landmark = np.where(outcome == AssociationOutcome.MATCHED, nearest, -1)
+    associations = tuple(
+        Association(i, int(landmark[i]), AssociationOutcome(int(outcome[i])),
+                    float(nearest_d2[i]))
+        for i in range(n))
+    return AssociationResult(associations=associations, gate_threshold=threshold,
+                             mahalanobis_sq=d2)

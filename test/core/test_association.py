@@ -1,0 +1,149 @@
+"""Chi-square gated nearest-neighbour association with ambiguity and duplicate rejection."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gyro_ekf.core.association import (AssociationOutcome, associate, gate_threshold,
+                                       mahalanobis_sq)
+from gyro_ekf.core.errors import CoreError
+from gyro_ekf.core.models import observe
+from gyro_ekf.core.types import LidarMount
+
+MOUNT = LidarMount(0.46, 0.0, 0.0)
+STATE = np.array([1.0, -2.0, 0.7, 0.01])
+P = np.diag([0.05 ** 2, 0.05 ** 2, math.radians(1.0) ** 2, 1e-6])
+R = np.diag([0.1 ** 2, math.radians(1.0) ** 2])
+LANDMARKS = np.array([[5.0, 2.0], [2.0, 4.0], [-1.0, 6.0], [8.0, -3.0]])
+
+
+def _z(landmarks):
+    return observe(STATE, np.asarray(landmarks, dtype=float), MOUNT)
+
+
+def test_gate_threshold_closed_form():
+    assert gate_threshold(0.99) == pytest.approx(9.2103, abs=1e-4)
+    assert gate_threshold(0.95) == pytest.approx(5.9915, abs=1e-4)
+    for bad in (0.0, 1.0, -0.1, 1.5):
+        with pytest.raises(CoreError, match='gate probability'):
+            gate_threshold(bad)
+
+
+def test_exact_observations_all_match():
+    z = _z(LANDMARKS[[2, 0, 3]])
+    result = associate(z, STATE, P, R, LANDMARKS, MOUNT, 0.99)
+    assert result.matched_count == 3 and len(result) == 3
+    assert [a.landmark_index for a in result.associations] == [2, 0, 3]
+    assert all(a.mahalanobis_sq == pytest.approx(0.0, abs=1e-12) for a in result.associations)
+    np.testing.assert_array_equal(result.matched_pairs(), [[0, 2], [1, 0], [2, 3]])
+    assert result.gate_threshold == pytest.approx(-2.0 * math.log(0.01))
+
+
+def test_mahalanobis_matches_a_direct_computation():
+    rng = np.random.default_rng(3)
+    z = _z(LANDMARKS) + rng.normal(0.0, [0.1, 0.02], size=(4, 2))
+    d2 = mahalanobis_sq(z, STATE, P, R, LANDMARKS, MOUNT)
+    eps = 1e-6
+    for i in range(4):
+        for j in range(4):
+            # H by finite differences of observe, S and the innovation by hand.
+            H = np.zeros((2, 4))
+            for col in range(4):
+                step = np.zeros(4)
+                step[col] = eps
+                diff = _z_at(STATE + step, LANDMARKS[j]) - _z_at(STATE - step, LANDMARKS[j])
+                H[:, col] = diff / (2 * eps)
+            S = H @ P @ H.T + R
+            y = z[i] - _z_at(STATE, LANDMARKS[j])
+            y[1] = (y[1] + math.pi) % (2 * math.pi) - math.pi
+            assert d2[i, j] == pytest.approx(y @ np.linalg.solve(S, y), rel=1e-5)
+
+
+def _z_at(state, landmark):
+    return observe(state, landmark, MOUNT)
+
+
+def test_bearing_innovation_is_wrapped():
+    # A landmark straight behind the sensor: bearing near +-pi on either side.
+    state = np.array([0.0, 0.0, 0.0, 0.0])
+    landmark = np.array([[-5.0, 0.0]])
+    z = np.array([[5.46, math.pi - 1e-3]])
+    h = observe(state, landmark, MOUNT)
+    assert h[0, 1] == pytest.approx(-math.pi)
+    result = associate(z, state, P, R, landmark, MOUNT)
+    assert result.associations[0].outcome is AssociationOutcome.MATCHED
+
+
+def test_outside_gate_is_unmatched():
+    z = _z(LANDMARKS[[0]]) + np.array([[1.5, 0.0]])     # 15 sigma in range
+    result = associate(z, STATE, P, R, LANDMARKS, MOUNT)
+    item = result.associations[0]
+    assert item.outcome is AssociationOutcome.UNMATCHED
+    assert item.landmark_index == -1
+    assert item.mahalanobis_sq > result.gate_threshold
+    assert result.unmatched_count == 1 and result.matched_count == 0
+
+
+def test_gate_edge_follows_the_probability():
+    # Pure range offset: d2 = dr^2 / S_rr, so choose dr to land between two gates.
+    S_rr = 1.0 / mahalanobis_sq(_z(LANDMARKS[[0]]) + [[1.0, 0.0]], STATE, P, R,
+                                LANDMARKS[[0]], MOUNT)[0, 0]
+    dr = math.sqrt(8.0 * S_rr)                        # d2 = 8: inside 0.99, outside 0.95
+    z = _z(LANDMARKS[[0]]) + [[dr, 0.0]]
+    assert associate(z, STATE, P, R, LANDMARKS[[0]], MOUNT, 0.99).matched_count == 1
+    assert associate(z, STATE, P, R, LANDMARKS[[0]], MOUNT, 0.95).unmatched_count == 1
+
+
+def test_two_landmarks_in_gate_is_ambiguous():
+    close_pair = np.array([[5.0, 2.0], [5.0, 2.15], [-1.0, 6.0]])
+    z = _z([[5.0, 2.075], [-1.0, 6.0]])
+    result = associate(z, STATE, P, R, close_pair, MOUNT)
+    assert result.associations[0].outcome is AssociationOutcome.AMBIGUOUS
+    assert result.associations[0].landmark_index == -1
+    assert result.associations[1].outcome is AssociationOutcome.MATCHED
+    assert result.associations[1].landmark_index == 2
+    assert (result.ambiguous_count, result.matched_count) == (1, 1)
+
+
+def test_two_detections_on_one_landmark_are_duplicates():
+    z = np.vstack([_z(LANDMARKS[[1]]), _z(LANDMARKS[[1]]) + [[0.05, 0.005]],
+                   _z(LANDMARKS[[3]])])
+    result = associate(z, STATE, P, R, LANDMARKS, MOUNT)
+    outcomes = [a.outcome for a in result.associations]
+    assert outcomes == [AssociationOutcome.DUPLICATE, AssociationOutcome.DUPLICATE,
+                        AssociationOutcome.MATCHED]
+    assert result.duplicate_count == 2 and result.matched_count == 1
+    assert result.matched_pairs().tolist() == [[2, 3]]
+
+
+def test_counts_add_up_on_a_mixed_scan():
+    landmarks = np.vstack([LANDMARKS, [[5.0, 2.15]]])   # 0 and 4 are close together
+    z = np.vstack([
+        _z([[5.0, 2.075]]),                  # between 0 and 4: ambiguous
+        _z(landmarks[[1]]),                  # matched
+        _z(landmarks[[3]]),                  # duplicate (with the next)
+        _z(landmarks[[3]]) + [[0.03, 0.0]],  # duplicate
+        _z([[20.0, 20.0]]),                  # unmatched
+    ])
+    result = associate(z, STATE, P, R, landmarks, MOUNT)
+    counts = {o: result.count(o) for o in AssociationOutcome}
+    assert counts == {AssociationOutcome.MATCHED: 1, AssociationOutcome.UNMATCHED: 1,
+                      AssociationOutcome.AMBIGUOUS: 1, AssociationOutcome.DUPLICATE: 2}
+    assert result.mahalanobis_sq.shape == (5, 5)
+
+
+def test_empty_inputs():
+    result = associate(np.zeros((0, 2)), STATE, P, R, LANDMARKS, MOUNT)
+    assert len(result) == 0 and result.mahalanobis_sq.shape == (0, 4)
+    result = associate(_z(LANDMARKS[:2]), STATE, P, R, np.zeros((0, 2)), MOUNT)
+    assert result.unmatched_count == 2
+    assert all(math.isinf(a.mahalanobis_sq) for a in result.associations)
+
+
+def test_bad_covariance_is_refused():
+    with pytest.raises(CoreError, match='positive definite'):
+        associate(_z(LANDMARKS[:1]), STATE, np.zeros((4, 4)), np.zeros((2, 2)), LANDMARKS,
+                  MOUNT)
