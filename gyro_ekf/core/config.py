@@ -108,7 +108,7 @@ ConfigT = TypeVar('ConfigT', EkfConfig, CalibrationConfig, DetectorConfig)
 
 
 def config_fields(config_type: type) -> list[dataclasses.Field]:
-    """The dataclass fields of a config class, each with unit/description/bounds metadata."""
+    """Return the fields of a config class, each with unit/description/bounds metadata."""
     return list(dataclasses.fields(config_type))
 
 

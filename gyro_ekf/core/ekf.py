@@ -166,7 +166,7 @@ class GyroBiasEkf:
 
 def observe_one(state: FloatArray, landmark_xy_m: FloatArray,
                 mount: LidarMount = _NO_MOUNT) -> tuple[FloatArray, FloatArray]:
-    """h and H of one landmark in plain floats (the hot path of every update).
+    """Compute h and H of one landmark in plain floats (the hot path of every update).
 
     Same maths as models.observe and models.observation_jacobian, which the tests check.
 

@@ -111,7 +111,7 @@ class DriverStats:
         return self.nis_sum / self.updates if self.updates else math.nan
 
     def snapshot(self) -> dict[str, Any]:
-        """A plain copy for reports."""
+        """Return a plain copy for reports."""
         return {'imu': self.imu, 'speed': self.speed, 'scans': self.scans,
                 'detections': self.detections, 'outcomes': dict(self.outcomes),
                 'updates': self.updates, 'mean_nis': self.mean_nis,
@@ -183,7 +183,7 @@ class EventDriver:
         return self.estimate()
 
     def estimate(self) -> Estimate:
-        """The current estimate (state and covariance are copies)."""
+        """Return the current estimate (state and covariance are copies)."""
         rate = 0.0 if self.rate_rad_s is None else self.rate_rad_s - self.ekf.x[3]
         return Estimate(stamp_s=self.stamp_s if self.stamp_s is not None else 0.0,
                         state=self.ekf.x.copy(), covariance=self.ekf.P.copy(),

@@ -89,7 +89,7 @@ def sensor_position(state: FloatArray, mount: LidarMount = _NO_MOUNT) -> tuple[f
 
 def observe(state: FloatArray, landmark_xy_m: FloatArray, mount: LidarMount = _NO_MOUNT,
             bearing_zero_rad: float = 0.0) -> FloatArray:
-    """Expected [range m, bearing rad] of landmarks, shape (2,) for one or (k, 2) for (k, 2)."""
+    """Predict [range m, bearing rad] of landmarks: shape (2,) for one, (k, 2) for (k, 2)."""
     xl, yl = sensor_position(state, mount)
     landmarks = np.asarray(landmark_xy_m, dtype=np.float64)
     dx = landmarks[..., 0] - xl

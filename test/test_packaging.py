@@ -1,0 +1,98 @@
+"""The package builds and tests itself as an ament_python package with colcon."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+NODES = ('calibration_node', 'landmark_detector_node', 'ekf_node')
+SKIP_DIRS = {'.venv', '.git', 'build', 'install', 'log', 'results', '.ros', '__pycache__',
+             '.pytest_cache'}
+
+
+def _colcon() -> str:
+    colcon = Path(sys.executable).with_name('colcon')
+    if not colcon.exists():
+        found = shutil.which('colcon')
+        assert found, 'colcon is not installed (pip install .[test] brings it)'
+        return found
+    return str(colcon)
+
+
+@pytest.fixture(scope='module')
+def workspace(tmp_path_factory):
+    """A colcon workspace with a copy of this package, built once."""
+    root = tmp_path_factory.mktemp('ws')
+    shutil.copytree(REPO, root / 'src' / 'gyro_ekf',
+                    ignore=lambda _dir, names: [n for n in names if n in SKIP_DIRS])
+    result = subprocess.run([_colcon(), 'build', '--event-handlers', 'console_direct-'],
+                            cwd=root, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return root
+
+
+def test_colcon_build_installs_the_ros_layout(workspace):
+    prefix = workspace / 'install' / 'gyro_ekf'
+    for executable in NODES + ('gyro-ekf',):
+        path = prefix / 'lib' / 'gyro_ekf' / executable
+        assert path.is_file(), f'{path} missing: `ros2 run gyro_ekf {executable}` would fail'
+        assert path.stat().st_mode & 0o111
+    share = prefix / 'share'
+    assert (share / 'ament_index' / 'resource_index' / 'packages' / 'gyro_ekf').is_file()
+    assert (share / 'gyro_ekf' / 'package.xml').is_file()
+    assert list((share / 'gyro_ekf' / 'config').glob('*.yaml')), 'config/*.yaml not installed'
+
+
+def test_colcon_test_runs_the_package_tests(workspace):
+    result = subprocess.run(
+        [_colcon(), 'test', '--event-handlers', 'console_direct-', '--pytest-args',
+         '-q', 'test/core/test_models.py'],
+        cwd=workspace, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    summary = subprocess.run([_colcon(), 'test-result', '--all'], cwd=workspace,
+                             capture_output=True, text=True, timeout=60)
+    match = re.search(r'Summary: (\d+) tests, (\d+) errors, (\d+) failures', summary.stdout)
+    assert match, summary.stdout + summary.stderr
+    tests, errors, failures = map(int, match.groups())
+    assert tests > 10 and errors == 0 and failures == 0, summary.stdout
+
+
+def test_package_xml_declares_every_ros_dependency_the_code_imports():
+    root = ET.parse(REPO / 'package.xml').getroot()
+    assert root.get('format') == '3'
+    assert root.find('export/build_type').text == 'ament_python'
+    exec_depends = {e.text for e in root.findall('exec_depend')}
+    imported = set()
+    for source in (REPO / 'gyro_ekf').rglob('*.py'):
+        text = source.read_text()
+        imported |= set(re.findall(r'^\s*from (\w+)\.(?:msg|srv) import', text, re.M))
+        if re.search(r'^\s*(?:import|from) rclpy', text, re.M):
+            imported.add('rclpy')
+    assert imported <= exec_depends, f'missing exec_depend: {sorted(imported - exec_depends)}'
+    assert 'python3-numpy' in exec_depends
+    assert {e.text for e in root.findall('test_depend')} >= {'python3-pytest'}
+
+
+def test_setup_declares_test_extra_and_ros_script_dir():
+    setup = (REPO / 'setup.py').read_text()
+    assert "'test':" in setup and 'tests_require' not in setup
+    setup_cfg = (REPO / 'setup.cfg').read_text()
+    assert 'install_scripts=$base/lib/gyro_ekf' in setup_cfg
+    assert 'script_dir=$base/lib/gyro_ekf' in setup_cfg
+
+
+def test_core_imports_no_ros_and_no_file_io_libraries():
+    code = ('import sys, gyro_ekf.core.events, gyro_ekf.core.calibration, '
+            'gyro_ekf.core.simulator; '
+            "bad = [m for m in ('rclpy', 'rosbags', 'scipy', 'matplotlib') if m in sys.modules]; "
+            'print(bad); sys.exit(1 if bad else 0)')
+    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 0, result.stdout + result.stderr
