@@ -1,16 +1,87 @@
-"""`gyro-ekf calibrate` (placeholder until its owner lands it)."""
+"""`gyro-ekf calibrate`: offline gyro bias over the static window of a course log or a bag."""
 
 from __future__ import annotations
 
 import argparse
+import json
+from pathlib import Path
 
-HELP = 'not implemented yet'
+import numpy as np
+
+from gyro_ekf.core.calibration import estimate_gyro_bias
+from gyro_ekf.core.config import CalibrationConfig
+from gyro_ekf.core.types import BiasEstimate, Trip
+
+HELP = 'estimate the gyro bias over the static start of a course log or bag'
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add this command's arguments."""
+    parser.add_argument('source', nargs='+', type=Path,
+                        help='a bag folder, or course log .mat file(s) / folder')
+    defaults = CalibrationConfig()
+    parser.add_argument('--window-start-s', type=float, default=defaults.window_start_s,
+                        help='start of the static window after the first gyro sample, s')
+    parser.add_argument('--window-length-s', type=float, default=defaults.window_length_s,
+                        help='length of the static window, s')
+    parser.add_argument('--ignore-speed', action='store_true',
+                        help='do not use the speed stream to confirm the platform is still')
+    parser.add_argument('--json', action='store_true', help='print JSON instead of a table')
+
+
+def load_trip(sources: list[Path]) -> Trip:
+    """Read a bag folder (with metadata.yaml) or course log files into a Trip."""
+    if len(sources) == 1 and (sources[0] / 'metadata.yaml').is_file():
+        from gyro_ekf.io.bag_reader import read_trip_bag
+        return read_trip_bag(sources[0])
+    from gyro_ekf.io.matlab import load_course_log
+    return load_course_log(sources)
+
+
+def calibrate_trip(trip: Trip, config: CalibrationConfig,
+                   use_speed: bool = True) -> BiasEstimate:
+    """Run the static-window calibration on a trip's gyro (and speed) streams."""
+    speed = trip.speed if use_speed and len(trip.speed.stamp_s) else None
+    return estimate_gyro_bias(
+        trip.imu.stamp_s, trip.imu.angular_velocity_rad_s, config,
+        speed_stamp_s=None if speed is None else speed.stamp_s,
+        speed_m_s=None if speed is None else speed.speed_m_s,
+        axes_known=trip.imu.axes_known)
+
+
+def estimate_to_dict(estimate: BiasEstimate, axes_known: tuple[bool, bool, bool]) -> dict:
+    """JSON-ready view: SI values plus degrees for people."""
+    known = list(axes_known)
+    return {
+        'axes': ['x', 'y', 'z'],
+        'axes_known': known,
+        'bias_rad_s': estimate.bias_rad_s.tolist(),
+        'sigma_rad_s': estimate.sigma_rad_s.tolist(),
+        'bias_deg_s': np.rad2deg(estimate.bias_rad_s).tolist(),
+        'sigma_deg_s': np.rad2deg(estimate.sigma_rad_s).tolist(),
+        'standard_error_deg_s': np.rad2deg(estimate.bias_standard_error_rad_s).tolist(),
+        'n_samples': estimate.n_samples,
+        'window_s': [estimate.window_start_s, estimate.window_end_s],
+    }
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the command; returns the exit code."""
-    raise NotImplementedError('gyro-ekf calibrate')
+    """Calibrate and print the per-axis bias; a refused window is an error (exit 1)."""
+    trip = load_trip(args.source)
+    config = CalibrationConfig(window_start_s=args.window_start_s,
+                               window_length_s=args.window_length_s)
+    estimate = calibrate_trip(trip, config, use_speed=not args.ignore_speed)
+    report = estimate_to_dict(estimate, trip.imu.axes_known)
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    print(f'{trip.name}: static window {estimate.window_start_s:.2f}-'
+          f'{estimate.window_end_s:.2f} s, {estimate.n_samples} samples')
+    print(f'{"axis":<5}{"bias [deg/s]":>14}{"sigma [deg/s]":>15}{"std err [deg/s]":>17}')
+    for i, axis in enumerate('xyz'):
+        if not trip.imu.axes_known[i]:
+            print(f'{axis:<5}{"not measured":>14}')
+            continue
+        print(f'{axis:<5}{report["bias_deg_s"][i]:>14.4f}{report["sigma_deg_s"][i]:>15.4f}'
+              f'{report["standard_error_deg_s"][i]:>17.4f}')
+    return 0
