@@ -1,0 +1,412 @@
+"""A seeded, deterministic simulator of a course-like trip, with ground truth.
+
+The platform stands still for ``static_s`` (speed exactly 0), then drives a figure-eight
+(so it turns both ways) among reflective poles inside a walled arena with a doorway:
+
+* **Path.** In the path frame the reference point follows ``c(u) = (a sin u, b sin 2u)``
+  from the end of one lobe; ``a`` and ``b`` vary a little with the seed. The scene is
+  rotated and shifted so the trip starts at the course's pose (0, 0, pi/2).
+* **Speed.** Zero, then a quintic ramp over ``ramp_s`` to a cruise speed that is a sum of
+  three slow random sinusoids inside ``[min_speed_m_s, max_speed_m_s]``.
+* **Truth.** The speed is integrated on a fine grid (``integration_rate_hz``) into arc
+  length s(t); the pose is the curve at that arc length (a table inverts the arc length),
+  so the pose never drifts from the path, however long the trip.
+* **Inputs.** A sample stamped t_k is the mean of the true quantity over
+  [t_k, t_k + T): speed = (s(t_k + T) - s(t_k)) / T, yaw rate = (yaw(t_k + T) - yaw(t_k)) / T.
+  Zero-order-hold integration of noise-free inputs (what ``events.EventDriver`` does)
+  therefore reproduces the true heading exactly at every sample.
+* **Gyro.** Three axes, each with its own constant bias and white noise; the true x and y
+  rates are 0 (planar motion). Accelerometer (optional): specific force
+  [dv/dt, v w, g] plus white noise.
+* **Speed encoder.** The mean speed plus white noise while moving, exactly 0 at rest.
+* **LiDAR.** One planar scanner on ``LidarMount(lidar_x_m, lidar_y_m, lidar_yaw_rad)``,
+  ray-cast (vectorised over scans, beams and objects) against poles (circles, intensity
+  1.0) and wall segments (intensity 0.0); per-beam Gaussian range noise; no return (+inf)
+  beyond ``lidar_max_range_m``. A whole scan is taken at its stamp (no sweep motion).
+
+``Trip.noise`` holds the figures the simulator used: gyro (z) and speed white-noise
+sigmas, the **per-beam** range noise, and for the bearing the standard deviation of a
+uniform quantisation over one beam spacing (increment / sqrt(12)). A detected pole centre
+averages several beams, so its effective noise is usually below these per-beam figures;
+``test/core/test_simulator.py`` checks that detected poles stay within them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+# The private helper is imported on purpose: the same field metadata (unit, description,
+# bounds) as the other configs lets `info --params` and the nodes list this one too.
+from gyro_ekf.core.config import _param, DEG
+from gyro_ekf.core.errors import CoreError
+from gyro_ekf.core.types import (FloatArray, GroundTruth, ImuSeries, LandmarkMap, LidarMount,
+                                 NoiseFigures, ScanSeries, SpeedSeries, Trip)
+
+GRAVITY_M_S2 = 9.80665
+POLE_INTENSITY = 1.0
+WALL_INTENSITY = 0.0
+# Scans ray-cast per vectorised block: bounds the (scans, beams, objects) temporaries.
+_SCAN_BLOCK = 256
+# Arc-length table resolution per lap of the figure-eight (about 1 mm per entry).
+_TABLE_SIZE = 40_000
+
+
+@dataclass(frozen=True, slots=True)
+class SimulationConfig:
+    """Everything the simulator can be told; defaults resemble the real 2016 log."""
+
+    duration_s: float = _param(120.0, 's', 'Trip length.', 1.0, 1e5)
+    static_s: float = _param(8.0, 's', 'Static window at the start (speed exactly 0).',
+                             0.0, 1e5)
+    ramp_s: float = _param(3.0, 's', 'Time to reach cruise speed after the static window.',
+                           0.1, 60.0)
+    min_speed_m_s: float = _param(0.3, 'm/s', 'Lowest cruise speed.', 0.0, 5.0)
+    max_speed_m_s: float = _param(1.0, 'm/s', 'Highest cruise speed.', 0.01, 5.0)
+    path_half_length_m: float = _param(
+        6.0, 'm', 'Nominal half length a of the figure-eight (varies +-10 % by seed).',
+        2.0, 100.0)
+    path_half_width_m: float = _param(
+        2.5, 'm', 'Nominal half width b of the figure-eight (varies +-10 % by seed).',
+        1.0, 100.0)
+    wall_margin_m: float = _param(3.5, 'm', 'Distance from the path extent to the walls.',
+                                  1.0, 100.0)
+    doorway_m: float = _param(1.5, 'm', 'Width of the gap in one long wall (inf returns).',
+                              0.0, 20.0)
+    pole_count: int = _param(14, '1', 'Poles (landmarks) in the arena.', 0, 200)
+    pole_radius_m: float = _param(0.05, 'm', 'Pole radius.', 0.005, 1.0)
+    pole_clearance_m: float = _param(
+        1.2, 'm', 'Least distance from a pole to the path of the reference point.', 0.6, 10.0)
+    pole_spacing_m: float = _param(2.0, 'm', 'Least distance between two poles.', 0.2, 20.0)
+    integration_rate_hz: float = _param(1000.0, 'Hz', 'Grid the true speed is integrated on.',
+                                        100.0, 100_000.0)
+    imu_rate_hz: float = _param(200.0, 'Hz', 'Gyro/accelerometer sample rate.', 1.0, 10_000.0)
+    speed_rate_hz: float = _param(100.0, 'Hz', 'Speed encoder sample rate.', 1.0, 10_000.0)
+    lidar_rate_hz: float = _param(10.0, 'Hz', 'LiDAR scan rate.', 0.1, 1000.0)
+    truth_rate_hz: float = _param(50.0, 'Hz', 'Ground-truth pose rate.', 0.1, 10_000.0)
+    gyro_bias_x_rad_s: float = _param(0.35 * DEG, 'rad/s', 'Constant gyro bias, x axis.',
+                                      -1.0, 1.0)
+    gyro_bias_y_rad_s: float = _param(-0.55 * DEG, 'rad/s', 'Constant gyro bias, y axis.',
+                                      -1.0, 1.0)
+    gyro_bias_z_rad_s: float = _param(-0.9 * DEG, 'rad/s',
+                                      'Constant gyro bias, z (yaw) axis.', -1.0, 1.0)
+    gyro_noise_x_rad_s: float = _param(0.20 * DEG, 'rad/s', 'Gyro white noise sigma, x axis.',
+                                       0.0, 1.0)
+    gyro_noise_y_rad_s: float = _param(0.30 * DEG, 'rad/s', 'Gyro white noise sigma, y axis.',
+                                       0.0, 1.0)
+    gyro_noise_z_rad_s: float = _param(0.25 * DEG, 'rad/s', 'Gyro white noise sigma, z axis.',
+                                       0.0, 1.0)
+    with_accelerometer: bool = _param(True, '', 'Simulate the accelerometer too.')
+    accel_noise_m_s2: float = _param(0.03, 'm/s^2', 'Accelerometer white noise sigma.',
+                                     0.0, 10.0)
+    speed_noise_m_s: float = _param(0.01, 'm/s', 'Speed encoder white noise sigma (moving).',
+                                    0.0, 1.0)
+    lidar_x_m: float = _param(0.46, 'm', 'LiDAR forward offset on the platform.', -5.0, 5.0)
+    lidar_y_m: float = _param(0.0, 'm', 'LiDAR leftward offset on the platform.', -5.0, 5.0)
+    lidar_yaw_rad: float = _param(0.0, 'rad', 'LiDAR yaw on the platform.', -math.pi,
+                                  math.pi)
+    lidar_beams: int = _param(361, '1', 'Beams per scan.', 2, 100_000)
+    lidar_angle_min_rad: float = _param(-90.0 * DEG, 'rad', 'Bearing of the first beam.',
+                                        -math.pi, math.pi)
+    lidar_increment_rad: float = _param(0.5 * DEG, 'rad', 'Bearing step between beams.',
+                                        1e-5, 1.0)
+    lidar_max_range_m: float = _param(30.0, 'm', 'No return (+inf) beyond this range.',
+                                      1.0, 1000.0)
+    range_noise_m: float = _param(0.015, 'm', 'Per-beam range noise sigma.', 0.0, 1.0)
+
+
+def _check(config: SimulationConfig) -> None:
+    """Bounds from the field metadata, then the relations between fields."""
+    for spec in dataclasses.fields(config):
+        value = getattr(config, spec.name)
+        low, high = spec.metadata.get('min'), spec.metadata.get('max')
+        if (low is not None and value < low) or (high is not None and value > high):
+            raise CoreError(f'simulation: {spec.name} = {value} is outside [{low}, {high}] '
+                            f'{spec.metadata["unit"]}')
+    if config.min_speed_m_s > config.max_speed_m_s:
+        raise CoreError(f'simulation: min_speed_m_s {config.min_speed_m_s} exceeds '
+                        f'max_speed_m_s {config.max_speed_m_s}')
+
+
+@dataclass(frozen=True, slots=True)
+class _Path:
+    """Figure-eight c(u) = (a sin u, b sin 2u), traversed from u0 in direction sign."""
+
+    a: float
+    b: float
+    u0: float
+    sign: float
+    rotation_rad: float          # path frame -> map frame
+    offset_xy: FloatArray        # c(u0), removed before rotating
+    table_s: FloatArray          # arc length at table_u, shape (N + 1,)
+    table_u: FloatArray
+
+    @property
+    def lap_m(self) -> float:
+        return float(self.table_s[-1])
+
+    def path_frame(self, s_m: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Position and heading in the path frame at arc lengths s_m, shape (n,) each."""
+        u = np.interp(np.mod(s_m, self.lap_m), self.table_s, self.table_u)
+        x = self.a * np.sin(u)
+        y = self.b * np.sin(2.0 * u)
+        heading = np.arctan2(self.sign * 2.0 * self.b * np.cos(2.0 * u),
+                             self.sign * self.a * np.cos(u))
+        return x, y, heading
+
+    def to_map(self, xy: FloatArray) -> FloatArray:
+        """Path-frame points (n, 2) to the map frame."""
+        c, s = math.cos(self.rotation_rad), math.sin(self.rotation_rad)
+        d = np.asarray(xy, dtype=np.float64) - self.offset_xy
+        return np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]])
+
+    def pose(self, s_m: FloatArray) -> FloatArray:
+        """Map-frame poses (n, 3): x m, y m, yaw rad in [-pi, pi)."""
+        x, y, heading = self.path_frame(s_m)
+        xy = self.to_map(np.column_stack([x, y]))
+        yaw = (heading + self.rotation_rad + math.pi) % (2.0 * math.pi) - math.pi
+        return np.column_stack([xy, yaw])
+
+
+def _make_path(config: SimulationConfig, rng: np.random.Generator) -> _Path:
+    a = config.path_half_length_m * rng.uniform(0.9, 1.1)
+    b = config.path_half_width_m * rng.uniform(0.9, 1.1)
+    sign = 1.0 if rng.random() < 0.5 else -1.0
+    u0 = 0.5 * math.pi            # end of the right lobe: x = a, heading -+pi/2
+    table_u = u0 + sign * np.linspace(0.0, 2.0 * math.pi, _TABLE_SIZE + 1)
+    pts = np.column_stack([a * np.sin(table_u), b * np.sin(2.0 * table_u)])
+    table_s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+    heading0 = math.atan2(sign * 2.0 * b * math.cos(2.0 * u0), sign * a * math.cos(u0))
+    # Rotate so the trip starts facing +y at the origin (the course's initial pose).
+    return _Path(a=a, b=b, u0=u0, sign=sign, rotation_rad=0.5 * math.pi - heading0,
+                 offset_xy=pts[0].copy(), table_s=table_s, table_u=table_u)
+
+
+def _make_walls(config: SimulationConfig, path: _Path) -> FloatArray:
+    """Arena walls in the map frame: one polyline with a doorway, shape (w, 2)."""
+    hx = path.a + config.wall_margin_m
+    hy = path.b + config.wall_margin_m
+    gap = 0.5 * config.doorway_m
+    # Start and end at the doorway in the middle of the +y wall (path frame).
+    corners = np.array([[gap, hy], [hx, hy], [hx, -hy], [-hx, -hy], [-hx, hy], [-gap, hy]])
+    return path.to_map(corners)
+
+
+def _segments(walls: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """NaN-separated polylines (w, 2) to segment starts (m, 2) and direction vectors (m, 2)."""
+    starts = walls[:-1]
+    ends = walls[1:]
+    ok = np.all(np.isfinite(starts), axis=1) & np.all(np.isfinite(ends), axis=1)
+    return starts[ok], (ends - starts)[ok]
+
+
+def _place_poles(config: SimulationConfig, path: _Path, rng: np.random.Generator) -> FloatArray:
+    """Rejection-sample pole centres (path frame) clear of the path, walls and each other."""
+    hx = path.a + config.wall_margin_m - 0.8
+    hy = path.b + config.wall_margin_m - 0.8
+    route = np.column_stack(path.path_frame(np.linspace(0.0, path.lap_m, 2000))[:2])
+    poles = np.zeros((0, 2))
+    stale = 0
+    # Give up after a run of batches that add nothing: the arena is full.
+    while len(poles) < config.pole_count and stale < 20:
+        candidates = rng.uniform([-hx, -hy], [hx, hy], size=(256, 2))
+        gaps = np.min(np.linalg.norm(candidates[:, None, :] - route[None, :, :], axis=2),
+                      axis=1)
+        stale += 1
+        for point in candidates[gaps >= config.pole_clearance_m]:
+            if len(poles) and np.min(np.hypot(*(poles - point).T)) < config.pole_spacing_m:
+                continue
+            poles = np.vstack([poles, point])
+            stale = 0
+            if len(poles) == config.pole_count:
+                break
+    if len(poles) < config.pole_count:
+        raise CoreError(f'simulation: could place only {len(poles)} of {config.pole_count} '
+                        'poles; lower pole_count, pole_spacing_m or pole_clearance_m')
+    return poles
+
+
+def _speed_profile(config: SimulationConfig, t_s: FloatArray,
+                   rng: np.random.Generator) -> FloatArray:
+    """True speed on the grid t_s (n,), m/s: 0, a smooth ramp, then a random cruise."""
+    mid = 0.5 * (config.min_speed_m_s + config.max_speed_m_s)
+    half = 0.5 * (config.max_speed_m_s - config.min_speed_m_s)
+    weights = rng.uniform(0.5, 1.0, size=3)
+    amplitudes = 0.95 * half * weights / weights.sum()
+    frequencies = rng.uniform(1.0 / 45.0, 1.0 / 12.0, size=3)
+    phases = rng.uniform(0.0, 2.0 * math.pi, size=3)
+    moving = t_s - config.static_s
+    cruise = mid + np.sum(amplitudes[:, None] * np.sin(
+        2.0 * math.pi * frequencies[:, None] * moving[None, :] + phases[:, None]), axis=0)
+    x = np.clip(moving / config.ramp_s, 0.0, 1.0)
+    ramp = x * x * x * (10.0 + x * (-15.0 + 6.0 * x))    # quintic: smooth acceleration
+    return ramp * cruise
+
+
+def _sample_times(duration_s: float, rate_hz: float) -> FloatArray:
+    count = int(math.floor(duration_s * rate_hz + 1e-9)) + 1
+    return np.arange(count, dtype=np.float64) / rate_hz
+
+
+def _ray_cast(origins: FloatArray, headings: FloatArray, angles: FloatArray,
+              poles: FloatArray, radius: float, seg_start: FloatArray,
+              seg_vec: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Nearest hit per beam.
+
+    Args:
+        origins: sensor positions, shape (m, 2), m.
+        headings: sensor headings, shape (m,), rad.
+        angles: beam bearings in the sensor frame, shape (b,), rad.
+        poles: circle centres, shape (p, 2), m.
+        radius: circle radius, m.
+        seg_start: wall segment starts, shape (w, 2), m.
+        seg_vec: wall segment vectors (end - start), shape (w, 2), m.
+
+    Returns:
+        Ranges (m, b), m (inf = no hit), and whether the hit is a pole (m, b).
+    """
+    direction = headings[:, None] + angles[None, :]
+    dx = np.cos(direction)[:, :, None]
+    dy = np.sin(direction)[:, :, None]
+    ox = origins[:, 0, None, None]
+    oy = origins[:, 1, None, None]
+    # Circles: closest approach along the ray, then back off to the near surface.
+    mx = poles[None, None, :, 0] - ox
+    my = poles[None, None, :, 1] - oy
+    along = mx * dx + my * dy
+    miss2 = mx * mx + my * my - along * along
+    hit = (miss2 <= radius * radius) & (along > 0.0)
+    r_pole = np.where(hit, along - np.sqrt(np.maximum(radius * radius - miss2, 0.0)), np.inf)
+    r_pole = r_pole.min(axis=2, initial=np.inf)
+    # Segments: o + t d = p + u e, solved with 2-D cross products.
+    qx = seg_start[None, None, :, 0] - ox
+    qy = seg_start[None, None, :, 1] - oy
+    ex = seg_vec[None, None, :, 0]
+    ey = seg_vec[None, None, :, 1]
+    denom = dx * ey - dy * ex
+    with np.errstate(divide='ignore', invalid='ignore'):
+        t = (qx * ey - qy * ex) / denom
+        u = (qx * dy - qy * dx) / denom
+    hit = (np.abs(denom) > 1e-12) & (t > 0.0) & (u >= 0.0) & (u <= 1.0)
+    r_wall = np.where(hit, t, np.inf).min(axis=2, initial=np.inf)
+    is_pole = r_pole < r_wall
+    return np.where(is_pole, r_pole, r_wall), is_pole
+
+
+def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip:
+    """Simulate one trip; the same config and seed give the same trip, bit for bit.
+
+    The scene (path shape, poles) depends only on the seed and the scene fields of the
+    config, not on the duration or the noise figures: each random stream has its own
+    child of ``np.random.SeedSequence(seed)``.
+
+    Args:
+        config: what to simulate; defaults when None.
+        seed: random seed (>= 0).
+
+    Returns:
+        A Trip with ground truth, the map, walls, true gyro bias and noise figures;
+        every stamp starts at 0.0 s.
+
+    Raises:
+        CoreError: a config value out of bounds, or poles that do not fit the arena.
+    """
+    if config is None:
+        config = SimulationConfig()
+    _check(config)
+    scene_rng, speed_rng, gyro_rng, accel_rng, odo_rng, lidar_rng = (
+        np.random.default_rng(child) for child in np.random.SeedSequence(seed).spawn(6))
+
+    path = _make_path(config, scene_rng)
+    poles_path = _place_poles(config, path, scene_rng)
+    landmarks = path.to_map(poles_path)
+    walls = _make_walls(config, path)
+
+    # True speed on the fine grid, integrated (trapezoid) into arc length; one second of
+    # margin covers the [t_k, t_k + T) window of the last samples.
+    step = 1.0 / config.integration_rate_hz
+    grid_t = np.arange(int(math.ceil((config.duration_s + 1.0) / step)) + 1) * step
+    grid_v = _speed_profile(config, grid_t, speed_rng)
+    grid_s = np.concatenate([[0.0], np.cumsum(0.5 * step * (grid_v[1:] + grid_v[:-1]))])
+
+    def arc(t_s: FloatArray) -> FloatArray:
+        return np.interp(t_s, grid_t, grid_s)
+
+    # IMU: mean true rate over [t_k, t_k + T) plus bias and noise per axis.
+    imu_t = _sample_times(config.duration_s, config.imu_rate_hz)
+    period = 1.0 / config.imu_rate_hz
+    edges = np.append(imu_t, imu_t[-1] + period)
+    edge_s = arc(edges)
+    yaw_edges = path.pose(edge_s)[:, 2]
+    rate_true = ((np.diff(yaw_edges) + math.pi) % (2.0 * math.pi) - math.pi) / period
+    bias = np.array([config.gyro_bias_x_rad_s, config.gyro_bias_y_rad_s,
+                     config.gyro_bias_z_rad_s])
+    gyro_sigma = np.array([config.gyro_noise_x_rad_s, config.gyro_noise_y_rad_s,
+                           config.gyro_noise_z_rad_s])
+    gyro = bias + gyro_sigma * gyro_rng.standard_normal((imu_t.size, 3))
+    gyro[:, 2] += rate_true
+    accel = None
+    if config.with_accelerometer:
+        speed_mean = np.diff(edge_s) / period
+        v_edges = np.interp(edges, grid_t, grid_v)
+        accel = np.column_stack([np.diff(v_edges) / period, speed_mean * rate_true,
+                                 np.full(imu_t.size, GRAVITY_M_S2)])
+        accel += config.accel_noise_m_s2 * accel_rng.standard_normal(accel.shape)
+
+    # Speed encoder: mean true speed over [t_k, t_k + T); noise only while moving.
+    odo_t = _sample_times(config.duration_s, config.speed_rate_hz)
+    odo_period = 1.0 / config.speed_rate_hz
+    speed_true = (arc(odo_t + odo_period) - arc(odo_t)) / odo_period
+    noise = config.speed_noise_m_s * odo_rng.standard_normal(odo_t.size)
+    speed = np.where(speed_true > 0.0, speed_true + noise, 0.0)
+
+    truth_t = _sample_times(config.duration_s, config.truth_rate_hz)
+    truth_pose = path.pose(arc(truth_t))
+
+    # LiDAR, ray-cast block by block to bound memory on long trips.
+    mount = LidarMount(config.lidar_x_m, config.lidar_y_m, config.lidar_yaw_rad)
+    scan_t = _sample_times(config.duration_s, config.lidar_rate_hz)
+    scan_pose = path.pose(arc(scan_t))
+    c, s = np.cos(scan_pose[:, 2]), np.sin(scan_pose[:, 2])
+    origins = np.column_stack([scan_pose[:, 0] + mount.x_m * c - mount.y_m * s,
+                               scan_pose[:, 1] + mount.x_m * s + mount.y_m * c])
+    headings = scan_pose[:, 2] + mount.yaw_rad
+    angles = config.lidar_angle_min_rad + config.lidar_increment_rad * np.arange(
+        config.lidar_beams)
+    seg_start, seg_vec = _segments(walls)
+    ranges = np.empty((scan_t.size, config.lidar_beams), dtype=np.float32)
+    intensities = np.empty_like(ranges)
+    for first in range(0, scan_t.size, _SCAN_BLOCK):
+        block = slice(first, first + _SCAN_BLOCK)
+        r, is_pole = _ray_cast(origins[block], headings[block], angles, landmarks,
+                               config.pole_radius_m, seg_start, seg_vec)
+        r = r + config.range_noise_m * lidar_rng.standard_normal(r.shape)
+        r[~(r <= config.lidar_max_range_m)] = np.inf
+        ranges[block] = r
+        intensities[block] = np.where(is_pole & np.isfinite(r), POLE_INTENSITY,
+                                      WALL_INTENSITY)
+
+    scans = ScanSeries(
+        stamp_s=scan_t, ranges_m=ranges, intensities=intensities,
+        angle_min_rad=config.lidar_angle_min_rad,
+        angle_increment_rad=config.lidar_increment_rad, range_min_m=0.0,
+        range_max_m=config.lidar_max_range_m, mount=mount)
+    return Trip(
+        name=f'sim_seed{seed}',
+        imu=ImuSeries(stamp_s=imu_t, angular_velocity_rad_s=gyro,
+                      linear_acceleration_m_s2=accel),
+        speed=SpeedSeries(stamp_s=odo_t, speed_m_s=speed),
+        scans=(scans,),
+        landmarks=LandmarkMap(landmarks),
+        initial_pose=truth_pose[0].copy(),
+        ground_truth=GroundTruth(stamp_s=truth_t, pose=truth_pose),
+        true_gyro_bias_rad_s=bias,
+        noise=NoiseFigures(gyro_rad_s=config.gyro_noise_z_rad_s,
+                           speed_m_s=config.speed_noise_m_s, range_m=config.range_noise_m,
+                           bearing_rad=config.lidar_increment_rad / math.sqrt(12.0)),
+        walls=walls,
+        static_duration_s=config.static_s,
+    )
