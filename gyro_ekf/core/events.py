@@ -215,11 +215,11 @@ class EventDriver:
         result = associate(z, self.ekf.x, self.ekf.P, self.ekf.R, self.landmarks.xy_m, mount,
                            self.config.gate_probability)
         nis = []
-        for match in result.matches:
+        for match in result.associations:
             self.stats.outcomes[match.outcome.name.lower()] += 1
             if match.outcome is AssociationOutcome.MATCHED:
-                nis.append(self.ekf.update(z[match.detection],
-                                           self.landmarks.xy_m[match.landmark], mount))
+                nis.append(self.ekf.update(z[match.detection_index],
+                                           self.landmarks.xy_m[match.landmark_index], mount))
         if nis:
             self.stats.updates += len(nis)
             self.stats.nis_sum += float(sum(nis))
