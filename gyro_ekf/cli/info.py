@@ -1,16 +1,53 @@
-"""`gyro-ekf info` (placeholder until its owner lands it)."""
+"""`gyro-ekf info`: topics, types, counts, duration and start time of a bag (to stdout)."""
 
 from __future__ import annotations
 
 import argparse
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import TYPE_CHECKING
 
-HELP = 'not implemented yet'
+if TYPE_CHECKING:
+    from gyro_ekf.io.bag_reader import BagSummary
+
+HELP = 'print the topics, types, message counts, duration and start time of a bag'
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add this command's arguments."""
+    parser.add_argument('bag', type=Path, metavar='BAG', help='rosbag2 folder')
+
+
+def iso_time(stamp_ns: int) -> str:
+    """UTC ISO 8601 text of ns since the epoch, to the nanosecond."""
+    seconds, nanoseconds = divmod(int(stamp_ns), 10**9)
+    moment = datetime.fromtimestamp(seconds, tz=timezone.utc)
+    return moment.strftime('%Y-%m-%dT%H:%M:%S') + f'.{nanoseconds:09d}Z'
+
+
+def format_summary(summary: BagSummary) -> str:
+    """The text `info` prints."""
+    lines = [
+        f'bag:       {summary.path}',
+        f'storage:   {summary.storage} (rosbag2 metadata version {summary.version})',
+        f'start:     {iso_time(summary.start_time_ns)} ({summary.start_time_ns} ns)',
+        f'duration:  {summary.duration_ns / 1e9:.4f} s',
+        f'messages:  {summary.message_count}',
+        f'params:    {summary.sidecar if summary.sidecar is not None else "(none)"}',
+        'topics:',
+    ]
+    rows = [('topic', 'type', 'count', 'durability')] + [
+        (t.name, t.msgtype, str(t.count), t.durability) for t in summary.topics]
+    widths = [max(len(row[i]) for row in rows) for i in range(3)]
+    for name, msgtype, count, durability in rows:
+        lines.append(f'  {name:<{widths[0]}}  {msgtype:<{widths[1]}}  '
+                     f'{count:>{widths[2]}}  {durability}')
+    return '\n'.join(lines)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
-    raise NotImplementedError('gyro-ekf info')
+    from gyro_ekf.io.bag_reader import bag_summary
+
+    print(format_summary(bag_summary(args.bag)))
+    return 0

@@ -1,0 +1,263 @@
+"""Write a Trip as a ROS 2 bag (metadata version 9, Jazzy types, mcap or sqlite3).
+
+Topics, types and conventions are described in `gyro_ekf.io.messages`. Messages of all topics
+go into the bag in stamp order: one lazy generator per topic, merged with heapq.merge, so only
+the trip's own arrays are held in memory, never all messages at once. At equal stamps the order
+is /landmark_map, /initialpose, /imu, /odom, scans, /ground_truth.
+
+Time: the trip's time zero (the log's first stamp) becomes `start_time_ns` (default
+DEFAULT_EPOCH_NS, 2023-11-14T22:13:20Z, never 0, which ROS reads as "unset"); every stamp is
+start_time_ns + round(stamp_s * 1e9), exact to the nanosecond for course logs (counts of 0.1 ms
+turned into seconds by one correctly rounded division). /landmark_map and /initialpose are
+stamped at time zero (or at the first sample if a trip starts before zero).
+
+The bag is written into a hidden temporary sibling folder and renamed into place only when
+complete, together with its params sidecar (`gyro_ekf.io.sidecar`); a failure or interrupt
+removes the temporary files and leaves any previous output untouched.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+import heapq
+import logging
+import os
+from pathlib import Path
+import shutil
+import tempfile
+from typing import Any
+
+import numpy as np
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability
+from rosbags.interfaces import QosTime
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.errors import WriterError
+
+from gyro_ekf import topics
+from gyro_ekf.core.types import Trip
+from gyro_ekf.io import messages as msgs
+from gyro_ekf.io.defaults import DEFAULT_EPOCH_NS, STORAGE_NAMES
+from gyro_ekf.io.errors import BagError
+from gyro_ekf.io.sidecar import check_finite, params_of_trip, read_sidecar, sidecar_path
+from gyro_ekf.io.sidecar import to_yaml
+
+__all__ = ['DEFAULT_EPOCH_NS', 'STORAGES', 'ProgressCallback', 'TopicPlan', 'read_sidecar',
+           'sidecar_path', 'write_trip_bag']
+
+log = logging.getLogger(__name__)
+
+BAG_VERSION = 9
+STORAGES = dict(zip(STORAGE_NAMES, (StoragePlugin.MCAP, StoragePlugin.SQLITE3)))
+
+ProgressCallback = Callable[[int, int], None]
+"""Called as progress(messages_written, messages_total) now and then and at the end."""
+
+_UNSET = QosTime(sec=0, nsec=0)
+
+
+def _qos(depth: int, durability: QosDurability) -> Qos:
+    return Qos(history=QosHistory.KEEP_LAST, depth=depth, reliability=QosReliability.RELIABLE,
+               durability=durability, deadline=_UNSET, lifespan=_UNSET,
+               liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=_UNSET,
+               avoid_ros_namespace_conventions=False)
+
+
+SENSOR_QOS = _qos(10, QosDurability.VOLATILE)
+"""Offered QoS of the sensor topics: reliable (matches best-effort and reliable readers)."""
+LATCHED_QOS = _qos(1, QosDurability.TRANSIENT_LOCAL)
+"""Offered QoS of /landmark_map and /initialpose: late joiners still get the one message."""
+
+_PROGRESS_EVERY = 2000
+
+
+@dataclass(frozen=True)
+class TopicPlan:
+    """One topic to write: its messages as a lazy sequence over integer stamps.
+
+    Attributes:
+        topic: bag topic name (absolute).
+        msgtype: message type name.
+        qos: offered QoS profile.
+        stamps_ns: shape (n,), int64, ns since the epoch, non-decreasing.
+        build: index -> message object.
+    """
+
+    topic: str
+    msgtype: str
+    qos: Qos
+    stamps_ns: np.ndarray
+    build: Callable[[int], Any]
+
+
+def _stamps_ns(stamp_s: np.ndarray, start_time_ns: int, what: str) -> np.ndarray:
+    stamp_s = np.asarray(stamp_s, dtype=np.float64)
+    if not np.all(np.isfinite(stamp_s)):
+        raise BagError(f"topic '{what}': stamps are not all finite")
+    stamps = np.int64(start_time_ns) + np.rint(stamp_s * msgs.NS_PER_S).astype(np.int64)
+    steps = np.diff(stamps)
+    if steps.size and steps.min() < 0:
+        i = int(np.argmax(steps < 0))
+        raise BagError(f"topic '{what}': stamp went back {-steps[i] / msgs.NS_PER_S:.6f} s at "
+                       f'message {i + 1}; expected stamps in time order')
+    if stamps.size and stamps[0] <= 0:
+        raise BagError(f"topic '{what}': first stamp {int(stamps[0])} ns is not after the "
+                       'epoch; choose a later start time')
+    return stamps
+
+
+def plan_topics(trip: Trip, start_time_ns: int) -> list[TopicPlan]:
+    """The topics of a trip's bag, in tie-break order, each with its stamps and builder.
+
+    Raises:
+        BagError: stamps that are not finite, go back in time or fall before the epoch;
+            arrays of inconsistent length.
+    """
+    zero_s = min(0.0, trip.start_s)
+    zero = _stamps_ns(np.array([zero_s]), start_time_ns, topics.INITIAL_POSE)
+    plans: list[TopicPlan] = []
+    if trip.landmarks is not None:
+        landmarks = trip.landmarks
+        plans.append(TopicPlan(topics.bag_topic(topics.LANDMARK_MAP), topics.POSE_ARRAY_TYPE,
+                               LATCHED_QOS, zero,
+                               lambda i: msgs.landmark_map_message(int(zero[0]), landmarks)))
+    pose = np.asarray(trip.initial_pose, dtype=np.float64)
+    plans.append(TopicPlan(topics.bag_topic(topics.INITIAL_POSE),
+                           topics.POSE_WITH_COVARIANCE_STAMPED_TYPE, LATCHED_QOS, zero,
+                           lambda i: msgs.initial_pose_message(int(zero[0]), pose)))
+
+    imu = trip.imu
+    rates = np.asarray(imu.angular_velocity_rad_s, dtype=np.float64)
+    accel = imu.linear_acceleration_m_s2
+    _same_length('imu.angular_velocity_rad_s', rates.shape[0], imu.stamp_s.size)
+    if accel is not None:
+        _same_length('imu.linear_acceleration_m_s2', accel.shape[0], imu.stamp_s.size)
+    imu_ns = _stamps_ns(imu.stamp_s, start_time_ns, topics.IMU)
+    rate_cov = msgs.angular_velocity_covariance(imu.axes_known, trip.noise.gyro_rad_s)
+    plans.append(TopicPlan(
+        topics.bag_topic(topics.IMU), topics.IMU_TYPE, SENSOR_QOS, imu_ns,
+        lambda i: msgs.imu_message(int(imu_ns[i]), rates[i], rate_cov,
+                                   None if accel is None else accel[i])))
+
+    speed = trip.speed
+    _same_length('speed.speed_m_s', speed.speed_m_s.size, speed.stamp_s.size)
+    speed_ns = _stamps_ns(speed.stamp_s, start_time_ns, topics.ODOM)
+    twist_cov = msgs.speed_covariance(trip.noise.speed_m_s)
+    plans.append(TopicPlan(
+        topics.bag_topic(topics.ODOM), topics.ODOMETRY_TYPE, SENSOR_QOS, speed_ns,
+        lambda i: msgs.speed_message(int(speed_ns[i]), float(speed.speed_m_s[i]), twist_cov)))
+
+    seen: set[str] = set()
+    for series in trip.scans:
+        if series.topic in seen:
+            raise BagError(f"two scan series share topic '{series.topic}'")
+        seen.add(series.topic)
+        _same_length(f'{series.topic}.ranges_m', series.ranges_m.shape[0], series.stamp_s.size)
+        if series.intensities is not None and series.intensities.shape != series.ranges_m.shape:
+            raise BagError(f"scan series '{series.topic}': intensities have shape "
+                           f'{series.intensities.shape}, ranges {series.ranges_m.shape}')
+        scan_ns = _stamps_ns(series.stamp_s, start_time_ns, series.topic)
+        plans.append(TopicPlan(
+            topics.bag_topic(series.topic), topics.LASER_SCAN_TYPE, SENSOR_QOS, scan_ns,
+            lambda i, s=series, ns=scan_ns: msgs.scan_message(int(ns[i]), s, i)))
+
+    if trip.ground_truth is not None:
+        truth = trip.ground_truth
+        _same_length('ground_truth.pose', truth.pose.shape[0], truth.stamp_s.size)
+        truth_ns = _stamps_ns(truth.stamp_s, start_time_ns, topics.GROUND_TRUTH)
+        plans.append(TopicPlan(
+            topics.bag_topic(topics.GROUND_TRUTH), topics.ODOMETRY_TYPE, SENSOR_QOS, truth_ns,
+            lambda i: msgs.ground_truth_message(int(truth_ns[i]), truth.pose[i])))
+    return plans
+
+
+def _same_length(what: str, length: int, stamps: int) -> None:
+    if length != stamps:
+        raise BagError(f"trip field '{what}' has {length} rows but {stamps} stamps")
+
+
+def merged(plans: list[TopicPlan]) -> Iterator[tuple[int, int, int]]:
+    """(stamp_ns, plan index, message index) of every message, in stamp order, lazily."""
+    def stream(order: int, stamps: np.ndarray) -> Iterator[tuple[int, int, int]]:
+        for i, stamp in enumerate(stamps.tolist()):
+            yield stamp, order, i
+    return heapq.merge(*(stream(k, p.stamps_ns) for k, p in enumerate(plans)))
+
+
+def write_trip_bag(trip: Trip, path: Path | str, storage: str = 'mcap',
+                   start_time_ns: int = DEFAULT_EPOCH_NS, force: bool = False,
+                   progress: ProgressCallback | None = None) -> Path:
+    """Write a trip as a rosbag2 folder plus its params sidecar beside it.
+
+    Args:
+        trip: the trip (stamps in s since its time zero).
+        path: the bag folder to create.
+        storage: 'mcap' (the Jazzy default) or 'sqlite3'.
+        start_time_ns: bag stamp of the trip's time zero, ns since the epoch, > 0.
+        force: replace an existing bag folder and sidecar.
+        progress: optional progress(messages_written, messages_total) callback.
+
+    Returns:
+        The bag folder.
+
+    Raises:
+        BagError: unknown storage, a start time <= 0, an existing output without force,
+            stamps out of order, or a write failure. Nothing is left behind on failure.
+    """
+    path = Path(path)
+    if storage not in STORAGES:
+        raise BagError(f'{path}: unknown storage {storage!r}; expected one of {list(STORAGES)}')
+    if int(start_time_ns) <= 0:
+        raise BagError(f'{path}: start time {start_time_ns} ns must be after the epoch '
+                       '(0 reads as "unset" in ROS)')
+    params_path = sidecar_path(path)
+    existing = [p for p in (path, params_path) if p.exists() or p.is_symlink()]
+    if existing and not force:
+        raise BagError(f'{existing[0]}: exists already; use --force to replace it')
+    plans = plan_topics(trip, int(start_time_ns))
+    params = params_of_trip(trip, int(start_time_ns))
+    check_finite(params)
+    total = sum(p.stamps_ns.size for p in plans)
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
+    try:
+        staged = aside / path.name
+        _write(plans, staged, STORAGES[storage], total, progress)
+        staged_params = aside / params_path.name
+        staged_params.write_text(to_yaml(params), encoding='utf-8')
+        _replace(staged, path, aside)
+        os.replace(staged_params, params_path)
+    finally:
+        shutil.rmtree(aside, ignore_errors=True)
+    log.info('%s: %d messages on %d topics (%s)', path, total, len(plans), storage)
+    return path
+
+
+def _write(plans: list[TopicPlan], staged: Path, plugin: StoragePlugin, total: int,
+           progress: ProgressCallback | None) -> None:
+    try:
+        with Writer(staged, version=BAG_VERSION, storage_plugin=plugin) as writer:
+            connections = [
+                writer.add_connection(p.topic, p.msgtype, typestore=msgs.TYPESTORE,
+                                      offered_qos_profiles=[p.qos])
+                for p in plans]
+            done = 0
+            for stamp, order, index in merged(plans):
+                message = plans[order].build(index)
+                writer.write(connections[order], stamp, msgs.serialize(message))
+                done += 1
+                if progress is not None and done % _PROGRESS_EVERY == 0:
+                    progress(done, total)
+    except (WriterError, OSError) as err:
+        raise BagError(f'{staged.name}: cannot write the bag: {err}') from err
+    if progress is not None:
+        progress(total, total)
+
+
+def _replace(staged: Path, path: Path, aside: Path) -> None:
+    """Move the finished bag to `path`, moving any old output into `aside` first."""
+    if path.exists() or path.is_symlink():
+        old = aside / (path.name + '.old')
+        os.replace(path, old)
+    os.replace(staged, path)

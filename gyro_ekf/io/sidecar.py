@@ -1,0 +1,197 @@
+"""The params YAML written beside a bag: what the bag needs and no message carries.
+
+A bag folder `OUT` gets `OUT.params.yaml` next to it (never inside, so the folder stays
+exactly what rosbag2 expects). It is a ROS 2 parameters file, so nodes take it with
+`--ros-args --params-file OUT.params.yaml` and `gyro-ekf run` finds it by itself:
+
+    /**:
+      ros__parameters:
+        trip:
+          name: data019b
+          log_time_zero_ns: 1700000000000000000   # bag stamp of the log's time zero
+          static_duration_s: 0.0
+        initial_pose: {x_m: 2.780846, y_m: 11.278871, yaw_rad: -0.0206156}
+        lidar:
+          topics: [scan]                          # scan topics in the bag (no slash)
+          scan: {frame_id: laser, x_m: 0.4, y_m: 0.0, yaw_rad: 0.0}
+        noise:                                    # only the figures the log states
+          gyro_rad_s: 0.01745329
+          speed_m_s: 0.08
+        true_gyro_bias_rad_s: [0.0, 0.0, 0.005235988]   # only when known
+
+All values are SI; names end in their unit. Unknown entries are left out (ROS parameters have
+no null).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures, Trip
+from gyro_ekf.io.errors import BagError
+
+SUFFIX = '.params.yaml'
+NOISE_KEYS = ('gyro_rad_s', 'speed_m_s', 'range_m', 'bearing_rad')
+
+
+@dataclass(frozen=True, slots=True)
+class BagParams:
+    """The contents of a bag's sidecar params file.
+
+    Attributes:
+        name: trip name.
+        log_time_zero_ns: bag stamp, ns since the epoch, of the log's time zero.
+        static_duration_s: how long the trip is known to start static, s.
+        initial_pose: shape (3,): x m, y m, yaw rad in `map`.
+        lidars: scan topic (no slash) -> (frame_id, mount).
+        noise: noise figures the log states.
+        true_gyro_bias_rad_s: shape (3,), rad/s, or None when not known.
+    """
+
+    name: str
+    log_time_zero_ns: int
+    static_duration_s: float = 0.0
+    initial_pose: FloatArray = field(default_factory=lambda: np.zeros(3))
+    lidars: dict[str, tuple[str, LidarMount]] = field(default_factory=dict)
+    noise: NoiseFigures = field(default_factory=NoiseFigures)
+    true_gyro_bias_rad_s: FloatArray | None = None
+
+
+def sidecar_path(bag_path: Path | str) -> Path:
+    """Where the params file of bag folder `bag_path` lives: `<bag>.params.yaml` beside it."""
+    bag_path = Path(bag_path)
+    return bag_path.parent / (bag_path.name + SUFFIX)
+
+
+def params_of_trip(trip: Trip, log_time_zero_ns: int) -> BagParams:
+    """The sidecar contents for a trip converted with log time zero at `log_time_zero_ns`."""
+    return BagParams(
+        name=trip.name, log_time_zero_ns=int(log_time_zero_ns),
+        static_duration_s=float(trip.static_duration_s),
+        initial_pose=np.asarray(trip.initial_pose, dtype=np.float64),
+        lidars={s.topic: (s.frame_id, s.mount) for s in trip.scans},
+        noise=trip.noise,
+        true_gyro_bias_rad_s=None if trip.true_gyro_bias_rad_s is None else np.asarray(
+            trip.true_gyro_bias_rad_s, dtype=np.float64))
+
+
+def to_yaml(params: BagParams) -> str:
+    """The ROS 2 params-file text of a sidecar."""
+    x, y, yaw = (float(v) for v in params.initial_pose)
+    values: dict[str, Any] = {
+        'trip': {'name': params.name, 'log_time_zero_ns': int(params.log_time_zero_ns),
+                 'static_duration_s': float(params.static_duration_s)},
+        'initial_pose': {'x_m': x, 'y_m': y, 'yaw_rad': yaw},
+    }
+    if params.lidars:
+        lidar: dict[str, Any] = {'topics': list(params.lidars)}
+        for topic, (frame_id, mount) in params.lidars.items():
+            lidar[topic] = {'frame_id': frame_id, 'x_m': float(mount.x_m),
+                            'y_m': float(mount.y_m), 'yaw_rad': float(mount.yaw_rad)}
+        values['lidar'] = lidar
+    noise = {key: float(getattr(params.noise, key)) for key in NOISE_KEYS
+             if getattr(params.noise, key) is not None}
+    if noise:
+        values['noise'] = noise
+    if params.true_gyro_bias_rad_s is not None:
+        values['true_gyro_bias_rad_s'] = [float(v) for v in params.true_gyro_bias_rad_s]
+    header = ('# gyro_ekf bag parameters (SI): LiDAR mounts per scan topic, initial pose,\n'
+              '# noise figures the log states and the injected gyro bias when known.\n')
+    return header + yaml.safe_dump({'/**': {'ros__parameters': values}}, sort_keys=False,
+                                   default_flow_style=False)
+
+
+def _get(tree: dict[str, Any], dotted: str, kind: type | tuple[type, ...], path: Path
+         ) -> Any:
+    value: Any = tree
+    for part in dotted.split('.'):
+        if not isinstance(value, dict) or part not in value:
+            raise BagError(f"{path.name}: parameter '{dotted}' is missing")
+        value = value[part]
+    if not isinstance(value, kind) or isinstance(value, bool):
+        raise BagError(f"{path.name}: parameter '{dotted}' = {value!r} has the wrong type")
+    return value
+
+
+def parse_yaml(text: str, path: Path) -> BagParams:
+    """Parse sidecar text (see the module docstring).
+
+    Raises:
+        BagError: not YAML, not a params file, or a parameter missing or of the wrong type.
+    """
+    try:
+        document = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise BagError(f'{path.name}: not valid YAML: {err}') from None
+    if not isinstance(document, dict) or not isinstance(document.get('/**'), dict) or \
+            not isinstance(document['/**'].get('ros__parameters'), dict):
+        raise BagError(f"{path.name}: expected a ROS 2 params file ('/**: ros__parameters:')")
+    tree = document['/**']['ros__parameters']
+    number = (int, float)
+    lidars: dict[str, tuple[str, LidarMount]] = {}
+    if 'lidar' in tree:
+        for topic in _get(tree, 'lidar.topics', list, path):
+            key = f'lidar.{topic}'
+            lidars[str(topic)] = (str(_get(tree, key + '.frame_id', str, path)), LidarMount(
+                float(_get(tree, key + '.x_m', number, path)),
+                float(_get(tree, key + '.y_m', number, path)),
+                float(_get(tree, key + '.yaw_rad', number, path))))
+    noise = tree.get('noise') or {}
+    if not isinstance(noise, dict):
+        raise BagError(f"{path.name}: parameter 'noise' must be a mapping")
+    bias = None
+    if 'true_gyro_bias_rad_s' in tree:
+        bias = np.array(_get(tree, 'true_gyro_bias_rad_s', list, path), dtype=np.float64)
+        if bias.shape != (3,) or not np.all(np.isfinite(bias)):
+            raise BagError(f"{path.name}: parameter 'true_gyro_bias_rad_s' must be 3 numbers")
+    pose = [float(_get(tree, f'initial_pose.{k}', number, path))
+            for k in ('x_m', 'y_m', 'yaw_rad')]
+    for key in NOISE_KEYS:
+        if key in noise:
+            _get(tree, f'noise.{key}', number, path)
+    return BagParams(
+        name=str(_get(tree, 'trip.name', str, path)),
+        log_time_zero_ns=int(_get(tree, 'trip.log_time_zero_ns', int, path)),
+        static_duration_s=float(_get(tree, 'trip.static_duration_s', number, path)),
+        initial_pose=np.array(pose),
+        lidars=lidars,
+        noise=NoiseFigures(**{k: float(noise[k]) if k in noise else None
+                              for k in NOISE_KEYS}),
+        true_gyro_bias_rad_s=bias)
+
+
+def read_sidecar(bag_path: Path | str) -> BagParams | None:
+    """The params file beside bag folder `bag_path`, or None when there is none.
+
+    Raises:
+        BagError: the file exists but cannot be read or parsed.
+    """
+    path = sidecar_path(bag_path)
+    if not path.exists():
+        return None
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as err:
+        raise BagError(f'{path}: cannot read: {err}') from None
+    return parse_yaml(text, path)
+
+
+def check_finite(params: BagParams) -> None:
+    """Refuse NaN or infinite values, which a params file cannot carry meaningfully.
+
+    Raises:
+        BagError: names the offending parameter.
+    """
+    checks = {'initial_pose': params.initial_pose, 'trip.static_duration_s':
+              [params.static_duration_s]}
+    for topic, (_, mount) in params.lidars.items():
+        checks[f'lidar.{topic}'] = [mount.x_m, mount.y_m, mount.yaw_rad]
+    for name, values in checks.items():
+        if not all(math.isfinite(float(v)) for v in values):
+            raise BagError(f"parameter '{name}' = {list(values)} is not finite")
