@@ -86,7 +86,7 @@ class AssociationResult:
         return len(self.associations)
 
     def count(self, outcome: AssociationOutcome) -> int:
-        """Number of detections with the given outcome."""
+        """Count the detections with the given outcome."""
         return sum(1 for item in self.associations if item.outcome is outcome)
 
     @property
@@ -110,7 +110,7 @@ class AssociationResult:
         return self.count(AssociationOutcome.DUPLICATE)
 
     def matched_pairs(self) -> NDArray[np.int64]:
-        """(detection index, landmark index) of every MATCHED detection, shape (m, 2)."""
+        """Return (detection index, landmark index) of every MATCHED detection, shape (m, 2)."""
         pairs = [(a.detection_index, a.landmark_index) for a in self.associations
                  if a.outcome is AssociationOutcome.MATCHED]
         return np.array(pairs, dtype=np.int64).reshape(-1, 2)

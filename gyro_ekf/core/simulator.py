@@ -231,7 +231,7 @@ def _place_poles(config: SimulationConfig, path: _Path, rng: np.random.Generator
 
 def _speed_profile(config: SimulationConfig, t_s: FloatArray,
                    rng: np.random.Generator) -> FloatArray:
-    """True speed on the grid t_s (n,), m/s: 0, a smooth ramp, then a random cruise."""
+    """Return the true speed on the grid t_s (n,), m/s: 0, a smooth ramp, a random cruise."""
     mid = 0.5 * (config.min_speed_m_s + config.max_speed_m_s)
     half = 0.5 * (config.max_speed_m_s - config.min_speed_m_s)
     weights = rng.uniform(0.5, 1.0, size=3)
