@@ -33,6 +33,7 @@ setup(
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
         'test': ['pytest', 'mcap>=1.2', 'mcap-ros2-support>=0.5', 'flake8', 'pydocstyle',
+                 'filterpy',
                  'colcon-core', 'colcon-ros', 'colcon-python-setup-py',
                  'colcon-test-result', 'colcon-common-extensions'],
         'bench': ['filterpy'],

@@ -76,7 +76,7 @@ def test_covariance_stays_symmetric_positive_definite():
 
 
 def test_one_cycle_matches_filterpy_extended_kalman_filter():
-    filterpy = pytest.importorskip('filterpy.kalman')
+    from filterpy import kalman as filterpy
     config = EkfConfig(initial_position_sigma_m=0.1, initial_yaw_sigma_rad=0.05)
     ours = GyroBiasEkf(config, pose=[1.0, 2.0, 0.5], bias_rad_s=0.01)
     theirs = filterpy.ExtendedKalmanFilter(dim_x=4, dim_z=2)
