@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_start_time(text: str) -> int:
-    """A start time given as seconds since 1970 or ISO 8601 -> integer ns since the epoch.
+    """Parse a start time (seconds since 1970 or ISO 8601) into integer ns since the epoch.
 
     Raises:
         BagError: unparsable, or not after the epoch (0 means "unset" in ROS).

@@ -26,7 +26,7 @@ def iso_time(stamp_ns: int) -> str:
 
 
 def format_summary(summary: BagSummary) -> str:
-    """The text `info` prints."""
+    """Render the text `info` prints."""
     lines = [
         f'bag:       {summary.path}',
         f'storage:   {summary.storage} (rosbag2 metadata version {summary.version})',

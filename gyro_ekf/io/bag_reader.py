@@ -136,7 +136,7 @@ def bag_summary(path: Path | str) -> BagSummary:
 
 
 def _metadata(path: Path) -> dict[str, Any]:
-    """The rosbag2_bagfile_information mapping of a bag folder's metadata.yaml."""
+    """Read the rosbag2_bagfile_information mapping of a bag folder's metadata.yaml."""
     meta_path = path / 'metadata.yaml'
     try:
         document = yaml.safe_load(meta_path.read_text(encoding='utf-8'))

@@ -107,7 +107,7 @@ def _stamps_ns(stamp_s: np.ndarray, start_time_ns: int, what: str) -> np.ndarray
 
 
 def plan_topics(trip: Trip, start_time_ns: int) -> list[TopicPlan]:
-    """The topics of a trip's bag, in tie-break order, each with its stamps and builder.
+    """Plan the topics of a trip's bag, in tie-break order, each with stamps and builder.
 
     Raises:
         BagError: stamps that are not finite, go back in time or fall before the epoch;

@@ -71,7 +71,7 @@ def serialize(message: Any) -> bytes:
 
 
 def deserialize(data: bytes | memoryview, msgtype: str) -> Any:
-    """A message object from CDR bytes."""
+    """Decode CDR bytes into a message object."""
     return TYPESTORE.deserialize_cdr(data, msgtype)
 
 
@@ -224,7 +224,7 @@ def landmark_map_message(stamp_ns: int, landmarks: LandmarkMap) -> Any:
 
 
 def landmarks_of(message: Any) -> LandmarkMap:
-    """The landmark map of a PoseArray, shape (k, 2), m."""
+    """Get the landmark map of a PoseArray, shape (k, 2), m."""
     xy = np.array([[p.position.x, p.position.y] for p in message.poses], dtype=np.float64)
     return LandmarkMap(xy.reshape(-1, 2))
 

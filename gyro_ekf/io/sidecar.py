@@ -70,7 +70,7 @@ def sidecar_path(bag_path: Path | str) -> Path:
 
 
 def params_of_trip(trip: Trip, log_time_zero_ns: int) -> BagParams:
-    """The sidecar contents for a trip converted with log time zero at `log_time_zero_ns`."""
+    """Collect the sidecar contents of a trip whose time zero is at `log_time_zero_ns`."""
     return BagParams(
         name=trip.name, log_time_zero_ns=int(log_time_zero_ns),
         static_duration_s=float(trip.static_duration_s),
@@ -82,7 +82,7 @@ def params_of_trip(trip: Trip, log_time_zero_ns: int) -> BagParams:
 
 
 def to_yaml(params: BagParams) -> str:
-    """The ROS 2 params-file text of a sidecar."""
+    """Render a sidecar as ROS 2 params-file text."""
     x, y, yaw = (float(v) for v in params.initial_pose)
     values: dict[str, Any] = {
         'trip': {'name': params.name, 'log_time_zero_ns': int(params.log_time_zero_ns),
@@ -167,7 +167,7 @@ def parse_yaml(text: str, path: Path) -> BagParams:
 
 
 def read_sidecar(bag_path: Path | str) -> BagParams | None:
-    """The params file beside bag folder `bag_path`, or None when there is none.
+    """Read the params file beside bag folder `bag_path`; None when there is none.
 
     Raises:
         BagError: the file exists but cannot be read or parsed.

@@ -45,7 +45,7 @@ def _none_if_nan(value: float) -> float | None:
 
 
 def trip_arrays(trip: Trip) -> dict[str, np.ndarray]:
-    """The key -> array mapping a trip file stores (see the module docstring)."""
+    """Map a trip to the key -> array dict a trip file stores (see the module docstring)."""
     noise = trip.noise
     out: dict[str, np.ndarray] = {
         'format': np.array(FORMAT),

@@ -68,7 +68,7 @@ def variable_names(path: Path) -> list[str]:
 
 
 def field(variables: dict[str, Any], dotted: str, path: Path) -> Any:
-    """The value of a (nested) field such as 'data.verify.poseL'.
+    """Get the value of a (nested) field such as 'data.verify.poseL'.
 
     Raises:
         LogFormatError: a part of the name is missing; the message names file and field.
@@ -100,7 +100,7 @@ def has_field(variables: dict[str, Any], dotted: str) -> bool:
 
 def array(variables: dict[str, Any], dotted: str, path: Path, shape: Sequence[int | None],
           kind: str = 'iuf') -> NDArray[Any]:
-    """A numeric array field with a checked shape.
+    """Get a numeric array field with a checked shape.
 
     Args:
         variables: the file's variables (from load_mat).
@@ -129,7 +129,7 @@ def array(variables: dict[str, Any], dotted: str, path: Path, shape: Sequence[in
 
 
 def scalar(variables: dict[str, Any], dotted: str, path: Path) -> float:
-    """A numeric scalar field as float.
+    """Get a numeric scalar field as float.
 
     Raises:
         LogFormatError: missing or not a single number.
@@ -143,10 +143,10 @@ def scalar(variables: dict[str, Any], dotted: str, path: Path) -> float:
 
 
 def decimal(value: float | np.floating) -> float:
-    """A float32 field value as the float64 of its shortest decimal form (0.08, not 0.0799..).
+    """Turn a float32 field value into the float64 of its shortest decimal form.
 
-    MATLAB logs store figures such as 0.08 m/s in single precision; this keeps what the
-    author typed instead of the float32 rounding error.
+    MATLAB logs store figures such as 0.08 m/s in single precision; this gives back 0.08
+    (what the author typed), not 0.0799999982 (its float32 rounding).
     """
     if isinstance(value, np.float32):
         return float(str(value))
@@ -181,7 +181,7 @@ def check_stamps(path: Path, dotted: str, counts: NDArray[Any]) -> None:
 
 
 def stamps_s(counts: NDArray[Any], zero: int) -> NDArray[np.float64]:
-    """Counts of 0.1 ms to float seconds since the count `zero`, exactly rounded.
+    """Turn counts of 0.1 ms into float seconds since the count `zero`, exactly rounded.
 
     Args:
         counts: shape (n,), integer counts of 0.1 ms.

@@ -90,10 +90,10 @@ def read_events(path: Path, variables: dict[str, Any], scan_field: str) -> SimEv
 
 
 def points(path: Path, variables: dict[str, Any], dotted: str) -> FloatArray:
-    """A (2, k) point or polyline field as shape (k, 2) float64, m."""
+    """Read a (2, k) point or polyline field as shape (k, 2) float64, m."""
     return mat.array(variables, dotted, path, (2, None), 'f').T.astype(np.float64)
 
 
 def pose(path: Path, variables: dict[str, Any], dotted: str) -> FloatArray:
-    """A (3,) pose field (x m, y m, heading rad) as float64."""
+    """Read a (3,) pose field (x m, y m, heading rad) as float64."""
     return mat.array(variables, dotted, path, (3,), 'f').astype(np.float64)
