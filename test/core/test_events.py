@@ -1,0 +1,129 @@
+"""Event driver: ordering, hold semantics, time going backwards, reorder buffer, whole trips."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from gyro_ekf.core.config import EkfConfig
+from gyro_ekf.core.errors import TimeWentBackwardsError
+from gyro_ekf.core.events import (EventDriver, EventKind, ReorderBuffer, drive_trip,
+                                  iter_trip_events)
+from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+from gyro_ekf.core.types import ImuSeries, SpeedSeries, Trip
+
+
+def _config_for(trip):
+    """Defaults, except the noise figures the trip states about its gyro and speed."""
+    return dataclasses.replace(EkfConfig(), gyro_noise_rad_s=trip.noise.gyro_rad_s,
+                               speed_noise_m_s=trip.noise.speed_m_s)
+
+
+@pytest.fixture(scope='module')
+def simulated_runs():
+    runs = []
+    for seed in (11, 12, 13):
+        trip = simulate_trip(SimulationConfig(duration_s=90.0), seed=seed)
+        runs.append((trip, drive_trip(trip, EventDriver(_config_for(trip), trip.landmarks,
+                                                        trip.initial_pose))))
+    return runs
+
+
+def test_bias_converges_to_the_injected_bias_on_simulated_trips(simulated_runs):
+    for trip, run in simulated_runs:
+        final = run.estimates.state[-1]
+        sigma = math.sqrt(run.estimates.covariance[-1, 3, 3])
+        error_deg_s = math.degrees(final[3] - trip.true_gyro_bias_rad_s[2])
+        print(f'{trip.name}: bias error {error_deg_s:+.4f} deg/s, sigma '
+              f'{math.degrees(sigma):.4f} deg/s')
+        assert abs(error_deg_s) < 0.02
+        assert abs(final[3] - trip.true_gyro_bias_rad_s[2]) < 4 * sigma
+
+
+def test_position_follows_ground_truth(simulated_runs):
+    for trip, run in simulated_runs:
+        truth = trip.ground_truth
+        est = run.estimates
+        x = np.interp(truth.stamp_s, est.stamp_s, est.state[:, 0])
+        y = np.interp(truth.stamp_s, est.stamp_s, est.state[:, 1])
+        rmse = math.sqrt(np.mean((x - truth.pose[:, 0]) ** 2 + (y - truth.pose[:, 1]) ** 2))
+        assert rmse < 0.02
+        stats = run.stats.snapshot()
+        assert stats['imu'] == len(trip.imu.stamp_s) == len(est.stamp_s)
+        assert stats['outcomes']['matched'] > 0.95 * stats['detections']
+
+
+def test_one_row_per_imu_sample_in_time_order(simulated_runs):
+    trip, run = simulated_runs[0]
+    np.testing.assert_array_equal(run.estimates.stamp_s, trip.imu.stamp_s)
+    assert np.all(np.diff(run.estimates.stamp_s) >= 0)
+
+
+def _tiny_trip():
+    imu_t = np.array([0.0, 0.01, 0.02, 0.03])
+    speed_t = np.array([0.0, 0.02])
+    return Trip('tiny', ImuSeries(imu_t, np.zeros((4, 3))), SpeedSeries(speed_t, np.ones(2)))
+
+
+def test_equal_stamps_order_speed_then_observation_then_imu():
+    events = list(iter_trip_events(_tiny_trip()))
+    assert [(t, k) for t, k, _, _ in events[:3]] == [
+        (0.0, EventKind.SPEED), (0.0, EventKind.IMU), (0.01, EventKind.IMU)]
+    assert events[3][:2] == (0.02, EventKind.SPEED) and events[4][:2] == (0.02, EventKind.IMU)
+
+
+def test_inputs_are_held_between_samples():
+    driver = EventDriver(EkfConfig(), pose=[0.0, 0.0, 0.0], bias_rad_s=0.0)
+    driver.on_speed(0.0, 2.0)
+    driver.on_imu(0.0, 0.0)
+    estimate = driver.on_imu(0.5, 1.0)  # 0.5 s at the held 2 m/s and 0 rad/s
+    assert estimate.state[0] == pytest.approx(1.0)
+    assert estimate.state[2] == pytest.approx(0.0)
+    estimate = driver.on_imu(0.75, 1.0)  # now the held rate is 1 rad/s
+    assert estimate.state[2] == pytest.approx(0.25)
+
+
+def test_long_gaps_are_split_into_bounded_prediction_steps():
+    config = EkfConfig(max_prediction_step_s=0.1)
+    one = EventDriver(config, pose=[0, 0, 0])
+    many = EventDriver(config, pose=[0, 0, 0])
+    for driver in (one, many):
+        driver.on_speed(0.0, 1.0)
+        driver.on_imu(0.0, 0.3)
+    one.on_imu(1.0, 0.3)
+    for k in range(1, 11):
+        many.on_imu(k / 10, 0.3)
+    np.testing.assert_allclose(one.ekf.x, many.ekf.x, atol=1e-12)
+    np.testing.assert_allclose(one.ekf.P, many.ekf.P, atol=1e-15)
+
+
+def test_time_going_backwards_raises_and_reset_recovers():
+    driver = EventDriver(EkfConfig(), pose=[1.0, 2.0, 0.5])
+    driver.on_imu(10.0, 0.1)
+    with pytest.raises(TimeWentBackwardsError, match='went back 9.0000 s'):
+        driver.on_imu(1.0, 0.1)
+    driver.reset(pose=[1.0, 2.0, 0.5])
+    assert driver.on_imu(1.0, 0.1).stamp_s == 1.0
+    assert driver.stats.imu == 1
+
+
+def test_reorder_buffer_releases_in_driver_order_and_reports_late_events():
+    buffer = ReorderBuffer(window_s=0.05)
+    ready, late = buffer.push(1.00, EventKind.IMU, 'imu@1.00')
+    assert ready == [] and late == []
+    buffer.push(1.00, EventKind.SPEED, 'speed@1.00')
+    buffer.push(0.99, EventKind.OBSERVATION, 'scan@0.99')
+    ready, _ = buffer.push(1.06, EventKind.IMU, 'imu@1.06')
+    assert [p for _, _, p in ready] == ['scan@0.99', 'speed@1.00', 'imu@1.00']
+    ready, late = buffer.push(0.98, EventKind.IMU, 'imu@0.98')
+    assert ready == [] and late == ['imu@0.98']
+    assert [p for _, _, p in buffer.flush()] == ['imu@1.06']
+
+
+def test_reorder_buffer_is_bounded():
+    buffer = ReorderBuffer(window_s=100.0, max_events=3)
+    released = []
+    for k in range(5):
+        released += buffer.push(float(k), EventKind.IMU, k)[0]
+    assert len(buffer) == 3 and [p for _, _, p in released] == [0, 1]
