@@ -50,7 +50,7 @@ GRAVITY_M_S2 = 9.80665
 POLE_INTENSITY = 1.0
 WALL_INTENSITY = 0.0
 # Scans ray-cast per vectorised block: bounds the (scans, beams, objects) temporaries.
-_SCAN_BLOCK = 256
+_SCAN_BLOCK = 64
 # Arc-length table resolution per lap of the figure-eight (about 1 mm per entry).
 _TABLE_SIZE = 40_000
 
@@ -229,21 +229,68 @@ def _place_poles(config: SimulationConfig, path: _Path, rng: np.random.Generator
     return poles
 
 
-def _speed_profile(config: SimulationConfig, t_s: FloatArray,
-                   rng: np.random.Generator) -> FloatArray:
-    """Return the true speed on the grid t_s (n,), m/s: 0, a smooth ramp, a random cruise."""
-    mid = 0.5 * (config.min_speed_m_s + config.max_speed_m_s)
-    half = 0.5 * (config.max_speed_m_s - config.min_speed_m_s)
-    weights = rng.uniform(0.5, 1.0, size=3)
-    amplitudes = 0.95 * half * weights / weights.sum()
-    frequencies = rng.uniform(1.0 / 45.0, 1.0 / 12.0, size=3)
-    phases = rng.uniform(0.0, 2.0 * math.pi, size=3)
-    moving = t_s - config.static_s
-    cruise = mid + np.sum(amplitudes[:, None] * np.sin(
-        2.0 * math.pi * frequencies[:, None] * moving[None, :] + phases[:, None]), axis=0)
-    x = np.clip(moving / config.ramp_s, 0.0, 1.0)
-    ramp = x * x * x * (10.0 + x * (-15.0 + 6.0 * x))    # quintic: smooth acceleration
-    return ramp * cruise
+@dataclass(frozen=True, slots=True)
+class _SpeedLaw:
+    """True speed v(t): 0, a quintic ramp, then a cruise of three slow sinusoids."""
+
+    static_s: float
+    ramp_s: float
+    mid_m_s: float
+    amplitudes_m_s: tuple[float, ...]
+    frequencies_hz: tuple[float, ...]
+    phases_rad: tuple[float, ...]
+
+    @classmethod
+    def draw(cls, config: SimulationConfig, rng: np.random.Generator) -> _SpeedLaw:
+        half = 0.5 * (config.max_speed_m_s - config.min_speed_m_s)
+        weights = rng.uniform(0.5, 1.0, size=3)
+        # The amplitudes sum to just under the half range: the cruise stays inside it.
+        amplitudes = 0.95 * half * weights / weights.sum()
+        frequencies = rng.uniform(1.0 / 45.0, 1.0 / 12.0, size=3)
+        phases = rng.uniform(0.0, 2.0 * math.pi, size=3)
+        return cls(config.static_s, config.ramp_s,
+                   0.5 * (config.min_speed_m_s + config.max_speed_m_s),
+                   tuple(amplitudes.tolist()), tuple(frequencies.tolist()),
+                   tuple(phases.tolist()))
+
+    def __call__(self, t_s: FloatArray) -> FloatArray:
+        """Return the true speed at times t_s (n,), m/s."""
+        moving = np.asarray(t_s, dtype=np.float64) - self.static_s
+        cruise = np.full(moving.shape, self.mid_m_s)
+        for amplitude, frequency, phase in zip(self.amplitudes_m_s, self.frequencies_hz,
+                                               self.phases_rad):
+            cruise += amplitude * np.sin(2.0 * math.pi * frequency * moving + phase)
+        x = np.clip(moving / self.ramp_s, 0.0, 1.0)
+        ramp = x * x * x * (10.0 + x * (-15.0 + 6.0 * x))    # quintic: smooth acceleration
+        return ramp * cruise
+
+
+@dataclass(frozen=True, slots=True)
+class _ArcLength:
+    """Arc length s(t), m, integrated (trapezoid) on a uniform fine grid from t = 0."""
+
+    step_s: float
+    grid_m: FloatArray
+
+    @classmethod
+    def integrate(cls, speed: _SpeedLaw, end_s: float, step_s: float) -> _ArcLength:
+        count = int(math.ceil(end_s / step_s)) + 1
+        grid = np.empty(count)
+        grid[0] = 0.0
+        # In blocks, so a long trip never holds more than one block of grid temporaries.
+        block = 1 << 16
+        for first in range(0, count - 1, block):
+            last = min(first + block, count - 1)
+            v = speed(np.arange(first, last + 1) * step_s)
+            grid[first + 1:last + 1] = grid[first] + np.cumsum(0.5 * step_s * (v[1:] + v[:-1]))
+        return cls(step_s, grid)
+
+    def __call__(self, t_s: FloatArray) -> FloatArray:
+        """Return s at times t_s (n,) inside the grid, m, linearly interpolated."""
+        position = np.asarray(t_s, dtype=np.float64) / self.step_s
+        index = np.clip(np.floor(position).astype(np.int64), 0, self.grid_m.size - 2)
+        frac = position - index
+        return self.grid_m[index] * (1.0 - frac) + self.grid_m[index + 1] * frac
 
 
 def _sample_times(duration_s: float, rate_hz: float) -> FloatArray:
@@ -327,13 +374,9 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
 
     # True speed on the fine grid, integrated (trapezoid) into arc length; one second of
     # margin covers the [t_k, t_k + T) window of the last samples.
-    step = 1.0 / config.integration_rate_hz
-    grid_t = np.arange(int(math.ceil((config.duration_s + 1.0) / step)) + 1) * step
-    grid_v = _speed_profile(config, grid_t, speed_rng)
-    grid_s = np.concatenate([[0.0], np.cumsum(0.5 * step * (grid_v[1:] + grid_v[:-1]))])
-
-    def arc(t_s: FloatArray) -> FloatArray:
-        return np.interp(t_s, grid_t, grid_s)
+    speed_law = _SpeedLaw.draw(config, speed_rng)
+    arc = _ArcLength.integrate(speed_law, config.duration_s + 1.0,
+                               1.0 / config.integration_rate_hz)
 
     # IMU: mean true rate over [t_k, t_k + T) plus bias and noise per axis.
     imu_t = _sample_times(config.duration_s, config.imu_rate_hz)
@@ -351,7 +394,7 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
     accel = None
     if config.with_accelerometer:
         speed_mean = np.diff(edge_s) / period
-        v_edges = np.interp(edges, grid_t, grid_v)
+        v_edges = speed_law(edges)
         accel = np.column_stack([np.diff(v_edges) / period, speed_mean * rate_true,
                                  np.full(imu_t.size, GRAVITY_M_S2)])
         accel += config.accel_noise_m_s2 * accel_rng.standard_normal(accel.shape)
