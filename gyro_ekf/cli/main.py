@@ -20,7 +20,7 @@ log = logging.getLogger('gyro_ekf')
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argparse tree of all subcommands."""
+    """Build the argparse tree of all subcommands."""
     parser = argparse.ArgumentParser(
         prog='gyro-ekf', description='Gyro bias calibration and pose/bias EKF tools.',
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)

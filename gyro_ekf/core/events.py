@@ -183,7 +183,7 @@ class EventDriver:
         return self.estimate()
 
     def estimate(self) -> Estimate:
-        """Return the current estimate (state and covariance are copies)."""
+        """Return a snapshot of the filter (state and covariance are copies)."""
         rate = 0.0 if self.rate_rad_s is None else self.rate_rad_s - self.ekf.x[3]
         return Estimate(stamp_s=self.stamp_s if self.stamp_s is not None else 0.0,
                         state=self.ekf.x.copy(), covariance=self.ekf.P.copy(),

@@ -3,7 +3,6 @@
 import math
 
 import numpy as np
-import pytest
 from scipy.stats import chi2
 
 from gyro_ekf.core import models
