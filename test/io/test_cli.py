@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import io
 import re
+import sys
 
+import pytest
 from synthetic_logs import write_2023
 
-from gyro_ekf.cli.convert import parse_start_time
+from gyro_ekf.cli.convert import _progress_bar, parse_start_time
 from gyro_ekf.cli.main import main
 from gyro_ekf.io.bag_reader import read_bag
 
@@ -43,3 +46,20 @@ def test_convert_then_info(tmp_path, capsys):
 def test_info_on_missing_bag(tmp_path, capsys):
     assert main(['info', str(tmp_path / 'nothing')]) == 1
     assert 'no such bag' in capsys.readouterr().err
+
+
+class _FakeTerminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_bar_only_on_a_terminal(monkeypatch):
+    monkeypatch.setattr(sys, 'stderr', io.StringIO())
+    assert _progress_bar() == (None, None)
+    pytest.importorskip('tqdm')
+    terminal = _FakeTerminal()
+    monkeypatch.setattr(sys, 'stderr', terminal)
+    update, bar = _progress_bar()
+    update(5, 10)
+    bar.close()
+    assert '50%' in terminal.getvalue()
