@@ -235,7 +235,6 @@ def read_bag(path: Path | str) -> BagTrip:
         BagError: missing or unreadable bag, no /imu or /odom topic, or inconsistent scans.
     """
     path = Path(path)
-    params = read_sidecar(path)
     reader = _open(path)
     try:
         by_topic = {c.topic: c for c in reader.connections}
@@ -243,6 +242,7 @@ def read_bag(path: Path | str) -> BagTrip:
         start = reader.start_time if reader.message_count else 0
     finally:
         reader.close()
+    params = read_sidecar(path)
     for needed, msgtype in ((IMU_TOPIC, topics.IMU_TYPE), (ODOM_TOPIC, topics.ODOMETRY_TYPE)):
         if needed not in by_topic:
             raise BagError(f"{path}: no topic '{needed}' (the bag has {sorted(by_topic)})")
