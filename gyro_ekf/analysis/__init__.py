@@ -1,1 +1,1 @@
-
+"""Offline analysis: metrics, summaries, outputs and figures of filter runs."""

@@ -1,16 +1,125 @@
-"""`gyro-ekf run` (placeholder until its owner lands it)."""
+"""`gyro-ekf run BAG -o OUTDIR`: calibration and EKF straight on a bag, without DDS.
+
+Reads the bag (and its params sidecar), runs the offline calibration where the trip starts
+static and the same EventDriver the live EKF node uses, then writes estimates.csv, the
+estimates bag, summary.json and the figures into OUTDIR. stdout gets a short summary table.
+"""
 
 from __future__ import annotations
 
 import argparse
+import logging
+import math
+from pathlib import Path
+import sys
+import time
+from typing import Any
 
-HELP = 'not implemented yet'
+HELP = 'run calibration and the EKF on a bag offline; write CSV, bag, summary and plots'
+
+log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add this command's arguments."""
+    parser.add_argument('bag', type=Path, help='input bag folder (from convert or simulate)')
+    parser.add_argument('-o', '--output', type=Path, required=True,
+                        help='output folder (created; must be empty unless --force)')
+    parser.add_argument('--params-file', type=Path, default=None,
+                        help='ROS 2 params YAML with filter parameters (as the nodes take)')
+    parser.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
+    parser.add_argument('--no-bag', action='store_true', help='skip the estimates bag')
+    parser.add_argument('--ignore-stated-noise', action='store_true',
+                        help="use the configured noise sigmas even where the log states its own")
+    parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
+                        help='storage plugin of the estimates bag')
+    parser.add_argument('--force', action='store_true',
+                        help='write into a non-empty output folder, replacing its products')
+    parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+
+
+def _progress_bar(total: int, enabled: bool) -> Any:
+    from tqdm import tqdm
+    return tqdm(total=total, unit='msg', unit_scale=True, desc='run', leave=False,
+                disable=not enabled, file=sys.stderr)
+
+
+def _table(summary: dict[str, Any]) -> str:
+    def number(value: Any, fmt: str) -> str:
+        return 'n/a' if value is None or (isinstance(value, float) and math.isnan(value)) \
+            else format(value, fmt)
+
+    rows = [('trip', summary['trip']['name']),
+            ('duration (s)', number(summary['trip']['duration_s'], '.1f'))]
+    offline = summary['offline_bias']
+    rows.append(('offline bias (deg/s)', 'n/a' if offline is None
+                 else number(offline['bias_deg_s'][2], '.4f')))
+    online = summary['online_bias']
+    rows += [('online bias, final (deg/s)', number(online['final_deg_s'], '.4f')),
+             ('online bias, last-half mean (deg/s)', number(online['last_half_mean_deg_s'],
+                                                            '.4f')),
+             ('poles associated', number(summary['association']['share_associated'], '.2%')),
+             ('longest gap without a landmark (s)',
+              number(summary['association']['longest_gap_s'], '.2f')),
+             ('NIS mean / share in 95 % band', number(summary['nis']['mean'], '.2f') + ' / '
+              + number(summary['nis']['share_in_band'], '.1%'))]
+    truth = summary['ground_truth']
+    if truth is not None:
+        rows += [('position RMSE / max (m)', number(truth['position_rmse_m'], '.4f') + ' / '
+                  + number(truth['position_max_error_m'], '.4f')),
+                 ('heading RMSE (deg)', number(truth['heading_rmse_deg'], '.3f')),
+                 ('NEES mean / share in 95 % band', number(truth['nees_mean'], '.2f') + ' / '
+                  + number(truth['nees_share_in_band'], '.1%'))]
+        if 'bias_error_final_deg_s' in truth:
+            rows += [('bias error, final (deg/s)', number(truth['bias_error_final_deg_s'],
+                                                          '.4f')),
+                     ('bias settling time (s)', number(truth['bias_settling_time_s'], '.1f'))]
+    width = max(len(name) for name, _ in rows)
+    return '\n'.join(f'{name:<{width}}  {value}' for name, value in rows)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
-    raise NotImplementedError('gyro-ekf run')
+    from gyro_ekf.analysis import outputs
+    from gyro_ekf.analysis.offline import event_count, run_trip
+    from gyro_ekf.analysis.params_file import PipelineParams, read_params_file
+    from gyro_ekf.analysis.summary import summarize
+    from gyro_ekf.io.bag_reader import read_bag
+
+    params = read_params_file(args.params_file) if args.params_file else PipelineParams()
+    folder = outputs.prepare_output_dir(args.output, force=args.force)
+    began = time.perf_counter()
+    bag = read_bag(args.bag)
+    trip = bag.trip
+    read_s = time.perf_counter() - began
+    use_stated = not args.ignore_stated_noise and bool(params.options.get('use_stated_noise',
+                                                                          True))
+    show = not args.no_progress and sys.stderr.isatty()
+    with _progress_bar(event_count(trip), show) as bar:
+        result = run_trip(trip, params, use_stated_noise=use_stated, progress=bar.update)
+    est = result.result.estimates
+    summary = summarize(result)
+    outputs.write_estimates_csv(folder / outputs.ESTIMATES_CSV, est.stamp_s, est.state,
+                                est.covariance)
+    if not args.no_bag:
+        bag_path = folder / outputs.ESTIMATES_BAG
+        if bag_path.exists():
+            import shutil
+            shutil.rmtree(bag_path)
+        outputs.write_estimates_bag(bag_path, bag.start_time_ns, est.stamp_s, est.state,
+                                    est.covariance, result.speed_m_s, result.yaw_rate_rad_s,
+                                    storage=args.storage)
+    processed_s = time.perf_counter() - began
+    summary['timing'] = {'read_s': read_s, 'run_and_outputs_s': processed_s - read_s,
+                         'real_time_factor': summary['trip']['duration_s'] / processed_s
+                         if processed_s > 0 else None}
+    outputs.write_summary_json(folder / outputs.SUMMARY_JSON, summary)
+    if not args.no_plots:
+        from gyro_ekf.analysis.plots import write_plots
+        written = write_plots(result, folder)
+        log.info('wrote %d figures', len(written))
+    log.info('%s: %.1f s of trip in %.2f s (%.0fx real time, plots excluded)', trip.name,
+             summary['trip']['duration_s'], processed_s,
+             summary['timing']['real_time_factor'] or math.nan)
+    print(_table(summary))
+    return 0

@@ -1,0 +1,147 @@
+"""Offline run of the pipeline on a Trip: calibration, then the EventDriver over every event.
+
+This is what `gyro-ekf run` does between reading the bag and writing its products, with no
+DDS in between: the same `core.events.EventDriver` the live EKF node wraps, fed the trip's
+events in stamp order (`core.events.drive_trip`).
+
+Configuration follows the live nodes: the core defaults, then the noise figures the log
+states (when `use_stated_noise`, as the EKF node's parameter of that name does), then
+whatever a params file sets explicitly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import dataclasses
+from dataclasses import dataclass
+import logging
+
+import numpy as np
+
+from gyro_ekf.analysis.params_file import PipelineParams
+from gyro_ekf.core.calibration import estimate_gyro_bias
+from gyro_ekf.core.config import CalibrationConfig, EkfConfig
+from gyro_ekf.core.errors import CalibrationError
+from gyro_ekf.core.events import EventDriver, TripRun, drive_trip
+from gyro_ekf.core.types import BIAS, BiasEstimate, FloatArray, NoiseFigures, Trip
+
+log = logging.getLogger(__name__)
+
+STATED_NOISE_FIELDS = {
+    'gyro_rad_s': 'gyro_noise_rad_s',
+    'speed_m_s': 'speed_noise_m_s',
+    'range_m': 'range_noise_m',
+    'bearing_rad': 'bearing_noise_rad',
+}
+"""NoiseFigures attribute -> the EkfConfig field a stated figure replaces (as the nodes do)."""
+
+
+@dataclass(frozen=True, slots=True)
+class OfflineRun:
+    """Everything a run produced.
+
+    Attributes:
+        trip: the inputs.
+        config: the EKF configuration used.
+        config_sources: EKF field -> 'default', 'log' (stated by the log) or 'params-file'.
+        calibration: the accepted static-window estimate, or None.
+        calibration_error: why no window was accepted, or None.
+        result: estimates (one row per IMU sample), per-scan reports and counts.
+        speed_m_s: held speed at each estimate, shape (n,), m/s.
+        yaw_rate_rad_s: bias-corrected yaw rate at each estimate, shape (n,), rad/s.
+    """
+
+    trip: Trip
+    config: EkfConfig
+    config_sources: dict[str, str]
+    calibration: BiasEstimate | None
+    calibration_error: str | None
+    result: TripRun
+    speed_m_s: FloatArray
+    yaw_rate_rad_s: FloatArray
+
+
+def effective_config(noise: NoiseFigures, params: PipelineParams | None = None,
+                     use_stated_noise: bool = True) -> tuple[EkfConfig, dict[str, str]]:
+    """The EKF configuration of a run and where each value came from.
+
+    Args:
+        noise: the noise figures the log states.
+        params: a parsed params file, or None for the defaults.
+        use_stated_noise: let the log's stated figures replace the defaults (a params file
+            value still wins).
+
+    Returns:
+        The config and, per field, 'default', 'log' or 'params-file'.
+    """
+    params = params or PipelineParams()
+    config = params.ekf
+    explicit = set(params.explicit.get('ekf', ()))
+    sources = {f.name: ('params-file' if f.name in explicit else 'default')
+               for f in dataclasses.fields(EkfConfig)}
+    if use_stated_noise:
+        changes = {}
+        for key, target in STATED_NOISE_FIELDS.items():
+            value = getattr(noise, key)
+            if value is not None and target not in explicit:
+                changes[target] = float(value)
+                sources[target] = 'log'
+        config = dataclasses.replace(config, **changes)
+    return config, sources
+
+
+def calibrate(trip: Trip, config: CalibrationConfig | None = None
+              ) -> tuple[BiasEstimate | None, str | None]:
+    """Static-window calibration of the trip's gyro, or the reason there is none."""
+    try:
+        estimate = estimate_gyro_bias(
+            trip.imu.stamp_s, trip.imu.angular_velocity_rad_s, config,
+            trip.speed.stamp_s, trip.speed.speed_m_s, trip.imu.axes_known)
+    except CalibrationError as err:
+        log.info('%s: no offline bias: %s', trip.name, err)
+        return None, str(err)
+    log.info('%s: offline yaw-rate bias %.4f deg/s (window %.1f-%.1f s, %d samples)',
+             trip.name, np.rad2deg(estimate.bias_rad_s[2]), estimate.window_start_s,
+             estimate.window_end_s, estimate.n_samples)
+    return estimate, None
+
+
+def event_count(trip: Trip) -> int:
+    """Number of events drive_trip processes (IMU, speed and scans)."""
+    return (len(trip.imu.stamp_s) + len(trip.speed.stamp_s)
+            + sum(len(s.stamp_s) for s in trip.scans))
+
+
+def run_trip(trip: Trip, params: PipelineParams | None = None, use_stated_noise: bool = True,
+             progress: Callable[[int], None] | None = None) -> OfflineRun:
+    """Calibrate (where the trip starts static) and run the EKF over the whole trip.
+
+    The filter starts at the trip's initial pose with the configured priors. An accepted
+    static window seeds the bias state with its mean and the standard error of that mean.
+
+    Args:
+        trip: the inputs (stamps in s since the bag's first message).
+        params: a parsed params file, or None for the defaults.
+        use_stated_noise: see effective_config.
+        progress: called with the number of events processed since the last call.
+    """
+    params = params or PipelineParams()
+    config, sources = effective_config(trip.noise, params, use_stated_noise)
+    calibration, reason = calibrate(trip, params.calibration)
+    driver = EventDriver(config, trip.landmarks, trip.initial_pose,
+                         detector_config=params.detector)
+    if calibration is not None:
+        driver.ekf.set_bias(float(calibration.bias_rad_s[2]),
+                            float(calibration.bias_standard_error_rad_s[2]))
+    result = drive_trip(trip, driver, progress)
+    estimates = result.estimates
+    # What the live node puts in the odometry twist: the held speed and the corrected rate.
+    speed_t = trip.speed.stamp_s
+    held = np.searchsorted(speed_t, estimates.stamp_s, side='right') - 1
+    speed = np.where(held >= 0, trip.speed.speed_m_s[np.maximum(held, 0)], 0.0) if len(
+        speed_t) else np.zeros(len(estimates.stamp_s))
+    rate = trip.imu.yaw_rate_rad_s[:len(estimates.stamp_s)] - estimates.state[:, BIAS]
+    return OfflineRun(trip=trip, config=config, config_sources=sources,
+                      calibration=calibration, calibration_error=reason, result=result,
+                      speed_m_s=np.asarray(speed, dtype=np.float64),
+                      yaw_rate_rad_s=np.asarray(rate, dtype=np.float64))

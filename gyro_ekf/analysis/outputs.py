@@ -1,0 +1,224 @@
+"""Writers of the products of `gyro-ekf run`: estimates CSV, summary JSON, estimates bag.
+
+Every writer builds its file (or bag folder) under a temporary name beside the target and
+renames it into place, so an interrupted run never leaves a half-written product. The
+output folder itself is claimed once with `prepare_output_dir`, which refuses to write into
+a folder that already holds files unless asked to (`--force`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+import json
+import logging
+import math
+import os
+from pathlib import Path
+import shutil
+import tempfile
+from typing import Any
+
+import numpy as np
+
+from gyro_ekf import topics
+from gyro_ekf.analysis.errors import OutputError
+from gyro_ekf.core.types import FloatArray
+
+log = logging.getLogger(__name__)
+
+CSV_HEADER = ('t,x,y,yaw,bias,var_x,var_y,var_yaw,var_bias,cov_xy,cov_xyaw,cov_yyaw')
+"""Columns of estimates.csv: s since the bag's first message, m, m, rad, rad/s, then the
+variances m^2, m^2, rad^2, (rad/s)^2 and covariances m^2, m rad, m rad."""
+
+ESTIMATES_CSV = 'estimates.csv'
+ESTIMATES_BAG = 'estimates'
+SUMMARY_JSON = 'summary.json'
+
+_BAG_VERSION = 9
+
+
+def prepare_output_dir(path: Path | str, force: bool = False) -> Path:
+    """Create the output folder, or accept an existing one that is empty (or with force).
+
+    Raises:
+        OutputError: the path is a file, or a non-empty folder without force.
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputError(f'{path}: exists and is not a folder')
+    if path.is_dir() and any(path.iterdir()) and not force:
+        raise OutputError(f'{path}: folder is not empty; use --force to overwrite its products')
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@contextmanager
+def staged_file(target: Path) -> Iterator[Path]:
+    """Yield a temporary path beside target; rename it onto target if the block succeeds."""
+    handle, name = tempfile.mkstemp(prefix=f'.{target.name}.', suffix='.tmp', dir=target.parent)
+    os.close(handle)
+    staged = Path(name)
+    try:
+        yield staged
+        os.chmod(staged, 0o666 & ~_umask())
+        os.replace(staged, target)
+    finally:
+        if staged.exists():
+            staged.unlink()
+
+
+def estimates_table(stamp_s: FloatArray, state: FloatArray, covariance: FloatArray
+                    ) -> FloatArray:
+    """The rows of estimates.csv, shape (n, 12), in CSV_HEADER order.
+
+    Args:
+        stamp_s: shape (n,), s since the bag's first message.
+        state: shape (n, 4): x m, y m, yaw rad, bias rad/s.
+        covariance: shape (n, 4, 4).
+    """
+    P = np.asarray(covariance, dtype=np.float64)
+    return np.column_stack([
+        np.asarray(stamp_s, dtype=np.float64), np.asarray(state, dtype=np.float64),
+        P[:, 0, 0], P[:, 1, 1], P[:, 2, 2], P[:, 3, 3], P[:, 0, 1], P[:, 0, 2], P[:, 1, 2]])
+
+
+def write_estimates_csv(path: Path | str, stamp_s: FloatArray, state: FloatArray,
+                        covariance: FloatArray) -> Path:
+    """Write estimates.csv (header CSV_HEADER, SI units, one row per IMU step).
+
+    Args:
+        path: target file.
+        stamp_s: shape (n,), s since the bag's first message.
+        state: shape (n, 4): x m, y m, yaw rad, bias rad/s.
+        covariance: shape (n, 4, 4).
+
+    Returns:
+        The path written.
+    """
+    path = Path(path)
+    table = estimates_table(stamp_s, state, covariance)
+    with staged_file(path) as staged:
+        np.savetxt(staged, table, fmt='%.9g', delimiter=',', header=CSV_HEADER, comments='')
+    return path
+
+
+def _json_ready(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _json_ready(value.tolist())
+    if isinstance(value, (np.floating, float)):
+        number = float(value)
+        return number if math.isfinite(number) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def write_summary_json(path: Path | str, summary: dict[str, Any]) -> Path:
+    """Write the summary as indented JSON; nan and inf become null (JSON has neither)."""
+    path = Path(path)
+    with staged_file(path) as staged:
+        staged.write_text(json.dumps(_json_ready(summary), indent=2) + '\n', encoding='utf-8')
+    return path
+
+
+def _pose(msgs: Any, x_m: float, y_m: float, yaw_rad: float) -> Any:
+    return msgs.Pose(position=msgs.Point(x=x_m, y=y_m, z=0.0),
+                     orientation=msgs.yaw_quaternion(yaw_rad))
+
+
+def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArray,
+                        state: FloatArray, covariance: FloatArray, speed_m_s: FloatArray,
+                        yaw_rate_rad_s: FloatArray, storage: str = 'mcap') -> Path:
+    """Write the EKF outputs as the live EKF node publishes them, one set per IMU step.
+
+    Topics (frames per REP-105): `/ekf/pose` PoseWithCovarianceStamped in `map`;
+    `/ekf/odometry` Odometry `map` -> `base_link` with the pose covariance and the held
+    speed and bias-corrected yaw rate as twist; `/ekf/bias` Vector3Stamped in `imu_link`
+    (z = yaw-rate bias, rad/s). Pose covariances are 6x6 row-major over (x, y, z, roll,
+    pitch, yaw); z, roll and pitch are not estimated and carry 0.
+
+    Args:
+        path: the bag folder to create (must not exist).
+        start_time_ns: bag stamp of t = 0, ns since the epoch.
+        stamp_s: shape (n,), s since start_time_ns.
+        state: shape (n, 4); covariance: shape (n, 4, 4).
+        speed_m_s: held speed per row, shape (n,), m/s.
+        yaw_rate_rad_s: bias-corrected yaw rate per row, shape (n,), rad/s.
+        storage: 'mcap' or 'sqlite3'.
+
+    Raises:
+        OutputError: the bag folder exists or cannot be written.
+    """
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.rosbag2.errors import WriterError
+
+    from gyro_ekf.io import messages as msgs
+
+    path = Path(path)
+    if path.exists():
+        raise OutputError(f'{path}: exists already')
+    plugins = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+    if storage not in plugins:
+        raise OutputError(f'{path}: unknown storage {storage!r}; expected one of '
+                          f'{sorted(plugins)}')
+    types = msgs.TYPESTORE.types
+    Vector3Stamped = types[topics.VECTOR3_STAMPED_TYPE]
+    stamps_ns = int(start_time_ns) + np.round(np.asarray(stamp_s) * 1e9).astype(np.int64)
+    state = np.asarray(state, dtype=np.float64)
+    P = np.asarray(covariance, dtype=np.float64)
+    pose_cov = np.zeros((len(stamps_ns), 36))
+    for i, a in enumerate((0, 1, 5)):           # x, y, yaw rows of the 6x6
+        for j, b in enumerate((0, 1, 5)):
+            pose_cov[:, a * 6 + b] = P[:, i, j]
+    twist_cov = np.zeros(36)
+    aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
+    staged = aside / path.name
+    serialize = msgs.TYPESTORE.serialize_cdr
+    try:
+        with Writer(staged, version=_BAG_VERSION, storage_plugin=plugins[storage]) as writer:
+            pose_conn = writer.add_connection(
+                topics.bag_topic(topics.EKF_POSE), topics.POSE_WITH_COVARIANCE_STAMPED_TYPE,
+                typestore=msgs.TYPESTORE)
+            odom_conn = writer.add_connection(
+                topics.bag_topic(topics.EKF_ODOMETRY), topics.ODOMETRY_TYPE,
+                typestore=msgs.TYPESTORE)
+            bias_conn = writer.add_connection(
+                topics.bag_topic(topics.EKF_BIAS), topics.VECTOR3_STAMPED_TYPE,
+                typestore=msgs.TYPESTORE)
+            for k, stamp in enumerate(stamps_ns.tolist()):
+                x, y, yaw, bias = state[k].tolist()
+                pose = msgs.PoseWithCovariance(pose=_pose(msgs, x, y, yaw),
+                                               covariance=pose_cov[k])
+                map_header = msgs.header(stamp, topics.MAP_FRAME)
+                writer.write(pose_conn, stamp, bytes(serialize(
+                    msgs.PoseWithCovarianceStamped(header=map_header, pose=pose),
+                    topics.POSE_WITH_COVARIANCE_STAMPED_TYPE)))
+                twist = msgs.TwistWithCovariance(
+                    twist=msgs.Twist(linear=msgs.Vector3(x=float(speed_m_s[k]), y=0.0, z=0.0),
+                                     angular=msgs.Vector3(x=0.0, y=0.0,
+                                                          z=float(yaw_rate_rad_s[k]))),
+                    covariance=twist_cov)
+                writer.write(odom_conn, stamp, bytes(serialize(
+                    msgs.Odometry(header=map_header, child_frame_id=topics.BASE_FRAME,
+                                  pose=pose, twist=twist), topics.ODOMETRY_TYPE)))
+                writer.write(bias_conn, stamp, bytes(serialize(
+                    Vector3Stamped(header=msgs.header(stamp, topics.IMU_FRAME),
+                                   vector=msgs.Vector3(x=0.0, y=0.0, z=bias)),
+                    topics.VECTOR3_STAMPED_TYPE)))
+        os.replace(staged, path)
+    except (WriterError, OSError) as err:
+        raise OutputError(f'{path}: cannot write the estimates bag: {err}') from err
+    finally:
+        shutil.rmtree(aside, ignore_errors=True)
+    return path

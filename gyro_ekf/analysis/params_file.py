@@ -1,0 +1,153 @@
+"""Read a ROS 2 params YAML (`--params-file`) into the core config dataclasses.
+
+The file has the layout `ros2 run ... --ros-args --params-file` takes::
+
+    /**:                       # every node
+      ros__parameters:
+        gyro_noise_rad_s: 0.02
+    ekf_node:                  # one node (a namespace may precede it: /robot/ekf_node)
+      ros__parameters:
+        detector:              # nesting is the same as dotted names: detector.max_width_m
+          max_width_m: 0.2
+
+Sections of the pipeline's nodes (`/**`, `ekf_node`, `calibration_node`,
+`landmark_detector_node`) are read; sections of other nodes are skipped. Inside a read
+section, a name (after an optional `ekf.`, `calibration.` or `detector.` group prefix) that
+is a field of EkfConfig, CalibrationConfig or DetectorConfig sets that field; other names
+(the bag sidecar's `initial_pose.*`, `lidar.*`, node-level options) belong to someone else and
+are skipped. A value set in a node section overrides the same value under `/**`. Values
+are checked by `core.config.make_config`, and every error names the file and parameter.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+import logging
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from gyro_ekf.analysis.errors import ParamsFileError
+from gyro_ekf.core.config import CalibrationConfig, DetectorConfig, EkfConfig, make_config
+from gyro_ekf.core.errors import CoreError
+
+log = logging.getLogger(__name__)
+
+PIPELINE_NODES = ('ekf_node', 'calibration_node', 'landmark_detector_node')
+"""Node names whose sections configure the filter."""
+
+_CONFIG_TYPES: dict[str, type] = {
+    'ekf': EkfConfig, 'calibration': CalibrationConfig, 'detector': DetectorConfig}
+_FIELD_OWNER = {f.name: group for group, kind in _CONFIG_TYPES.items()
+                for f in dataclasses.fields(kind)}
+
+OPTIONS = ('use_stated_noise',)
+"""Node-level options `gyro-ekf run` honours besides the config fields."""
+
+
+@dataclass(frozen=True, slots=True)
+class PipelineParams:
+    """Configuration read from a params file.
+
+    Attributes:
+        ekf: EKF noise model and association.
+        calibration: static-window calibration.
+        detector: pole detection.
+        explicit: names of the fields the file set, per group ('ekf', 'calibration',
+            'detector').
+        options: node-level options the file set (see OPTIONS).
+    """
+
+    ekf: EkfConfig = field(default_factory=EkfConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    explicit: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+def _flatten(tree: dict[str, Any], prefix: str = '') -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            flat.update(_flatten(value, name + '.'))
+        else:
+            flat[name] = value
+    return flat
+
+
+def _is_pipeline_section(key: str) -> bool:
+    if key in ('/**', '**'):
+        return True
+    return key.rstrip('/').rsplit('/', 1)[-1] in PIPELINE_NODES
+
+
+def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
+    """Parse params-file text; see the module docstring for what is read.
+
+    Args:
+        text: YAML text.
+        source: file name used in error messages.
+
+    Raises:
+        ParamsFileError: not YAML, not the params-file layout, or a bad value.
+    """
+    try:
+        tree = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ParamsFileError(f'{source}: not valid YAML: {err}') from None
+    if tree is None:
+        tree = {}
+    if not isinstance(tree, dict):
+        raise ParamsFileError(f'{source}: expected a mapping of node names to '
+                              f'{{ros__parameters: ...}}, found {type(tree).__name__}')
+    # Wildcard sections first, so node sections override them.
+    sections = sorted(tree.items(), key=lambda item: 0 if item[0] in ('/**', '**') else 1)
+    values: dict[str, dict[str, Any]] = {group: {} for group in _CONFIG_TYPES}
+    options: dict[str, Any] = {}
+    for node, body in sections:
+        if not _is_pipeline_section(str(node)):
+            log.debug('%s: skipping the section of node %r', source, node)
+            continue
+        if not isinstance(body, dict) or not isinstance(body.get('ros__parameters'), dict):
+            raise ParamsFileError(f"{source}: section {node!r} has no 'ros__parameters' "
+                                  'mapping')
+        for name, value in _flatten(body['ros__parameters']).items():
+            group, _, short = name.rpartition('.')
+            if short in OPTIONS and not group:
+                options[short] = value
+                continue
+            owner = _FIELD_OWNER.get(short)
+            if owner is None or (group and group != owner):
+                log.debug('%s: %s: %r is not a filter parameter; skipped', source, node, name)
+                continue
+            values[owner][short] = value
+    built: dict[str, Any] = {}
+    for group, kind in _CONFIG_TYPES.items():
+        try:
+            built[group] = make_config(kind, values[group], source=source)
+        except CoreError as err:
+            raise ParamsFileError(str(err)) from None
+    if 'use_stated_noise' in options and not isinstance(options['use_stated_noise'], bool):
+        raise ParamsFileError(f"{source}: parameter 'use_stated_noise' must be true or false, "
+                              f"got {options['use_stated_noise']!r}")
+    return PipelineParams(
+        ekf=built['ekf'], calibration=built['calibration'], detector=built['detector'],
+        explicit={group: tuple(sorted(v)) for group, v in values.items()}, options=options)
+
+
+def read_params_file(path: Path | str) -> PipelineParams:
+    """Read a ROS 2 params YAML file into the core configs.
+
+    Raises:
+        ParamsFileError: missing or unreadable file, bad layout or a bad value; the message
+            names the file and the parameter.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as err:
+        raise ParamsFileError(f'{path}: cannot read the params file: {err.strerror}') from None
+    return read_params_text(text, source=str(path))

@@ -1,0 +1,147 @@
+"""The numbers of summary.json, computed from an OfflineRun.
+
+Definitions (see `metrics` for the band and the interpolation):
+
+- *Offline bias*: the static-window mean per axis, its white-noise sigma, the standard
+  error of the mean and the window; null with the reason when no window was accepted.
+- *Online bias*: the bias state at the last estimate with its filter sigma, and the mean
+  and standard deviation of the bias state over the second half of the trip's duration.
+- *Association*: detected poles, how many were MATCHED (and the other outcomes), the share
+  matched, and the longest time without any applied landmark update, counted from the first
+  to the last estimate (so a trip that starts with no pole in view counts that stretch).
+- *NIS*: of every applied update (2 dof): mean and share inside the two-sided 95 % band.
+- *Ground truth* (only when the trip has it): position RMSE and max error, heading RMSE
+  over the estimates inside the truth's span; pose NEES (3 dof) mean and share inside the
+  band; bias error (estimate minus the known injected bias) at the end and averaged over
+  the second half; settling time: the last time the bias error is outside +-0.05 deg/s.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from gyro_ekf.analysis import metrics
+from gyro_ekf.analysis.offline import OfflineRun
+from gyro_ekf.core.types import BIAS, FloatArray
+
+BIAS_SETTLING_TOLERANCE_RAD_S = math.radians(0.05)
+"""Half-width of the band the bias error must stay in to count as settled (0.05 deg/s)."""
+
+
+def _deg(value: float | None) -> float | None:
+    return None if value is None else math.degrees(value)
+
+
+def nis_values(run: OfflineRun) -> FloatArray:
+    """NIS of every applied update in time order, shape (u,)."""
+    parts = [report.nis for report in run.result.observations if len(report.nis)]
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def association_stamps(run: OfflineRun) -> FloatArray:
+    """Stamps of the scans with at least one applied update, shape (k,), s."""
+    return np.array([report.stamp_s for report in run.result.observations if len(report.nis)])
+
+
+def summarize(run: OfflineRun) -> dict[str, Any]:
+    """All summary.json numbers as a JSON-ready dict (SI units, plus deg/s copies of biases)."""
+    estimates = run.result.estimates
+    stamps = estimates.stamp_s
+    trip = run.trip
+    bias = estimates.state[:, BIAS]
+    bias_sigma = np.sqrt(np.maximum(estimates.covariance[:, BIAS, BIAS], 0.0))
+    start, end = (float(stamps[0]), float(stamps[-1])) if stamps.size else (0.0, 0.0)
+    last_half = stamps >= start + 0.5 * (end - start)
+
+    summary: dict[str, Any] = {
+        'trip': {'name': trip.name, 'duration_s': end - start, 'estimates': int(stamps.size),
+                 'imu_samples': len(trip.imu.stamp_s), 'speed_samples': len(trip.speed.stamp_s),
+                 'scans': {s.topic: len(s.stamp_s) for s in trip.scans},
+                 'landmarks': 0 if trip.landmarks is None else len(trip.landmarks),
+                 'has_ground_truth': trip.ground_truth is not None},
+        'config': {'ekf': dataclasses.asdict(run.config), 'sources': run.config_sources},
+    }
+
+    cal = run.calibration
+    summary['offline_bias'] = None if cal is None else {
+        'bias_rad_s': cal.bias_rad_s, 'bias_deg_s': np.degrees(cal.bias_rad_s),
+        'sigma_rad_s': cal.sigma_rad_s, 'standard_error_rad_s': cal.bias_standard_error_rad_s,
+        'standard_error_deg_s': np.degrees(cal.bias_standard_error_rad_s),
+        'window_start_s': cal.window_start_s, 'window_end_s': cal.window_end_s,
+        'n_samples': cal.n_samples}
+    summary['offline_bias_unavailable_reason'] = run.calibration_error
+
+    final = float(bias[-1]) if bias.size else math.nan
+    half_mean = float(bias[last_half].mean()) if last_half.any() else math.nan
+    half_std = float(bias[last_half].std()) if last_half.any() else math.nan
+    summary['online_bias'] = {
+        'final_rad_s': final, 'final_deg_s': _deg(final),
+        'final_sigma_rad_s': float(bias_sigma[-1]) if bias.size else math.nan,
+        'final_sigma_deg_s': _deg(float(bias_sigma[-1])) if bias.size else math.nan,
+        'last_half_mean_rad_s': half_mean, 'last_half_mean_deg_s': _deg(half_mean),
+        'last_half_std_rad_s': half_std, 'last_half_std_deg_s': _deg(half_std),
+        'last_half_mean_sigma_rad_s': float(bias_sigma[last_half].mean())
+        if last_half.any() else math.nan}
+    if cal is not None:
+        summary['online_bias']['last_half_mean_minus_offline_deg_s'] = _deg(
+            half_mean - float(cal.bias_rad_s[2]))
+
+    stats = run.result.stats
+    detections = int(stats.detections)
+    matched = int(stats.outcomes.get('matched', 0))
+    gap, gap_start = metrics.longest_gap(association_stamps(run), start, end)
+    summary['association'] = {
+        'detections': detections, 'outcomes': dict(stats.outcomes),
+        'share_associated': matched / detections if detections else math.nan,
+        'longest_gap_s': gap, 'longest_gap_start_s': gap_start}
+
+    nis = nis_values(run)
+    nis_band = metrics.chi_square_band(2)
+    summary['nis'] = {
+        'updates': int(nis.size), 'mean': float(nis.mean()) if nis.size else math.nan,
+        'dof': 2, 'band': nis_band, 'share_in_band': metrics.share_inside(nis, *nis_band)}
+
+    summary['ground_truth'] = None
+    if trip.ground_truth is not None:
+        summary['ground_truth'] = _truth_summary(run, last_half)
+    return summary
+
+
+def _truth_summary(run: OfflineRun, last_half: np.ndarray) -> dict[str, Any]:
+    estimates = run.result.estimates
+    truth = run.trip.ground_truth
+    assert truth is not None
+    comparison = metrics.compare_with_truth(estimates.stamp_s, estimates.state,
+                                            estimates.covariance, truth.stamp_s, truth.pose)
+    band = metrics.chi_square_band(3)
+    position = comparison.position_error_m
+    out: dict[str, Any] = {
+        'samples': int(comparison.stamp_s.size),
+        'position_rmse_m': metrics.rmse(comparison.errors[:, :2]),
+        'position_max_error_m': float(position.max()) if position.size else math.nan,
+        'heading_rmse_rad': metrics.rmse(comparison.errors[:, 2]),
+        'heading_rmse_deg': _deg(metrics.rmse(comparison.errors[:, 2])),
+        'nees_dof': 3, 'nees_band': band,
+        'nees_mean': float(np.mean(comparison.nees)) if comparison.nees.size else math.nan,
+        'nees_share_in_band': metrics.share_inside(comparison.nees, *band),
+        'nees_share_below_band': float(np.mean(comparison.nees < band[0]))
+        if comparison.nees.size else math.nan,
+        'nees_share_above_band': float(np.mean(comparison.nees > band[1]))
+        if comparison.nees.size else math.nan,
+    }
+    true_bias = run.trip.true_gyro_bias_rad_s
+    if true_bias is not None:
+        error = estimates.state[:, BIAS] - float(true_bias[2])
+        settled = metrics.settling_time(estimates.stamp_s, error, BIAS_SETTLING_TOLERANCE_RAD_S)
+        out.update({
+            'true_bias_rad_s': float(true_bias[2]),
+            'bias_error_final_rad_s': float(error[-1]),
+            'bias_error_final_deg_s': _deg(float(error[-1])),
+            'bias_error_last_half_mean_deg_s': _deg(float(error[last_half].mean())),
+            'bias_settling_tolerance_deg_s': math.degrees(BIAS_SETTLING_TOLERANCE_RAD_S),
+            'bias_settling_time_s': settled})
+    return out
