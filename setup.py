@@ -27,6 +27,8 @@ setup(
         'scipy>=1.10',
         'PyYAML>=6',
         'rosbags==0.11.9',
+        # The bundled bags are zstd-compressed; pinning the codec keeps `make bags` bit-exact.
+        'backports.zstd==1.8.0; python_version < "3.14"',
         'matplotlib>=3.6',
         'tqdm>=4.60',
     ],

@@ -32,6 +32,7 @@ import numpy as np
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability
 from rosbags.interfaces import QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.rosbag2.errors import WriterError
 
 from gyro_ekf import topics
@@ -186,7 +187,7 @@ def merged(plans: list[TopicPlan]) -> Iterator[tuple[int, int, int]]:
 
 def write_trip_bag(trip: Trip, path: Path | str, storage: str = 'mcap',
                    start_time_ns: int = DEFAULT_EPOCH_NS, force: bool = False,
-                   progress: ProgressCallback | None = None) -> Path:
+                   progress: ProgressCallback | None = None, compress: bool = False) -> Path:
     """Write a trip as a rosbag2 folder plus its params sidecar beside it.
 
     Args:
@@ -196,6 +197,8 @@ def write_trip_bag(trip: Trip, path: Path | str, storage: str = 'mcap',
         start_time_ns: bag stamp of the trip's time zero, ns since the epoch, > 0.
         force: replace an existing bag folder and sidecar.
         progress: optional progress(messages_written, messages_total) callback.
+        compress: zstd-compress the storage (mcap chunks, as rosbag2's zstd presets do;
+            sqlite3 compresses each message). Deterministic for the pinned libraries.
 
     Returns:
         The bag folder.
@@ -223,7 +226,7 @@ def write_trip_bag(trip: Trip, path: Path | str, storage: str = 'mcap',
     aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
     try:
         staged = aside / path.name
-        _write(plans, staged, STORAGES[storage], total, progress)
+        _write(plans, staged, STORAGES[storage], total, progress, compress)
         staged_params = aside / params_path.name
         staged_params.write_text(to_yaml(params), encoding='utf-8')
         _replace(staged, path, aside)
@@ -235,9 +238,15 @@ def write_trip_bag(trip: Trip, path: Path | str, storage: str = 'mcap',
 
 
 def _write(plans: list[TopicPlan], staged: Path, plugin: StoragePlugin, total: int,
-           progress: ProgressCallback | None) -> None:
+           progress: ProgressCallback | None, compress: bool = False) -> None:
     try:
-        with Writer(staged, version=BAG_VERSION, storage_plugin=plugin) as writer:
+        writer = Writer(staged, version=BAG_VERSION, storage_plugin=plugin)
+        if compress:
+            # mcap compresses whole chunks (what `ros2 bag record` does); sqlite3 cannot.
+            mode = (CompressionMode.STORAGE if plugin is StoragePlugin.MCAP
+                    else CompressionMode.MESSAGE)
+            writer.set_compression(mode, CompressionFormat.ZSTD)
+        with writer:
             connections = [
                 writer.add_connection(p.topic, p.msgtype, typestore=msgs.TYPESTORE,
                                       offered_qos_profiles=[p.qos])
