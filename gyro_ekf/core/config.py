@@ -18,8 +18,9 @@ from gyro_ekf.core.errors import CoreError
 DEG = math.pi / 180.0
 
 
-def _param(default: Any, unit: str, description: str, low: float | None = None,
-           high: float | None = None, read_only: bool = False) -> Any:
+def config_field(default: Any, unit: str, description: str, low: float | None = None,
+                 high: float | None = None, read_only: bool = False) -> Any:
+    """Declare a config dataclass field with its unit, description and bounds."""
     return field(default=default, metadata={
         'unit': unit, 'description': description, 'min': low, 'max': high,
         'read_only': read_only})
@@ -29,36 +30,36 @@ def _param(default: Any, unit: str, description: str, low: float | None = None,
 class EkfConfig:
     """Noise model, initial uncertainty and data association of the EKF."""
 
-    gyro_noise_rad_s: float = _param(
+    gyro_noise_rad_s: float = config_field(
         1.4 * DEG, 'rad/s', 'Yaw-rate white noise sigma (input noise of the yaw prediction).',
         0.0, 1.0)
-    speed_noise_m_s: float = _param(
+    speed_noise_m_s: float = config_field(
         0.4, 'm/s', 'Speed noise sigma (input noise of the position prediction).', 0.0, 10.0)
-    range_noise_m: float = _param(
+    range_noise_m: float = config_field(
         0.16, 'm', 'LiDAR range noise sigma of a pole observation.', 1e-4, 10.0)
-    bearing_noise_rad: float = _param(
+    bearing_noise_rad: float = config_field(
         1.1 * DEG, 'rad', 'LiDAR bearing noise sigma of a pole observation.', 1e-5, 1.0)
     # The report's 0.03 m/s leaves the real 2016 trip overconfident where a single pole is in
     # view (72-92 s): its bias walks off by 0.07 deg/s and association is lost for 64 s.
     # 0.1 m/s covers wheel slip and speed-scale error; the simulated logs do not change.
-    position_process_noise_m_s: float = _param(
+    position_process_noise_m_s: float = config_field(
         0.1, 'm/s', 'Extra translation noise q_pos: Q2 adds (q_pos T)^2 to x and y.', 0.0, 10.0)
-    bias_random_walk_rad_s2: float = _param(
+    bias_random_walk_rad_s2: float = config_field(
         DEG / 600.0, 'rad/s^2',
         'Bias random walk q_b: Q2 adds (q_b T)^2 to the bias (1 deg/s per 10 minutes).',
         0.0, 1.0)
-    initial_bias_rad_s: float = _param(
+    initial_bias_rad_s: float = config_field(
         0.0, 'rad/s', 'Bias state at start when no calibration seeds it.', -1.0, 1.0)
-    initial_bias_sigma_rad_s: float = _param(
+    initial_bias_sigma_rad_s: float = config_field(
         2.0 * DEG, 'rad/s', 'Prior sigma of the bias (P0 bias term).', 0.0, 1.0)
-    initial_position_sigma_m: float = _param(
+    initial_position_sigma_m: float = config_field(
         0.0, 'm', 'Prior sigma of x and y (P0); 0 trusts the initial pose exactly.', 0.0, 100.0)
-    initial_yaw_sigma_rad: float = _param(
+    initial_yaw_sigma_rad: float = config_field(
         0.0, 'rad', 'Prior sigma of yaw (P0).', 0.0, math.pi)
-    gate_probability: float = _param(
+    gate_probability: float = config_field(
         0.99, '1', 'Chi-square (2 dof) gate of the nearest-neighbour association.', 0.5,
         0.999999)
-    max_prediction_step_s: float = _param(
+    max_prediction_step_s: float = config_field(
         0.1, 's', 'Longest single prediction step; longer gaps are split into steps this long.',
         1e-4, 10.0)
 
@@ -67,20 +68,20 @@ class EkfConfig:
 class CalibrationConfig:
     """Static-window calibration of the gyro bias (course note 000)."""
 
-    window_start_s: float = _param(
+    window_start_s: float = config_field(
         0.0, 's', 'Start of the static window, after the first IMU sample.', 0.0, 1e6)
-    window_length_s: float = _param(
+    window_length_s: float = config_field(
         5.0, 's', 'Length of the static window.', 0.1, 1e4)
-    min_samples: int = _param(
+    min_samples: int = config_field(
         50, '1', 'Fewest samples a window may have.', 2, 10_000_000)
-    max_gap_s: float = _param(
+    max_gap_s: float = config_field(
         0.1, 's', 'Largest gap between consecutive samples inside the window.', 1e-4, 10.0)
-    max_speed_m_s: float = _param(
+    max_speed_m_s: float = config_field(
         1e-3, 'm/s', 'Largest |speed| that still counts as static (when speed is known).',
         0.0, 10.0)
-    max_sigma_rad_s: float = _param(
+    max_sigma_rad_s: float = config_field(
         1.0 * DEG, 'rad/s', 'Largest per-axis rate std that still counts as static.', 0.0, 1.0)
-    max_drift_rad_s: float = _param(
+    max_drift_rad_s: float = config_field(
         0.3 * DEG, 'rad/s',
         'Largest change of the per-axis mean between the first and second half of the window.',
         0.0, 1.0)
@@ -90,20 +91,20 @@ class CalibrationConfig:
 class DetectorConfig:
     """Pole detection in one 2-D scan."""
 
-    range_jump_m: float = _param(
+    range_jump_m: float = config_field(
         0.15, 'm', 'A range step larger than this between neighbouring beams splits clusters.',
         0.001, 10.0)
-    min_width_m: float = _param(
+    min_width_m: float = config_field(
         0.05, 'm', 'Smallest apparent cluster width accepted as a pole (no intensities).',
         0.0, 10.0)
-    max_width_m: float = _param(
+    max_width_m: float = config_field(
         0.20, 'm', 'Largest apparent cluster width accepted as a pole.', 0.0, 10.0)
-    pole_radius_m: float = _param(
+    pole_radius_m: float = config_field(
         0.05, 'm', 'Pole radius: the centre lies this far behind the mean of the returns.',
         0.0, 1.0)
-    reflective_intensity: float = _param(
+    reflective_intensity: float = config_field(
         1.0, '1', 'Intensity at or above which a return is reflective (pole tape).', 0.0, 1e6)
-    max_range_m: float = _param(
+    max_range_m: float = config_field(
         50.0, 'm', 'Returns beyond this range are ignored.', 0.1, 1000.0)
 
 

@@ -41,7 +41,8 @@ import numpy as np
 
 # The private helper is imported on purpose: the same field metadata (unit, description,
 # bounds) as the other configs lets `info --params` and the nodes list this one too.
-from gyro_ekf.core.config import _param, DEG
+from gyro_ekf.core.config import DEG
+from gyro_ekf.core.config import config_field as _param
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.types import (FloatArray, GroundTruth, ImuSeries, LandmarkMap, LidarMount,
                                  NoiseFigures, ScanSeries, SpeedSeries, Trip)
