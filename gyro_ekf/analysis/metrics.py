@@ -36,7 +36,7 @@ BAND_PROBABILITY = 0.95
 
 
 def chi_square_band(dof: int, probability: float = BAND_PROBABILITY) -> tuple[float, float]:
-    """Two-sided chi-square interval holding `probability` of a single sample.
+    """Return the two-sided chi-square interval holding `probability` of a single sample.
 
     Args:
         dof: degrees of freedom (>= 1).
@@ -52,7 +52,7 @@ def chi_square_band(dof: int, probability: float = BAND_PROBABILITY) -> tuple[fl
 
 
 def share_inside(values: FloatArray, low: float, high: float) -> float:
-    """Share of finite values inside [low, high] (nan when there are none)."""
+    """Return the share of finite values inside [low, high] (nan when there are none)."""
     values = np.asarray(values, dtype=np.float64)
     values = values[np.isfinite(values)]
     if values.size == 0:
@@ -62,7 +62,7 @@ def share_inside(values: FloatArray, low: float, high: float) -> float:
 
 def interpolate_pose(stamp_s: FloatArray, truth_stamp_s: FloatArray, truth_pose: FloatArray
                      ) -> tuple[FloatArray, BoolArray]:
-    """True poses at the given stamps, by linear interpolation.
+    """Interpolate true poses linearly to the given stamps.
 
     Args:
         stamp_s: where the truth is wanted, shape (n,), s.
@@ -88,7 +88,7 @@ def interpolate_pose(stamp_s: FloatArray, truth_stamp_s: FloatArray, truth_pose:
 
 
 def pose_errors(estimated_pose: FloatArray, true_pose: FloatArray) -> FloatArray:
-    """Estimate minus truth, shape (n, 3): x m, y m, yaw rad (wrapped)."""
+    """Return estimate minus truth, shape (n, 3): x m, y m, yaw rad (wrapped)."""
     est = np.asarray(estimated_pose, dtype=np.float64).reshape(-1, 3)
     true = np.asarray(true_pose, dtype=np.float64).reshape(-1, 3)
     errors = est - true
@@ -97,7 +97,7 @@ def pose_errors(estimated_pose: FloatArray, true_pose: FloatArray) -> FloatArray
 
 
 def rmse(values: FloatArray) -> float:
-    """Root mean square of the rows' norms: shape (n,) or (n, d) -> scalar (nan if empty)."""
+    """Return the RMS of the rows' norms: shape (n,) or (n, d) -> scalar (nan if empty)."""
     values = np.asarray(values, dtype=np.float64)
     if values.size == 0:
         return math.nan
@@ -133,7 +133,7 @@ def normalized_squared_error(errors: FloatArray, covariances: FloatArray) -> Flo
 
 def longest_gap(event_stamp_s: FloatArray, start_s: float, end_s: float
                 ) -> tuple[float, float]:
-    """Longest time without an event, counting from start_s to end_s.
+    """Return the longest time without an event, counting from start_s to end_s.
 
     Args:
         event_stamp_s: stamps of the events (e.g. scans with an associated landmark),
@@ -152,7 +152,7 @@ def longest_gap(event_stamp_s: FloatArray, start_s: float, end_s: float
 
 
 def settling_time(stamp_s: FloatArray, error: FloatArray, tolerance: float) -> float | None:
-    """When an error enters its tolerance band for good.
+    """Return when an error enters its tolerance band for good.
 
     Args:
         stamp_s: shape (n,), s, increasing.
@@ -218,7 +218,7 @@ def dead_reckon(imu_stamp_s: FloatArray, yaw_rate_rad_s: FloatArray, speed_stamp
 
 def interpolate_estimates(stamp_s: FloatArray, state: FloatArray, covariance: FloatArray,
                           at_s: FloatArray) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """Estimates and covariances at other stamps, by linear interpolation between rows.
+    """Interpolate estimates and covariances linearly to other stamps.
 
     Used to compare with a sparse ground truth: the estimates come at the IMU rate
     (100-200 Hz), so interpolating them is far more accurate than interpolating a 6 Hz
@@ -283,7 +283,7 @@ class TruthComparison:
 
 def compare_with_truth(stamp_s: FloatArray, state: FloatArray, covariance: FloatArray,
                        truth_stamp_s: FloatArray, truth_pose: FloatArray) -> TruthComparison:
-    """Errors, sigmas and NEES of a run at the ground-truth stamps.
+    """Compute errors, sigmas and NEES of a run at the ground-truth stamps.
 
     The estimates are interpolated to the truth stamps (see interpolate_estimates).
 

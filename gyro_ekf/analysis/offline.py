@@ -63,7 +63,7 @@ class OfflineRun:
 
 def effective_config(noise: NoiseFigures, params: PipelineParams | None = None,
                      use_stated_noise: bool = True) -> tuple[EkfConfig, dict[str, str]]:
-    """The EKF configuration of a run and where each value came from.
+    """Return the EKF configuration of a run and where each value came from.
 
     Args:
         noise: the noise figures the log states.
@@ -92,7 +92,7 @@ def effective_config(noise: NoiseFigures, params: PipelineParams | None = None,
 
 def calibrate(trip: Trip, config: CalibrationConfig | None = None
               ) -> tuple[BiasEstimate | None, str | None]:
-    """Static-window calibration of the trip's gyro, or the reason there is none."""
+    """Calibrate the trip's gyro on its static window, or say why there is none."""
     try:
         estimate = estimate_gyro_bias(
             trip.imu.stamp_s, trip.imu.angular_velocity_rad_s, config,
@@ -107,7 +107,7 @@ def calibrate(trip: Trip, config: CalibrationConfig | None = None
 
 
 def event_count(trip: Trip) -> int:
-    """Number of events drive_trip processes (IMU, speed and scans)."""
+    """Count the events drive_trip processes (IMU, speed and scans)."""
     return (len(trip.imu.stamp_s) + len(trip.speed.stamp_s)
             + sum(len(s.stamp_s) for s in trip.scans))
 

@@ -76,7 +76,7 @@ def staged_file(target: Path) -> Iterator[Path]:
 
 def estimates_table(stamp_s: FloatArray, state: FloatArray, covariance: FloatArray
                     ) -> FloatArray:
-    """The rows of estimates.csv, shape (n, 12), in CSV_HEADER order.
+    """Build the rows of estimates.csv, shape (n, 12), in CSV_HEADER order.
 
     Args:
         stamp_s: shape (n,), s since the bag's first message.

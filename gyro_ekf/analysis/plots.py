@@ -46,7 +46,7 @@ def _save(figure: Any, path: Path) -> Path:
 
 
 def _decimate(count: int, limit: int = 20_000) -> slice:
-    """A slice that keeps at most about `limit` of `count` points (plots stay light)."""
+    """Return a slice that keeps at most about `limit` of `count` points (plots stay light)."""
     return slice(None, None, max(1, count // limit))
 
 

@@ -37,18 +37,18 @@ def _deg(value: float | None) -> float | None:
 
 
 def nis_values(run: OfflineRun) -> FloatArray:
-    """NIS of every applied update in time order, shape (u,)."""
+    """Return the NIS of every applied update in time order, shape (u,)."""
     parts = [report.nis for report in run.result.observations if len(report.nis)]
     return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def association_stamps(run: OfflineRun) -> FloatArray:
-    """Stamps of the scans with at least one applied update, shape (k,), s."""
+    """Return the stamps of the scans with at least one applied update, shape (k,), s."""
     return np.array([report.stamp_s for report in run.result.observations if len(report.nis)])
 
 
 def summarize(run: OfflineRun) -> dict[str, Any]:
-    """All summary.json numbers as a JSON-ready dict (SI units, plus deg/s copies of biases)."""
+    """Compute the summary.json numbers as a JSON-ready dict (SI, plus deg/s for biases)."""
     estimates = run.result.estimates
     stamps = estimates.stamp_s
     trip = run.trip

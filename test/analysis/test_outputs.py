@@ -1,0 +1,83 @@
+"""estimates.csv, summary.json and the estimates bag."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import Reader
+
+from gyro_ekf import topics
+from gyro_ekf.analysis import outputs
+from gyro_ekf.analysis.errors import OutputError
+from gyro_ekf.io import messages as msgs
+
+
+def _history(n=5):
+    stamps = np.arange(n) * 0.005
+    state = np.column_stack([np.arange(n), 2 * np.arange(n), np.full(n, 0.5),
+                             np.full(n, -0.017)]).astype(float)
+    P = np.array([[1, 5, 6, 0], [5, 2, 7, 0], [6, 7, 3, 0], [0, 0, 0, 4]], dtype=float)
+    return stamps, state, np.tile(P, (n, 1, 1))
+
+
+def test_csv_header_columns_and_units(tmp_path):
+    stamps, state, P = _history()
+    path = outputs.write_estimates_csv(tmp_path / 'estimates.csv', stamps, state, P)
+    lines = path.read_text().splitlines()
+    assert lines[0] == 't,x,y,yaw,bias,var_x,var_y,var_yaw,var_bias,cov_xy,cov_xyaw,cov_yyaw'
+    rows = np.loadtxt(path, delimiter=',', skiprows=1)
+    assert rows.shape == (5, 12)
+    assert rows[1].tolist() == pytest.approx([0.005, 1, 2, 0.5, -0.017, 1, 2, 3, 4, 5, 6, 7])
+    assert not list(tmp_path.glob('.*.tmp'))
+
+
+def test_output_folder_is_not_overwritten_without_force(tmp_path):
+    out = tmp_path / 'out'
+    outputs.prepare_output_dir(out)
+    outputs.prepare_output_dir(out)              # empty: fine
+    (out / 'summary.json').write_text('{}')
+    with pytest.raises(OutputError, match='not empty; use --force'):
+        outputs.prepare_output_dir(out)
+    assert outputs.prepare_output_dir(out, force=True) == out
+    (tmp_path / 'file').write_text('')
+    with pytest.raises(OutputError, match='not a folder'):
+        outputs.prepare_output_dir(tmp_path / 'file')
+
+
+def test_summary_json_turns_nan_into_null(tmp_path):
+    path = outputs.write_summary_json(tmp_path / 's.json', {
+        'a': math.nan, 'b': np.float64(1.5), 'c': np.array([1, 2]), 'd': {'e': np.int64(3)}})
+    assert json.loads(path.read_text()) == {'a': None, 'b': 1.5, 'c': [1, 2], 'd': {'e': 3}}
+
+
+def test_estimates_bag_has_the_live_node_topics(tmp_path):
+    stamps, state, P = _history()
+    bag = outputs.write_estimates_bag(tmp_path / 'estimates', 1_700_000_000_000_000_000, stamps,
+                                      state, P, np.full(5, 0.3), np.full(5, 0.1))
+    with Reader(bag) as reader:
+        kinds = {c.topic: c.msgtype for c in reader.connections}
+        assert kinds == {'/ekf/pose': topics.POSE_WITH_COVARIANCE_STAMPED_TYPE,
+                         '/ekf/odometry': topics.ODOMETRY_TYPE,
+                         '/ekf/bias': topics.VECTOR3_STAMPED_TYPE}
+        assert reader.message_count == 15
+        messages = {}
+        for connection, stamp, data in reader.messages():
+            messages.setdefault(connection.topic, []).append(
+                (stamp, msgs.deserialize(data, connection.msgtype)))
+    stamp, pose = messages['/ekf/pose'][1]
+    assert stamp == 1_700_000_000_005_000_000
+    assert pose.header.frame_id == 'map'
+    assert pose.pose.pose.position.x == 1.0
+    assert msgs.quaternion_yaw(pose.pose.pose.orientation) == pytest.approx(0.5)
+    cov = pose.pose.covariance.reshape(6, 6)
+    assert cov[0, 0] == 1 and cov[0, 1] == 5 and cov[0, 5] == 6 and cov[5, 5] == 3
+    odom = messages['/ekf/odometry'][1][1]
+    assert odom.child_frame_id == 'base_link'
+    assert odom.twist.twist.linear.x == pytest.approx(0.3)
+    assert odom.twist.twist.angular.z == pytest.approx(0.1)
+    assert messages['/ekf/bias'][1][1].vector.z == pytest.approx(-0.017)
+    with pytest.raises(OutputError, match='exists already'):
+        outputs.write_estimates_bag(bag, 1, stamps, state, P, np.zeros(5), np.zeros(5))

@@ -1,0 +1,75 @@
+"""ROS 2 params YAML -> core configs."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from gyro_ekf.analysis.errors import ParamsFileError
+from gyro_ekf.analysis.params_file import read_params_file, read_params_text
+from gyro_ekf.core.config import EkfConfig
+
+TEXT = """
+/**:
+  ros__parameters:
+    gyro_noise_rad_s: 0.02
+    use_sim_time: true
+    initial_pose: {x_m: 1.0, y_m: 2.0, yaw_rad: 0.5}
+    lidar:
+      topics: [scan]
+      scan: {frame_id: laser, x_m: 0.4, y_m: 0.0, yaw_rad: 0.0}
+/robot/ekf_node:
+  ros__parameters:
+    gyro_noise_rad_s: 0.03
+    gate_probability: 0.999
+    use_stated_noise: false
+landmark_detector_node:
+  ros__parameters:
+    detector:
+      max_width_m: 0.3
+calibration_node:
+  ros__parameters:
+    window_length_s: 4
+replayer:
+  ros__parameters:
+    gyro_noise_rad_s: 9.0
+    rate: 2.0
+"""
+
+
+def test_node_sections_override_the_wildcard_and_other_nodes_are_ignored():
+    params = read_params_text(TEXT, 'p.yaml')
+    assert params.ekf.gyro_noise_rad_s == 0.03
+    assert params.ekf.gate_probability == 0.999
+    assert params.ekf.speed_noise_m_s == EkfConfig().speed_noise_m_s
+    assert params.detector.max_width_m == 0.3
+    assert params.calibration.window_length_s == 4.0
+    assert params.options == {'use_stated_noise': False}
+    assert params.explicit['ekf'] == ('gate_probability', 'gyro_noise_rad_s')
+
+
+def test_out_of_bounds_value_names_the_file_and_parameter(tmp_path):
+    path = tmp_path / 'bad.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    gate_probability: 1.5\n')
+    with pytest.raises(ParamsFileError, match=r"bad\.yaml.*'gate_probability' = 1\.5"):
+        read_params_file(path)
+
+
+def test_wrong_type_and_bad_layout_are_reported(tmp_path):
+    with pytest.raises(ParamsFileError, match="p.yaml: parameter 'range_noise_m' must be"):
+        read_params_text('/**:\n  ros__parameters:\n    range_noise_m: far\n', 'p.yaml')
+    with pytest.raises(ParamsFileError, match="section 'ekf_node' has no 'ros__parameters'"):
+        read_params_text('ekf_node:\n  gyro_noise_rad_s: 0.1\n', 'p.yaml')
+    with pytest.raises(ParamsFileError, match='p.yaml: not valid YAML'):
+        read_params_text('/**: [unclosed', 'p.yaml')
+    with pytest.raises(ParamsFileError, match='missing.yaml: cannot read'):
+        read_params_file(tmp_path / 'missing.yaml')
+
+
+def test_a_bag_sidecar_is_a_valid_params_file_with_no_filter_values():
+    sidecar = ('/**:\n  ros__parameters:\n    trip: {name: x, log_time_zero_ns: 1}\n'
+               '    noise: {gyro_rad_s: 0.01}\n    true_gyro_bias_rad_s: [0.0, 0.0, 0.1]\n')
+    params = read_params_text(sidecar, 's.yaml')
+    assert params.ekf == EkfConfig()
+    assert math.isclose(params.calibration.window_length_s, 5.0)

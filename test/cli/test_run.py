@@ -1,0 +1,113 @@
+"""`gyro-ekf run` end to end: simulated bag made here, and the course logs (shared data)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from gyro_ekf.cli.main import main
+from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+from gyro_ekf.io.bag_writer import write_trip_bag
+
+HEADER = 't,x,y,yaw,bias,var_x,var_y,var_yaw,var_bias,cov_xy,cov_xyaw,cov_yyaw'
+STATIC_WINDOW_BIAS_2016_DEG_S = -0.9748
+
+
+def _run(bag, out, *extra):
+    code = main(['-q', 'run', str(bag), '-o', str(out), '--no-progress', *extra])
+    return code, json.loads((out / 'summary.json').read_text()) if code == 0 else None
+
+
+@pytest.fixture(scope='module')
+def simulated_bag(tmp_path_factory):
+    trip = simulate_trip(SimulationConfig(duration_s=60.0), seed=2)
+    return write_trip_bag(trip, tmp_path_factory.mktemp('sim') / 'sim_seed2'), trip
+
+
+def test_run_on_a_simulated_bag_meets_the_accuracy_bounds(tmp_path, simulated_bag, capsys):
+    bag, trip = simulated_bag
+    out = tmp_path / 'out'
+    code, summary = _run(bag, out)
+    assert code == 0
+    assert 'position RMSE' in capsys.readouterr().out
+    truth = summary['ground_truth']
+    assert truth['position_rmse_m'] <= 0.02
+    assert abs(truth['bias_error_final_deg_s']) <= 0.02
+    assert truth['nees_share_in_band'] >= 0.9
+    assert summary['offline_bias']['window_end_s'] <= trip.static_duration_s
+    assert summary['association']['share_associated'] > 0.95
+
+    lines = (out / 'estimates.csv').read_text().splitlines()
+    assert lines[0] == HEADER
+    rows = np.loadtxt(out / 'estimates.csv', delimiter=',', skiprows=1)
+    assert rows.shape == (len(trip.imu.stamp_s), 12)
+    assert rows[0, 0] == pytest.approx(0.0) and np.all(np.diff(rows[:, 0]) >= 0)
+    assert rows[-1, 0] == pytest.approx(trip.imu.stamp_s[-1] - trip.start_s)
+    assert np.all(np.abs(rows[:, 3]) <= math.pi)                      # yaw in rad
+    assert abs(np.rad2deg(rows[-1, 4]) - summary['online_bias']['final_deg_s']) < 1e-6
+    for name in ('trajectory.png', 'bias.png', 'errors.png', 'nis.png', 'estimates'):
+        assert (out / name).exists(), name
+
+
+def test_run_refuses_to_overwrite_without_force(tmp_path, simulated_bag, capsys):
+    bag, _ = simulated_bag
+    out = tmp_path / 'out'
+    assert _run(bag, out, '--no-plots', '--no-bag')[0] == 0
+    assert main(['run', str(bag), '-o', str(out), '--no-plots']) == 1
+    assert 'use --force' in capsys.readouterr().err
+    assert _run(bag, out, '--no-plots', '--force')[0] == 0
+
+
+def test_params_file_values_reach_the_filter(tmp_path, simulated_bag):
+    bag, _ = simulated_bag
+    params = tmp_path / 'p.yaml'
+    params.write_text('ekf_node:\n  ros__parameters:\n    range_noise_m: 0.5\n')
+    _, summary = _run(bag, tmp_path / 'out', '--no-plots', '--no-bag', '--params-file',
+                      str(params))
+    assert summary['config']['ekf']['range_noise_m'] == 0.5
+    assert summary['config']['sources']['range_noise_m'] == 'params-file'
+    assert summary['config']['sources']['gyro_noise_rad_s'] == 'log'
+
+
+def _course_bag(shared_data, tmp_path, *parts):
+    from gyro_ekf.io.matlab import load_course_log
+    trip = load_course_log([shared_data(p) for p in parts])
+    return write_trip_bag(trip, tmp_path / 'bag')
+
+
+def test_real_2016_log_keeps_association_and_finds_the_static_bias(shared_data, tmp_path):
+    bag = _course_bag(shared_data, tmp_path, '2016_project1', '2021_aas01/MapMTRN4010.mat')
+    code, summary = _run(bag, tmp_path / 'out', '--no-plots', '--no-bag')
+    assert code == 0
+    association = summary['association']
+    assert association['share_associated'] >= 0.99
+    assert association['longest_gap_s'] <= 5.0
+    assert abs(summary['online_bias']['last_half_mean_deg_s']
+               - STATIC_WINDOW_BIAS_2016_DEG_S) <= 0.01
+    assert summary['offline_bias']['bias_deg_s'][2] == pytest.approx(
+        STATIC_WINDOW_BIAS_2016_DEG_S, abs=0.001)
+
+
+@pytest.mark.parametrize('folder', ['2022_sim', '2023_sim'])
+def test_course_simulations_are_accurate(shared_data, tmp_path, folder):
+    bag = _course_bag(shared_data, tmp_path, folder)
+    code, summary = _run(bag, tmp_path / 'out', '--no-plots', '--no-bag')
+    assert code == 0
+    truth = summary['ground_truth']
+    assert truth['position_rmse_m'] <= 0.02
+    if 'bias_error_final_deg_s' in truth:
+        assert abs(truth['bias_error_final_deg_s']) <= 0.02
+
+
+@pytest.mark.xfail(strict=False, reason=(
+    'issue 5 asks for >= 90 % of pose NEES samples inside the two-sided 95 % band on the '
+    'course simulations; with the current core defaults 2022 reaches ~75 % and 2023 ~65 % '
+    '(filter conservative: P too large for these logs). See the issue-5 accuracy report.'))
+@pytest.mark.parametrize('folder', ['2022_sim', '2023_sim'])
+def test_course_simulations_are_consistent(shared_data, tmp_path, folder):
+    bag = _course_bag(shared_data, tmp_path, folder)
+    code, summary = _run(bag, tmp_path / 'out', '--no-plots', '--no-bag')
+    assert summary['ground_truth']['nees_share_in_band'] >= 0.9
