@@ -1,0 +1,248 @@
+"""Benchmarks of `make bench` (measured, never asserted by tests).
+
+- *core*: microseconds per GyroBiasEkf.predict and .update call, side by side in the same
+  process with filterpy's ExtendedKalmanFilter running the same model (models.py) on the
+  same inputs, and the largest difference of their final estimates.
+- *run*: real-time factor of `gyro-ekf run` on a bag (bag read, detection, association,
+  filter, CSV, summary and estimates bag; plots excluded), in a child process.
+- *memory*: peak resident memory of `gyro-ekf convert` and `gyro-ekf run` on a long
+  simulated trip, each in its own child process (``os.wait4`` reports the child's maximum
+  resident set size).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from pathlib import Path
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def _inputs(steps: int, seed: int) -> dict[str, Any]:
+    rng = np.random.default_rng(seed)
+    return {
+        'speed': 0.5 + 0.3 * rng.random(steps),
+        'rate': 0.2 * rng.standard_normal(steps),
+        'landmark': rng.uniform(-5.0, 5.0, size=(steps, 2)),
+        'noise': rng.standard_normal((steps, 2)) * [0.02, 0.005],
+    }
+
+
+def core_benchmark(steps: int = 20_000, dt_s: float = 0.005, seed: int = 0
+                   ) -> dict[str, Any]:
+    """Time predict and update of the core EKF and of filterpy on identical inputs.
+
+    Each step predicts once and updates with one observation of a random landmark
+    (generated from the filter's own prior plus noise, so both filters see the same z).
+
+    Returns:
+        Microseconds per call for both, the speed-up ratios and the largest absolute
+        difference of the final state and covariance.
+    """
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    from gyro_ekf.core import models
+    from gyro_ekf.core.config import EkfConfig
+    from gyro_ekf.core.ekf import GyroBiasEkf
+    from gyro_ekf.core.types import LidarMount
+
+    config = EkfConfig(initial_position_sigma_m=0.1, initial_yaw_sigma_rad=0.05)
+    mount = LidarMount(0.4, 0.0, 0.0)
+    data = _inputs(steps, seed)
+    ours = GyroBiasEkf(config, pose=[0.0, 0.0, 0.3], bias_rad_s=0.0)
+    theirs = ExtendedKalmanFilter(dim_x=4, dim_z=2)
+    theirs.x = ours.x.reshape(4, 1).copy()
+    theirs.P = ours.P.copy()
+    theirs.R = ours.R.copy()
+    z_all = np.empty((steps, 2))
+    landmarks = data['landmark']
+    # Observations from the core's prior, fixed up front so both filters get the same z.
+    probe = GyroBiasEkf(config, pose=[0.0, 0.0, 0.3], bias_rad_s=0.0)
+    for k in range(steps):
+        probe.predict(data['speed'][k], data['rate'][k], dt_s)
+        z_all[k] = models.observe(probe.x, landmarks[k], mount) + data['noise'][k]
+        probe.update(z_all[k], landmarks[k], mount)
+
+    def residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        out = a - b
+        out[1] = (out[1] + math.pi) % (2.0 * math.pi) - math.pi
+        return out
+
+    t_pred = t_upd = f_pred = f_upd = 0.0
+    clock = time.perf_counter
+    for k in range(steps):
+        speed, rate, landmark, z = data['speed'][k], data['rate'][k], landmarks[k], z_all[k]
+        t0 = clock()
+        ours.predict(speed, rate, dt_s)
+        t1 = clock()
+        ours.update(z, landmark, mount)
+        t2 = clock()
+        # filterpy: same model; F, Q and f(x) computed per step as its API requires.
+        x = theirs.x.ravel()
+        theirs.F = models.process_jacobian(x, speed, dt_s)
+        theirs.Q = models.process_noise(x, dt_s, config.speed_noise_m_s,
+                                        config.gyro_noise_rad_s,
+                                        config.position_process_noise_m_s,
+                                        config.bias_random_walk_rad_s2)
+        theirs.x = models.predict_state(x, speed, rate, dt_s).reshape(4, 1)
+        theirs.P = theirs.F @ theirs.P @ theirs.F.T + theirs.Q
+        t3 = clock()
+        theirs.update(z.reshape(2, 1),
+                      lambda s: models.observation_jacobian(s.ravel(), landmark, mount),
+                      lambda s: models.observe(s.ravel(), landmark, mount).reshape(2, 1),
+                      residual=residual)
+        t4 = clock()
+        t_pred += t1 - t0
+        t_upd += t2 - t1
+        f_pred += t3 - t2
+        f_upd += t4 - t3
+    us = 1e6 / steps
+    return {
+        'steps': steps, 'dt_s': dt_s,
+        'core_predict_us': t_pred * us, 'core_update_us': t_upd * us,
+        'filterpy_predict_us': f_pred * us, 'filterpy_update_us': f_upd * us,
+        'predict_speedup': f_pred / t_pred, 'update_speedup': f_upd / t_upd,
+        'cycle_speedup': (f_pred + f_upd) / (t_pred + t_upd),
+        'max_abs_state_difference': float(np.max(np.abs(ours.x - theirs.x.ravel()))),
+        'max_abs_covariance_difference': float(np.max(np.abs(ours.P - theirs.P))),
+    }
+
+
+def _gyro_ekf(*args: str) -> list[str]:
+    return [sys.executable, '-m', 'gyro_ekf.cli.main', '-q', *args]
+
+
+def measure_child(command: list[str], env: dict[str, str] | None = None
+                  ) -> dict[str, Any]:
+    """Run a command as a child; return its wall time, exit code and peak RSS (MB)."""
+    began = time.perf_counter()
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                             env=env)
+    _, status, usage = os.wait4(child.pid, 0)
+    elapsed = time.perf_counter() - began
+    stderr = child.stderr.read().decode(errors='replace') if child.stderr else ''
+    if child.stderr:
+        child.stderr.close()
+    child.returncode = os.waitstatus_to_exitcode(status)
+    return {'command': ' '.join(command[2:]), 'wall_s': elapsed,
+            'exit_code': child.returncode, 'peak_rss_mb': usage.ru_maxrss / 1024.0,
+            'stderr_tail': stderr[-500:] if child.returncode else ''}
+
+
+def run_benchmark(bag: Path, work: Path) -> dict[str, Any]:
+    """Real-time factor of `gyro-ekf run --no-plots` on a bag (child process, cold start).
+
+    The factor is trip duration over the run's own processing time (bag read to last
+    output, from summary.json), and over the child's whole wall time (Python start-up and
+    imports included).
+    """
+    out = work / 'run_out'
+    result = measure_child(_gyro_ekf('run', str(bag), '-o', str(out), '--no-plots',
+                                     '--no-progress', '--force'))
+    if result['exit_code'] == 0:
+        summary = json.loads((out / 'summary.json').read_text())
+        timing = summary['timing']
+        duration = summary['trip']['duration_s']
+        processing = timing['read_s'] + timing['run_and_outputs_s']
+        result.update({'trip_duration_s': duration, 'processing_s': processing,
+                       'real_time_factor': duration / processing,
+                       'real_time_factor_wall': duration / result['wall_s']})
+    return result
+
+
+def memory_benchmark(duration_s: float, work: Path, seed: int = 0) -> dict[str, Any]:
+    """Peak memory of convert and run on a simulated trip of the given length."""
+    trip_file = work / 'long_trip.npz'
+    bag = work / 'long_bag'
+    simulate = measure_child(_gyro_ekf('simulate', '-o', str(trip_file), '--seed', str(seed),
+                                       '--duration-s', str(duration_s), '--force'))
+    convert = measure_child(_gyro_ekf('convert', str(trip_file), '-o', str(bag), '--force'))
+    run = measure_child(_gyro_ekf('run', str(bag), '-o', str(work / 'long_out'),
+                                  '--no-plots', '--no-progress', '--force'))
+    return {'trip_duration_s': duration_s, 'simulate': simulate, 'convert': convert,
+            'run': run}
+
+
+def convert_course_log(data_dir: Path, work: Path) -> Path | None:
+    """Convert the real 2016 log to a bag under work; None when the data are missing."""
+    logs = data_dir / '2016_project1'
+    map_file = data_dir / '2021_aas01' / 'MapMTRN4010.mat'
+    if not logs.is_dir() or not map_file.exists():
+        log.warning('%s: the 2016 log or its map is missing; no real-time factor', data_dir)
+        return None
+    bag = work / 'log2016'
+    result = measure_child(_gyro_ekf('convert', str(logs), '--map', str(map_file), '-o',
+                                     str(bag), '--force'))
+    if result['exit_code'] != 0:
+        log.warning('converting the 2016 log failed: %s', result['stderr_tail'])
+        return None
+    return bag
+
+
+def live_benchmark() -> dict[str, Any]:
+    """Live node latency (imu in -> ekf/pose out) over Fast DDS; not implemented yet."""
+    return {'measured': False,
+            'reason': 'not implemented yet: needs the EKF node in a child process with '
+                      'loopback discovery, a publisher at 200 Hz / 1 kHz and matched-endpoint '
+                      'waits (issue 5, left undone)'}
+
+
+def run_all(data_dir: Path, long_trip_s: float = 3600.0, core_steps: int = 20_000,
+            work: Path | None = None) -> dict[str, Any]:
+    """Every benchmark; returns the JSON-ready results."""
+    own = work is None
+    work = Path(tempfile.mkdtemp(prefix='gyro_ekf_bench_')) if own else work
+    results: dict[str, Any] = {'python': sys.version.split()[0], 'cpu_count': os.cpu_count()}
+    log.info('core predict/update against filterpy (%d steps)', core_steps)
+    results['core'] = core_benchmark(core_steps)
+    bag = convert_course_log(data_dir, work)
+    log.info('gyro-ekf run on the 2016 log')
+    results['run_2016'] = run_benchmark(bag, work) if bag is not None else None
+    results['live'] = live_benchmark()
+    log.info('peak memory on a %.0f s simulated trip', long_trip_s)
+    results['memory'] = memory_benchmark(long_trip_s, work)
+    if own:
+        import shutil
+        shutil.rmtree(work, ignore_errors=True)
+    return results
+
+
+def table(results: dict[str, Any]) -> str:
+    """Human-readable table of the results."""
+    core = results['core']
+    rows = [('core predict (us/call)', f"{core['core_predict_us']:.2f}"),
+            ('filterpy predict (us/call)', f"{core['filterpy_predict_us']:.2f}"),
+            ('core update (us/call)', f"{core['core_update_us']:.2f}"),
+            ('filterpy update (us/call)', f"{core['filterpy_update_us']:.2f}"),
+            ('speed-up predict / update / cycle',
+             f"{core['predict_speedup']:.1f}x / {core['update_speedup']:.1f}x / "
+             f"{core['cycle_speedup']:.1f}x"),
+            ('max |x| / |P| difference vs filterpy',
+             f"{core['max_abs_state_difference']:.1e} / "
+             f"{core['max_abs_covariance_difference']:.1e}")]
+    run = results.get('run_2016')
+    if run and run.get('real_time_factor'):
+        rows += [('run on 2016 log: real-time factor',
+                  f"{run['real_time_factor']:.0f}x ({run['real_time_factor_wall']:.0f}x with "
+                  'start-up)'),
+                 ('run on 2016 log: peak RSS (MB)', f"{run['peak_rss_mb']:.0f}")]
+    live = results['live']
+    rows.append(('live latency', 'not measured' if not live.get('measured') else ''))
+    memory = results['memory']
+    for step in ('convert', 'run'):
+        item = memory[step]
+        rows.append((f"{step} peak RSS, {memory['trip_duration_s'] / 3600:.2f} h trip (MB)",
+                     f"{item['peak_rss_mb']:.0f} ({item['wall_s']:.0f} s"
+                     f"{', FAILED' if item['exit_code'] else ''})"))
+    width = max(len(name) for name, _ in rows)
+    return '\n'.join(f'{name:<{width}}  {value}' for name, value in rows)
