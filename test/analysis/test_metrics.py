@@ -15,6 +15,13 @@ def test_chi_square_bands_are_the_two_sided_95_percent_quantiles():
     assert metrics.chi_square_band(3) == pytest.approx((0.215795, 9.348404), rel=1e-5)
 
 
+@pytest.mark.parametrize('dof', [1, 2, 3, 4, 5])
+def test_chi_square_quantiles_match_scipy(dof):
+    from scipy.stats import chi2
+    for p in (0.025, 0.5, 0.95, 0.975, 0.999):
+        assert metrics.chi_square_quantile(p, dof) == pytest.approx(chi2.ppf(p, dof), rel=1e-9)
+
+
 def test_known_offset_gives_known_rmse_max_and_nees():
     stamps = np.arange(0.0, 10.0, 0.01)
     truth = np.column_stack([np.cos(stamps), np.sin(stamps), stamps % 6.0 - 3.0])
