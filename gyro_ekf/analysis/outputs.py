@@ -36,6 +36,7 @@ ESTIMATES_BAG = 'estimates'
 SUMMARY_JSON = 'summary.json'
 
 _BAG_VERSION = 9
+_CSV_BLOCK_ROWS = 50_000
 
 
 def prepare_output_dir(path: Path | str, force: bool = False) -> Path:
@@ -103,9 +104,14 @@ def write_estimates_csv(path: Path | str, stamp_s: FloatArray, state: FloatArray
         The path written.
     """
     path = Path(path)
-    table = estimates_table(stamp_s, state, covariance)
-    with staged_file(path) as staged:
-        np.savetxt(staged, table, fmt='%.9g', delimiter=',', header=CSV_HEADER, comments='')
+    count = len(stamp_s)
+    with staged_file(path) as staged, staged.open('w', encoding='ascii') as stream:
+        stream.write(CSV_HEADER + '\n')
+        # In blocks, so an hour-long trip never holds the whole (n, 12) table at once.
+        for start in range(0, count, _CSV_BLOCK_ROWS):
+            block = slice(start, min(start + _CSV_BLOCK_ROWS, count))
+            np.savetxt(stream, estimates_table(stamp_s[block], state[block],
+                                               covariance[block]), fmt='%.9g', delimiter=',')
     return path
 
 
@@ -177,10 +183,9 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     stamps_ns = int(start_time_ns) + np.round(np.asarray(stamp_s) * 1e9).astype(np.int64)
     state = np.asarray(state, dtype=np.float64)
     P = np.asarray(covariance, dtype=np.float64)
-    pose_cov = np.zeros((len(stamps_ns), 36))
-    for i, a in enumerate((0, 1, 5)):           # x, y, yaw rows of the 6x6
-        for j, b in enumerate((0, 1, 5)):
-            pose_cov[:, a * 6 + b] = P[:, i, j]
+    # x, y, yaw of the state -> rows/columns 0, 1, 5 of the row-major 6x6 (per message, so a
+    # long trip does not hold an (n, 36) array).
+    flat = np.array([a * 6 + b for a in (0, 1, 5) for b in (0, 1, 5)])
     twist_cov = np.zeros(36)
     aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
     staged = aside / path.name
@@ -198,8 +203,10 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
                 typestore=msgs.TYPESTORE)
             for k, stamp in enumerate(stamps_ns.tolist()):
                 x, y, yaw, bias = state[k].tolist()
+                pose_cov = np.zeros(36)
+                pose_cov[flat] = P[k, :3, :3].ravel()
                 pose = msgs.PoseWithCovariance(pose=_pose(msgs, x, y, yaw),
-                                               covariance=pose_cov[k])
+                                               covariance=pose_cov)
                 map_header = msgs.header(stamp, topics.MAP_FRAME)
                 writer.write(pose_conn, stamp, bytes(serialize(
                     msgs.PoseWithCovarianceStamped(header=map_header, pose=pose),
