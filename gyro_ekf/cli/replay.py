@@ -1,16 +1,158 @@
-"""`gyro-ekf replay` (placeholder until its owner lands it)."""
+"""`gyro-ekf replay`: publish a bag over DDS (a stand-in for `ros2 bag play`)."""
 
 from __future__ import annotations
 
 import argparse
+import logging
+import re
+from collections.abc import Iterator
+from pathlib import Path
 
-HELP = 'not implemented yet'
+HELP = 'publish a bag over DDS with its recorded QoS and, with --clock, /clock'
+
+log = logging.getLogger(__name__)
+
+
+def _wait_spec(text: str) -> tuple[str | None, int]:
+    """Parse N (every topic) or TOPIC:N."""
+    match = re.fullmatch(r'(?:(.+):)?(\d+)', text)
+    if not match:
+        raise argparse.ArgumentTypeError(f'expected N or TOPIC:N, got {text!r}')
+    return match.group(1), int(match.group(2))
+
+
+def _rate(text: str) -> float:
+    value = float(text)
+    if not value >= 0.0:
+        raise argparse.ArgumentTypeError(f'must be >= 0, got {text}')
+    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add this command's arguments."""
+    parser.add_argument('bag', type=Path, help='rosbag2 folder (mcap or sqlite3)')
+    parser.add_argument('--rate', type=_rate, default=1.0,
+                        help='speed-up factor; 0 publishes as fast as possible')
+    parser.add_argument('--clock', action='store_true',
+                        help='publish /clock from the bag stamps (for use_sim_time)')
+    parser.add_argument('--clock-hz', type=float, default=100.0,
+                        help='/clock messages per second of bag time')
+    parser.add_argument('--loop', action='store_true', help='start over at the end')
+    parser.add_argument('--topics', nargs='+', metavar='TOPIC',
+                        help='replay only these topics (default: all)')
+    parser.add_argument('--start-s', type=float, default=0.0,
+                        help='skip this much of the bag (latched topics are still sent)')
+    parser.add_argument('--duration-s', type=float, default=None,
+                        help='replay only this much bag time after --start-s')
+    parser.add_argument('--wait-for', type=_wait_spec, action='append', default=[],
+                        metavar='N|TOPIC:N',
+                        help='before starting, wait until every topic (or TOPIC) has N '
+                        'matched subscriptions; repeatable')
+    parser.add_argument('--wait-timeout-s', type=float, default=10.0,
+                        help='give up waiting for subscribers after this long')
+
+
+class BagSource:
+    """Raw messages of a bag in stamp order, re-iterable (for --loop)."""
+
+    def __init__(self, path: Path, topic_names: list[str] | None, start_s: float,
+                 duration_s: float | None):
+        """Open the bag's metadata and choose the topics.
+
+        Raises:
+            BagError: missing or unreadable bag, or a requested topic it lacks.
+        """
+        from rosbags.interfaces import QosDurability, QosReliability
+        from rosbags.rosbag2 import Reader
+        from rosbags.rosbag2.errors import ReaderError
+
+        from gyro_ekf.io.errors import BagError
+        from gyro_ekf.nodes.replayer import ReplayTopic
+
+        self.path = path
+        if not (path / 'metadata.yaml').exists():
+            raise BagError(f'{path}: not a rosbag2 folder (no metadata.yaml)')
+        try:
+            with Reader(path) as reader:
+                connections = list(reader.connections)
+                self.start_ns = reader.start_time
+        except (ReaderError, OSError, KeyError, ValueError) as err:
+            raise BagError(f'{path}: cannot read the bag: {err}') from None
+        present = {c.topic for c in connections}
+        if topic_names:
+            wanted = {t if t.startswith('/') else '/' + t for t in topic_names}
+            missing = sorted(wanted - present)
+            if missing:
+                raise BagError(f"{path}: no topic '{missing[0]}' (the bag has "
+                               f'{sorted(present)})')
+            connections = [c for c in connections if c.topic in wanted]
+        self.connections = connections
+        self.topics = []
+        for connection in connections:
+            profiles = getattr(connection.ext, 'offered_qos_profiles', []) or []
+            latched = any(p.durability == QosDurability.TRANSIENT_LOCAL for p in profiles)
+            reliable = not profiles or all(
+                p.reliability != QosReliability.BEST_EFFORT for p in profiles)
+            self.topics.append(ReplayTopic(connection.topic, connection.msgtype, latched,
+                                           reliable))
+        self.latched = {t.name for t in self.topics if t.latched}
+        self.from_ns = self.start_ns + int(start_s * 1e9)
+        self.until_ns = None if duration_s is None else self.from_ns + int(duration_s * 1e9)
+
+    def __call__(self) -> Iterator[tuple[str, int, bytes]]:
+        """A fresh iterator over (topic, stamp ns, CDR bytes) in stamp order."""
+        from rosbags.rosbag2 import Reader
+
+        held: dict[str, tuple[str, int, bytes]] = {}
+        with Reader(self.path) as reader:
+            for connection, stamp, data in reader.messages(connections=self.connections):
+                if stamp < self.from_ns:
+                    if connection.topic in self.latched:
+                        held[connection.topic] = (connection.topic, stamp, bytes(data))
+                    continue
+                if held:
+                    yield from sorted(held.values(), key=lambda m: m[1])
+                    held.clear()
+                if self.until_ns is not None and stamp > self.until_ns:
+                    return
+                yield connection.topic, stamp, bytes(data)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the command; returns the exit code."""
-    raise NotImplementedError('gyro-ekf replay')
+    """Replay the bag; returns the exit code."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    from gyro_ekf.errors import GyroEkfError
+    from gyro_ekf.nodes.replayer import Replayer
+
+    source = BagSource(args.bag, args.topics, args.start_s, args.duration_s)
+    rclpy.init(args=['gyro-ekf-replay', *args.ros_args])
+    node = None
+    try:
+        try:
+            node = Replayer(source.topics, args.clock)
+        except ValueError as err:
+            raise GyroEkfError(f'{args.bag}: {err}') from None
+        needs: dict[str, int] = {}
+        for topic, count in args.wait_for:
+            names = [t.name for t in source.topics if not t.latched] if topic is None else [
+                topic if topic.startswith('/') else '/' + topic]
+            for name in names:
+                if name not in node.publishers_by_topic:
+                    raise GyroEkfError(f'--wait-for: topic {name!r} is not replayed')
+                needs[name] = max(needs.get(name, 0), count)
+        short = node.wait_for_subscribers(needs, args.wait_timeout_s)
+        if short:
+            raise GyroEkfError(f'subscribers did not appear within {args.wait_timeout_s} s: '
+                               + ', '.join(f'{k} has {v} of {needs[k]}'
+                                           for k, v in short.items()))
+        report = node.play(source, args.rate, args.loop, args.clock_hz)
+        print(report.summary(), flush=True)
+        return 0 if report.acknowledged else 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 130
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()

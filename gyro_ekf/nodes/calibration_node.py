@@ -1,0 +1,188 @@
+"""calibration_node: gyro bias from a static window, then bias-corrected IMU messages.
+
+Subscribes `imu` (sensor_msgs/Imu) and `odom` (nav_msgs/Odometry, optional: any speed above
+max_speed_m_s in the window refuses it). Collects the static window (by default the first
+5 s of IMU messages) in the core's StaticWindowCalibrator. On success it publishes
+`gyro_bias` (geometry_msgs/Vector3Stamped, rad/s; reliable, transient local, so a late
+subscriber still gets it), logs the bias in deg/s with the noise sigma per axis, and from
+then on republishes every IMU message on `imu/corrected` with the bias removed. A refused
+window is logged with the reason and a new window starts. `~/recalibrate` (std_srvs/Trigger)
+starts a new window on demand. Status goes to `/diagnostics` once per diagnostics_period_s.
+"""
+
+from __future__ import annotations
+
+import math
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Vector3Stamped
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from sensor_msgs.msg import Imu
+from std_msgs.msg import Header
+from std_srvs.srv import Trigger
+
+from gyro_ekf import topics
+from gyro_ekf.core.calibration import StaticWindowCalibrator
+from gyro_ekf.core.config import CalibrationConfig
+from gyro_ekf.core.errors import CalibrationError
+from gyro_ekf.core.types import BiasEstimate
+from gyro_ekf.nodes import qos
+from gyro_ekf.nodes.conversions import (bias_message, corrected_imu, finite, imu_axes_known,
+                                        imu_rates, odometry_speed, stamp_ns, TimeOrigin)
+from gyro_ekf.nodes.params import declare, declare_config
+from gyro_ekf.nodes.runtime import run_node
+
+_AXES = 'xyz'
+
+
+class CalibrationNode(Node):
+    """Static-window gyro calibration as a ROS node (see the module docstring).
+
+    Attributes:
+        calibrator: the core's StaticWindowCalibrator.
+        result: the accepted BiasEstimate, or None while collecting.
+        dropped: messages dropped per reason.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        """Declare parameters, create the calibrator, topics, service and timer."""
+        super().__init__('calibration_node', **kwargs)
+        self.config = declare_config(self, CalibrationConfig)
+        use_odom = declare(self, 'use_odom', True,
+                           'Subscribe odom and refuse a window in which the platform moves')
+        lossless = declare(self, 'reliable_inputs', False,
+                           'Reliable keep-all QoS on inputs and imu/corrected instead of sensor '
+                           'data QoS (lossless replay, tests)')
+        period = declare(self, 'diagnostics_period_s', 1.0,
+                         'Period of the /diagnostics status', 's', 0.01, 3600.0)
+        self.calibrator = StaticWindowCalibrator(self.config)
+        self.result: BiasEstimate | None = None
+        self.dropped = {'non_finite': 0, 'zero_stamp': 0}
+        self._origin = TimeOrigin()
+        self._window_from_s: float | None = None
+        self._axes_known: tuple[bool, bool, bool] | None = None
+        self._imu_count = 0
+        self._corrected_count = 0
+        self._last_refusal = ''
+
+        self._bias_pub = self.create_publisher(Vector3Stamped, topics.GYRO_BIAS, qos.LATCHED)
+        self._corrected_pub = self.create_publisher(Imu, topics.IMU_CORRECTED,
+                                                    qos.stream_output(lossless))
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
+                                                      qos.OUTPUT)
+        self.create_subscription(Imu, topics.IMU, self._on_imu, qos.sensor_input(lossless))
+        if use_odom:
+            self.create_subscription(Odometry, topics.ODOM, self._on_odom,
+                                     qos.sensor_input(lossless))
+        self.create_service(Trigger, '~/recalibrate', self._on_recalibrate)
+        self.create_timer(period, self._publish_diagnostics)
+        self.get_logger().info(
+            f'collecting a {self.config.window_length_s:g} s static window from '
+            f'{self.resolve_topic_name(topics.IMU)}')
+
+    def _usable(self, ns: int, *values: float) -> bool:
+        if ns == 0:
+            self.dropped['zero_stamp'] += 1
+        elif not finite(*values):
+            self.dropped['non_finite'] += 1
+        else:
+            return True
+        self.get_logger().warn(f'dropped a bad message (counts {self.dropped})',
+                               throttle_duration_sec=5.0)
+        return False
+
+    def _on_odom(self, message: Odometry) -> None:
+        ns = stamp_ns(message.header.stamp)
+        speed = odometry_speed(message)
+        if self.calibrator.collecting and self._usable(ns, speed):
+            self.calibrator.add_speed(self._origin.seconds(ns), speed)
+
+    def _on_imu(self, message: Imu) -> None:
+        ns = stamp_ns(message.header.stamp)
+        rates = imu_rates(message)
+        if not self._usable(ns, *rates):
+            return
+        self._imu_count += 1
+        if self.result is not None:
+            self._corrected_pub.publish(corrected_imu(message, self.result.bias_rad_s))
+            self._corrected_count += 1
+            return
+        stamp_s = self._origin.seconds(ns)
+        if self._window_from_s is None:
+            self._window_from_s = stamp_s + self.config.window_start_s
+            self._axes_known = imu_axes_known(message)
+        if stamp_s < self._window_from_s:
+            return
+        try:
+            result = self.calibrator.add_imu(stamp_s, rates, self._axes_known)
+        except CalibrationError as err:
+            self._last_refusal = str(err)
+            self.get_logger().warn(f'static window refused: {err}; starting a new window')
+            return
+        if result is not None:
+            self._accept(result, message)
+
+    def _accept(self, result: BiasEstimate, message: Imu) -> None:
+        self.result = result
+        self._bias_pub.publish(bias_message(message.header.stamp, message.header.frame_id,
+                                            result.bias_rad_s))
+        known = self._axes_known or (True, True, True)
+        text = ', '.join(
+            f'{axis} {math.degrees(b):+.4f} deg/s (sigma {math.degrees(s):.4f})'
+            for axis, b, s, k in zip(_AXES, result.bias_rad_s, result.sigma_rad_s, known) if k)
+        self.get_logger().info(
+            f'gyro bias from {result.n_samples} samples over '
+            f'{result.window_end_s - result.window_start_s:.2f} s: {text}')
+
+    def _on_recalibrate(self, request: Trigger.Request, response: Trigger.Response
+                        ) -> Trigger.Response:
+        self.restart('recalibration requested')
+        response.success = True
+        response.message = (f'collecting a new {self.config.window_length_s:g} s static '
+                            'window; keep the platform still')
+        return response
+
+    def restart(self, why: str) -> None:
+        """Drop the current result and collect a new static window."""
+        self.calibrator.restart()
+        self.result = None
+        self._window_from_s = None
+        self.get_logger().info(f'{why}: collecting a new static window')
+
+    def _publish_diagnostics(self) -> None:
+        status = DiagnosticStatus(name=f'{self.get_name()}: gyro calibration',
+                                  hardware_id=self.resolve_topic_name(topics.IMU))
+        values = {'state': 'calibrated' if self.result is not None else 'collecting',
+                  'imu_messages': str(self._imu_count),
+                  'corrected_messages': str(self._corrected_count),
+                  'refused_windows': str(self.calibrator.refusals),
+                  'last_refusal': self._last_refusal}
+        values.update({f'dropped_{k}': str(v) for k, v in self.dropped.items()})
+        if self.result is not None:
+            status.level = DiagnosticStatus.OK
+            status.message = 'bias calibrated'
+            for axis, b, s in zip(_AXES, self.result.bias_rad_s, self.result.sigma_rad_s):
+                values[f'bias_{axis}_deg_s'] = f'{math.degrees(b):.5f}'
+                values[f'sigma_{axis}_deg_s'] = f'{math.degrees(s):.5f}'
+        elif self._imu_count == 0:
+            status.level = DiagnosticStatus.WARN
+            status.message = 'no IMU messages yet'
+        else:
+            status.level = DiagnosticStatus.OK
+            status.message = 'collecting the static window'
+            if self.calibrator.refusals:
+                status.level = DiagnosticStatus.WARN
+                status.message = 'collecting again after a refused window'
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        self._diagnostics_pub.publish(DiagnosticArray(
+            header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of the calibration_node executable."""
+    return run_node(CalibrationNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

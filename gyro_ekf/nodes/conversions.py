@@ -1,0 +1,203 @@
+"""Messages <-> core values: the only message-aware code of the nodes.
+
+Stamps: ROS messages carry integer nanoseconds since the epoch; the core works in float
+seconds since a time zero. ``TimeOrigin`` subtracts the zero in integers first, exactly as
+`gyro_ekf.io.bag_reader` does, so a node and an offline run of the same bag compute the
+same seconds (a float near 1.7e9 s would only resolve 0.24 us).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import (Pose, PoseArray, PoseWithCovariance, PoseWithCovarianceStamped,
+                               Quaternion, Vector3Stamped)
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import Imu, LaserScan
+from std_msgs.msg import Header
+
+from gyro_ekf.core.events import Estimate
+from gyro_ekf.core.types import FloatArray
+
+NS_PER_S = 1_000_000_000
+UNKNOWN_AXIS_VARIANCE = 1e6
+"""Angular-velocity variance, (rad/s)^2, marking an axis the IMU does not measure (as the
+bag writer marks it; REP-145 keeps -1 at element 0 for "no data at all")."""
+
+# Row/column of x, y, yaw in a ROS 6x6 pose covariance (x, y, z, roll, pitch, yaw).
+_POSE_INDEX = (0, 1, 5)
+
+
+def stamp_ns(stamp: Time) -> int:
+    """Integer nanoseconds of a builtin_interfaces/Time."""
+    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
+
+
+def to_stamp(ns: int) -> Time:
+    """builtin_interfaces/Time of integer nanoseconds since the epoch (>= 0)."""
+    sec, nanosec = divmod(int(ns), NS_PER_S)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+class TimeOrigin:
+    """Float seconds since a time zero, from integer-nanosecond stamps.
+
+    Attributes:
+        zero_ns: the time zero, ns since the epoch; None until the first stamp when no zero
+            was configured.
+    """
+
+    def __init__(self, zero_ns: int = 0):
+        """Use zero_ns as the time zero; 0 = take the first stamp converted."""
+        self.zero_ns: int | None = zero_ns if zero_ns > 0 else None
+
+    def seconds(self, ns: int) -> float:
+        """Seconds since the time zero (negative before it)."""
+        if self.zero_ns is None:
+            self.zero_ns = ns
+        return (ns - self.zero_ns) / float(NS_PER_S)
+
+
+def finite(*values: float) -> bool:
+    """True when every value is a finite number."""
+    return all(math.isfinite(v) for v in values)
+
+
+def imu_rates(message: Imu) -> tuple[float, float, float]:
+    """Angular velocity x, y, z of an Imu message, rad/s."""
+    w = message.angular_velocity
+    return (float(w.x), float(w.y), float(w.z))
+
+
+def imu_axes_known(message: Imu) -> tuple[bool, bool, bool]:
+    """Which angular-velocity axes an Imu message's covariance marks as measured."""
+    covariance = message.angular_velocity_covariance
+    if covariance[0] == -1.0:
+        return (False, False, False)
+    return tuple(bool(covariance[i] < UNKNOWN_AXIS_VARIANCE) for i in (0, 4, 8))
+
+
+def corrected_imu(message: Imu, bias_rad_s: Sequence[float]) -> Imu:
+    """The same Imu message with the gyro bias (x, y, z, rad/s) removed from its rates."""
+    out = Imu(header=message.header, orientation=message.orientation,
+              orientation_covariance=message.orientation_covariance,
+              angular_velocity_covariance=message.angular_velocity_covariance,
+              linear_acceleration=message.linear_acceleration,
+              linear_acceleration_covariance=message.linear_acceleration_covariance)
+    out.angular_velocity.x = message.angular_velocity.x - float(bias_rad_s[0])
+    out.angular_velocity.y = message.angular_velocity.y - float(bias_rad_s[1])
+    out.angular_velocity.z = message.angular_velocity.z - float(bias_rad_s[2])
+    return out
+
+
+def odometry_speed(message: Odometry) -> float:
+    """Forward speed of an Odometry message (twist.linear.x), m/s."""
+    return float(message.twist.twist.linear.x)
+
+
+def scan_arrays(message: LaserScan) -> tuple[np.ndarray, FloatArray, np.ndarray | None]:
+    """Ranges (float32, m), beam bearings (float64, rad) and intensities (or None) of a scan.
+
+    The bearings are computed exactly as ScanSeries.angles_rad does (angle_min plus
+    increment times the beam index, in float64), so detections match an offline run.
+    """
+    ranges = np.asarray(message.ranges, dtype=np.float32)
+    angles = float(message.angle_min) + float(message.angle_increment) * np.arange(
+        ranges.size, dtype=np.float64)
+    intensities = None
+    if len(message.intensities) == ranges.size and ranges.size:
+        intensities = np.asarray(message.intensities, dtype=np.float32)
+    return ranges, angles, intensities
+
+
+def points_message(header: Header, points_m: FloatArray) -> PoseArray:
+    """PoseArray of 2-D points (shape (k, 2), m) in the header's frame, identity orientation."""
+    message = PoseArray(header=header)
+    for x, y in np.asarray(points_m, dtype=np.float64).reshape(-1, 2).tolist():
+        pose = Pose()
+        pose.position.x = x
+        pose.position.y = y
+        message.poses.append(pose)
+    return message
+
+
+def points_of(message: PoseArray) -> FloatArray:
+    """The (x, y) of every pose of a PoseArray, shape (k, 2), m."""
+    return np.array([(p.position.x, p.position.y) for p in message.poses],
+                    dtype=np.float64).reshape(-1, 2)
+
+
+def yaw_quaternion(yaw_rad: float) -> Quaternion:
+    """Quaternion of a rotation about z by yaw_rad."""
+    return Quaternion(x=0.0, y=0.0, z=math.sin(yaw_rad / 2.0), w=math.cos(yaw_rad / 2.0))
+
+
+def quaternion_yaw(q: Quaternion) -> float:
+    """Yaw, rad, of a quaternion (the z rotation of its ZYX Euler angles)."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def pose_and_covariance(message: PoseWithCovarianceStamped) -> tuple[FloatArray, FloatArray]:
+    """(x m, y m, yaw rad) and its 3x3 covariance from a PoseWithCovarianceStamped."""
+    pose = message.pose.pose
+    values = (pose.position.x, pose.position.y, pose.orientation.x, pose.orientation.y,
+              pose.orientation.z, pose.orientation.w)
+    if not finite(*values) or not finite(*message.pose.covariance):
+        raise ValueError('pose or covariance is not finite')
+    full = np.asarray(message.pose.covariance, dtype=np.float64).reshape(6, 6)
+    covariance = full[np.ix_(_POSE_INDEX, _POSE_INDEX)].copy()
+    return (np.array([pose.position.x, pose.position.y, quaternion_yaw(pose.orientation)]),
+            covariance)
+
+
+def _pose_with_covariance(state: FloatArray, covariance: FloatArray) -> PoseWithCovariance:
+    out = PoseWithCovariance()
+    out.pose.position.x = float(state[0])
+    out.pose.position.y = float(state[1])
+    out.pose.orientation = yaw_quaternion(float(state[2]))
+    full = np.zeros((6, 6))
+    full[np.ix_(_POSE_INDEX, _POSE_INDEX)] = covariance[:3, :3]
+    out.covariance = full.ravel().tolist()
+    return out
+
+
+def estimate_messages(estimate: Estimate, stamp: Time, map_frame: str, base_frame: str,
+                      speed_sigma_m_s: float, gyro_sigma_rad_s: float
+                      ) -> tuple[PoseWithCovarianceStamped, Odometry, Vector3Stamped]:
+    """Pose, odometry and bias messages of one filter estimate.
+
+    Args:
+        estimate: the filter output.
+        stamp: stamp to give the messages (the input's own stamp).
+        map_frame: frame of the pose (`map`).
+        base_frame: child frame of the odometry (`base_link`).
+        speed_sigma_m_s: speed noise; its square is the twist's linear.x variance.
+        gyro_sigma_rad_s: gyro noise; its square plus the bias variance is the twist's
+            angular.z variance (the rate is corrected by the estimated bias).
+
+    Returns:
+        PoseWithCovarianceStamped, Odometry (pose with covariance; speed and bias-corrected
+        yaw rate in the twist) and Vector3Stamped (z = bias, rad/s).
+    """
+    header = Header(stamp=stamp, frame_id=map_frame)
+    pose = _pose_with_covariance(estimate.state, estimate.covariance)
+    odometry = Odometry(header=header, child_frame_id=base_frame, pose=pose)
+    odometry.twist.twist.linear.x = float(estimate.speed_m_s)
+    odometry.twist.twist.angular.z = float(estimate.yaw_rate_rad_s)
+    twist_covariance = [0.0] * 36
+    twist_covariance[0] = float(speed_sigma_m_s) ** 2
+    twist_covariance[35] = float(gyro_sigma_rad_s) ** 2 + float(estimate.covariance[3, 3])
+    odometry.twist.covariance = twist_covariance
+    bias = Vector3Stamped(header=Header(stamp=stamp, frame_id=base_frame))
+    bias.vector.z = float(estimate.state[3])
+    return PoseWithCovarianceStamped(header=header, pose=pose), odometry, bias
+
+
+def bias_message(stamp: Time, frame_id: str, bias_rad_s: Sequence[float]) -> Vector3Stamped:
+    """Vector3Stamped of a per-axis gyro bias, rad/s."""
+    message = Vector3Stamped(header=Header(stamp=stamp, frame_id=frame_id))
+    message.vector.x, message.vector.y, message.vector.z = (float(v) for v in bias_rad_s)
+    return message

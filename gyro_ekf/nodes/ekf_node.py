@@ -1,0 +1,416 @@
+"""ekf_node: pose and gyro bias from odometry speed, IMU yaw rate and pole observations.
+
+Inputs (relative names): `imu` (sensor_msgs/Imu), `odom` (nav_msgs/Odometry, forward speed
+in twist.linear.x), one or more observation topics (`landmark_topics`, default
+[`landmarks`]: geometry_msgs/PoseArray from landmark_detector_node, whose frame_id picks the
+LiDAR mount from the `lidar.*` parameters), `landmark_map` (PoseArray in `map`, transient
+local) or the `landmarks_file` parameter, `initialpose` (PoseWithCovarianceStamped: resets
+the pose, as RViz's "2D Pose Estimate" does) and, with `use_calibration`, `gyro_bias`
+(Vector3Stamped from calibration_node: seeds the bias and its variance).
+
+Messages go through the core's ReorderBuffer (stamp, then speed < observation < IMU, held
+for `reorder_window_s` of stamp time) into the same EventDriver `gyro-ekf run` uses, so the
+node and an offline run of a bag give the same numbers. Each IMU sample yields an estimate:
+`ekf/pose` (PoseWithCovarianceStamped in `map`), `ekf/odometry` (nav_msgs/Odometry: pose
+with covariance; speed and bias-corrected yaw rate in the twist) and `ekf/bias`
+(Vector3Stamped, z = bias in rad/s), every `publish_every_n`-th sample. `/diagnostics`
+reports the bias and its sigma in deg/s, associated/rejected observations, mean NIS, input
+rates, time since the last associated landmark and the drop counts.
+
+Robustness: bad messages (NaN/inf values, zero stamps, stamps older than what the filter
+already processed, an empty map, an unknown LiDAR frame) are dropped and counted with a
+throttled warning; ROS time jumping back (a looped bag with /clock), or a run of messages
+far behind the filter (a looped bag without /clock), resets the filter with a warning.
+`~/reset` (std_srvs/Trigger) resets it on demand. The node never dies on input.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped, Vector3Stamped
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType, JumpThreshold, TimeJump
+from rclpy.duration import Duration
+from rclpy.node import Node
+from sensor_msgs.msg import Imu
+from std_msgs.msg import Header
+from std_srvs.srv import Trigger
+
+from gyro_ekf import topics
+from gyro_ekf.core.config import EkfConfig
+from gyro_ekf.core.errors import CoreError
+from gyro_ekf.core.events import Estimate, EventDriver, EventKind
+from gyro_ekf.core.types import LandmarkMap, LidarMount
+from gyro_ekf.errors import GyroEkfError
+from gyro_ekf.nodes import qos
+from gyro_ekf.nodes.conversions import (estimate_messages, finite, odometry_speed,
+                                        points_of, pose_and_covariance, stamp_ns, TimeOrigin,
+                                        to_stamp)
+from gyro_ekf.nodes.ordering import StreamMerger
+from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar, with_stated_noise
+from gyro_ekf.nodes.runtime import run_node
+
+DROP_REASONS = ('non_finite', 'zero_stamp', 'late', 'empty_map', 'unknown_frame',
+                'filter_error')
+
+
+def load_landmarks_file(path: str) -> LandmarkMap:
+    """Read a landmark map: YAML `landmarks: [[x, y], ...]` or text with x y per line (m).
+
+    Raises:
+        GyroEkfError: unreadable file, or not a non-empty list of finite (x, y) pairs.
+    """
+    file = Path(path)
+    try:
+        text = file.read_text(encoding='utf-8')
+    except OSError as err:
+        raise GyroEkfError(f'landmarks_file {file}: cannot read: {err}') from None
+    try:
+        if file.suffix in ('.yaml', '.yml'):
+            rows = (yaml.safe_load(text) or {}).get('landmarks')
+        else:
+            rows = [line.replace(',', ' ').split() for line in text.splitlines()
+                    if line.strip() and not line.lstrip().startswith('#')]
+        xy = np.array(rows, dtype=np.float64)
+    except (yaml.YAMLError, AttributeError, TypeError, ValueError) as err:
+        raise GyroEkfError(f'landmarks_file {file}: expected (x, y) pairs in m: {err}') from None
+    if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] == 0 or not np.all(np.isfinite(xy)):
+        raise GyroEkfError(f'landmarks_file {file}: expected a non-empty list of finite (x, y) '
+                           f'pairs, got shape {xy.shape}')
+    return LandmarkMap(xy)
+
+
+class EkfNode(Node):
+    """The gyro-bias EKF as a ROS node (see the module docstring).
+
+    Attributes:
+        config: the EKF configuration in use (after any stated noise replaced its sigmas).
+        driver: the core EventDriver (the filter is driver.ekf).
+        dropped: messages dropped per reason.
+        resets: filter resets (looped data, ~/reset, clock jumps).
+        published: estimates published.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        """Declare parameters, build the driver, create topics, services and timers."""
+        super().__init__('ekf_node', **kwargs)
+        config = declare_config(self, EkfConfig)
+        sidecar = declare_sidecar(self)
+        if declare(self, 'use_stated_noise', True,
+                   'Replace the noise sigmas by the noise.* figures a bag states (its params '
+                   'sidecar)'):
+            config = with_stated_noise(config, sidecar.noise)
+        self.config = config
+        self._sidecar = sidecar
+        self._use_calibration = declare(
+            self, 'use_calibration', False,
+            'Seed the bias state and its variance from gyro_bias (calibration_node)')
+        self._calibration_sigma = declare(
+            self, 'calibration_bias_sigma_rad_s', math.radians(0.05),
+            'Sigma given to a bias seeded from gyro_bias', 'rad/s', 1e-9, 1.0)
+        landmarks_file = declare(self, 'landmarks_file', '',
+                                 'Landmark map file (YAML landmarks: [[x, y], ...] or x y '
+                                 'text); empty = wait for landmark_map')
+        landmark_topics = declare(self, 'landmark_topics', [topics.LANDMARKS],
+                                  'Observation topics (PoseArray of poles in a LiDAR frame)')
+        window_s = declare(self, 'reorder_window_s', 0.1,
+                           'Least stamp time a message is held to restore the order across '
+                           'topics (it also waits until every active input has caught up)',
+                           's', 0.0, 60.0)
+        stale_s = declare(self, 'stale_input_s', 1.0,
+                          'An input silent for this long (wall time) stops holding the others '
+                          'back', 's', 0.01, 3600.0)
+        max_events = declare(self, 'max_buffered_events', 20_000,
+                             'Most messages held in the reorder buffer', '', 1, 10_000_000)
+        self._publish_every = declare(self, 'publish_every_n', 1,
+                                      'Publish every n-th estimate (one per IMU sample)', '',
+                                      1, 100_000)
+        lossless = declare(self, 'reliable_inputs', False,
+                           'Reliable keep-all QoS on the inputs instead of sensor data QoS '
+                           '(lossless replay, tests)')
+        self._loop_jump_s = declare(self, 'loop_jump_s', 1.0,
+                                    'A message this far behind the filter counts towards a '
+                                    'restart of the data (looped bag)', 's', 0.0, 1e6)
+        self._restart_after = declare(self, 'restart_after_late', 20,
+                                      'Consecutive messages loop_jump_s behind the filter '
+                                      'that reset it (a looped bag without /clock)', '', 1,
+                                      1_000_000)
+        self._idle_flush_s = declare(self, 'idle_flush_s', 0.5,
+                                     'Wall time without input after which held messages are '
+                                     'processed (end of data)', 's', 0.01, 3600.0)
+        period = declare(self, 'diagnostics_period_s', 1.0,
+                         'Period of the /diagnostics status (node clock)', 's', 0.01, 3600.0)
+        self._max_gap_s = declare(self, 'max_association_gap_s', 5.0,
+                                  'Warn when no landmark was associated for this long', 's',
+                                  0.0, 1e6)
+        self._map_frame = declare(self, 'map_frame', topics.MAP_FRAME, 'Frame of the estimate')
+        self._base_frame = declare(self, 'base_frame', topics.BASE_FRAME,
+                                   'Child frame of ekf/odometry')
+
+        landmarks = load_landmarks_file(landmarks_file) if landmarks_file else None
+        self.driver = EventDriver(self.config, landmarks=landmarks, pose=sidecar.initial_pose)
+        self._initial_pose = sidecar.initial_pose
+        self._buffer = StreamMerger(window_s, max_events, stale_s)
+        self._origin = TimeOrigin(sidecar.time_zero_ns)
+        self._calibrated_bias: float | None = None
+        self.dropped = dict.fromkeys(DROP_REASONS, 0)
+        self.resets = 0
+        self.published = 0
+        self._estimates = 0
+        self._late_streak = 0
+        self._last_input = time.monotonic()
+        self._received = dict.fromkeys(['imu', 'odom', 'landmarks'], 0)
+        self._rate_base = (self.get_clock().now(), dict(self._received))
+        self._rates_hz = dict.fromkeys(self._received, 0.0)
+        self._last_estimate: Estimate | None = None
+
+        self._pose_pub = self.create_publisher(PoseWithCovarianceStamped, topics.EKF_POSE,
+                                               qos.OUTPUT)
+        self._odometry_pub = self.create_publisher(Odometry, topics.EKF_ODOMETRY, qos.OUTPUT)
+        self._bias_pub = self.create_publisher(Vector3Stamped, topics.EKF_BIAS, qos.OUTPUT)
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
+                                                      qos.OUTPUT)
+        # Map, pose and bias first: the executor serves ready subscriptions in creation order.
+        self.create_subscription(PoseArray, topics.LANDMARK_MAP, self._on_map, qos.LATCHED)
+        self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE,
+                                 self._on_initial_pose, qos.OUTPUT)
+        if self._use_calibration:
+            self.create_subscription(Vector3Stamped, topics.GYRO_BIAS, self._on_bias,
+                                     qos.LATCHED)
+        sensor_qos = qos.sensor_input(lossless)
+        self.create_subscription(Odometry, topics.ODOM, self._on_odom, sensor_qos)
+        self.create_subscription(Imu, topics.IMU, self._on_imu, sensor_qos)
+        for name in landmark_topics:
+            self.create_subscription(PoseArray, name, self._on_landmarks,
+                                     qos.stream_output(lossless))
+        self.create_service(Trigger, '~/reset', self._on_reset)
+        self.create_timer(period, self._publish_diagnostics)
+        self.create_timer(min(self._idle_flush_s / 2.0, 0.25), self._flush_when_idle,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._jump_handle = self.get_clock().create_jump_callback(
+            JumpThreshold(min_forward=None, min_backward=Duration(nanoseconds=-1_000_000),
+                          on_clock_change=False),
+            post_callback=self._on_time_jump)
+        mounts = ', '.join(f'{frame} at ({m.x_m:g}, {m.y_m:g}, {m.yaw_rad:g})'
+                           for frame, m in sidecar.lidars.values()) or 'none configured'
+        self.get_logger().info(
+            f'EKF ready: start pose {np.round(self._initial_pose, 4).tolist()}, LiDAR mounts '
+            f'{mounts}, map {len(landmarks) if landmarks else "from " + topics.LANDMARK_MAP}')
+
+    # Inputs -----------------------------------------------------------------------------
+
+    def _drop(self, reason: str, why: str) -> None:
+        self.dropped[reason] += 1
+        self.get_logger().warn(f'dropped: {why} (counts {self.dropped})',
+                               throttle_duration_sec=5.0)
+
+    def _on_imu(self, message: Imu) -> None:
+        self._received['imu'] += 1
+        rate = float(message.angular_velocity.z)
+        if finite(rate):
+            self._push(message.header.stamp, EventKind.IMU, rate, 'imu', 'imu')
+        else:
+            self._drop('non_finite', 'imu yaw rate is not finite')
+
+    def _on_odom(self, message: Odometry) -> None:
+        self._received['odom'] += 1
+        speed = odometry_speed(message)
+        if finite(speed):
+            self._push(message.header.stamp, EventKind.SPEED, speed, 'odom', 'odom')
+        else:
+            self._drop('non_finite', 'odom speed is not finite')
+
+    def _on_landmarks(self, message: PoseArray) -> None:
+        self._received['landmarks'] += 1
+        mount = self._mount(message.header.frame_id)
+        if mount is None:
+            return
+        points = points_of(message)
+        if not finite(*points.ravel().tolist()):
+            self._drop('non_finite', 'landmarks hold a non-finite point')
+            return
+        self._push(message.header.stamp, EventKind.OBSERVATION, (points, mount), 'landmarks',
+                   message.header.frame_id)
+
+    def _mount(self, frame_id: str) -> LidarMount | None:
+        if not self._sidecar.lidars:
+            self.get_logger().warn(
+                'no LiDAR mounts configured (lidar.* parameters): observations are taken at '
+                'the platform origin', once=True)
+            return LidarMount()
+        mount = self._sidecar.mount_for_frame(frame_id)
+        if mount is None:
+            known = sorted(frame for frame, _ in self._sidecar.lidars.values())
+            self._drop('unknown_frame', f'landmarks in frame {frame_id!r}; the LiDAR frames '
+                       f'are {known}')
+        return mount
+
+    def _push(self, stamp, kind: EventKind, value, what: str, stream: str) -> None:
+        self._last_input = time.monotonic()
+        ns = stamp_ns(stamp)
+        if ns == 0:
+            self._drop('zero_stamp', f'{what} message with a zero stamp')
+            return
+        stamp_s = self._origin.seconds(ns)
+        ready, late = self._buffer.push(stream, stamp_s, kind, (ns, value))
+        if late:
+            behind_s = (self.driver.stamp_s or stamp_s) - stamp_s
+            self._late_streak = self._late_streak + 1 if behind_s > self._loop_jump_s else 0
+            if self._late_streak >= self._restart_after:
+                self.reset(f'{self._late_streak} messages in a row went back about '
+                           f'{behind_s:.1f} s (looped data?)')
+                ready, late = self._buffer.push(stream, stamp_s, kind, (ns, value))
+            else:
+                self._drop('late', f'{what} stamp {behind_s:.3f} s behind the filter')
+                return
+        self._late_streak = 0
+        self._process(ready)
+
+    def _process(self, events) -> None:
+        driver = self.driver
+        for stamp_s, kind, (ns, value) in events:
+            try:
+                if kind is EventKind.IMU:
+                    estimate = driver.on_imu(stamp_s, value)
+                    self._estimates += 1
+                    self._last_estimate = estimate
+                    if self._estimates % self._publish_every == 0:
+                        self._publish(estimate, ns)
+                elif kind is EventKind.SPEED:
+                    driver.on_speed(stamp_s, value)
+                else:
+                    driver.on_detections(stamp_s, value[0], value[1])
+            except CoreError as err:
+                self._drop('filter_error', f'the filter refused a {kind.name.lower()} event: '
+                           f'{err}')
+
+    def _publish(self, estimate: Estimate, ns: int) -> None:
+        pose, odometry, bias = estimate_messages(
+            estimate, to_stamp(ns), self._map_frame, self._base_frame,
+            self.config.speed_noise_m_s, self.config.gyro_noise_rad_s)
+        self._pose_pub.publish(pose)
+        self._odometry_pub.publish(odometry)
+        self._bias_pub.publish(bias)
+        self.published += 1
+
+    def _on_map(self, message: PoseArray) -> None:
+        points = points_of(message)
+        if points.shape[0] == 0:
+            self._drop('empty_map', f'{topics.LANDMARK_MAP} has no landmarks; keeping the '
+                       'current map')
+        elif not finite(*points.ravel().tolist()):
+            self._drop('non_finite', f'{topics.LANDMARK_MAP} holds a non-finite landmark')
+        else:
+            self.driver.landmarks = LandmarkMap(points)
+            self.get_logger().info(f'landmark map: {points.shape[0]} landmarks')
+
+    def _on_initial_pose(self, message: PoseWithCovarianceStamped) -> None:
+        try:
+            pose, covariance = pose_and_covariance(message)
+        except ValueError as err:
+            self._drop('non_finite', f'{topics.INITIAL_POSE}: {err}')
+            return
+        self.driver.ekf.set_pose(pose, covariance)
+        self.get_logger().info(f'pose set to {np.round(pose, 4).tolist()} '
+                               f'({topics.INITIAL_POSE})')
+
+    def _on_bias(self, message: Vector3Stamped) -> None:
+        bias = float(message.vector.z)
+        if not finite(bias):
+            self._drop('non_finite', f'{topics.GYRO_BIAS} is not finite')
+            return
+        self._calibrated_bias = bias
+        self.driver.ekf.set_bias(bias, self._calibration_sigma)
+        self.get_logger().info(
+            f'bias seeded from {topics.GYRO_BIAS}: {math.degrees(bias):+.4f} deg/s '
+            f'(sigma {math.degrees(self._calibration_sigma):.4f} deg/s)')
+
+    # Resets -----------------------------------------------------------------------------
+
+    def reset(self, why: str) -> None:
+        """Restart the filter at the initial pose (re-seeding a calibrated bias)."""
+        self.driver.reset(self._initial_pose)
+        if self._calibrated_bias is not None:
+            self.driver.ekf.set_bias(self._calibrated_bias, self._calibration_sigma)
+        self._buffer.clear()
+        self._late_streak = 0
+        self.resets += 1
+        self.get_logger().warn(f'filter reset: {why}')
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response
+                  ) -> Trigger.Response:
+        self.reset('reset requested (~/reset)')
+        response.success = True
+        response.message = 'filter reset to the initial pose'
+        return response
+
+    def _on_time_jump(self, jump: TimeJump) -> None:
+        delta_s = jump.delta.nanoseconds / 1e9
+        if delta_s < 0.0:
+            self.reset(f'ROS time jumped back {-delta_s:.3f} s (looped bag?)')
+
+    # Housekeeping -----------------------------------------------------------------------
+
+    def _flush_when_idle(self) -> None:
+        if len(self._buffer) and time.monotonic() - self._last_input > self._idle_flush_s:
+            self._process(self._buffer.flush())
+            self._publish_diagnostics()
+
+    def _publish_diagnostics(self) -> None:
+        now = self.get_clock().now()
+        base_time, base_counts = self._rate_base
+        elapsed_s = (now - base_time).nanoseconds / 1e9
+        if elapsed_s > 0.0:
+            self._rates_hz = {k: (self._received[k] - base_counts[k]) / elapsed_s
+                              for k in self._received}
+            self._rate_base = (now, dict(self._received))
+        stats = self.driver.stats
+        x = self.driver.ekf.x
+        P = self.driver.ekf.P
+        outcomes = stats.outcomes
+        rejected = sum(v for k, v in outcomes.items() if k != 'matched')
+        since = (None if stats.last_association_s is None or self.driver.stamp_s is None
+                 else self.driver.stamp_s - stats.last_association_s)
+        values = {
+            'bias_deg_s': f'{math.degrees(x[3]):.5f}',
+            'bias_sigma_deg_s': f'{math.degrees(math.sqrt(max(P[3, 3], 0.0))):.5f}',
+            'x_m': f'{x[0]:.4f}', 'y_m': f'{x[1]:.4f}', 'yaw_deg': f'{math.degrees(x[2]):.3f}',
+            'stamp_s': '' if self.driver.stamp_s is None else f'{self.driver.stamp_s:.6f}',
+            'associated': str(stats.updates), 'rejected': str(rejected),
+            **{f'rejected_{k}': str(v) for k, v in outcomes.items() if k != 'matched'},
+            'mean_nis': f'{stats.mean_nis:.4f}',
+            **{f'rate_{k}_hz': f'{v:.2f}' for k, v in self._rates_hz.items()},
+            'time_since_association_s': '' if since is None else f'{since:.3f}',
+            'estimates': str(self._estimates), 'published': str(self.published),
+            'buffered': str(len(self._buffer)), 'resets': str(self.resets),
+            **{f'dropped_{k}': str(v) for k, v in self.dropped.items()},
+        }
+        status = DiagnosticStatus(name=f'{self.get_name()}: gyro bias EKF',
+                                  hardware_id=self.resolve_topic_name(topics.IMU))
+        if self._estimates == 0:
+            status.level, status.message = DiagnosticStatus.WARN, 'no IMU data processed yet'
+        elif self.driver.landmarks is None:
+            status.level, status.message = DiagnosticStatus.WARN, 'no landmark map'
+        elif since is None or since > self._max_gap_s:
+            status.level = DiagnosticStatus.WARN
+            status.message = 'no landmark associated recently'
+        else:
+            status.level, status.message = DiagnosticStatus.OK, 'tracking'
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        self._diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=now.to_msg()),
+                                                      status=[status]))
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of the ekf_node executable."""
+    return run_node(EkfNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,95 @@
+"""landmark_detector_node: poles in a LaserScan, as a PoseArray in the scan's frame.
+
+Subscribes `scan` (sensor_msgs/LaserScan, sensor-data QoS) and publishes `landmarks`
+(geometry_msgs/PoseArray, same header: the scan's frame and stamp) with the pole centres the
+core's detector finds, one pose per pole at (x, y, 0); a scan with no pole gives an empty
+PoseArray, so the filter still sees when the scan was taken. Run one node per LiDAR by
+remapping: `--ros-args -r scan:=scan2 -r __node:=landmark_detector_scan2`.
+"""
+
+from __future__ import annotations
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseArray
+from rclpy.node import Node
+from sensor_msgs.msg import LaserScan
+from std_msgs.msg import Header
+
+from gyro_ekf import topics
+from gyro_ekf.core.config import DetectorConfig
+from gyro_ekf.core.detection import detect_poles
+from gyro_ekf.core.errors import CoreError
+from gyro_ekf.nodes import qos
+from gyro_ekf.nodes.conversions import points_message, scan_arrays, stamp_ns
+from gyro_ekf.nodes.params import declare, declare_config
+from gyro_ekf.nodes.runtime import run_node
+
+
+class LandmarkDetectorNode(Node):
+    """Pole detection as a ROS node (see the module docstring).
+
+    Attributes:
+        config: the detector configuration.
+        scans: scans processed.
+        poles: poles published.
+        dropped: scans dropped per reason.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        """Declare parameters, create the subscription, publisher and timer."""
+        super().__init__('landmark_detector_node', **kwargs)
+        self.config = declare_config(self, DetectorConfig)
+        lossless = declare(self, 'reliable_inputs', False,
+                           'Reliable keep-all QoS on scan and landmarks instead of sensor data '
+                           'QoS (lossless replay, tests)')
+        period = declare(self, 'diagnostics_period_s', 1.0,
+                         'Period of the /diagnostics status', 's', 0.01, 3600.0)
+        self.scans = 0
+        self.poles = 0
+        self.dropped = {'zero_stamp': 0, 'bad_scan': 0}
+        self._publisher = self.create_publisher(PoseArray, topics.LANDMARKS,
+                                                qos.stream_output(lossless))
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
+                                                      qos.OUTPUT)
+        self.create_subscription(LaserScan, topics.SCAN, self._on_scan,
+                                 qos.sensor_input(lossless))
+        self.create_timer(period, self._publish_diagnostics)
+
+    def _on_scan(self, message: LaserScan) -> None:
+        if stamp_ns(message.header.stamp) == 0:
+            self._drop('zero_stamp', 'scan with a zero stamp')
+            return
+        ranges, angles, intensities = scan_arrays(message)
+        try:
+            detections = detect_poles(ranges, angles, intensities, self.config)
+        except CoreError as err:
+            self._drop('bad_scan', str(err))
+            return
+        self.scans += 1
+        self.poles += len(detections)
+        self._publisher.publish(points_message(message.header, detections.points_sensor_m))
+
+    def _drop(self, reason: str, why: str) -> None:
+        self.dropped[reason] += 1
+        self.get_logger().warn(f'dropped a scan: {why} (counts {self.dropped})',
+                               throttle_duration_sec=5.0)
+
+    def _publish_diagnostics(self) -> None:
+        status = DiagnosticStatus(name=f'{self.get_name()}: pole detector',
+                                  hardware_id=self.resolve_topic_name(topics.SCAN))
+        status.level = DiagnosticStatus.OK if self.scans else DiagnosticStatus.WARN
+        status.message = 'detecting' if self.scans else 'no scans yet'
+        values = {'scans': self.scans, 'poles': self.poles,
+                  **{f'dropped_{k}': v for k, v in self.dropped.items()}}
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        self._diagnostics_pub.publish(DiagnosticArray(
+            header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of the landmark_detector_node executable."""
+    return run_node(LandmarkDetectorNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,186 @@
+"""ROS parameters declared from the core config dataclasses, and node-level parameters.
+
+`core/config.py` is the single source of every tunable: each dataclass field carries its
+default, unit, description and bounds. `declare_config` turns the fields into
+`declare_parameter` calls with a ParameterDescriptor (description with the unit, a
+FloatingPointRange or IntegerRange, read-only because the nodes build their core objects
+from them once) and builds the config back from the values the node received
+(`--params-file`, `-p name:=value` or the defaults).
+
+The bag sidecar (`gyro_ekf.io.sidecar`) is a params file too: `declare_sidecar` declares
+its entries (initial pose, LiDAR mounts per scan topic, stated noise, time zero) so a node
+started with `--params-file BAG.params.yaml` gets them with no hand-typed flags.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from gyro_ekf.core.config import config_fields, ConfigT, EkfConfig, make_config
+from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures
+
+NOISE_FIELDS = {
+    'gyro_rad_s': 'gyro_noise_rad_s',
+    'speed_m_s': 'speed_noise_m_s',
+    'range_m': 'range_noise_m',
+    'bearing_rad': 'bearing_noise_rad',
+}
+"""Sidecar `noise.<key>` -> the EkfConfig field a stated figure replaces."""
+
+
+def _range(low: float | None, high: float | None, integer: bool) -> dict[str, Any]:
+    if low is None and high is None:
+        return {}
+    if integer:
+        return {'integer_range': [IntegerRange(
+            from_value=int(low if low is not None else -2 ** 62),
+            to_value=int(high if high is not None else 2 ** 62), step=0)]}
+    return {'floating_point_range': [FloatingPointRange(
+        from_value=float(low if low is not None else -math.inf),
+        to_value=float(high if high is not None else math.inf), step=0.0)]}
+
+
+def declare(node: Node, name: str, default: Any, description: str, unit: str = '',
+            low: float | None = None, high: float | None = None,
+            read_only: bool = True) -> Any:
+    """Declare one parameter with a descriptor and return its value.
+
+    Float parameters accept integer values too (`-p window_length_s:=5`): they are declared
+    with dynamic typing, and the caller converts; ranges are checked by rclpy for doubles
+    and by the caller (``make_config``) for everything.
+
+    Args:
+        node: the node.
+        name: parameter name (dots for nesting).
+        default: default value; its type is the parameter's type. Parameter.Type.STRING_ARRAY
+            declares a string list that defaults to empty (ROS cannot infer the type of []).
+        description: what it does (shown by `ros2 param describe`).
+        unit: unit appended to the description, if any.
+        low: smallest allowed value, or None.
+        high: largest allowed value, or None.
+        read_only: refuse changes after start (the node reads it once).
+
+    Returns:
+        The value the node received.
+    """
+    is_float = isinstance(default, float)
+    text = f'{description} [{unit}]' if unit else description
+    descriptor = ParameterDescriptor(
+        description=text, read_only=read_only, dynamic_typing=is_float,
+        **_range(low, high, isinstance(default, int) and not isinstance(default, bool)))
+    value = node.declare_parameter(name, default, descriptor).value
+    if default is Parameter.Type.STRING_ARRAY:
+        return list(value or [])
+    if is_float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    return value
+
+
+def declare_config(node: Node, config_type: type[ConfigT], prefix: str = '') -> ConfigT:
+    """Declare one parameter per field of a core config dataclass and build the config.
+
+    Args:
+        node: the node.
+        config_type: EkfConfig, CalibrationConfig or DetectorConfig.
+        prefix: prepended to every field name (e.g. 'detector.').
+
+    Returns:
+        The config built from the received values.
+
+    Raises:
+        CoreError: a value of the wrong type or out of bounds (named in the message).
+    """
+    values = {}
+    for spec in config_fields(config_type):
+        meta = spec.metadata
+        values[spec.name] = declare(
+            node, prefix + spec.name, spec.default, meta['description'], meta['unit'],
+            meta['min'], meta['max'], read_only=True)
+    return make_config(config_type, values, source=f'node {node.get_fully_qualified_name()}')
+
+
+@dataclass(frozen=True, slots=True)
+class SidecarParams:
+    """The bag sidecar entries a node received (see gyro_ekf.io.sidecar).
+
+    Attributes:
+        time_zero_ns: `trip.log_time_zero_ns`, ns since the epoch; 0 when not given.
+        initial_pose: shape (3,): x m, y m, yaw rad in `map`.
+        lidars: scan topic -> (frame_id, mount).
+        noise: stated noise figures (None = not stated).
+    """
+
+    time_zero_ns: int
+    initial_pose: FloatArray
+    lidars: dict[str, tuple[str, LidarMount]] = field(default_factory=dict)
+    noise: NoiseFigures = field(default_factory=NoiseFigures)
+
+    def mount_for_frame(self, frame_id: str) -> LidarMount | None:
+        """Mount of the LiDAR whose frame is frame_id, or None when no LiDAR has it."""
+        for frame, mount in self.lidars.values():
+            if frame == frame_id:
+                return mount
+        return None
+
+
+def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
+                    pose: bool = True) -> SidecarParams:
+    """Declare the sidecar's parameters (all optional) and return their values.
+
+    Args:
+        node: the node.
+        lidars: declare `lidar.topics` and `lidar.<topic>.{frame_id,x_m,y_m,yaw_rad}`.
+        noise: declare `noise.{gyro_rad_s,speed_m_s,range_m,bearing_rad}` (0 = not stated).
+        pose: declare `initial_pose.{x_m,y_m,yaw_rad}`.
+    """
+    zero_ns = declare(node, 'trip.log_time_zero_ns', 0,
+                      'Stamp of the log\'s time zero; stamps are converted to seconds since '
+                      'it. 0 = since the first message received', 'ns since the epoch', 0, None)
+    initial = [0.0, 0.0, 0.0]
+    if pose:
+        initial = [
+            declare(node, 'initial_pose.x_m', 0.0, 'Initial x in the map frame', 'm'),
+            declare(node, 'initial_pose.y_m', 0.0, 'Initial y in the map frame', 'm'),
+            declare(node, 'initial_pose.yaw_rad', 0.0, 'Initial yaw in the map frame', 'rad',
+                    -2.0 * math.pi, 2.0 * math.pi)]
+    mounts: dict[str, tuple[str, LidarMount]] = {}
+    if lidars:
+        names = declare(node, 'lidar.topics', Parameter.Type.STRING_ARRAY,
+                        'Scan topics of the LiDARs; each has lidar.<topic>.frame_id and its '
+                        'mount lidar.<topic>.{x_m,y_m,yaw_rad} in base_link')
+        for topic in names:
+            frame = declare(node, f'lidar.{topic}.frame_id', topic,
+                            f'frame_id of the scans on {topic!r} (and of their landmarks)')
+            mounts[topic] = (frame, LidarMount(
+                declare(node, f'lidar.{topic}.x_m', 0.0, f'Forward offset of {topic!r}', 'm'),
+                declare(node, f'lidar.{topic}.y_m', 0.0, f'Leftward offset of {topic!r}', 'm'),
+                declare(node, f'lidar.{topic}.yaw_rad', 0.0, f'Yaw of {topic!r}', 'rad',
+                        -2.0 * math.pi, 2.0 * math.pi)))
+    figures = NoiseFigures()
+    if noise:
+        stated = {}
+        for key, target in NOISE_FIELDS.items():
+            value = declare(node, f'noise.{key}', 0.0,
+                            f'Noise figure the bag states; replaces {target} when '
+                            'use_stated_noise is true. 0 = not stated', '', 0.0, None)
+            stated[key] = value if value > 0.0 else None
+        figures = NoiseFigures(**stated)
+    return SidecarParams(int(zero_ns), np.array(initial, dtype=np.float64), mounts, figures)
+
+
+def with_stated_noise(config: EkfConfig, noise: NoiseFigures) -> EkfConfig:
+    """Replace the EKF noise sigmas by the figures a bag states (the others stay).
+
+    `gyro-ekf run` should apply the same rule, so offline and live runs agree.
+    """
+    changes = {target: getattr(noise, key) for key, target in NOISE_FIELDS.items()
+               if getattr(noise, key) is not None}
+    return dataclasses.replace(config, **changes)

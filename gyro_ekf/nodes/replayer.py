@@ -1,0 +1,215 @@
+"""The rclpy half of `gyro-ekf replay`: publish recorded messages over DDS on their stamps.
+
+A stand-in for `ros2 bag play` where rosbag2 is not installed. Messages are published as
+they were recorded (serialized CDR, no decoding) on the topic's relative name, so
+`--ros-args -r __ns:=/robot` and remaps work. Timing follows the bag stamps divided by a rate
+factor; with `clock` it also publishes `/clock` (rosgraph_msgs/Clock) for `use_sim_time`.
+Transient-local topics (the landmark map, the initial pose) are published latched. Reliable
+topics use reliable keep-all publishers: a reliable reader gets every message (a slow one
+delays the replay rather than losing data), and best-effort readers still match.
+
+Timing jitter (publish time minus the scheduled time) is measured for every message and
+reported at the end.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+
+from gyro_ekf import topics
+from gyro_ekf.nodes import qos
+from gyro_ekf.nodes.conversions import to_stamp
+
+RawMessage = tuple[str, int, bytes]
+"""(topic as recorded, stamp ns since the epoch, serialized CDR)."""
+
+
+def message_class(type_name: str) -> Any:
+    """The rclpy message class of a type name like 'sensor_msgs/msg/Imu'.
+
+    Raises:
+        ValueError: a malformed name, or a type whose package is not installed.
+    """
+    parts = type_name.split('/')
+    if len(parts) != 3 or parts[1] != 'msg':
+        raise ValueError(f'message type {type_name!r}: expected package/msg/Name')
+    try:
+        return getattr(importlib.import_module(f'{parts[0]}.msg'), parts[2])
+    except (ImportError, AttributeError):
+        raise ValueError(f'message type {type_name!r} is not installed') from None
+
+
+@dataclass(frozen=True, slots=True)
+class ReplayTopic:
+    """A topic to replay.
+
+    Attributes:
+        name: topic as recorded ('/imu').
+        msgtype: e.g. 'sensor_msgs/msg/Imu'.
+        latched: recorded as transient local (published with a latched QoS).
+        reliable: recorded as reliable (False = best effort).
+    """
+
+    name: str
+    msgtype: str
+    latched: bool = False
+    reliable: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class ReplayReport:
+    """What a replay did.
+
+    Attributes:
+        messages: messages published.
+        loops: passes over the bag.
+        wall_s: wall time from the first to the last publish, s.
+        bag_s: bag time covered, s (summed over loops).
+        jitter_mean_ms: mean of publish time minus scheduled time, ms.
+        jitter_p95_ms: 95th percentile of it, ms.
+        jitter_max_ms: largest of it, ms.
+        acknowledged: every reliable reader acknowledged every message at the end.
+    """
+
+    messages: int
+    loops: int
+    wall_s: float
+    bag_s: float
+    jitter_mean_ms: float
+    jitter_p95_ms: float
+    jitter_max_ms: float
+    acknowledged: bool
+
+    def summary(self) -> str:
+        """One line for humans."""
+        speed = self.bag_s / self.wall_s if self.wall_s > 0 else math.inf
+        return (f'replayed {self.messages} messages ({self.loops} pass(es), {self.bag_s:.1f} s '
+                f'of bag in {self.wall_s:.1f} s, x{speed:.1f}); timing jitter mean '
+                f'{self.jitter_mean_ms:.2f} ms, p95 {self.jitter_p95_ms:.2f} ms, max '
+                f'{self.jitter_max_ms:.2f} ms; all acknowledged: {self.acknowledged}')
+
+
+class Replayer(Node):
+    """Publishes raw recorded messages on their relative topic names."""
+
+    def __init__(self, replay_topics: Iterable[ReplayTopic], clock: bool,
+                 node_name: str = 'gyro_ekf_replay', **kwargs) -> None:
+        """Create one publisher per topic (and /clock when clock is true).
+
+        Raises:
+            ValueError: a message type that is not installed.
+        """
+        super().__init__(node_name, **kwargs)
+        self.topics = {t.name: t for t in replay_topics}
+        self.publishers_by_topic = {}
+        for topic in self.topics.values():
+            if topic.latched:
+                profile = qos.LATCHED
+            elif topic.reliable:
+                profile = qos.LOSSLESS
+            else:
+                profile = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+            self.publishers_by_topic[topic.name] = self.create_publisher(
+                message_class(topic.msgtype), topic.name.lstrip('/'), profile)
+        self._clock_pub = self.create_publisher(Clock, topics.CLOCK, 10) if clock else None
+
+    def wait_for_subscribers(self, needs: dict[str, int], timeout_s: float) -> dict[str, int]:
+        """Wait until each topic has at least the given number of matched subscriptions.
+
+        Args:
+            needs: topic as recorded -> subscriptions needed.
+            timeout_s: give up after this long, s.
+
+        Returns:
+            The topics still short of subscribers -> their current count (empty on success).
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            short = {name: self.publishers_by_topic[name].get_subscription_count()
+                     for name in needs}
+            short = {name: count for name, count in short.items() if count < needs[name]}
+            if not short or time.monotonic() > deadline or not rclpy.ok():
+                return short
+            time.sleep(0.01)
+
+    def play(self, messages: Callable[[], Iterator[RawMessage]], rate: float, loop: bool,
+             clock_hz: float = 100.0, ack_timeout_s: float = 30.0,
+             latch_ack_timeout_s: float = 2.0) -> ReplayReport:
+        """Publish every message at its stamp / rate (rate 0 = as fast as possible).
+
+        Args:
+            messages: returns a fresh iterator over the bag's messages in stamp order.
+            rate: speed-up factor (2 = twice as fast as recorded); 0 = no waiting.
+            loop: start over at the end until interrupted.
+            clock_hz: /clock messages per second of bag time (when clock is on).
+            ack_timeout_s: at the end, wait this long for reliable readers to acknowledge.
+            latch_ack_timeout_s: after the first latched message, wait this long for its
+                acknowledgement so readers have it before the sensor stream starts.
+        """
+        jitter_s: list[float] = []
+        published = 0
+        loops = 0
+        bag_s = 0.0
+        clock_period_ns = int(1e9 / clock_hz) if clock_hz > 0 else 0
+        first_publish = last_publish = None
+        while rclpy.ok():
+            loops += 1
+            start_ns = None
+            last_clock_ns = None
+            wall_start = time.perf_counter()
+            stamp = None
+            for name, stamp, data in messages():
+                if not rclpy.ok():
+                    break
+                if start_ns is None:
+                    start_ns = stamp
+                if rate > 0:
+                    target = wall_start + (stamp - start_ns) / 1e9 / rate
+                    delay = target - time.perf_counter()
+                    if delay > 0:
+                        time.sleep(delay)
+                if self._clock_pub is not None and (
+                        last_clock_ns is None or stamp - last_clock_ns >= clock_period_ns):
+                    self._clock_pub.publish(Clock(clock=to_stamp(stamp)))
+                    last_clock_ns = stamp
+                publisher = self.publishers_by_topic.get(name)
+                if publisher is None:
+                    continue
+                publisher.publish(data)
+                published += 1
+                now = time.perf_counter()
+                if rate > 0:
+                    jitter_s.append(now - target)
+                first_publish = first_publish or now
+                last_publish = now
+                if self.topics[name].latched and publisher.get_subscription_count():
+                    publisher.wait_for_all_acked(Duration(seconds=latch_ack_timeout_s))
+            if start_ns is not None and stamp is not None:
+                bag_s += (stamp - start_ns) / 1e9
+            if not loop or start_ns is None:
+                break
+        acknowledged = all(
+            p.wait_for_all_acked(Duration(seconds=ack_timeout_s))
+            for p in self.publishers_by_topic.values()) if rclpy.ok() else False
+        jitter_s.sort()
+        count = len(jitter_s)
+        return ReplayReport(
+            messages=published,
+            loops=loops,
+            wall_s=(last_publish - first_publish) if first_publish else 0.0,
+            bag_s=bag_s,
+            jitter_mean_ms=1e3 * sum(jitter_s) / count if count else 0.0,
+            jitter_p95_ms=1e3 * jitter_s[min(count - 1, int(0.95 * count))] if count else 0.0,
+            jitter_max_ms=1e3 * jitter_s[-1] if count else 0.0,
+            acknowledged=acknowledged)
