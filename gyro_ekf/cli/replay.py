@@ -100,7 +100,7 @@ class BagSource:
         self.until_ns = None if duration_s is None else self.from_ns + int(duration_s * 1e9)
 
     def __call__(self) -> Iterator[tuple[str, int, bytes]]:
-        """A fresh iterator over (topic, stamp ns, CDR bytes) in stamp order."""
+        """Iterate afresh over (topic, stamp ns, CDR bytes) in stamp order."""
         from rosbags.rosbag2 import Reader
 
         held: dict[str, tuple[str, int, bytes]] = {}

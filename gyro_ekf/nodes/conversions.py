@@ -62,7 +62,7 @@ class TimeOrigin:
 
 
 def finite(*values: float) -> bool:
-    """True when every value is a finite number."""
+    """Tell whether every value is a finite number."""
     return all(math.isfinite(v) for v in values)
 
 
@@ -81,7 +81,7 @@ def imu_axes_known(message: Imu) -> tuple[bool, bool, bool]:
 
 
 def corrected_imu(message: Imu, bias_rad_s: Sequence[float]) -> Imu:
-    """The same Imu message with the gyro bias (x, y, z, rad/s) removed from its rates."""
+    """Copy an Imu message with the gyro bias (x, y, z, rad/s) removed from its rates."""
     out = Imu(header=message.header, orientation=message.orientation,
               orientation_covariance=message.orientation_covariance,
               angular_velocity_covariance=message.angular_velocity_covariance,
@@ -114,7 +114,7 @@ def scan_arrays(message: LaserScan) -> tuple[np.ndarray, FloatArray, np.ndarray 
 
 
 def points_message(header: Header, points_m: FloatArray) -> PoseArray:
-    """PoseArray of 2-D points (shape (k, 2), m) in the header's frame, identity orientation."""
+    """Build a PoseArray of 2-D points (shape (k, 2), m) in the header's frame."""
     message = PoseArray(header=header)
     for x, y in np.asarray(points_m, dtype=np.float64).reshape(-1, 2).tolist():
         pose = Pose()
@@ -125,7 +125,7 @@ def points_message(header: Header, points_m: FloatArray) -> PoseArray:
 
 
 def points_of(message: PoseArray) -> FloatArray:
-    """The (x, y) of every pose of a PoseArray, shape (k, 2), m."""
+    """Get the (x, y) of every pose of a PoseArray, shape (k, 2), m."""
     return np.array([(p.position.x, p.position.y) for p in message.poses],
                     dtype=np.float64).reshape(-1, 2)
 

@@ -18,10 +18,10 @@ LOSSLESS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL,
 
 
 def sensor_input(lossless: bool) -> QoSProfile:
-    """QoS of a sensor subscription: sensor data (best effort, depth 5), or LOSSLESS."""
+    """Choose the QoS of a sensor subscription: sensor data (best effort, depth 5) or LOSSLESS."""
     return LOSSLESS if lossless else qos_profile_sensor_data
 
 
 def stream_output(lossless: bool) -> QoSProfile:
-    """QoS of a per-sample output stream (imu/corrected, landmarks): OUTPUT or LOSSLESS."""
+    """Choose the QoS of a per-sample output stream (imu/corrected, landmarks)."""
     return LOSSLESS if lossless else OUTPUT

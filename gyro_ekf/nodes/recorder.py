@@ -1,9 +1,10 @@
 """The rclpy half of `gyro-ekf record`: subscribe to topics and hand raw messages to a sink.
 
 Types come from the command line (TOPIC:TYPE) or from the graph. A topic is subscribed once
-a publisher for it appears, so the QoS can follow the publishers'. The subscription QoS adapts to the publishers,
-as rosbag2 does: transient local when any publisher is (so a latched message recorded late
-is still recorded), reliable unless a publisher is best effort. Messages stay serialized.
+a publisher for it appears, and the subscription QoS adapts to the publishers, as rosbag2
+does: transient local when any publisher is (so a latched message published before the
+match is still recorded), reliable unless a publisher is best effort. Messages stay
+serialized.
 """
 
 from __future__ import annotations

@@ -36,7 +36,7 @@ RawMessage = tuple[str, int, bytes]
 
 
 def message_class(type_name: str) -> Any:
-    """The rclpy message class of a type name like 'sensor_msgs/msg/Imu'.
+    """Import the rclpy message class of a type name like 'sensor_msgs/msg/Imu'.
 
     Raises:
         ValueError: a malformed name, or a type whose package is not installed.
