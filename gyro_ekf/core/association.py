@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 
 from gyro_ekf.core.angles import wrap_angle
 from gyro_ekf.core.errors import CoreError
-from gyro_ekf.core.models import observation_jacobian, observe
+from gyro_ekf.core.models import observation_jacobian, observe, sensor_to_map
 from gyro_ekf.core.types import FloatArray, LidarMount
 
 _NO_MOUNT = LidarMount()
@@ -207,4 +207,61 @@ def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
                     float(nearest_d2[i]))
         for i in range(n))
     return AssociationResult(associations=associations, gate_threshold=threshold,
+                             mahalanobis_sq=d2)
+
+
+def associate_by_distance(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
+                          landmarks_xy_m: FloatArray, mount: LidarMount = _NO_MOUNT,
+                          max_distance_m: float = 1.0, ratio: float = 0.3
+                          ) -> AssociationResult:
+    """Re-associate by map-frame distance, for a filter that has lost its landmarks.
+
+    After a long stretch without updates the covariance no longer describes the error
+    (unmodelled slip, a bias that walked off), so the chi-square gate rejects every
+    detection and the filter never recovers. Geometry still works: a detection placed in
+    the map at the prior pose is paired with its nearest landmark when that landmark is
+    within ``max_distance_m`` and clearly nearer than the second nearest
+    (nearest <= ratio * second). The Mahalanobis distances are still reported.
+
+    Args:
+        z: observations, shape (n, 2): range m, bearing rad (ROS convention).
+        state: platform state, shape (4,).
+        P: state covariance, shape (4, 4) (only for the reported distances).
+        R: observation noise covariance, shape (2, 2).
+        landmarks_xy_m: landmark positions, shape (k, 2), m.
+        mount: the LiDAR's pose on the platform.
+        max_distance_m: farthest a detection may lie from its landmark, m.
+        ratio: nearest distance must be at most this share of the second nearest.
+
+    Returns:
+        One association per detection: MATCHED, UNMATCHED (too far), AMBIGUOUS (fails the
+        ratio test) or DUPLICATE (two detections chose the same landmark).
+    """
+    z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
+    landmarks = np.asarray(landmarks_xy_m, dtype=np.float64).reshape(-1, 2)
+    d2 = mahalanobis_sq(z, state, P, R, landmarks, mount)
+    n, k = d2.shape
+    if k == 0:
+        return associate(z, state, P, R, landmarks, mount)
+    points = sensor_to_map(state, np.column_stack([z[:, 0] * np.cos(z[:, 1]),
+                                                   z[:, 0] * np.sin(z[:, 1])]), mount)
+    distance = np.hypot(points[:, None, 0] - landmarks[None, :, 0],
+                        points[:, None, 1] - landmarks[None, :, 1])       # (n, k)
+    nearest = np.argmin(distance, axis=1)
+    ordered = np.sort(distance, axis=1)
+    second = ordered[:, 1] if k > 1 else np.full(n, math.inf)
+    near = ordered[:, 0] <= max_distance_m
+    clear = ordered[:, 0] <= ratio * second
+    outcome = np.full(n, AssociationOutcome.UNMATCHED, dtype=np.int64)
+    outcome[near & clear] = AssociationOutcome.MATCHED
+    outcome[near & ~clear] = AssociationOutcome.AMBIGUOUS
+    matched = outcome == AssociationOutcome.MATCHED
+    chosen = np.bincount(nearest[matched], minlength=k)
+    outcome[matched & (chosen[nearest] > 1)] = AssociationOutcome.DUPLICATE
+    landmark = np.where(outcome == AssociationOutcome.MATCHED, nearest, -1)
+    associations = tuple(
+        Association(i, int(landmark[i]), AssociationOutcome(int(outcome[i])),
+                    float(d2[i, nearest[i]]))
+        for i in range(n))
+    return AssociationResult(associations=associations, gate_threshold=math.inf,
                              mahalanobis_sq=d2)

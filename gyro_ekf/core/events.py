@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from gyro_ekf.core.association import AssociationOutcome, AssociationResult, associate
+from gyro_ekf.core.association import (AssociationOutcome, AssociationResult, associate,
+                                       associate_by_distance)
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.detection import detect_poles
 from gyro_ekf.core.ekf import GyroBiasEkf
@@ -89,6 +90,7 @@ class DriverStats:
         detections: poles detected.
         outcomes: detections per association outcome name.
         updates: landmark updates applied.
+        recoveries: scans associated by map distance after a gap (see EkfConfig).
         nis_sum: sum of the NIS of all updates.
         last_association_s: stamp of the last applied update, or None.
         longest_gap_s: longest time between applied updates (from the first one).
@@ -101,6 +103,7 @@ class DriverStats:
     outcomes: dict[str, int] = field(
         default_factory=lambda: {o.name.lower(): 0 for o in AssociationOutcome})
     updates: int = 0
+    recoveries: int = 0
     nis_sum: float = 0.0
     last_association_s: float | None = None
     longest_gap_s: float = 0.0
@@ -114,7 +117,8 @@ class DriverStats:
         """Return a plain copy for reports."""
         return {'imu': self.imu, 'speed': self.speed, 'scans': self.scans,
                 'detections': self.detections, 'outcomes': dict(self.outcomes),
-                'updates': self.updates, 'mean_nis': self.mean_nis,
+                'updates': self.updates, 'recoveries': self.recoveries,
+                'mean_nis': self.mean_nis,
                 'last_association_s': self.last_association_s,
                 'longest_gap_s': self.longest_gap_s}
 
@@ -143,6 +147,7 @@ class EventDriver:
         self.stamp_s: float | None = None
         self.speed_m_s = 0.0
         self.rate_rad_s: float | None = None
+        self._first_scan_s: float | None = None
 
     def reset(self, pose: FloatArray | None = None, bias_rad_s: float | None = None) -> None:
         """Start over (a looped bag, a ~/reset call): new filter, held inputs and counts."""
@@ -151,6 +156,7 @@ class EventDriver:
         self.stamp_s = None
         self.speed_m_s = 0.0
         self.rate_rad_s = None
+        self._first_scan_s = None
 
     def _advance(self, stamp_s: float, what: str) -> None:
         if self.stamp_s is None:
@@ -206,14 +212,22 @@ class EventDriver:
         """
         self._advance(stamp_s, 'observation')
         self.stats.scans += 1
+        if self._first_scan_s is None:
+            self._first_scan_s = stamp_s
         points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)
         self.stats.detections += points.shape[0]
         points_map = sensor_to_map(self.ekf.x, points, mount)
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
             return ObservationReport(stamp_s, points, points_map, None, np.zeros(0))
         z = points_to_range_bearing(points)
-        result = associate(z, self.ekf.x, self.ekf.P, self.ekf.R, self.landmarks.xy_m, mount,
-                           self.config.gate_probability)
+        if self._recovering(stamp_s):
+            self.stats.recoveries += 1
+            result = associate_by_distance(
+                z, self.ekf.x, self.ekf.P, self.ekf.R, self.landmarks.xy_m, mount,
+                self.config.recovery_max_distance_m, self.config.recovery_ratio)
+        else:
+            result = associate(z, self.ekf.x, self.ekf.P, self.ekf.R, self.landmarks.xy_m,
+                               mount, self.config.gate_probability)
         nis = []
         for match in result.associations:
             self.stats.outcomes[match.outcome.name.lower()] += 1
@@ -228,6 +242,13 @@ class EventDriver:
                                                stamp_s - self.stats.last_association_s)
             self.stats.last_association_s = stamp_s
         return ObservationReport(stamp_s, points, points_map, result, np.array(nis))
+
+    def _recovering(self, stamp_s: float) -> bool:
+        """Whether no update has been applied for longer than the recovery delay."""
+        last = self.stats.last_association_s
+        if last is None:
+            last = self._first_scan_s
+        return stamp_s - last > self.config.recovery_after_s
 
 
 class ReorderBuffer:

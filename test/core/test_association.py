@@ -147,3 +147,27 @@ def test_bad_covariance_is_refused():
     with pytest.raises(CoreError, match='positive definite'):
         associate(_z(LANDMARKS[:1]), STATE, np.zeros((4, 4)), np.zeros((2, 2)), LANDMARKS,
                   MOUNT)
+
+
+def test_distance_association_pairs_clear_nearest_landmarks_only():
+    from gyro_ekf.core.association import associate_by_distance
+    landmarks = np.array([[5.0, 0.0], [5.0, 3.0], [0.0, 8.0], [0.0, 8.6]])
+    state = np.array([0.0, 0.0, 0.0, 0.0])
+    points = np.array([[5.6, 0.0],    # 0.6 m off landmark 0, landmark 1 is 3 m away: match
+                       [0.0, 8.3],    # halfway between landmarks 2 and 3: ambiguous
+                       [9.0, 9.0],    # nothing within 1 m: unmatched
+                       [5.2, 3.3],    # clear nearest is landmark 1 ...
+                       [4.8, 2.7]])   # ... and so is this one: both duplicates
+    z = np.column_stack([np.hypot(points[:, 0], points[:, 1]),
+                         np.arctan2(points[:, 1], points[:, 0])])
+    P = np.diag([1e-6, 1e-6, 1e-8, 1e-8])
+    R = np.diag([0.02 ** 2, 0.0035 ** 2])
+    result = associate_by_distance(z, state, P, R, landmarks, max_distance_m=1.0, ratio=0.3)
+    outcomes = [a.outcome for a in result.associations]
+    assert outcomes == [AssociationOutcome.MATCHED, AssociationOutcome.AMBIGUOUS,
+                        AssociationOutcome.UNMATCHED, AssociationOutcome.DUPLICATE,
+                        AssociationOutcome.DUPLICATE]
+    assert result.associations[0].landmark_index == 0
+    # The same detections all fall outside the tight chi-square gate.
+    gated = associate(z, state, P, R, landmarks)
+    assert gated.count(AssociationOutcome.MATCHED) == 0

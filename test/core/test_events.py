@@ -127,3 +127,26 @@ def test_reorder_buffer_is_bounded():
     for k in range(5):
         released += buffer.push(float(k), EventKind.IMU, k)[0]
     assert len(buffer) == 3 and [p for _, _, p in released] == [0, 1]
+
+
+def test_driver_recovers_landmarks_after_a_gap_by_map_distance():
+    from gyro_ekf.core.models import observe
+    from gyro_ekf.core.types import LandmarkMap, LidarMount
+    landmarks = LandmarkMap(np.array([[4.0, 1.0], [4.0, -2.0], [-3.0, 3.0]]))
+    config = EkfConfig(recovery_after_s=1.0)
+    # The filter believes it is 0.4 m off the truth, with a tiny covariance.
+    driver = EventDriver(config, landmarks, pose=[0.4, 0.0, 0.0], bias_rad_s=0.0)
+    truth = np.array([0.0, 0.0, 0.0, 0.0])
+    mount = LidarMount()
+    matched_at = []
+    for k in range(40):
+        stamp = 0.1 * k
+        driver.on_imu(stamp, 0.0)
+        z = observe(truth, landmarks.xy_m, mount)
+        points = np.column_stack([z[:, 0] * np.cos(z[:, 1]), z[:, 0] * np.sin(z[:, 1])])
+        report = driver.on_detections(stamp, points, mount)
+        if report.nis.size:
+            matched_at.append(stamp)
+    assert matched_at and matched_at[0] > 1.0  # the gate refused them until the recovery
+    assert driver.stats.recoveries > 0
+    assert np.hypot(*driver.ekf.x[:2]) < 0.05  # pulled back onto the truth
