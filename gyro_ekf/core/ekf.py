@@ -19,6 +19,12 @@ Update (posterior) with one range/bearing observation z of a known landmark::
 
 Because the bias enters yaw through ``-T`` in J, landmark updates that correct yaw also
 correct the bias: that is how the filter finds the bias online.
+
+The arithmetic is written out on plain floats over the 10 distinct entries of the
+symmetric P rather than as 4x4 numpy products: J and H are sparse, and at this size
+numpy's per-call overhead costs several times the arithmetic itself (see `make bench`,
+which checks the results against filterpy's ExtendedKalmanFilter). ``x`` and ``P`` are
+read as fresh numpy arrays.
 """
 
 from __future__ import annotations
@@ -30,9 +36,8 @@ import numpy as np
 from gyro_ekf.core.angles import wrap_scalar
 from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core.errors import CoreError
-from gyro_ekf.core.types import BIAS, STATE_SIZE, YAW, FloatArray, LidarMount
+from gyro_ekf.core.types import BIAS, STATE_SIZE, FloatArray, LidarMount
 
-_IDENTITY = np.eye(STATE_SIZE)
 _NO_MOUNT = LidarMount()
 
 
@@ -45,14 +50,14 @@ def initial_covariance(config: EkfConfig) -> FloatArray:
 class GyroBiasEkf:
     """EKF over [x, y, yaw, bias] with speed/yaw-rate inputs and landmark updates.
 
-    Attributes:
+    Attributes (arrays are fresh copies; change the filter through its methods):
         x: state estimate, shape (4,): m, m, rad, rad/s.
-        P: state covariance, shape (4, 4).
-        x_prior, P_prior: state and covariance before the last update (read-only).
-        y: last innovation, shape (2,): m, rad (read-only).
-        S: last innovation covariance, shape (2, 2) (read-only).
-        K: last Kalman gain, shape (4, 2) (read-only).
-        nis: last normalised innovation squared y^T S^-1 y (read-only).
+        P: state covariance, shape (4, 4), symmetric.
+        x_prior, P_prior: state and covariance before the last update.
+        y: last innovation, shape (2,): m, rad.
+        S: last innovation covariance, shape (2, 2).
+        K: last Kalman gain, shape (4, 2).
+        nis: last normalised innovation squared y^T S^-1 y.
         R: observation noise covariance, shape (2, 2).
     """
 
@@ -67,34 +72,80 @@ class GyroBiasEkf:
             covariance: initial P, shape (4, 4); initial_covariance(config) when None.
         """
         self.config = config or EkfConfig()
-        self.R = np.diag([self.config.range_noise_m ** 2, self.config.bearing_noise_rad ** 2])
+        self._r_range = self.config.range_noise_m ** 2
+        self._r_bearing = self.config.bearing_noise_rad ** 2
+        self.R = np.diag([self._r_range, self._r_bearing])
         self._sigma_v2 = self.config.speed_noise_m_s ** 2
         self._sigma_w2 = self.config.gyro_noise_rad_s ** 2
         self._q_pos2 = self.config.position_process_noise_m_s ** 2
         self._q_b2 = self.config.bias_random_walk_rad_s2 ** 2
-        self._F = np.eye(STATE_SIZE)
         self.reset(pose, bias_rad_s, covariance)
+
+    # State: _s = [x, y, yaw, b]; covariance: _p = upper triangle of P, row by row:
+    # [p00, p01, p02, p03, p11, p12, p13, p22, p23, p33].
+
+    @property
+    def x(self) -> FloatArray:
+        """State estimate, shape (4,)."""
+        return np.array(self._s)
+
+    @property
+    def P(self) -> FloatArray:
+        """State covariance, shape (4, 4)."""
+        return _full(self._p)
+
+    @property
+    def bias_rad_s(self) -> float:
+        """Bias estimate, rad/s."""
+        return self._s[3]
+
+    @property
+    def x_prior(self) -> FloatArray:
+        """State before the last update, shape (4,)."""
+        return np.array(self._s_prior)
+
+    @property
+    def P_prior(self) -> FloatArray:
+        """Covariance before the last update, shape (4, 4)."""
+        return _full(self._p_prior)
+
+    @property
+    def y(self) -> FloatArray:
+        """Last innovation, shape (2,): m, rad."""
+        return np.array(self._y)
+
+    @property
+    def S(self) -> FloatArray:
+        """Last innovation covariance, shape (2, 2)."""
+        s00, s01, s11 = self._S
+        return np.array([[s00, s01], [s01, s11]])
+
+    @property
+    def K(self) -> FloatArray:
+        """Last Kalman gain, shape (4, 2)."""
+        return np.array(self._K).reshape(4, 2)
 
     def reset(self, pose: FloatArray | None = None, bias_rad_s: float | None = None,
               covariance: FloatArray | None = None) -> None:
         """Restart from a pose and bias with the given (or configured) covariance."""
         pose = np.zeros(3) if pose is None else np.asarray(pose, dtype=np.float64)
         bias = self.config.initial_bias_rad_s if bias_rad_s is None else float(bias_rad_s)
-        self.x = np.array([pose[0], pose[1], wrap_scalar(float(pose[2])), bias])
-        self.P = (initial_covariance(self.config) if covariance is None
-                  else np.array(covariance, dtype=np.float64))
-        if self.P.shape != (STATE_SIZE, STATE_SIZE):
-            raise CoreError(f'initial covariance has shape {self.P.shape}, expected (4, 4)')
-        self.x_prior = self.x.copy()
-        self.P_prior = self.P.copy()
-        self.y = np.zeros(2)
-        self.S = np.zeros((2, 2))
-        self.K = np.zeros((STATE_SIZE, 2))
+        P = (initial_covariance(self.config) if covariance is None
+             else np.asarray(covariance, dtype=np.float64))
+        if P.shape != (STATE_SIZE, STATE_SIZE):
+            raise CoreError(f'initial covariance has shape {P.shape}, expected (4, 4)')
+        self._s = [float(pose[0]), float(pose[1]), wrap_scalar(float(pose[2])), bias]
+        self._p = _packed(0.5 * (P + P.T))
+        self._s_prior = list(self._s)
+        self._p_prior = list(self._p)
+        self._y = (0.0, 0.0)
+        self._S = (0.0, 0.0, 0.0)
+        self._K = (0.0,) * 8
         self.nis = 0.0
 
     def set_pose(self, pose: FloatArray, pose_covariance: FloatArray) -> None:
         """Replace the pose and its 3x3 covariance; keep the bias, its variance, drop coupling."""
-        bias, bias_var = self.x[BIAS], self.P[BIAS, BIAS]
+        bias, bias_var = self._s[3], self._p[9]
         covariance = np.zeros((STATE_SIZE, STATE_SIZE))
         covariance[:3, :3] = pose_covariance
         covariance[BIAS, BIAS] = bias_var
@@ -102,44 +153,58 @@ class GyroBiasEkf:
 
     def set_bias(self, bias_rad_s: float, sigma_rad_s: float) -> None:
         """Seed the bias state and its variance (e.g. from a static calibration)."""
-        self.x[BIAS] = bias_rad_s
-        self.P[BIAS, :] = 0.0
-        self.P[:, BIAS] = 0.0
-        self.P[BIAS, BIAS] = sigma_rad_s ** 2
+        self._s[3] = float(bias_rad_s)
+        p = self._p
+        p[3] = p[6] = p[8] = 0.0
+        p[9] = float(sigma_rad_s) ** 2
 
     def predict(self, speed_m_s: float, rate_rad_s: float, dt_s: float) -> None:
         """Propagate over dt_s seconds with constant speed (m/s) and measured yaw rate (rad/s)."""
         if dt_s <= 0.0:
             return
-        x, y, yaw, bias = self.x
+        # Plain floats: numpy scalars would spread into the state and slow every step.
+        speed_m_s, rate_rad_s, dt_s = float(speed_m_s), float(rate_rad_s), float(dt_s)
+        x, y, yaw, bias = self._s
         c, s = math.cos(yaw), math.sin(yaw)
-        # J: identity plus the yaw and bias couplings.
-        F = self._F
-        F[0, 2] = -dt_s * speed_m_s * s
-        F[1, 2] = dt_s * speed_m_s * c
-        F[2, 3] = -dt_s
-        # Q = Ju Pu Ju^T + Q2, written out: speed noise spreads along the heading.
+        step = dt_s * speed_m_s
+        self._s = [x + step * c, y + step * s, wrap_scalar(yaw + dt_s * (rate_rad_s - bias)),
+                   bias]
+        # J = I + E with E[0,2] = a, E[1,2] = b, E[2,3] = d; first M = J P (rows) ...
+        a, b, d = -step * s, step * c, -dt_s
+        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._p
+        m00 = p00 + a * p02
+        m01 = p01 + a * p12
+        m02 = p02 + a * p22
+        m03 = p03 + a * p23
+        m11 = p11 + b * p12
+        m12 = p12 + b * p22
+        m13 = p13 + b * p23
+        m22 = p22 + d * p23
+        m23 = p23 + d * p33
+        # ... then J P J^T = M J^T, plus Q = Ju Pu Ju^T + Q2 written out (speed noise lies
+        # along the heading).
         t2 = dt_s * dt_s
         qv = t2 * self._sigma_v2
         qp = t2 * self._q_pos2
-        Q = np.array([
-            [qv * c * c + qp, qv * c * s, 0.0, 0.0],
-            [qv * c * s, qv * s * s + qp, 0.0, 0.0],
-            [0.0, 0.0, t2 * self._sigma_w2, 0.0],
-            [0.0, 0.0, 0.0, t2 * self._q_b2],
-        ])
-        self.x = np.array([x + dt_s * speed_m_s * c, y + dt_s * speed_m_s * s,
-                           wrap_scalar(yaw + dt_s * (rate_rad_s - bias)), bias])
-        P = F @ self.P @ F.T + Q
-        self.P = 0.5 * (P + P.T)
+        self._p = [
+            m00 + a * m02 + qv * c * c + qp,
+            m01 + b * m02 + qv * c * s,
+            m02 + d * m03,
+            m03,
+            m11 + b * m12 + qv * s * s + qp,
+            m12 + d * m13,
+            m13,
+            m22 + d * m23 + t2 * self._sigma_w2,
+            m23,
+            p33 + t2 * self._q_b2,
+        ]
 
     def innovation(self, z: FloatArray, landmark_xy_m: FloatArray,
                    mount: LidarMount = _NO_MOUNT) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Innovation y (2,), its covariance S (2, 2) and H (2, 4) for one observation."""
-        z_hat, H = observe_one(self.x, landmark_xy_m, mount)
+        z_hat, H = observe_one(self._s, landmark_xy_m, mount)
         y = np.array([z[0] - z_hat[0], wrap_scalar(z[1] - z_hat[1])])
-        S = H @ self.P @ H.T + self.R
-        return y, S, H
+        return y, H @ self.P @ H.T + self.R, H
 
     def update(self, z: FloatArray, landmark_xy_m: FloatArray,
                mount: LidarMount = _NO_MOUNT) -> float:
@@ -147,21 +212,109 @@ class GyroBiasEkf:
 
         Returns:
             The normalised innovation squared (NIS) of this observation.
+
+        Raises:
+            CoreError: the innovation covariance is not positive definite.
         """
-        self.x_prior = self.x.copy()
-        self.P_prior = self.P.copy()
-        y, S, H = self.innovation(z, landmark_xy_m, mount)
-        S_inv = _inverse_2x2(S)
-        PHt = self.P @ H.T
-        K = PHt @ S_inv
-        self.x = self.x + K @ y
-        self.x[YAW] = wrap_scalar(self.x[YAW])
-        I_KH = _IDENTITY - K @ H
-        P = I_KH @ self.P @ I_KH.T + K @ self.R @ K.T
-        self.P = 0.5 * (P + P.T)
-        self.y, self.S, self.K = y, S, K
-        self.nis = float(y @ S_inv @ y)
+        x, y, yaw, bias = self._s
+        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = p = self._p
+        # One conversion each: indexing numpy scalars one by one costs more than the maths.
+        z_range, z_bearing = z.tolist() if isinstance(z, np.ndarray) else z
+        lx, ly = (landmark_xy_m.tolist() if isinstance(landmark_xy_m, np.ndarray)
+                  else landmark_xy_m)
+        # h and H (H has no bias column).
+        c, s = math.cos(yaw), math.sin(yaw)
+        xl = x + mount.x_m * c - mount.y_m * s
+        yl = y + mount.x_m * s + mount.y_m * c
+        dxl = -mount.x_m * s - mount.y_m * c
+        dyl = mount.x_m * c - mount.y_m * s
+        dx = lx - xl
+        dy = ly - yl
+        r2 = dx * dx + dy * dy
+        r = math.sqrt(r2)
+        h00, h01, h02 = -dx / r, -dy / r, -(dx * dxl + dy * dyl) / r
+        h10, h11, h12 = dy / r2, -dx / r2, (dy * dxl - dx * dyl) / r2 - 1.0
+        y0 = z_range - r
+        y1 = wrap_scalar(z_bearing - (math.atan2(dy, dx) - yaw - mount.yaw_rad))
+        # P H^T, shape (4, 2): column 0 for range, 1 for bearing.
+        a0 = p00 * h00 + p01 * h01 + p02 * h02
+        a1 = p01 * h00 + p11 * h01 + p12 * h02
+        a2 = p02 * h00 + p12 * h01 + p22 * h02
+        a3 = p03 * h00 + p13 * h01 + p23 * h02
+        b0 = p00 * h10 + p01 * h11 + p02 * h12
+        b1 = p01 * h10 + p11 * h11 + p12 * h12
+        b2 = p02 * h10 + p12 * h11 + p22 * h12
+        b3 = p03 * h10 + p13 * h11 + p23 * h12
+        # S = H P H^T + R and its inverse.
+        s00 = h00 * a0 + h01 * a1 + h02 * a2 + self._r_range
+        s01 = h00 * b0 + h01 * b1 + h02 * b2
+        s11 = h10 * b0 + h11 * b1 + h12 * b2 + self._r_bearing
+        det = s00 * s11 - s01 * s01
+        if not (det > 0.0 and s00 > 0.0):
+            raise CoreError(f'innovation covariance is not positive definite: '
+                            f'[[{s00}, {s01}], [{s01}, {s11}]]')
+        i00, i01, i11 = s11 / det, -s01 / det, s00 / det
+        # K = P H^T S^-1.
+        k00, k01 = a0 * i00 + b0 * i01, a0 * i01 + b0 * i11
+        k10, k11 = a1 * i00 + b1 * i01, a1 * i01 + b1 * i11
+        k20, k21 = a2 * i00 + b2 * i01, a2 * i01 + b2 * i11
+        k30, k31 = a3 * i00 + b3 * i01, a3 * i01 + b3 * i11
+        self._s_prior, self._p_prior = self._s, p
+        self._s = [x + k00 * y0 + k01 * y1, y + k10 * y0 + k11 * y1,
+                   wrap_scalar(yaw + k20 * y0 + k21 * y1), bias + k30 * y0 + k31 * y1]
+        # Joseph form P = A P A^T + K R K^T with A = I - K H, evaluated as B = A P (row i:
+        # B_ij = P_ij - k_i0 a_j - k_i1 b_j), then A P A^T = B - (B H^T) K^T.
+        b00 = p00 - k00 * a0 - k01 * b0
+        b01 = p01 - k00 * a1 - k01 * b1
+        b02 = p02 - k00 * a2 - k01 * b2
+        b03 = p03 - k00 * a3 - k01 * b3
+        b10 = p01 - k10 * a0 - k11 * b0
+        b11 = p11 - k10 * a1 - k11 * b1
+        b12 = p12 - k10 * a2 - k11 * b2
+        b13 = p13 - k10 * a3 - k11 * b3
+        b20 = p02 - k20 * a0 - k21 * b0
+        b21 = p12 - k20 * a1 - k21 * b1
+        b22 = p22 - k20 * a2 - k21 * b2
+        b23 = p23 - k20 * a3 - k21 * b3
+        b30 = p03 - k30 * a0 - k31 * b0
+        b31 = p13 - k30 * a1 - k31 * b1
+        b32 = p23 - k30 * a2 - k31 * b2
+        b33 = p33 - k30 * a3 - k31 * b3
+        # C = B H^T; each row minus K R is what multiplies K^T.
+        rr, rb = self._r_range, self._r_bearing
+        c00 = b00 * h00 + b01 * h01 + b02 * h02 - rr * k00
+        c01 = b00 * h10 + b01 * h11 + b02 * h12 - rb * k01
+        c10 = b10 * h00 + b11 * h01 + b12 * h02 - rr * k10
+        c11 = b10 * h10 + b11 * h11 + b12 * h12 - rb * k11
+        c20 = b20 * h00 + b21 * h01 + b22 * h02 - rr * k20
+        c21 = b20 * h10 + b21 * h11 + b22 * h12 - rb * k21
+        c30 = b30 * h00 + b31 * h01 + b32 * h02 - rr * k30
+        c31 = b30 * h10 + b31 * h11 + b32 * h12 - rb * k31
+        self._p = [
+            b00 - c00 * k00 - c01 * k01, b01 - c00 * k10 - c01 * k11,
+            b02 - c00 * k20 - c01 * k21, b03 - c00 * k30 - c01 * k31,
+            b11 - c10 * k10 - c11 * k11, b12 - c10 * k20 - c11 * k21,
+            b13 - c10 * k30 - c11 * k31, b22 - c20 * k20 - c21 * k21,
+            b23 - c20 * k30 - c21 * k31, b33 - c30 * k30 - c31 * k31,
+        ]
+        self._y = (y0, y1)
+        self._S = (s00, s01, s11)
+        self._K = (k00, k01, k10, k11, k20, k21, k30, k31)
+        self.nis = y0 * (i00 * y0 + i01 * y1) + y1 * (i01 * y0 + i11 * y1)
         return self.nis
+
+
+_UPPER = [(i, j) for i in range(STATE_SIZE) for j in range(i, STATE_SIZE)]
+
+
+def _packed(P: FloatArray) -> list[float]:
+    return [float(P[i, j]) for i, j in _UPPER]
+
+
+def _full(packed: list[float]) -> FloatArray:
+    p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = packed
+    return np.array([[p00, p01, p02, p03], [p01, p11, p12, p13], [p02, p12, p22, p23],
+                     [p03, p13, p23, p33]])
 
 
 def observe_one(state: FloatArray, landmark_xy_m: FloatArray,
@@ -189,11 +342,3 @@ def observe_one(state: FloatArray, landmark_xy_m: FloatArray,
         [dy / r2, -dx / r2, (dy * dxl_dyaw - dx * dyl_dyaw) / r2 - 1.0, 0.0],
     ])
     return z_hat, H
-
-
-def _inverse_2x2(S: FloatArray) -> FloatArray:
-    a, b, c, d = S[0, 0], S[0, 1], S[1, 0], S[1, 1]
-    det = a * d - b * c
-    if not det > 0.0:
-        raise CoreError(f'innovation covariance is not positive definite: {S.tolist()}')
-    return np.array([[d, -b], [-c, a]]) / det

@@ -167,7 +167,7 @@ class EventDriver:
             raise TimeWentBackwardsError(
                 f'{what} stamp {stamp_s:.4f} s went back {-dt_s:.4f} s behind the filter')
         # Before the first gyro sample the heading is held: the yaw rate is taken as the bias.
-        rate = self.ekf.x[3] if self.rate_rad_s is None else self.rate_rad_s
+        rate = self.ekf.bias_rad_s if self.rate_rad_s is None else self.rate_rad_s
         step = self.config.max_prediction_step_s
         while dt_s > step:
             self.ekf.predict(self.speed_m_s, rate, step)
@@ -190,7 +190,7 @@ class EventDriver:
 
     def estimate(self) -> Estimate:
         """Return a snapshot of the filter (state and covariance are copies)."""
-        rate = 0.0 if self.rate_rad_s is None else self.rate_rad_s - self.ekf.x[3]
+        rate = 0.0 if self.rate_rad_s is None else self.rate_rad_s - self.ekf.bias_rad_s
         return Estimate(stamp_s=self.stamp_s if self.stamp_s is not None else 0.0,
                         state=self.ekf.x.copy(), covariance=self.ekf.P.copy(),
                         speed_m_s=self.speed_m_s, yaw_rate_rad_s=rate)
