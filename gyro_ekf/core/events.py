@@ -183,10 +183,14 @@ class EventDriver:
 
     def on_imu(self, stamp_s: float, yaw_rate_rad_s: float) -> Estimate:
         """Predict to stamp_s, then hold the new measured yaw rate (rad/s, bias included)."""
+        self.step_imu(stamp_s, yaw_rate_rad_s)
+        return self.estimate()
+
+    def step_imu(self, stamp_s: float, yaw_rate_rad_s: float) -> None:
+        """Do what on_imu does without building the Estimate (for callers that batch)."""
         self._advance(stamp_s, 'imu')
         self.rate_rad_s = yaw_rate_rad_s
         self.stats.imu += 1
-        return self.estimate()
 
     def estimate(self) -> Estimate:
         """Return a snapshot of the filter (state and covariance are copies)."""
@@ -312,9 +316,11 @@ def iter_trip_events(trip: Trip) -> Iterator[tuple[float, EventKind, int, int]]:
     all_series = np.concatenate([np.full(len(s), i) for s, i in zip(stamps, series)])
     all_index = np.concatenate([np.arange(len(s)) for s in stamps])
     order = np.lexsort((all_index, all_series, all_kinds, all_stamps))
-    for i in order:
-        yield (float(all_stamps[i]), EventKind(int(all_kinds[i])), int(all_series[i]),
-               int(all_index[i]))
+    kinds_by_value = {int(kind): kind for kind in EventKind}
+    # tolist() converts once; element-wise numpy scalar access would dominate the loop.
+    yield from zip(all_stamps[order].tolist(),
+                   [kinds_by_value[k] for k in all_kinds[order].tolist()],
+                   all_series[order].tolist(), all_index[order].tolist())
 
 
 @dataclass(frozen=True, slots=True)
@@ -363,19 +369,20 @@ def drive_trip(trip: Trip, driver: EventDriver,
     states = np.empty((n, 4))
     covariances = np.empty((n, 4, 4))
     observations: list[ObservationReport] = []
-    yaw_rates = trip.imu.yaw_rate_rad_s
+    yaw_rates = trip.imu.yaw_rate_rad_s.tolist()
+    speeds = trip.speed.speed_m_s.tolist()
     angles = [scan.angles_rad for scan in trip.scans]
     row = 0
     processed = 0
     for stamp_s, kind, series, index in iter_trip_events(trip):
         if kind is EventKind.IMU:
-            driver.on_imu(stamp_s, float(yaw_rates[index]))
+            driver.step_imu(stamp_s, yaw_rates[index])
             stamps[row] = stamp_s
             states[row] = driver.ekf.x
             covariances[row] = driver.ekf.P
             row += 1
         elif kind is EventKind.SPEED:
-            driver.on_speed(stamp_s, float(trip.speed.speed_m_s[index]))
+            driver.on_speed(stamp_s, speeds[index])
         else:
             scan: ScanSeries = trip.scans[series]
             intensities = None if scan.intensities is None else scan.intensities[index]
