@@ -72,14 +72,20 @@ class CalibrationNode(Node):
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
                                                       qos.OUTPUT)
         self.create_subscription(Imu, topics.IMU, self._on_imu, qos.sensor_input(lossless))
-        if use_odom:
-            self.create_subscription(Odometry, topics.ODOM, self._on_odom,
-                                     qos.sensor_input(lossless))
+        self._use_odom = use_odom
+        self._odom_qos = qos.sensor_input(lossless)
+        self._odom_sub = None
+        self._subscribe_odom()
         self.create_service(Trigger, '~/recalibrate', self._on_recalibrate)
         self.create_timer(period, self._publish_diagnostics)
         self.get_logger().info(
             f'collecting a {self.config.window_length_s:g} s static window from '
             f'{self.resolve_topic_name(topics.IMU)}')
+
+    def _subscribe_odom(self) -> None:
+        if self._use_odom and self._odom_sub is None:
+            self._odom_sub = self.create_subscription(Odometry, topics.ODOM, self._on_odom,
+                                                      self._odom_qos)
 
     def _usable(self, ns: int, *values: float) -> bool:
         if ns == 0:
@@ -125,6 +131,10 @@ class CalibrationNode(Node):
 
     def _accept(self, result: BiasEstimate, message: Imu) -> None:
         self.result = result
+        if self._odom_sub is not None:
+            # Speed only matters while collecting; stop paying for its callbacks.
+            self.destroy_subscription(self._odom_sub)
+            self._odom_sub = None
         self._bias_pub.publish(bias_message(message.header.stamp, message.header.frame_id,
                                             result.bias_rad_s))
         known = self._axes_known or (True, True, True)
@@ -148,6 +158,7 @@ class CalibrationNode(Node):
         self.calibrator.restart()
         self.result = None
         self._window_from_s = None
+        self._subscribe_odom()
         self.get_logger().info(f'{why}: collecting a new static window')
 
     def _publish_diagnostics(self) -> None:

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import (Pose, PoseArray, PoseWithCovariance, PoseWithCovarianceStamped,
+from geometry_msgs.msg import (Pose, PoseArray, PoseWithCovarianceStamped,
                                Quaternion, Vector3Stamped)
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, LaserScan
@@ -153,47 +153,65 @@ def pose_and_covariance(message: PoseWithCovarianceStamped) -> tuple[FloatArray,
             covariance)
 
 
-def _pose_with_covariance(state: FloatArray, covariance: FloatArray) -> PoseWithCovariance:
-    out = PoseWithCovariance()
-    out.pose.position.x = float(state[0])
-    out.pose.position.y = float(state[1])
-    out.pose.orientation = yaw_quaternion(float(state[2]))
-    full = np.zeros((6, 6))
-    full[np.ix_(_POSE_INDEX, _POSE_INDEX)] = covariance[:3, :3]
-    out.covariance = full.ravel().tolist()
-    return out
+class EstimateMessages:
+    """Pose, odometry and bias messages of filter estimates, built once and refilled.
 
-
-def estimate_messages(estimate: Estimate, stamp: Time, map_frame: str, base_frame: str,
-                      speed_sigma_m_s: float, gyro_sigma_rad_s: float
-                      ) -> tuple[PoseWithCovarianceStamped, Odometry, Vector3Stamped]:
-    """Pose, odometry and bias messages of one filter estimate.
-
-    Args:
-        estimate: the filter output.
-        stamp: stamp to give the messages (the input's own stamp).
-        map_frame: frame of the pose (`map`).
-        base_frame: child frame of the odometry (`base_link`).
-        speed_sigma_m_s: speed noise; its square is the twist's linear.x variance.
-        gyro_sigma_rad_s: gyro noise; its square plus the bias variance is the twist's
-            angular.z variance (the rate is corrected by the estimated bias).
-
-    Returns:
-        PoseWithCovarianceStamped, Odometry (pose with covariance; speed and bias-corrected
-        yaw rate in the twist) and Vector3Stamped (z = bias, rad/s).
+    Building rclpy messages field by field costs more than the filter step itself, so the
+    three messages are created once and only their values change per estimate (publishing
+    serializes them, so reuse is safe).
     """
-    header = Header(stamp=stamp, frame_id=map_frame)
-    pose = _pose_with_covariance(estimate.state, estimate.covariance)
-    odometry = Odometry(header=header, child_frame_id=base_frame, pose=pose)
-    odometry.twist.twist.linear.x = float(estimate.speed_m_s)
-    odometry.twist.twist.angular.z = float(estimate.yaw_rate_rad_s)
-    twist_covariance = [0.0] * 36
-    twist_covariance[0] = float(speed_sigma_m_s) ** 2
-    twist_covariance[35] = float(gyro_sigma_rad_s) ** 2 + float(estimate.covariance[3, 3])
-    odometry.twist.covariance = twist_covariance
-    bias = Vector3Stamped(header=Header(stamp=stamp, frame_id=base_frame))
-    bias.vector.z = float(estimate.state[3])
-    return PoseWithCovarianceStamped(header=header, pose=pose), odometry, bias
+
+    def __init__(self, map_frame: str, base_frame: str, speed_sigma_m_s: float,
+                 gyro_sigma_rad_s: float):
+        """Prepare the messages.
+
+        Args:
+            map_frame: frame of the pose (`map`).
+            base_frame: child frame of the odometry and frame of the bias (`base_link`).
+            speed_sigma_m_s: speed noise; its square is the twist's linear.x variance.
+            gyro_sigma_rad_s: gyro noise; its square plus the bias variance is the twist's
+                angular.z variance (the rate is corrected by the estimated bias).
+        """
+        self.pose = PoseWithCovarianceStamped(header=Header(frame_id=map_frame))
+        self.odometry = Odometry(header=Header(frame_id=map_frame), child_frame_id=base_frame)
+        self.bias = Vector3Stamped(header=Header(frame_id=base_frame))
+        self._speed_variance = float(speed_sigma_m_s) ** 2
+        self._gyro_variance = float(gyro_sigma_rad_s) ** 2
+        self._pose_covariance = np.zeros((6, 6))
+        self._twist_covariance = np.zeros(36)
+        self._twist_covariance[0] = self._speed_variance
+
+    def fill(self, estimate: Estimate, stamp_ns: int
+             ) -> tuple[PoseWithCovarianceStamped, Odometry, Vector3Stamped]:
+        """Write one estimate into the messages and return them.
+
+        Args:
+            estimate: the filter output.
+            stamp_ns: stamp to give the messages (the input's own), ns since the epoch.
+
+        Returns:
+            PoseWithCovarianceStamped in the map frame, Odometry (pose with covariance; speed
+            and bias-corrected yaw rate in the twist) and Vector3Stamped (z = bias, rad/s).
+        """
+        sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
+        x, y, yaw, bias = (float(v) for v in estimate.state)
+        self._pose_covariance[np.ix_(_POSE_INDEX, _POSE_INDEX)] = estimate.covariance[:3, :3]
+        covariance = self._pose_covariance.ravel()
+        self._twist_covariance[35] = self._gyro_variance + float(estimate.covariance[3, 3])
+        half = yaw / 2.0
+        for target in (self.pose.pose, self.odometry.pose):
+            position, orientation = target.pose.position, target.pose.orientation
+            position.x, position.y = x, y
+            orientation.z, orientation.w = math.sin(half), math.cos(half)
+            target.covariance = covariance
+        twist = self.odometry.twist
+        twist.twist.linear.x = float(estimate.speed_m_s)
+        twist.twist.angular.z = float(estimate.yaw_rate_rad_s)
+        twist.covariance = self._twist_covariance
+        self.bias.vector.z = bias
+        for message in (self.pose, self.odometry, self.bias):
+            message.header.stamp.sec, message.header.stamp.nanosec = sec, nanosec
+        return self.pose, self.odometry, self.bias
 
 
 def bias_message(stamp: Time, frame_id: str, bias_rad_s: Sequence[float]) -> Vector3Stamped:

@@ -49,9 +49,8 @@ from gyro_ekf.core.events import Estimate, EventDriver, EventKind
 from gyro_ekf.core.types import LandmarkMap, LidarMount
 from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.nodes import qos
-from gyro_ekf.nodes.conversions import (estimate_messages, finite, odometry_speed,
-                                        points_of, pose_and_covariance, stamp_ns, TimeOrigin,
-                                        to_stamp)
+from gyro_ekf.nodes.conversions import (EstimateMessages, finite, odometry_speed, points_of,
+                                        pose_and_covariance, stamp_ns, TimeOrigin)
 from gyro_ekf.nodes.ordering import StreamMerger
 from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar, with_stated_noise
 from gyro_ekf.nodes.runtime import run_node
@@ -169,6 +168,9 @@ class EkfNode(Node):
         self._rate_base = (self.get_clock().now(), dict(self._received))
         self._rates_hz = dict.fromkeys(self._received, 0.0)
         self._last_estimate: Estimate | None = None
+        self._messages = EstimateMessages(self._map_frame, self._base_frame,
+                                          self.config.speed_noise_m_s,
+                                          self.config.gyro_noise_rad_s)
 
         self._pose_pub = self.create_publisher(PoseWithCovarianceStamped, topics.EKF_POSE,
                                                qos.OUTPUT)
@@ -291,9 +293,7 @@ class EkfNode(Node):
                            f'{err}')
 
     def _publish(self, estimate: Estimate, ns: int) -> None:
-        pose, odometry, bias = estimate_messages(
-            estimate, to_stamp(ns), self._map_frame, self._base_frame,
-            self.config.speed_noise_m_s, self.config.gyro_noise_rad_s)
+        pose, odometry, bias = self._messages.fill(estimate, ns)
         self._pose_pub.publish(pose)
         self._odometry_pub.publish(odometry)
         self._bias_pub.publish(bias)

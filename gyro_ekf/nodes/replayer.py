@@ -79,6 +79,8 @@ class ReplayReport:
         jitter_mean_ms: mean of publish time minus scheduled time, ms.
         jitter_p95_ms: 95th percentile of it, ms.
         jitter_max_ms: largest of it, ms.
+        backpressure_waits: retries while a reliable reader was behind (each delays the
+            replay by about 2 ms).
         acknowledged: every reliable reader acknowledged every message at the end.
     """
 
@@ -89,6 +91,7 @@ class ReplayReport:
     jitter_mean_ms: float
     jitter_p95_ms: float
     jitter_max_ms: float
+    backpressure_waits: int
     acknowledged: bool
 
     def summary(self) -> str:
@@ -97,7 +100,8 @@ class ReplayReport:
         return (f'replayed {self.messages} messages ({self.loops} pass(es), {self.bag_s:.1f} s '
                 f'of bag in {self.wall_s:.1f} s, x{speed:.1f}); timing jitter mean '
                 f'{self.jitter_mean_ms:.2f} ms, p95 {self.jitter_p95_ms:.2f} ms, max '
-                f'{self.jitter_max_ms:.2f} ms; all acknowledged: {self.acknowledged}')
+                f'{self.jitter_max_ms:.2f} ms; backpressure waits {self.backpressure_waits}; '
+                f'all acknowledged: {self.acknowledged}')
 
 
 class Replayer(Node):
@@ -123,6 +127,26 @@ class Replayer(Node):
             self.publishers_by_topic[topic.name] = self.create_publisher(
                 message_class(topic.msgtype), topic.name.lstrip('/'), profile)
         self._clock_pub = self.create_publisher(Clock, topics.CLOCK, 10) if clock else None
+        self.backpressure_timeout_s = 30.0
+        self.backpressure_waits = 0
+
+    def _publish(self, publisher: Any, data: bytes) -> None:
+        """Publish, waiting while a reliable keep-all reader is behind (backpressure).
+
+        Fast DDS refuses a write when the writer's history is full of samples a reliable
+        reader has not acknowledged yet; waiting and retrying slows the replay down to that
+        reader instead of losing the message.
+        """
+        deadline = time.monotonic() + self.backpressure_timeout_s
+        while True:
+            try:
+                publisher.publish(data)
+                return
+            except Exception:  # rclpy's RCLError: 'cannot publish data' (history full)
+                if not rclpy.ok() or time.monotonic() > deadline:
+                    raise
+                self.backpressure_waits += 1
+                time.sleep(0.002)
 
     def wait_for_subscribers(self, needs: dict[str, int], timeout_s: float) -> dict[str, int]:
         """Wait until each topic has at least the given number of matched subscriptions.
@@ -186,7 +210,7 @@ class Replayer(Node):
                 publisher = self.publishers_by_topic.get(name)
                 if publisher is None:
                     continue
-                publisher.publish(data)
+                self._publish(publisher, data)
                 published += 1
                 now = time.perf_counter()
                 if rate > 0:
@@ -212,4 +236,5 @@ class Replayer(Node):
             jitter_mean_ms=1e3 * sum(jitter_s) / count if count else 0.0,
             jitter_p95_ms=1e3 * jitter_s[min(count - 1, int(0.95 * count))] if count else 0.0,
             jitter_max_ms=1e3 * jitter_s[-1] if count else 0.0,
+            backpressure_waits=self.backpressure_waits,
             acknowledged=acknowledged)
