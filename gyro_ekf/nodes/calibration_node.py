@@ -162,7 +162,7 @@ class CalibrationNode(Node):
         self.get_logger().info(f'{why}: collecting a new static window')
 
     def _publish_diagnostics(self) -> None:
-        status = DiagnosticStatus(name=f'{self.get_name()}: gyro calibration',
+        status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: gyro calibration',
                                   hardware_id=self.resolve_topic_name(topics.IMU))
         values = {'state': 'calibrated' if self.result is not None else 'collecting',
                   'imu_messages': str(self._imu_count),

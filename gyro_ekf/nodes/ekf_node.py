@@ -391,7 +391,7 @@ class EkfNode(Node):
             'buffered': str(len(self._buffer)), 'resets': str(self.resets),
             **{f'dropped_{k}': str(v) for k, v in self.dropped.items()},
         }
-        status = DiagnosticStatus(name=f'{self.get_name()}: gyro bias EKF',
+        status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: gyro bias EKF',
                                   hardware_id=self.resolve_topic_name(topics.IMU))
         if self._estimates == 0:
             status.level, status.message = DiagnosticStatus.WARN, 'no IMU data processed yet'

@@ -75,7 +75,7 @@ class LandmarkDetectorNode(Node):
                                throttle_duration_sec=5.0)
 
     def _publish_diagnostics(self) -> None:
-        status = DiagnosticStatus(name=f'{self.get_name()}: pole detector',
+        status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: pole detector',
                                   hardware_id=self.resolve_topic_name(topics.SCAN))
         status.level = DiagnosticStatus.OK if self.scans else DiagnosticStatus.WARN
         status.message = 'detecting' if self.scans else 'no scans yet'

@@ -1,0 +1,197 @@
+"""Multi-process fixtures: nodes as subprocesses, the test process as an rclpy probe.
+
+Every process runs with loopback-only discovery, its own ROS_DOMAIN_ID and a temporary
+ROS_LOG_DIR. Tests wait on conditions (matched endpoints, received messages, diagnostics)
+with timeouts, never on fixed sleeps.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+SHARED = REPO.parent / 'shared' / 'data' / 'mtrn4010'
+# Fast DDS accepts domains 0-232; the session-wide conftest uses 100-199 and wraps.
+_domains = itertools.count(215 + os.getpid() % 9)
+
+
+def node_env(tmp_path: Path) -> dict[str, str]:
+    """Environment for processes of one test module: loopback, own domain, own log dir."""
+    domain = next(_domains)
+    if domain > 232:
+        domain = 200 + domain % 15
+    log_dir = tmp_path / 'ros_log'
+    log_dir.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ)
+    env.update({
+        'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+        'ROS_DOMAIN_ID': str(domain),
+        'ROS_LOG_DIR': str(log_dir),
+        'PYTHONUNBUFFERED': '1',
+        'PYTHONPATH': os.pathsep.join([str(REPO), env.get('PYTHONPATH', '')]).rstrip(os.pathsep),
+    })
+    return env
+
+
+class Processes:
+    """Subprocesses of a test; stopped with SIGINT (then killed) at the end."""
+
+    def __init__(self, env: dict[str, str], log_dir: Path):
+        self.env = env
+        self.log_dir = log_dir
+        self.started: list[tuple[subprocess.Popen, Path]] = []
+
+    def start(self, name: str, *args: str) -> subprocess.Popen:
+        """Start `python -m <args...>` with its output in <log_dir>/<name>.log."""
+        log = self.log_dir / f'{name}.log'
+        process = subprocess.Popen([sys.executable, '-m', *args], env=self.env,
+                                   stdout=log.open('w'), stderr=subprocess.STDOUT, cwd=REPO)
+        self.started.append((process, log))
+        return process
+
+    def node(self, executable: str, *ros_args: str, name: str | None = None
+             ) -> subprocess.Popen:
+        """Start a node executable of gyro_ekf.nodes with --ros-args."""
+        return self.start(name or executable, f'gyro_ekf.nodes.{executable}', '--ros-args',
+                          *ros_args)
+
+    def run(self, name: str, *args: str, timeout_s: float) -> str:
+        """Run `python -m <args...>` to completion; return its output (assert exit 0)."""
+        process = self.start(name, *args)
+        try:
+            code = process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            raise AssertionError(f'{name} did not finish in {timeout_s} s:\n{self.log(name)}')
+        output = self.log(name)
+        assert code == 0, f'{name} exited with {code}:\n{output}'
+        return output
+
+    def log(self, name: str) -> str:
+        """Output of a started process so far."""
+        return (self.log_dir / f'{name}.log').read_text()
+
+    def stop_all(self, timeout_s: float = 10.0) -> None:
+        """SIGINT every process still running, wait, kill what does not stop."""
+        for process, _ in self.started:
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+        for process, _ in self.started:
+            try:
+                process.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
+class Probe:
+    """The test process's rclpy node in its own context and domain."""
+
+    def __init__(self, domain_id: int):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node('test_probe', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def subscribe(self, msg_type: Any, topic: str, qos: Any) -> list[Any]:
+        """Subscribe; received messages are appended to the returned list."""
+        received: list[Any] = []
+        self.node.create_subscription(msg_type, topic, received.append, qos)
+        return received
+
+    def spin_until(self, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
+        """Spin until condition() holds; fail after timeout_s saying what was awaited."""
+        deadline = time.monotonic() + timeout_s
+        while not condition():
+            if time.monotonic() > deadline:
+                raise AssertionError(f'timed out after {timeout_s} s waiting for {what}')
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self) -> None:
+        """Destroy the node and shut the context down."""
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+def diagnostic_values(messages: list[Any], name_part: str) -> dict[str, str] | None:
+    """Key/values of the newest diagnostic status whose name contains name_part."""
+    for array in reversed(messages):
+        for status in array.status:
+            if name_part in status.name:
+                return {kv.key: kv.value for kv in status.values}
+    return None
+
+
+@pytest.fixture(scope='session')
+def diagnostics_of():
+    """The diagnostic_values helper."""
+    return diagnostic_values
+
+
+@pytest.fixture(scope='module')
+def ros_processes(tmp_path_factory) -> Iterator[tuple[Processes, Probe]]:
+    """Processes and a probe sharing one loopback-only domain for a whole test module."""
+    tmp = tmp_path_factory.mktemp('ros')
+    env = node_env(tmp)
+    saved = {k: os.environ.get(k) for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID',
+                                            'ROS_LOG_DIR')}
+    for key in saved:
+        os.environ[key] = env[key]
+    processes = Processes(env, tmp)
+    probe = Probe(int(env['ROS_DOMAIN_ID']))
+    try:
+        yield processes, probe
+    finally:
+        processes.stop_all()
+        probe.close()
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def _need(path: Path) -> Path:
+    if not path.exists():
+        message = f'course log {path} is missing (../shared/data must sit beside the repo)'
+        if os.environ.get('CI'):
+            pytest.fail(message)
+        pytest.skip(message)
+    return path
+
+
+@pytest.fixture(scope='session')
+def real_bag(tmp_path_factory) -> Path:
+    """The 2016 real log converted to a bag (with its params sidecar)."""
+    from gyro_ekf.io import load_course_log, write_trip_bag
+
+    trip = load_course_log([_need(SHARED / '2016_project1'),
+                            _need(SHARED / '2021_aas01' / 'MapMTRN4010.mat')])
+    return write_trip_bag(trip, tmp_path_factory.mktemp('bags') / 'real2016')
+
+
+@pytest.fixture(scope='session')
+def sim_bag(tmp_path_factory) -> Path:
+    """A seeded 60 s simulated trip with known bias, as a bag."""
+    import dataclasses
+
+    from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+    from gyro_ekf.io import write_trip_bag
+
+    config = dataclasses.replace(SimulationConfig(), duration_s=60.0)
+    return write_trip_bag(simulate_trip(config, seed=3),
+                          tmp_path_factory.mktemp('bags') / 'sim60')

@@ -1,0 +1,121 @@
+"""calibration_node in its own process, fed the replayed 2016 real log and synthetic data."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+STATIC_BIAS_DEG_S = -0.9748  # mean yaw rate over the first 5 s (shared data README)
+
+
+@pytest.fixture(scope='module')
+def calibrated(ros_processes, real_bag, diagnostics_of):
+    """Replay the first 7 s of the real log into a calibration node; wait until it is done."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from gyro_ekf.nodes import qos
+
+    processes, probe = ros_processes
+    diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.OUTPUT)
+    processes.node('calibration_node', '-p', 'reliable_inputs:=true',
+                   '-p', 'diagnostics_period_s:=0.2')
+    output = processes.run(
+        'replay', 'gyro_ekf.cli.main', 'replay', str(real_bag), '--rate', '10',
+        '--duration-s', '7', '--topics', 'imu', 'odom', '--wait-for', '1', timeout_s=60)
+
+    def done():
+        values = diagnostics_of(diagnostics, '/calibration_node: gyro calibration')
+        return values is not None and values['state'] == 'calibrated'
+    probe.spin_until(done, 20, 'the calibration node to report a calibrated bias')
+    return processes, probe, output
+
+
+def test_bias_of_the_real_log_reaches_a_late_subscriber(calibrated):
+    from geometry_msgs.msg import Vector3Stamped
+
+    from gyro_ekf.nodes import qos
+
+    processes, probe, replay_output = calibrated
+    # Subscribed only now, after the bias was published: transient local still delivers it.
+    bias = probe.subscribe(Vector3Stamped, 'gyro_bias', qos.LATCHED)
+    probe.spin_until(lambda: bias, 10, 'gyro_bias on a late subscription')
+    assert math.degrees(bias[0].vector.z) == pytest.approx(STATIC_BIAS_DEG_S, abs=0.002)
+    log = processes.log('calibration_node')
+    assert 'deg/s' in log and 'sigma' in log
+    assert 'all acknowledged: True' in replay_output
+
+
+def test_corrected_imu_has_the_bias_removed(calibrated):
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Imu
+
+    from gyro_ekf.nodes import qos
+
+    processes, probe, _ = calibrated
+    corrected = probe.subscribe(Imu, 'imu/corrected', qos_profile_sensor_data)
+    publisher = probe.node.create_publisher(Imu, 'imu', qos.LOSSLESS)
+    probe.spin_until(lambda: publisher.get_subscription_count() > 0, 10, 'the node on imu')
+    message = Imu()
+    message.header.stamp.sec = 1_700_000_100
+    message.angular_velocity.z = 0.5
+
+    def published_and_received():
+        publisher.publish(message)
+        return bool(corrected)
+    probe.spin_until(published_and_received, 10, 'imu/corrected')
+    expected = 0.5 - math.radians(STATIC_BIAS_DEG_S)
+    assert corrected[0].angular_velocity.z == pytest.approx(expected, abs=math.radians(0.002))
+
+
+def _imu(stamp_ns: int, rate_rad_s: float):
+    from sensor_msgs.msg import Imu
+
+    message = Imu()
+    message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    message.angular_velocity.z = rate_rad_s
+    return message
+
+
+def test_a_window_with_motion_is_refused_then_a_still_one_accepted(ros_processes,
+                                                                   diagnostics_of):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Vector3Stamped
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import Imu
+
+    from gyro_ekf.nodes import qos
+
+    processes, probe = ros_processes
+    name = 'calibration_motion'
+    processes.node('calibration_node', '-r', f'__ns:=/{name}', '-p', 'reliable_inputs:=true',
+                   '-p', 'window_length_s:=1.0', '-p', 'diagnostics_period_s:=0.1', name=name)
+    imu = probe.node.create_publisher(Imu, f'/{name}/imu', qos.LOSSLESS)
+    odom = probe.node.create_publisher(Odometry, f'/{name}/odom', qos.LOSSLESS)
+    bias = probe.subscribe(Vector3Stamped, f'/{name}/gyro_bias', qos.LATCHED)
+    diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.OUTPUT)
+    probe.spin_until(lambda: imu.get_subscription_count() and odom.get_subscription_count(),
+                     10, 'the node on imu and odom')
+    start = 1_800_000_000 * 10 ** 9
+    step = 5_000_000  # 200 Hz
+    for i in range(260):  # 1.3 s, driving at 0.5 m/s and turning
+        stamp = start + i * step
+        moving = Odometry()
+        moving.header.stamp = _imu(stamp, 0.0).header.stamp
+        moving.twist.twist.linear.x = 0.5
+        odom.publish(moving)
+        imu.publish(_imu(stamp, 0.3 * math.sin(i / 20.0)))
+
+    def refused():
+        values = diagnostics_of(diagnostics, f'/{name}/calibration_node: gyro')
+        return values is not None and int(values['refused_windows']) >= 1
+    probe.spin_until(refused, 15, 'a refused window')
+    assert not bias
+    assert 'static window refused' in processes.log(name)
+    assert 'moved' in processes.log(name) or 'not static' in processes.log(name)
+    for i in range(260, 900):  # still: a later window (once the moving samples are out) passes
+        imu.publish(_imu(start + i * step, 0.01))
+    probe.spin_until(lambda: bias, 15, 'gyro_bias after a still window')
+    assert bias[0].vector.z == pytest.approx(0.01, abs=1e-9)
