@@ -24,6 +24,7 @@ import numpy as np
 from gyro_ekf import topics
 from gyro_ekf.analysis.errors import OutputError
 from gyro_ekf.core.types import FloatArray
+from gyro_ekf.io.defaults import NS_PER_S
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +38,8 @@ SUMMARY_JSON = 'summary.json'
 
 _BAG_VERSION = 9
 _CSV_BLOCK_ROWS = 50_000
+_BAG_BLOCK_ROWS = 8192
+_INT32_MAX = 2**31 - 1
 
 
 def prepare_output_dir(path: Path | str, force: bool = False) -> Path:
@@ -138,6 +141,80 @@ def write_summary_json(path: Path | str, summary: dict[str, Any]) -> Path:
     return path
 
 
+class _EstimateEncoder:
+    """CDR bytes of the estimates bag's messages, many rows at a time.
+
+    One template per topic is serialised by rosbags (frames and strings fixed, every number
+    0); each row's stamp, pose, covariance, twist and bias are patched into a copy of it
+    (`fast_cdr.CdrTemplate`), which yields the bytes rosbags gives for that row's message.
+    """
+
+    def __init__(self) -> None:
+        from gyro_ekf.io import messages as msgs
+        from gyro_ekf.io.fast_cdr import CdrTemplate
+
+        pose = msgs.PoseWithCovariance(pose=_pose(msgs, 0.0, 0.0, 0.0),
+                                       covariance=np.zeros(36))
+        map_header = msgs.header(0, topics.MAP_FRAME)
+        twist = msgs.TwistWithCovariance(
+            twist=msgs.Twist(linear=msgs.Vector3(x=0.0, y=0.0, z=0.0),
+                             angular=msgs.Vector3(x=0.0, y=0.0, z=0.0)),
+            covariance=np.zeros(36))
+        Vector3Stamped = msgs.TYPESTORE.types[topics.VECTOR3_STAMPED_TYPE]
+        store = msgs.TYPESTORE
+        self.pose = CdrTemplate(msgs.PoseWithCovarianceStamped(header=map_header, pose=pose),
+                                topics.POSE_WITH_COVARIANCE_STAMPED_TYPE, store)
+        self.odometry = CdrTemplate(
+            msgs.Odometry(header=map_header, child_frame_id=topics.BASE_FRAME, pose=pose,
+                          twist=twist), topics.ODOMETRY_TYPE, store)
+        self.bias = CdrTemplate(
+            Vector3Stamped(header=msgs.header(0, topics.IMU_FRAME),
+                           vector=msgs.Vector3(x=0.0, y=0.0, z=0.0)),
+            topics.VECTOR3_STAMPED_TYPE, store)
+
+    def templates(self) -> list[tuple[str, Any]]:
+        """Return (relative topic, template) in the order encode returns their bytes."""
+        return [(topics.EKF_POSE, self.pose), (topics.EKF_ODOMETRY, self.odometry),
+                (topics.EKF_BIAS, self.bias)]
+
+    def encode(self, stamps_ns: Any, state: FloatArray, covariance: FloatArray,
+               speed_m_s: FloatArray, yaw_rate_rad_s: FloatArray) -> list[np.ndarray]:
+        """Encode m rows; return per topic one message per row, shape (m, bytes) uint8.
+
+        Args:
+            stamps_ns: shape (m,), int64 ns since the epoch, within int32 seconds.
+            state: shape (m, 4); covariance: shape (m, 4, 4).
+            speed_m_s, yaw_rate_rad_s: shape (m,).
+        """
+        sec, nanosec = np.divmod(np.asarray(stamps_ns, dtype=np.int64), NS_PER_S)
+        half_yaw = (state[:, 2] / 2.0).tolist()
+        # math, not numpy: msgs.yaw_quaternion's exact values (numpy's SIMD sin may differ).
+        quaternion_zw = np.column_stack([
+            np.fromiter(map(math.sin, half_yaw), dtype=np.float64, count=len(half_yaw)),
+            np.fromiter(map(math.cos, half_yaw), dtype=np.float64, count=len(half_yaw))])
+        # x, y, yaw of the state -> rows/columns 0, 1, 5 of the row-major 6x6.
+        out = []
+        for template in (self.pose, self.odometry):
+            rows = template.rows(len(sec))
+            template.set(rows, 'header.stamp.sec', sec)
+            template.set(rows, 'header.stamp.nanosec', nanosec)
+            template.set(rows, 'pose.pose.position', state[:, :2])
+            template.set(rows, 'pose.pose.orientation', quaternion_zw, first=2)
+            for i, row in enumerate((0, 1, 5)):
+                template.set(rows, 'pose.covariance', covariance[:, i, 0:2], first=row * 6)
+                template.set(rows, 'pose.covariance', covariance[:, i, 2], first=row * 6 + 5)
+            if template is self.odometry:
+                template.set(rows, 'twist.twist.linear', speed_m_s)
+                template.set(rows, 'twist.twist.angular', yaw_rate_rad_s, first=2)
+            out.append(rows)
+        rows = self.bias.rows(len(sec))
+        self.bias.set(rows, 'header.stamp.sec', sec)
+        self.bias.set(rows, 'header.stamp.nanosec', nanosec)
+        self.bias.set(rows, 'vector', state[:, 3], first=2)
+        out.append(rows)
+        return out
+
+
 def _pose(msgs: Any, x_m: float, y_m: float, yaw_rad: float) -> Any:
     return msgs.Pose(position=msgs.Point(x=x_m, y=y_m, z=0.0),
                      orientation=msgs.yaw_quaternion(yaw_rad))
@@ -170,6 +247,7 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     from rosbags.rosbag2.errors import WriterError
 
     from gyro_ekf.io import messages as msgs
+    from gyro_ekf.io.batch_write import write_rows
 
     path = Path(path)
     if path.exists():
@@ -178,51 +256,27 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     if storage not in plugins:
         raise OutputError(f'{path}: unknown storage {storage!r}; expected one of '
                           f'{sorted(plugins)}')
-    types = msgs.TYPESTORE.types
-    Vector3Stamped = types[topics.VECTOR3_STAMPED_TYPE]
     stamps_ns = int(start_time_ns) + np.round(np.asarray(stamp_s) * 1e9).astype(np.int64)
     state = np.asarray(state, dtype=np.float64)
     P = np.asarray(covariance, dtype=np.float64)
-    # x, y, yaw of the state -> rows/columns 0, 1, 5 of the row-major 6x6 (per message, so a
-    # long trip does not hold an (n, 36) array).
-    flat = np.array([a * 6 + b for a in (0, 1, 5) for b in (0, 1, 5)])
-    twist_cov = np.zeros(36)
+    speed_m_s = np.asarray(speed_m_s, dtype=np.float64)
+    yaw_rate_rad_s = np.asarray(yaw_rate_rad_s, dtype=np.float64)
+    if len(stamps_ns) and (stamps_ns.min() < 0 or stamps_ns.max() // NS_PER_S > _INT32_MAX):
+        raise OutputError(f'{path}: stamps outside builtin_interfaces/Time (int32 seconds)')
+    encoder = _EstimateEncoder()
     aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
     staged = aside / path.name
-    serialize = msgs.TYPESTORE.serialize_cdr
     try:
         with Writer(staged, version=_BAG_VERSION, storage_plugin=plugins[storage]) as writer:
-            pose_conn = writer.add_connection(
-                topics.bag_topic(topics.EKF_POSE), topics.POSE_WITH_COVARIANCE_STAMPED_TYPE,
-                typestore=msgs.TYPESTORE)
-            odom_conn = writer.add_connection(
-                topics.bag_topic(topics.EKF_ODOMETRY), topics.ODOMETRY_TYPE,
-                typestore=msgs.TYPESTORE)
-            bias_conn = writer.add_connection(
-                topics.bag_topic(topics.EKF_BIAS), topics.VECTOR3_STAMPED_TYPE,
-                typestore=msgs.TYPESTORE)
-            for k, stamp in enumerate(stamps_ns.tolist()):
-                x, y, yaw, bias = state[k].tolist()
-                pose_cov = np.zeros(36)
-                pose_cov[flat] = P[k, :3, :3].ravel()
-                pose = msgs.PoseWithCovariance(pose=_pose(msgs, x, y, yaw),
-                                               covariance=pose_cov)
-                map_header = msgs.header(stamp, topics.MAP_FRAME)
-                writer.write(pose_conn, stamp, bytes(serialize(
-                    msgs.PoseWithCovarianceStamped(header=map_header, pose=pose),
-                    topics.POSE_WITH_COVARIANCE_STAMPED_TYPE)))
-                twist = msgs.TwistWithCovariance(
-                    twist=msgs.Twist(linear=msgs.Vector3(x=float(speed_m_s[k]), y=0.0, z=0.0),
-                                     angular=msgs.Vector3(x=0.0, y=0.0,
-                                                          z=float(yaw_rate_rad_s[k]))),
-                    covariance=twist_cov)
-                writer.write(odom_conn, stamp, bytes(serialize(
-                    msgs.Odometry(header=map_header, child_frame_id=topics.BASE_FRAME,
-                                  pose=pose, twist=twist), topics.ODOMETRY_TYPE)))
-                writer.write(bias_conn, stamp, bytes(serialize(
-                    Vector3Stamped(header=msgs.header(stamp, topics.IMU_FRAME),
-                                   vector=msgs.Vector3(x=0.0, y=0.0, z=bias)),
-                    topics.VECTOR3_STAMPED_TYPE)))
+            connections = [writer.add_connection(topics.bag_topic(topic), template.msgtype,
+                                                 typestore=msgs.TYPESTORE)
+                           for topic, template in encoder.templates()]
+            # In blocks, so an hour-long trip never holds all its messages at once.
+            for start in range(0, len(stamps_ns), _BAG_BLOCK_ROWS):
+                block = slice(start, min(start + _BAG_BLOCK_ROWS, len(stamps_ns)))
+                write_rows(writer, connections, stamps_ns[block], encoder.encode(
+                    stamps_ns[block], state[block], P[block], speed_m_s[block],
+                    yaw_rate_rad_s[block]))
         os.replace(staged, path)
     except (WriterError, OSError) as err:
         raise OutputError(f'{path}: cannot write the estimates bag: {err}') from err

@@ -1,0 +1,99 @@
+"""The estimates bag, written from CDR templates in blocks, against per-message rosbags."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+
+from gyro_ekf import topics
+from gyro_ekf.analysis import outputs
+from gyro_ekf.analysis.errors import OutputError
+from gyro_ekf.io import messages as msgs
+
+START_NS = 1_700_000_000_000_000_000
+
+
+def reference_bag(path: Path, start_time_ns: int, stamp_s, state, covariance, speed_m_s,
+                  yaw_rate_rad_s, storage: str) -> None:
+    """Write the estimates bag as gyro_ekf did before: message objects, one write each."""
+    Vector3Stamped = msgs.TYPESTORE.types[topics.VECTOR3_STAMPED_TYPE]
+    stamps_ns = int(start_time_ns) + np.round(np.asarray(stamp_s) * 1e9).astype(np.int64)
+    flat = np.array([a * 6 + b for a in (0, 1, 5) for b in (0, 1, 5)])
+    plugin = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}[storage]
+    with Writer(path, version=9, storage_plugin=plugin) as writer:
+        pose_conn, odom_conn, bias_conn = (
+            writer.add_connection(topics.bag_topic(topic), msgtype, typestore=msgs.TYPESTORE)
+            for topic, msgtype in ((topics.EKF_POSE, topics.POSE_WITH_COVARIANCE_STAMPED_TYPE),
+                                   (topics.EKF_ODOMETRY, topics.ODOMETRY_TYPE),
+                                   (topics.EKF_BIAS, topics.VECTOR3_STAMPED_TYPE)))
+        for k, stamp in enumerate(stamps_ns.tolist()):
+            x, y, yaw, bias = state[k].tolist()
+            pose_cov = np.zeros(36)
+            pose_cov[flat] = covariance[k, :3, :3].ravel()
+            pose = msgs.PoseWithCovariance(
+                pose=msgs.Pose(position=msgs.Point(x=x, y=y, z=0.0),
+                               orientation=msgs.yaw_quaternion(yaw)), covariance=pose_cov)
+            map_header = msgs.header(stamp, topics.MAP_FRAME)
+            writer.write(pose_conn, stamp, msgs.serialize(
+                msgs.PoseWithCovarianceStamped(header=map_header, pose=pose)))
+            twist = msgs.TwistWithCovariance(
+                twist=msgs.Twist(linear=msgs.Vector3(x=float(speed_m_s[k]), y=0.0, z=0.0),
+                                 angular=msgs.Vector3(x=0.0, y=0.0,
+                                                      z=float(yaw_rate_rad_s[k]))),
+                covariance=np.zeros(36))
+            writer.write(odom_conn, stamp, msgs.serialize(msgs.Odometry(
+                header=map_header, child_frame_id=topics.BASE_FRAME, pose=pose, twist=twist)))
+            writer.write(bias_conn, stamp, msgs.serialize(Vector3Stamped(
+                header=msgs.header(stamp, topics.IMU_FRAME),
+                vector=msgs.Vector3(x=0.0, y=0.0, z=bias))))
+
+
+def _history(n: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    stamps = np.cumsum(rng.uniform(0.004, 0.006, n))
+    state = rng.normal(size=(n, 4)) * [50.0, 50.0, 4.0, 0.02]
+    covariance = rng.normal(size=(n, 4, 4))
+    covariance[:7, 0, 0] = [0.0, -0.0, math.nan, math.inf, -math.inf, 5e-324, 1e308]
+    state[:3, 2] = [-0.0, math.pi, -math.pi]
+    return stamps, state, covariance, rng.uniform(-1, 3, n), rng.normal(size=n)
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_estimates_bag_is_what_per_message_rosbags_writes(tmp_path, monkeypatch, storage):
+    # Small blocks, so rows straddle blocks and MCAP chunks close mid-block.
+    monkeypatch.setattr(outputs, '_BAG_BLOCK_ROWS', 1500)
+    n = 4000
+    history = _history(n)
+    (tmp_path / 'new').mkdir()
+    (tmp_path / 'old').mkdir()
+    new = outputs.write_estimates_bag(tmp_path / 'new' / 'estimates', START_NS, *history,
+                                      storage=storage)
+    old = tmp_path / 'old' / 'estimates'
+    reference_bag(old, START_NS, *history, storage=storage)
+    if storage == 'mcap':
+        assert (new / 'estimates.mcap').read_bytes() == (old / 'estimates.mcap').read_bytes()
+    with Reader(new) as a, Reader(old) as b:
+        got = [(c.topic, t, bytes(d)) for c, t, d in a.messages()]
+        assert got == [(c.topic, t, bytes(d)) for c, t, d in b.messages()]
+    assert len(got) == 3 * n
+
+
+def test_estimates_bag_refuses_stamps_beyond_int32_seconds(tmp_path):
+    stamps, state, covariance, speed, rate = _history(10)
+    with pytest.raises(OutputError, match='int32 seconds'):
+        outputs.write_estimates_bag(tmp_path / 'estimates', 2**31 * 1_000_000_000, stamps,
+                                    state, covariance, speed, rate)
+    assert not (tmp_path / 'estimates').exists()
+
+
+def test_empty_history_writes_an_empty_bag(tmp_path):
+    bag = outputs.write_estimates_bag(tmp_path / 'estimates', START_NS, np.zeros(0),
+                                      np.zeros((0, 4)), np.zeros((0, 4, 4)), np.zeros(0),
+                                      np.zeros(0))
+    with Reader(bag) as reader:
+        assert reader.message_count == 0
+        assert len(reader.connections) == 3
