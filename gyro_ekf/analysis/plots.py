@@ -21,7 +21,6 @@ import numpy as np
 from gyro_ekf.analysis import metrics
 from gyro_ekf.analysis.offline import OfflineRun
 from gyro_ekf.analysis.outputs import staged_file
-from gyro_ekf.core.association import AssociationOutcome
 from gyro_ekf.core.types import BIAS, FloatArray
 
 log = logging.getLogger(__name__)
@@ -52,15 +51,7 @@ def _decimate(count: int, limit: int = 20_000) -> slice:
 
 def associated_detections(run: OfflineRun) -> FloatArray:
     """Map-frame positions (at the prior pose) of every MATCHED detection, shape (k, 2), m."""
-    points = []
-    for report in run.result.observations:
-        if report.association is None:
-            continue
-        matched = [a.detection_index for a in report.association.associations
-                   if a.outcome is AssociationOutcome.MATCHED]
-        if matched:
-            points.append(report.points_map_m[matched])
-    return np.concatenate(points) if points else np.zeros((0, 2))
+    return run.result.updates.point_map_m
 
 
 def plot_trajectory(run: OfflineRun, path: Path) -> Path:
@@ -178,17 +169,10 @@ def plot_errors(run: OfflineRun, path: Path) -> Path | None:
 def plot_nis(run: OfflineRun, path: Path) -> Path:
     """Write the NIS-over-time figure with the 2-dof two-sided 95 % band."""
     plt = _pyplot()
-    stamps = []
-    values = []
-    for report in run.result.observations:
-        if len(report.nis):
-            stamps.append(np.full(len(report.nis), report.stamp_s))
-            values.append(report.nis)
+    t, nis = run.result.updates.stamp_s, run.result.updates.nis
     figure, axes = plt.subplots(figsize=(9, 4.5))
     low, high = metrics.chi_square_band(2)
-    if values:
-        t = np.concatenate(stamps)
-        nis = np.concatenate(values)
+    if nis.size:
         keep = _decimate(len(nis))
         axes.scatter(t[keep], nis[keep], s=3, color=_COLOURS['ekf'], alpha=0.5,
                      label='NIS per update')

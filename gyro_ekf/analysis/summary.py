@@ -38,13 +38,12 @@ def _deg(value: float | None) -> float | None:
 
 def nis_values(run: OfflineRun) -> FloatArray:
     """Return the NIS of every applied update in time order, shape (u,)."""
-    parts = [report.nis for report in run.result.observations if len(report.nis)]
-    return np.concatenate(parts) if parts else np.zeros(0)
+    return run.result.updates.nis
 
 
 def association_stamps(run: OfflineRun) -> FloatArray:
     """Return the stamps of the scans with at least one applied update, shape (k,), s."""
-    return np.array([report.stamp_s for report in run.result.observations if len(report.nis)])
+    return np.unique(run.result.updates.stamp_s)
 
 
 def summarize(run: OfflineRun) -> dict[str, Any]:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import enum
 import heapq
+from array import array
 import itertools
 import math
 from collections.abc import Callable, Iterator
@@ -24,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from gyro_ekf.core.association import (AssociationOutcome, AssociationResult, associate,
                                        associate_by_distance)
@@ -339,17 +341,35 @@ class Estimates:
 
 
 @dataclass(frozen=True, slots=True)
+class UpdateLog:
+    """Every landmark update applied during a run, in time order.
+
+    Attributes:
+        stamp_s: scan stamp of each update, shape (m,), s.
+        landmark: index of the landmark in the map, shape (m,).
+        point_map_m: the detection placed in the map at the prior pose, shape (m, 2), m.
+        nis: normalised innovation squared of each update, shape (m,).
+    """
+
+    stamp_s: FloatArray
+    landmark: NDArray[np.int64]
+    point_map_m: FloatArray
+    nis: FloatArray
+
+
+@dataclass(frozen=True, slots=True)
 class TripRun:
     """Result of driving the filter through a whole trip.
 
     Attributes:
         estimates: one row per IMU sample.
-        observations: one report per scan, in time order.
+        updates: the applied landmark updates (compact: a long trip keeps no per-scan
+            objects).
         stats: final counts.
     """
 
     estimates: Estimates
-    observations: list[ObservationReport]
+    updates: UpdateLog
     stats: DriverStats
 
 
@@ -368,7 +388,9 @@ def drive_trip(trip: Trip, driver: EventDriver,
     stamps = np.empty(n)
     states = np.empty((n, 4))
     covariances = np.empty((n, 4, 4))
-    observations: list[ObservationReport] = []
+    # array('d') keeps 8 bytes per value while a long trip accumulates updates.
+    update_stamp, update_landmark = array('d'), array('q')
+    update_x, update_y, update_nis = array('d'), array('d'), array('d')
     yaw_rates = trip.imu.yaw_rate_rad_s.tolist()
     speeds = trip.speed.speed_m_s.tolist()
     angles = [scan.angles_rad for scan in trip.scans]
@@ -386,11 +408,24 @@ def drive_trip(trip: Trip, driver: EventDriver,
         else:
             scan: ScanSeries = trip.scans[series]
             intensities = None if scan.intensities is None else scan.intensities[index]
-            observations.append(driver.on_scan(stamp_s, scan.ranges_m[index], angles[series],
-                                               intensities, scan.mount))
+            report = driver.on_scan(stamp_s, scan.ranges_m[index], angles[series],
+                                    intensities, scan.mount)
+            if report.nis.size:
+                pairs = report.association.matched_pairs()
+                update_stamp.extend([stamp_s] * len(pairs))
+                update_landmark.extend(pairs[:, 1].tolist())
+                update_x.extend(report.points_map_m[pairs[:, 0], 0].tolist())
+                update_y.extend(report.points_map_m[pairs[:, 0], 1].tolist())
+                update_nis.extend(report.nis.tolist())
         processed += 1
         if progress is not None and processed % 10_000 == 0:
             progress(10_000)
     if progress is not None:
         progress(processed % 10_000)
-    return TripRun(Estimates(stamps, states, covariances), observations, driver.stats)
+    updates = UpdateLog(
+        stamp_s=np.frombuffer(update_stamp, dtype=np.float64),
+        landmark=np.frombuffer(update_landmark, dtype=np.int64),
+        point_map_m=np.column_stack([np.frombuffer(update_x, dtype=np.float64),
+                                     np.frombuffer(update_y, dtype=np.float64)]),
+        nis=np.frombuffer(update_nis, dtype=np.float64))
+    return TripRun(Estimates(stamps, states, covariances), updates, driver.stats)
