@@ -111,8 +111,10 @@ class CalibrationNode(Node):
             return
         self._imu_count += 1
         if self.result is not None:
-            self._corrected_pub.publish(corrected_imu(message, self.result.bias_rad_s))
-            self._corrected_count += 1
+            # Building the corrected copy costs more than the callback; skip it unheard.
+            if self._corrected_pub.get_subscription_count():
+                self._corrected_pub.publish(corrected_imu(message, self.result.bias_rad_s))
+                self._corrected_count += 1
             return
         stamp_s = self._origin.seconds(ns)
         if self._window_from_s is None:
