@@ -47,8 +47,9 @@ class OfflineRun:
         calibration: the accepted static-window estimate, or None.
         calibration_error: why no window was accepted, or None.
         result: estimates (one row per IMU sample), per-scan reports and counts.
-        speed_m_s: held speed at each estimate, shape (n,), m/s.
-        yaw_rate_rad_s: bias-corrected yaw rate at each estimate, shape (n,), rad/s.
+        speed_m_s: held speed at each estimate, shape (n,), m/s (computed on access).
+        yaw_rate_rad_s: bias-corrected yaw rate at each estimate, shape (n,), rad/s
+            (computed on access).
     """
 
     trip: Trip
@@ -57,8 +58,27 @@ class OfflineRun:
     calibration: BiasEstimate | None
     calibration_error: str | None
     result: TripRun
-    speed_m_s: FloatArray
-    yaw_rate_rad_s: FloatArray
+
+    # What the live node puts in the odometry twist. Computed when asked for (only the
+    # estimates bag needs them), so a long run does not carry two more (n,) arrays.
+    @property
+    def speed_m_s(self) -> FloatArray:
+        """Held speed at each estimate, shape (n,), m/s (0 before the first sample)."""
+        estimates = self.result.estimates
+        speed_t = self.trip.speed.stamp_s
+        if not len(speed_t):
+            return np.zeros(len(estimates.stamp_s))
+        held = np.searchsorted(speed_t, estimates.stamp_s, side='right') - 1
+        speed = self.trip.speed.speed_m_s[np.maximum(held, 0)]
+        speed[held < 0] = 0.0
+        return np.asarray(speed, dtype=np.float64)
+
+    @property
+    def yaw_rate_rad_s(self) -> FloatArray:
+        """Bias-corrected yaw rate at each estimate, shape (n,), rad/s."""
+        estimates = self.result.estimates
+        rate = self.trip.imu.yaw_rate_rad_s[:len(estimates.stamp_s)] - estimates.state[:, BIAS]
+        return np.asarray(rate, dtype=np.float64)
 
 
 def effective_config(noise: NoiseFigures, params: PipelineParams | None = None,
@@ -134,14 +154,5 @@ def run_trip(trip: Trip, params: PipelineParams | None = None, use_stated_noise:
         driver.ekf.set_bias(float(calibration.bias_rad_s[2]),
                             float(calibration.bias_standard_error_rad_s[2]))
     result = drive_trip(trip, driver, progress)
-    estimates = result.estimates
-    # What the live node puts in the odometry twist: the held speed and the corrected rate.
-    speed_t = trip.speed.stamp_s
-    held = np.searchsorted(speed_t, estimates.stamp_s, side='right') - 1
-    speed = np.where(held >= 0, trip.speed.speed_m_s[np.maximum(held, 0)], 0.0) if len(
-        speed_t) else np.zeros(len(estimates.stamp_s))
-    rate = trip.imu.yaw_rate_rad_s[:len(estimates.stamp_s)] - estimates.state[:, BIAS]
     return OfflineRun(trip=trip, config=config, config_sources=sources,
-                      calibration=calibration, calibration_error=reason, result=result,
-                      speed_m_s=np.asarray(speed, dtype=np.float64),
-                      yaw_rate_rad_s=np.asarray(rate, dtype=np.float64))
+                      calibration=calibration, calibration_error=reason, result=result)

@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     params = read_params_file(args.params_file) if args.params_file else PipelineParams()
     folder = outputs.prepare_output_dir(args.output, force=args.force)
     began = time.perf_counter()
-    bag = read_bag(args.bag)
+    bag = read_bag(args.bag, acceleration=False)  # the EKF does not use it
     trip = bag.trip
     read_s = time.perf_counter() - began
     use_stated = not args.ignore_stated_noise and bool(params.options.get('use_stated_noise',

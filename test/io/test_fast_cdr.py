@@ -99,6 +99,18 @@ def test_fast_read_matches_rosbags_on_a_synthetic_bag(tmp_path, monkeypatch):
     assert_fast_read_is_rosbags_read(bag)
 
 
+@pytest.mark.parametrize('fast', [True, False])
+def test_acceleration_can_be_left_out(tmp_path, fast):
+    bag = tmp_path / 'synthetic'
+    write_trip_bag(make_trip(), bag)
+    full, lean = read_bag(bag, fast=fast), read_bag(bag, fast=fast, acceleration=False)
+    assert full.trip.imu.linear_acceleration_m_s2 is not None
+    assert lean.trip.imu.linear_acceleration_m_s2 is None
+    without = _trip_arrays(full.trip)
+    without['imu_a'] = None
+    assert_same_bits(_trip_arrays(lean.trip), without)
+
+
 @pytest.mark.shared_data
 @pytest.mark.parametrize('key, parts', [
     ('p2016', ['2016_project1', '2021_aas01/MapMTRN4010.mat']), ('aas2021', ['2021_aas01'])])
