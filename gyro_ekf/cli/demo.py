@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _environment(output: Path) -> dict[str, str]:
-    """The environment of every process: loopback discovery, a domain, a log dir."""
+    """Build the environment of every process: loopback discovery, a domain, a log dir."""
     import gyro_ekf
 
     env = dict(os.environ)
