@@ -4,6 +4,11 @@ Stamps of the returned Trip are seconds since the bag's first message (which the
 at the log's time zero); `BagTrip.start_time_ns` is that message's stamp. What no message
 carries (LiDAR mounts, stated noise, true bias) comes from the params sidecar beside the bag;
 without a sidecar the mounts default to the platform origin and a warning says so.
+
+`read_bag` takes the raw messages from rosbags' Reader and decodes the sensor topics in
+batches with numpy (`fast_cdr`), which gives the values rosbags' deserialisation gives
+(`read_bag(fast=False)` is that reference path); `iter_bag_messages` yields rosbags message
+objects one by one.
 """
 
 from __future__ import annotations
