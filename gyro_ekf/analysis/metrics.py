@@ -274,8 +274,8 @@ def interpolate_estimates(stamp_s: FloatArray, state: FloatArray, covariance: Fl
         return np.zeros((0, 4)), np.zeros((0, 4, 4)), np.zeros(wanted.size, dtype=bool)
     inside = (wanted >= stamps[0]) & (wanted <= stamps[-1])
     t = wanted[inside]
-    state = np.asarray(state, dtype=np.float64).copy()
-    state[:, 2] = np.unwrap(state[:, 2])
+    state = np.asarray(state, dtype=np.float64)
+    yaw = np.unwrap(state[:, 2])
     P = np.asarray(covariance, dtype=np.float64)
     upper = np.clip(np.searchsorted(stamps, t, side='right'), 1, stamps.size - 1) \
         if stamps.size > 1 else np.zeros(t.size, dtype=np.int64)
@@ -285,9 +285,20 @@ def interpolate_estimates(stamp_s: FloatArray, state: FloatArray, covariance: Fl
     frac = np.where(span > 0, (t - stamps[lower]) / np.where(span > 0, span, 1.0), 0.0)
     frac = np.where(exact, 0.0, frac)
     lower = np.where(exact, np.searchsorted(stamps, t, side='right') - 1, lower)
-    out_state = state[lower] + frac[:, None] * (state[upper] - state[lower])
-    out_P = P[lower] + frac[:, None, None] * (P[upper] - P[lower])
+    # In place, one temporary at a time: a one-hour trip has ~10^5 truth stamps.
+    out_state = state[lower]
+    out_state[:, 2] = yaw[lower]
+    step = state[upper]
+    step[:, 2] = yaw[upper]
+    step -= out_state
+    step *= frac[:, None]
+    out_state += step
     out_state[:, 2] = wrap_angle(out_state[:, 2])
+    out_P = P[lower]
+    step_P = P[upper]
+    step_P -= out_P
+    step_P *= frac[:, None, None]
+    out_P += step_P
     return out_state, out_P, inside
 
 

@@ -305,24 +305,31 @@ class ReorderBuffer:
         return ready
 
 
-def iter_trip_events(trip: Trip) -> Iterator[tuple[float, EventKind, int, int]]:
+def iter_trip_events(trip: Trip, block: int = 65_536
+                     ) -> Iterator[tuple[float, EventKind, int, int]]:
     """All events of a trip in driver order: (stamp_s, kind, series index, sample index).
 
-    The series index picks the ScanSeries for observations (0 otherwise).
+    The series index picks the ScanSeries for observations (0 otherwise). The order is
+    computed once on compact arrays and handed out in blocks, so a long trip never holds
+    a Python object per event.
     """
     stamps = [trip.speed.stamp_s, trip.imu.stamp_s] + [s.stamp_s for s in trip.scans]
     kinds = [EventKind.SPEED, EventKind.IMU] + [EventKind.OBSERVATION] * len(trip.scans)
     series = [0, 0] + list(range(len(trip.scans)))
     all_stamps = np.concatenate(stamps)
-    all_kinds = np.concatenate([np.full(len(s), int(k)) for s, k in zip(stamps, kinds)])
-    all_series = np.concatenate([np.full(len(s), i) for s, i in zip(stamps, series)])
-    all_index = np.concatenate([np.arange(len(s)) for s in stamps])
+    all_kinds = np.concatenate([np.full(len(s), int(k), dtype=np.int8)
+                                for s, k in zip(stamps, kinds)])
+    all_series = np.concatenate([np.full(len(s), i, dtype=np.int16)
+                                 for s, i in zip(stamps, series)])
+    all_index = np.concatenate([np.arange(len(s), dtype=np.int32) for s in stamps])
     order = np.lexsort((all_index, all_series, all_kinds, all_stamps))
-    kinds_by_value = {int(kind): kind for kind in EventKind}
-    # tolist() converts once; element-wise numpy scalar access would dominate the loop.
-    yield from zip(all_stamps[order].tolist(),
-                   [kinds_by_value[k] for k in all_kinds[order].tolist()],
-                   all_series[order].tolist(), all_index[order].tolist())
+    kinds_by_value = [EventKind(k) for k in range(len(EventKind))]
+    for begin in range(0, order.size, block):
+        part = order[begin:begin + block]
+        # tolist() per block: element-wise numpy scalar access would dominate the loop.
+        yield from zip(all_stamps[part].tolist(),
+                       [kinds_by_value[k] for k in all_kinds[part].tolist()],
+                       all_series[part].tolist(), all_index[part].tolist())
 
 
 @dataclass(frozen=True, slots=True)
@@ -391,20 +398,20 @@ def drive_trip(trip: Trip, driver: EventDriver,
     # array('d') keeps 8 bytes per value while a long trip accumulates updates.
     update_stamp, update_landmark = array('d'), array('q')
     update_x, update_y, update_nis = array('d'), array('d'), array('d')
-    yaw_rates = trip.imu.yaw_rate_rad_s.tolist()
-    speeds = trip.speed.speed_m_s.tolist()
+    yaw_rates = trip.imu.yaw_rate_rad_s
+    speeds = trip.speed.speed_m_s
     angles = [scan.angles_rad for scan in trip.scans]
     row = 0
     processed = 0
     for stamp_s, kind, series, index in iter_trip_events(trip):
         if kind is EventKind.IMU:
-            driver.step_imu(stamp_s, yaw_rates[index])
+            driver.step_imu(stamp_s, float(yaw_rates[index]))
             stamps[row] = stamp_s
             states[row] = driver.ekf.x
             covariances[row] = driver.ekf.P
             row += 1
         elif kind is EventKind.SPEED:
-            driver.on_speed(stamp_s, speeds[index])
+            driver.on_speed(stamp_s, float(speeds[index]))
         else:
             scan: ScanSeries = trip.scans[series]
             intensities = None if scan.intensities is None else scan.intensities[index]
