@@ -15,6 +15,7 @@ from collections.abc import Callable
 import dataclasses
 from dataclasses import dataclass
 import logging
+import math
 
 import numpy as np
 
@@ -132,27 +133,40 @@ def event_count(trip: Trip) -> int:
             + sum(len(s.stamp_s) for s in trip.scans))
 
 
+# Same defaults as the EKF node's parameters of the same names.
+DEFAULT_USE_CALIBRATION = False
+DEFAULT_CALIBRATION_SIGMA_RAD_S = math.radians(0.05)
+
+
 def run_trip(trip: Trip, params: PipelineParams | None = None, use_stated_noise: bool = True,
-             progress: Callable[[int], None] | None = None) -> OfflineRun:
+             progress: Callable[[int], None] | None = None,
+             use_calibration: bool | None = None) -> OfflineRun:
     """Calibrate (where the trip starts static) and run the EKF over the whole trip.
 
-    The filter starts at the trip's initial pose with the configured priors. An accepted
-    static window seeds the bias state with its mean and the standard error of that mean.
+    The filter starts at the trip's initial pose with the configured priors, so by default
+    its bias is found online, independently of the static window, and the two can be
+    compared. With ``use_calibration`` (as the EKF node's parameter) an accepted window
+    seeds the bias state with its mean and ``calibration_bias_sigma_rad_s``.
 
     Args:
         trip: the inputs (stamps in s since the bag's first message).
         params: a parsed params file, or None for the defaults.
         use_stated_noise: see effective_config.
         progress: called with the number of events processed since the last call.
+        use_calibration: seed the bias from the static window; None takes the params
+            file's option (default False).
     """
     params = params or PipelineParams()
     config, sources = effective_config(trip.noise, params, use_stated_noise)
     calibration, reason = calibrate(trip, params.calibration)
     driver = EventDriver(config, trip.landmarks, trip.initial_pose,
                          detector_config=params.detector)
-    if calibration is not None:
-        driver.ekf.set_bias(float(calibration.bias_rad_s[2]),
-                            float(calibration.bias_standard_error_rad_s[2]))
+    if use_calibration is None:
+        use_calibration = bool(params.options.get('use_calibration', DEFAULT_USE_CALIBRATION))
+    if use_calibration and calibration is not None:
+        sigma = float(params.options.get('calibration_bias_sigma_rad_s',
+                                         DEFAULT_CALIBRATION_SIGMA_RAD_S))
+        driver.ekf.set_bias(float(calibration.bias_rad_s[2]), sigma)
     result = drive_trip(trip, driver, progress)
     return OfflineRun(trip=trip, config=config, config_sources=sources,
                       calibration=calibration, calibration_error=reason, result=result)

@@ -43,7 +43,7 @@ _CONFIG_TYPES: dict[str, type] = {
 _FIELD_OWNER = {f.name: group for group, kind in _CONFIG_TYPES.items()
                 for f in dataclasses.fields(kind)}
 
-OPTIONS = ('use_stated_noise',)
+OPTIONS = ('use_stated_noise', 'use_calibration', 'calibration_bias_sigma_rad_s')
 """Node-level options `gyro-ekf run` honours besides the config fields."""
 
 

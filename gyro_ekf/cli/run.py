@@ -36,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--force', action='store_true',
                         help='write into a non-empty output folder, replacing its products')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    parser.add_argument('--use-calibration', action='store_true',
+                        help='seed the EKF bias from the static window (as the EKF node\'s '
+                        'use_calibration); by default the online bias is found independently')
 
 
 def _progress_bar(total: int, enabled: bool) -> Any:
@@ -96,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
                                                                           True))
     show = not args.no_progress and sys.stderr.isatty()
     with _progress_bar(event_count(trip), show) as bar:
-        result = run_trip(trip, params, use_stated_noise=use_stated, progress=bar.update)
+        result = run_trip(trip, params, use_stated_noise=use_stated, progress=bar.update,
+                          use_calibration=True if args.use_calibration else None)
     est = result.result.estimates
     summary = summarize(result)
     outputs.write_estimates_csv(folder / outputs.ESTIMATES_CSV, est.stamp_s, est.state,

@@ -102,12 +102,18 @@ def test_course_simulations_are_accurate(shared_data, tmp_path, folder):
         assert abs(truth['bias_error_final_deg_s']) <= 0.02
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    'issue 5 asks for >= 90 % of pose NEES samples inside the two-sided 95 % band on the '
-    'course simulations; with the current core defaults 2022 reaches ~75 % and 2023 ~65 % '
-    '(filter conservative: P too large for these logs). See the issue-5 accuracy report.'))
-@pytest.mark.parametrize('folder', ['2022_sim', '2023_sim'])
-def test_course_simulations_are_consistent(shared_data, tmp_path, folder):
-    bag = _course_bag(shared_data, tmp_path, folder)
-    code, summary = _run(bag, tmp_path / 'out', '--no-plots', '--no-bag')
+def test_2022_course_simulation_is_consistent(shared_data, tmp_path):
+    bag = _course_bag(shared_data, tmp_path, '2022_sim')
+    _, summary = _run(bag, tmp_path / 'out', '--no-plots', '--no-bag')
+    assert summary['ground_truth']['nees_share_in_band'] >= 0.9
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    'measured 0.860 of the pose NEES samples inside the band (0.898 from the first landmark '
+    'update on; 10 % below, 4 % above): the log starts with 10 s and no pole in view under '
+    'the course\'s 2 deg/s bias prior, and its truth integrates the noisy inputs, so the '
+    'process noise that keeps the real 2016 trip associated is conservative here'))
+def test_2023_course_simulation_is_consistent(shared_data, tmp_path):
+    bag = _course_bag(shared_data, tmp_path, '2023_sim')
+    _, summary = _run(bag, tmp_path / 'out', '--no-plots', '--no-bag')
     assert summary['ground_truth']['nees_share_in_band'] >= 0.9
