@@ -112,42 +112,80 @@ def detect_poles(ranges_m: FloatArray, angles_rad: FloatArray,
     Raises:
         CoreError: the arrays do not have matching 1-D shapes.
     """
-    if config is None:
-        config = DetectorConfig()
-    ranges = np.asarray(ranges_m, dtype=np.float64)
-    angles = np.asarray(angles_rad, dtype=np.float64)
-    use_intensity = intensities is not None
+    ranges = np.asarray(ranges_m)
+    angles = np.asarray(angles_rad)
     if ranges.ndim != 1 or angles.shape != ranges.shape:
         raise CoreError(f'detect_poles: ranges {ranges.shape} and angles {angles.shape} must '
                         'be 1-D arrays of the same length')
+    if intensities is not None and np.shape(intensities) != ranges.shape:
+        raise CoreError(f'detect_poles: intensities {np.shape(intensities)} do not match '
+                        f'ranges {ranges.shape}')
+    return detect_poles_in_scans(
+        ranges[None, :], angles, None if intensities is None else np.asarray(intensities)[None],
+        config, require_foreground=require_foreground)[0]
+
+
+def detect_poles_in_scans(ranges_m: FloatArray, angles_rad: FloatArray,
+                          intensities: FloatArray | None, config: DetectorConfig | None = None,
+                          *, require_foreground: bool = True) -> list[PoleDetections]:
+    """Find poles in several scans of one sensor at once (same results as one by one).
+
+    The scans are laid end to end and processed as one long scan with a forced cluster
+    break at the start of every scan, so numpy's per-call cost is paid once per batch
+    rather than once per scan (the offline run detects thousands of scans).
+
+    Args:
+        ranges_m: shape (m, b), m; see detect_poles.
+        angles_rad: bearing of every beam, shape (b,), rad.
+        intensities: shape (m, b), or None.
+        config: detector settings; defaults when None.
+        require_foreground: see detect_poles.
+
+    Returns:
+        One PoleDetections per scan, in scan order.
+
+    Raises:
+        CoreError: the arrays do not have matching shapes.
+    """
+    if config is None:
+        config = DetectorConfig()
+    ranges2 = np.asarray(ranges_m, dtype=np.float64)
+    angles = np.asarray(angles_rad, dtype=np.float64)
+    use_intensity = intensities is not None
+    if ranges2.ndim != 2 or angles.shape != ranges2.shape[1:]:
+        raise CoreError(f'detect_poles: ranges {ranges2.shape} must be (scans, beams) with '
+                        f'{angles.shape} angles')
     if use_intensity:
-        inten = np.asarray(intensities, dtype=np.float64)
-        if inten.shape != ranges.shape:
-            raise CoreError(f'detect_poles: intensities {inten.shape} do not match ranges '
-                            f'{ranges.shape}')
-    beams = ranges.shape[0]
+        inten2 = np.asarray(intensities, dtype=np.float64)
+        if inten2.shape != ranges2.shape:
+            raise CoreError(f'detect_poles: intensities {inten2.shape} do not match ranges '
+                            f'{ranges2.shape}')
+    scans, beams = ranges2.shape
+    ranges = ranges2.ravel()
     with np.errstate(invalid='ignore'):
         valid = np.isfinite(ranges) & (ranges > 0.0) & (ranges <= config.max_range_m)
     idx = np.flatnonzero(valid)
     n = idx.size
     if n == 0:
-        return _empty(0, use_intensity)
+        return [_empty(0, use_intensity) for _ in range(scans)]
 
     r = ranges[idx]
-    a = angles[idx]
-    # A new cluster starts at the first valid beam, after any invalid beam and at a jump.
+    beam_of = idx % beams
+    a = angles[beam_of]
+    # A new cluster starts at the first valid beam of every scan, after any invalid beam
+    # and at a jump.
     new = np.empty(n, dtype=bool)
     new[0] = True
-    new[1:] = (np.diff(idx) != 1) | (np.abs(np.diff(r)) > config.range_jump_m)
+    new[1:] = (np.diff(idx) != 1) | (beam_of[1:] == 0) | (np.abs(np.diff(r)) > config.range_jump_m)
     starts = np.flatnonzero(new)
     ends = np.append(starts[1:], n) - 1
-    cluster_count = int(starts.size)
+    cluster_counts = np.bincount(idx[starts] // beams, minlength=scans)
     cluster_of = np.cumsum(new) - 1
 
     x = r * np.cos(a)
     y = r * np.sin(a)
     if use_intensity:
-        used = inten[idx] >= config.reflective_intensity
+        used = inten2.ravel()[idx] >= config.reflective_intensity
     else:
         used = np.ones(n, dtype=bool)
     w = used.astype(np.float64)
@@ -159,8 +197,6 @@ def detect_poles(ranges_m: FloatArray, angles_rad: FloatArray,
     last_used = np.maximum.reduceat(np.where(used, pos, -1), starts)
 
     keep = counts > 0
-    if not np.any(keep):
-        return _empty(cluster_count, use_intensity)
     # Clusters without used returns get dummy indices; they are dropped below.
     first_used = np.where(keep, first_used, starts)
     last_used = np.where(keep, last_used, starts)
@@ -179,19 +215,18 @@ def detect_poles(ranges_m: FloatArray, angles_rad: FloatArray,
         if require_foreground:
             first_beam = idx[starts]
             last_beam = idx[ends]
-            left = first_beam - 1
-            right = last_beam + 1
-            left_r = ranges[np.maximum(left, 0)]
-            right_r = ranges[np.minimum(right, beams - 1)]
+            has_left = first_beam % beams > 0
+            has_right = last_beam % beams < beams - 1
+            left = np.where(has_left, first_beam - 1, first_beam)
+            right = np.where(has_right, last_beam + 1, last_beam)
             # valid[...] covers inf/NaN/out-of-range neighbours; a valid neighbour in
             # another cluster differs by more than range_jump_m, so '<' means in front.
-            left_closer = (left >= 0) & valid[np.maximum(left, 0)] & (left_r < r[starts])
-            right_closer = (right < beams) & valid[np.minimum(right, beams - 1)] & (
-                right_r < r[ends])
+            left_closer = has_left & valid[left] & (ranges[left] < r[starts])
+            right_closer = has_right & valid[right] & (ranges[right] < r[ends])
             keep &= ~(left_closer | right_closer)
     sel = np.flatnonzero(keep)
     if sel.size == 0:
-        return _empty(cluster_count, use_intensity)
+        return [_empty(int(c), use_intensity) for c in cluster_counts]
 
     # Push each centroid back along its ray by the mean depth of the pole centre behind
     # the returns, sqrt(R^2 - u^2), u = lateral offset of a return from that ray.
@@ -203,10 +238,23 @@ def detect_poles(ranges_m: FloatArray, angles_rad: FloatArray,
     push = np.add.reduceat(depth, starts) / safe_counts
     centre = np.column_stack([mean_x + push * ux, mean_y + push * uy])[sel]
 
-    first_beams = idx[starts[sel]].astype(np.int64)
-    last_beams = idx[ends[sel]].astype(np.int64)
-    return PoleDetections(
-        points_sensor_m=centre, widths_m=width[sel], beam_counts=counts[sel].astype(np.int64),
-        first_beams=first_beams, last_beams=last_beams,
-        touches_edge=(first_beams == 0) | (last_beams == beams - 1),
-        cluster_count=cluster_count, used_intensities=use_intensity)
+    first_flat = idx[starts[sel]]
+    scan_of = first_flat // beams
+    first_beams = (first_flat % beams).astype(np.int64)
+    last_beams = (idx[ends[sel]] % beams).astype(np.int64)
+    widths = width[sel]
+    beam_counts = counts[sel].astype(np.int64)
+    touches = (first_beams == 0) | (last_beams == beams - 1)
+    bounds = np.searchsorted(scan_of, np.arange(scans + 1))
+    found = []
+    for k in range(scans):
+        lo, hi = int(bounds[k]), int(bounds[k + 1])
+        if lo == hi:
+            found.append(_empty(int(cluster_counts[k]), use_intensity))
+            continue
+        found.append(PoleDetections(
+            points_sensor_m=centre[lo:hi], widths_m=widths[lo:hi],
+            beam_counts=beam_counts[lo:hi], first_beams=first_beams[lo:hi],
+            last_beams=last_beams[lo:hi], touches_edge=touches[lo:hi],
+            cluster_count=int(cluster_counts[k]), used_intensities=use_intensity))
+    return found

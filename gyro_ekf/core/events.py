@@ -30,11 +30,15 @@ from numpy.typing import NDArray
 from gyro_ekf.core.association import (AssociationOutcome, AssociationResult, associate,
                                        associate_by_distance)
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
-from gyro_ekf.core.detection import detect_poles
+from gyro_ekf.core.detection import PoleDetections, detect_poles, detect_poles_in_scans
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import TimeWentBackwardsError
 from gyro_ekf.core.models import points_to_range_bearing, sensor_to_map
 from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount, ScanSeries, Trip
+
+
+DETECTION_BLOCK = 512
+"""Scans detected per batch in drive_trip (bounded memory, amortised numpy overhead)."""
 
 
 class EventKind(enum.IntEnum):
@@ -401,6 +405,7 @@ def drive_trip(trip: Trip, driver: EventDriver,
     yaw_rates = trip.imu.yaw_rate_rad_s
     speeds = trip.speed.speed_m_s
     angles = [scan.angles_rad for scan in trip.scans]
+    detected: dict[int, tuple[int, list[PoleDetections]]] = {}
     row = 0
     processed = 0
     for stamp_s, kind, series, index in iter_trip_events(trip):
@@ -414,9 +419,17 @@ def drive_trip(trip: Trip, driver: EventDriver,
             driver.on_speed(stamp_s, float(speeds[index]))
         else:
             scan: ScanSeries = trip.scans[series]
-            intensities = None if scan.intensities is None else scan.intensities[index]
-            report = driver.on_scan(stamp_s, scan.ranges_m[index], angles[series],
-                                    intensities, scan.mount)
+            begin, found = detected.get(series, (0, []))
+            if not begin <= index < begin + len(found):
+                # Detection does not depend on the filter: do a block of scans at once.
+                begin, stop = index, min(index + DETECTION_BLOCK, len(scan.stamp_s))
+                found = detect_poles_in_scans(
+                    scan.ranges_m[begin:stop], angles[series],
+                    None if scan.intensities is None else scan.intensities[begin:stop],
+                    driver.detector_config)
+                detected[series] = (begin, found)
+            report = driver.on_detections(stamp_s, found[index - begin].points_sensor_m,
+                                          scan.mount)
             if report.nis.size:
                 pairs = report.association.matched_pairs()
                 update_stamp.extend([stamp_s] * len(pairs))

@@ -177,3 +177,24 @@ def test_shape_mismatch_is_refused():
         detect_poles(np.ones(10), np.ones(9), None)
     with pytest.raises(CoreError, match='intensities'):
         detect_poles(np.ones(10), np.ones(10), np.ones(3))
+
+
+@pytest.mark.parametrize('with_intensity', [True, False])
+def test_batched_detection_equals_scan_by_scan(with_intensity):
+    from gyro_ekf.core.detection import detect_poles_in_scans
+    from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+    scans = simulate_trip(SimulationConfig(duration_s=20.0), seed=5).scans[0]
+    ranges = scans.ranges_m.copy()
+    ranges[3, :40] = np.inf          # a scan with a gap at its start ...
+    ranges[4, -1] = ranges[5, 0]     # ... and scans whose edge beams could join up
+    intensities = scans.intensities if with_intensity else None
+    batched = detect_poles_in_scans(ranges, scans.angles_rad, intensities)
+    assert len(batched) == ranges.shape[0]
+    assert sum(len(found) for found in batched) > 100
+    for k, found in enumerate(batched):
+        single = detect_poles(ranges[k], scans.angles_rad,
+                              None if intensities is None else intensities[k])
+        for name in ('points_sensor_m', 'widths_m', 'beam_counts', 'first_beams',
+                     'last_beams', 'touches_edge'):
+            np.testing.assert_array_equal(getattr(found, name), getattr(single, name))
+        assert found.cluster_count == single.cluster_count
