@@ -21,20 +21,13 @@ import numpy as np
 
 from gyro_ekf.analysis.params_file import PipelineParams
 from gyro_ekf.core.calibration import estimate_gyro_bias
-from gyro_ekf.core.config import CalibrationConfig, EkfConfig
+from gyro_ekf.core.config import (STATED_NOISE_FIELDS, CalibrationConfig, EkfConfig,
+                                  with_stated_noise)
 from gyro_ekf.core.errors import CalibrationError
 from gyro_ekf.core.events import EventDriver, TripRun, drive_trip
 from gyro_ekf.core.types import BIAS, BiasEstimate, FloatArray, NoiseFigures, Trip
 
 log = logging.getLogger(__name__)
-
-STATED_NOISE_FIELDS = {
-    'gyro_rad_s': 'gyro_noise_rad_s',
-    'speed_m_s': 'speed_noise_m_s',
-    'range_m': 'range_noise_m',
-    'bearing_rad': 'bearing_noise_rad',
-}
-"""NoiseFigures attribute -> the EkfConfig field a stated figure replaces (as the nodes do)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,8 +82,9 @@ def effective_config(noise: NoiseFigures, params: PipelineParams | None = None,
     Args:
         noise: the noise figures the log states.
         params: a parsed params file, or None for the defaults.
-        use_stated_noise: let the log's stated figures replace the defaults (a params file
-            value still wins).
+        use_stated_noise: let the log's stated figures replace the configured sigmas, as
+            the EKF node does (core.config.with_stated_noise); a params file that wants
+            its own sigmas sets use_stated_noise: false.
 
     Returns:
         The config and, per field, 'default', 'log' or 'params-file'.
@@ -101,13 +95,10 @@ def effective_config(noise: NoiseFigures, params: PipelineParams | None = None,
     sources = {f.name: ('params-file' if f.name in explicit else 'default')
                for f in dataclasses.fields(EkfConfig)}
     if use_stated_noise:
-        changes = {}
+        config = with_stated_noise(config, noise)
         for key, target in STATED_NOISE_FIELDS.items():
-            value = getattr(noise, key)
-            if value is not None and target not in explicit:
-                changes[target] = float(value)
+            if getattr(noise, key) is not None:
                 sources[target] = 'log'
-        config = dataclasses.replace(config, **changes)
     return config, sources
 
 

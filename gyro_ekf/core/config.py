@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 from gyro_ekf.core.errors import CoreError
+from gyro_ekf.core.types import NoiseFigures
 
 DEG = math.pi / 180.0
 
@@ -156,3 +157,23 @@ def make_config(config_type: type[ConfigT], values: dict[str, Any],
                             f'{spec.metadata["unit"]}')
         checked[name] = value
     return config_type(**checked)
+
+
+STATED_NOISE_FIELDS = {
+    'gyro_rad_s': 'gyro_noise_rad_s',
+    'speed_m_s': 'speed_noise_m_s',
+    'range_m': 'range_noise_m',
+    'bearing_rad': 'bearing_noise_rad',
+}
+"""NoiseFigures attribute (and sidecar `noise.<key>`) -> the EkfConfig field it replaces."""
+
+
+def with_stated_noise(config: EkfConfig, noise: NoiseFigures) -> EkfConfig:
+    """Replace the EKF noise sigmas by the figures a log states about itself.
+
+    The one rule for the EKF node and `gyro-ekf run` alike: while `use_stated_noise` is
+    true, a stated figure wins over the configured value; figures not stated leave it.
+    """
+    changes = {target: float(getattr(noise, key)) for key, target in STATED_NOISE_FIELDS.items()
+               if getattr(noise, key) is not None}
+    return dataclasses.replace(config, **changes)

@@ -20,6 +20,7 @@ import heapq
 from array import array
 import itertools
 import math
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -261,46 +262,79 @@ class EventDriver:
         return stamp_s - last > self.config.recovery_after_s
 
 
-class ReorderBuffer:
-    """Releases events in (stamp, kind, arrival) order once they are older than a window.
+ReadyEvents = list[tuple[float, EventKind, Any]]
 
-    Live topics arrive slightly out of order across subscriptions; holding each event for
-    ``window_s`` behind the newest stamp seen restores the order the offline run uses.
-    An event older than one already released is late: ``push`` returns it in ``late``.
+
+class StreamMerger:
+    """Releases live events in driver order: (stamp, kind, arrival), behind a watermark.
+
+    Live topics arrive out of order across subscriptions, and when the filter falls behind
+    the executor serves each subscription's queue one message at a time, so a 200 Hz IMU
+    queue drains no faster than a 100 Hz odometry queue and the odometry stamps run ahead
+    by more than any fixed window. So an event with stamp t is released once
+    t <= newest stamp of any stream - window_s and t <= the newest stamp of every active
+    stream. A stream silent for ``stale_after_s`` of wall time (a stopped LiDAR) stops
+    holding the others back; ``max_events`` bounds what is held. An event older than one
+    already released is late: ``push`` returns it in ``late`` instead of releasing it out
+    of order. Ties release speed, observation, IMU, as iter_trip_events orders them, so a
+    live run feeds the EventDriver what an offline run does.
     """
 
-    def __init__(self, window_s: float, max_events: int = 10_000):
-        """Hold events for window_s seconds of stamp time, at most max_events at once."""
+    def __init__(self, window_s: float, max_events: int = 20_000, stale_after_s: float = 1.0,
+                 clock: Callable[[], float] = time.monotonic):
+        """Hold events window_s of stamp time at least, at most max_events at once.
+
+        Args:
+            window_s: least stamp time an event waits behind the newest stamp, s.
+            max_events: the oldest events are released beyond this many.
+            stale_after_s: a stream silent for this long (wall time, s) stops holding
+                events back.
+            clock: wall clock (monotonic seconds); replaceable in tests.
+        """
         self.window_s = window_s
         self.max_events = max_events
+        self.stale_after_s = stale_after_s
+        self._clock = clock
         self._heap: list[tuple[float, int, int, Any]] = []
         self._arrival = itertools.count()
+        self._streams: dict[str, tuple[float, float]] = {}
         self._newest_s = -math.inf
         self._released_s = -math.inf
 
     def __len__(self) -> int:
         return len(self._heap)
 
-    def push(self, stamp_s: float, kind: EventKind, payload: Any
-             ) -> tuple[list[tuple[float, EventKind, Any]], list[Any]]:
-        """Add an event; return (events now ready in order, late payloads to drop)."""
+    @property
+    def released_s(self) -> float:
+        """Stamp of the last released event (-inf before the first)."""
+        return self._released_s
+
+    def push(self, stream: str, stamp_s: float, kind: EventKind, payload: Any
+             ) -> tuple[ReadyEvents, list[Any]]:
+        """Add an event of a stream; return (events now ready in order, late payloads)."""
         if stamp_s < self._released_s:
             return [], [payload]
-        heapq.heappush(self._heap, (stamp_s, int(kind), next(self._arrival), payload))
+        now = self._clock()
+        newest_of_stream = self._streams.get(stream, (-math.inf, now))[0]
+        self._streams[stream] = (max(newest_of_stream, stamp_s), now)
         self._newest_s = max(self._newest_s, stamp_s)
-        return self._release(self._newest_s - self.window_s), []
+        heapq.heappush(self._heap, (stamp_s, int(kind), next(self._arrival), payload))
+        watermark = min((newest for newest, seen in self._streams.values()
+                         if now - seen <= self.stale_after_s), default=math.inf)
+        return self._release(min(self._newest_s - self.window_s, watermark)), []
 
-    def flush(self) -> list[tuple[float, EventKind, Any]]:
+    def flush(self) -> ReadyEvents:
         """Release everything held."""
         return self._release(math.inf)
 
     def clear(self) -> None:
-        """Drop everything and forget the stamps seen (after a reset)."""
+        """Drop everything and forget the streams and stamps seen (after a reset)."""
         self._heap.clear()
+        self._streams.clear()
         self._newest_s = -math.inf
         self._released_s = -math.inf
 
-    def _release(self, until_s: float) -> list[tuple[float, EventKind, Any]]:
+    def _release(self, until_s: float) -> ReadyEvents:
         ready = []
         while self._heap and (self._heap[0][0] <= until_s or len(self._heap) > self.max_events):
             stamp_s, kind, _, payload = heapq.heappop(self._heap)

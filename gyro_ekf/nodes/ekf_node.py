@@ -8,7 +8,7 @@ local) or the `landmarks_file` parameter, `initialpose` (PoseWithCovarianceStamp
 the pose, as RViz's "2D Pose Estimate" does) and, with `use_calibration`, `gyro_bias`
 (Vector3Stamped from calibration_node: seeds the bias and its variance).
 
-Messages go through the core's ReorderBuffer (stamp, then speed < observation < IMU, held
+Messages go through the core's StreamMerger (stamp, then speed < observation < IMU, held
 for `reorder_window_s` of stamp time) into the same EventDriver `gyro-ekf run` uses, so the
 node and an offline run of a bag give the same numbers. Each IMU sample yields an estimate:
 `ekf/pose` (PoseWithCovarianceStamped in `map`), `ekf/odometry` (nav_msgs/Odometry: pose
@@ -43,16 +43,15 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from gyro_ekf import topics
-from gyro_ekf.core.config import EkfConfig
+from gyro_ekf.core.config import EkfConfig, with_stated_noise
 from gyro_ekf.core.errors import CoreError
-from gyro_ekf.core.events import Estimate, EventDriver, EventKind
+from gyro_ekf.core.events import Estimate, EventDriver, EventKind, StreamMerger
 from gyro_ekf.core.types import LandmarkMap, LidarMount
 from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.nodes import qos
 from gyro_ekf.nodes.conversions import (EstimateMessages, finite, odometry_speed, points_of,
                                         pose_and_covariance, stamp_ns, TimeOrigin)
-from gyro_ekf.nodes.ordering import StreamMerger
-from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar, with_stated_noise
+from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar
 from gyro_ekf.nodes.runtime import run_node
 
 DROP_REASONS = ('non_finite', 'zero_stamp', 'late', 'empty_map', 'unknown_frame',

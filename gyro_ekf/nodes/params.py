@@ -14,7 +14,6 @@ started with `--params-file BAG.params.yaml` gets them with no hand-typed flags.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,16 +23,9 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from gyro_ekf.core.config import config_fields, ConfigT, EkfConfig, make_config
+from gyro_ekf.core.config import config_fields, ConfigT, make_config
+from gyro_ekf.core.config import STATED_NOISE_FIELDS as NOISE_FIELDS
 from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures
-
-NOISE_FIELDS = {
-    'gyro_rad_s': 'gyro_noise_rad_s',
-    'speed_m_s': 'speed_noise_m_s',
-    'range_m': 'range_noise_m',
-    'bearing_rad': 'bearing_noise_rad',
-}
-"""Sidecar `noise.<key>` -> the EkfConfig field a stated figure replaces."""
 
 
 def _range(low: float | None, high: float | None, integer: bool) -> dict[str, Any]:
@@ -174,13 +166,3 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
             stated[key] = value if value > 0.0 else None
         figures = NoiseFigures(**stated)
     return SidecarParams(int(zero_ns), np.array(initial, dtype=np.float64), mounts, figures)
-
-
-def with_stated_noise(config: EkfConfig, noise: NoiseFigures) -> EkfConfig:
-    """Replace the EKF noise sigmas by the figures a bag states (the others stay).
-
-    `gyro-ekf run` should apply the same rule, so offline and live runs agree.
-    """
-    changes = {target: getattr(noise, key) for key, target in NOISE_FIELDS.items()
-               if getattr(noise, key) is not None}
-    return dataclasses.replace(config, **changes)

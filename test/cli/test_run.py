@@ -64,12 +64,22 @@ def test_run_refuses_to_overwrite_without_force(tmp_path, simulated_bag, capsys)
 def test_params_file_values_reach_the_filter(tmp_path, simulated_bag):
     bag, _ = simulated_bag
     params = tmp_path / 'p.yaml'
-    params.write_text('ekf_node:\n  ros__parameters:\n    range_noise_m: 0.5\n')
+    params.write_text('ekf_node:\n  ros__parameters:\n    range_noise_m: 0.5\n'
+                      '    position_process_noise_m_s: 0.2\n')
     _, summary = _run(bag, tmp_path / 'out', '--no-plots', '--no-bag', '--params-file',
+                      str(params))
+    config, sources = summary['config']['ekf'], summary['config']['sources']
+    assert config['position_process_noise_m_s'] == 0.2
+    assert sources['position_process_noise_m_s'] == 'params-file'
+    # The bag states its range noise; as on the EKF node, a stated figure wins ...
+    assert sources['range_noise_m'] == 'log' and config['range_noise_m'] != 0.5
+    # ... unless the params file turns use_stated_noise off.
+    params.write_text('ekf_node:\n  ros__parameters:\n    range_noise_m: 0.5\n'
+                      '    use_stated_noise: false\n')
+    _, summary = _run(bag, tmp_path / 'out2', '--no-plots', '--no-bag', '--params-file',
                       str(params))
     assert summary['config']['ekf']['range_noise_m'] == 0.5
     assert summary['config']['sources']['range_noise_m'] == 'params-file'
-    assert summary['config']['sources']['gyro_noise_rad_s'] == 'log'
 
 
 def _course_bag(shared_data, tmp_path, *parts):

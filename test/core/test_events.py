@@ -1,4 +1,4 @@
-"""Event driver: ordering, hold semantics, time going backwards, reorder buffer, whole trips."""
+"""Event driver: ordering, hold semantics, time going backwards, stream merging, whole trips."""
 
 import dataclasses
 import math
@@ -8,7 +8,7 @@ import pytest
 
 from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core.errors import TimeWentBackwardsError
-from gyro_ekf.core.events import (EventDriver, EventKind, ReorderBuffer, drive_trip,
+from gyro_ekf.core.events import (EventDriver, EventKind, StreamMerger, drive_trip,
                                   iter_trip_events)
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 from gyro_ekf.core.types import ImuSeries, SpeedSeries, Trip
@@ -108,24 +108,45 @@ def test_time_going_backwards_raises_and_reset_recovers():
     assert driver.stats.imu == 1
 
 
-def test_reorder_buffer_releases_in_driver_order_and_reports_late_events():
-    buffer = ReorderBuffer(window_s=0.05)
-    ready, late = buffer.push(1.00, EventKind.IMU, 'imu@1.00')
-    assert ready == [] and late == []
-    buffer.push(1.00, EventKind.SPEED, 'speed@1.00')
-    buffer.push(0.99, EventKind.OBSERVATION, 'scan@0.99')
-    ready, _ = buffer.push(1.06, EventKind.IMU, 'imu@1.06')
-    assert [p for _, _, p in ready] == ['scan@0.99', 'speed@1.00', 'imu@1.00']
-    ready, late = buffer.push(0.98, EventKind.IMU, 'imu@0.98')
+def test_merger_releases_in_driver_order_and_reports_late_events():
+    buffer = StreamMerger(window_s=0.05, clock=lambda: 0.0)
+    released = []
+    for stream, stamp, kind, name in [
+            ('imu', 1.00, EventKind.IMU, 'imu@1.00'),
+            ('odom', 1.00, EventKind.SPEED, 'speed@1.00'),
+            ('scan', 0.99, EventKind.OBSERVATION, 'scan@0.99'),
+            ('odom', 1.07, EventKind.SPEED, 'speed@1.07'),
+            ('scan', 1.07, EventKind.OBSERVATION, 'scan@1.07'),
+            ('imu', 1.06, EventKind.IMU, 'imu@1.06')]:
+        ready, late = buffer.push(stream, stamp, kind, name)
+        assert late == []
+        released += [p for _, _, p in ready]
+    # Released once every stream has passed them and they are window_s behind the newest.
+    assert released == ['scan@0.99', 'speed@1.00', 'imu@1.00']
+    ready, late = buffer.push('imu', 0.98, EventKind.IMU, 'imu@0.98')
     assert ready == [] and late == ['imu@0.98']
-    assert [p for _, _, p in buffer.flush()] == ['imu@1.06']
+    assert [p for _, _, p in buffer.flush()] == ['imu@1.06', 'speed@1.07', 'scan@1.07']
 
 
-def test_reorder_buffer_is_bounded():
-    buffer = ReorderBuffer(window_s=100.0, max_events=3)
+def test_merger_waits_for_the_slowest_active_stream_until_it_goes_stale():
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.01, stale_after_s=1.0, clock=lambda: now[0])
+    buffer.push('imu', 1.0, EventKind.IMU, 'imu@1.0')
+    # odom runs 2 s ahead, but the IMU has not reached those stamps: nothing past 1.0 goes.
+    released = []
+    for k in range(20):
+        released += buffer.push('odom', 1.0 + 0.1 * k, EventKind.SPEED, k)[0]
+    assert [p for _, _, p in released] == [0, 'imu@1.0']  # speed first at equal stamps
+    now[0] = 2.0  # the IMU has been silent for 2 s of wall time: it no longer holds back
+    released = buffer.push('odom', 3.0, EventKind.SPEED, 'last')[0]
+    assert len(released) == 19 and released[-1][2] == 19
+
+
+def test_merger_is_bounded():
+    buffer = StreamMerger(window_s=100.0, max_events=3, clock=lambda: 0.0)
     released = []
     for k in range(5):
-        released += buffer.push(float(k), EventKind.IMU, k)[0]
+        released += buffer.push('imu', float(k), EventKind.IMU, k)[0]
     assert len(buffer) == 3 and [p for _, _, p in released] == [0, 1]
 
 

@@ -18,10 +18,9 @@ PUBLISH_EVERY = 20
 
 
 def _offline(bag):
-    from gyro_ekf.core.config import EkfConfig
+    from gyro_ekf.core.config import EkfConfig, with_stated_noise
     from gyro_ekf.core.events import drive_trip, EventDriver
     from gyro_ekf.io import read_bag
-    from gyro_ekf.nodes.params import with_stated_noise
 
     bag_trip = read_bag(bag)
     config = with_stated_noise(EkfConfig(), bag_trip.params.noise)
