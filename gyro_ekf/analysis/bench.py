@@ -8,10 +8,14 @@
 - *memory*: peak resident memory of `gyro-ekf convert` and `gyro-ekf run` on a long
   simulated trip, each in its own child process (``os.wait4`` reports the child's maximum
   resident set size).
+- *live*: ekf_node in a child process over Fast DDS on loopback, fed odom + imu at 200 Hz
+  and 1 kHz: latency from an IMU message in to its pose out (p50/p99/max, matched by header
+  stamp), poses missing and the node's CPU per message (`live_bench.py`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -189,17 +193,29 @@ def convert_course_log(data_dir: Path, work: Path) -> Path | None:
     return bag
 
 
-def live_benchmark() -> dict[str, Any]:
-    """Live node latency (imu in -> ekf/pose out) over Fast DDS; not implemented yet."""
-    return {'measured': False,
-            'reason': 'not implemented yet: needs the EKF node in a child process with '
-                      'loopback discovery, a publisher at 200 Hz / 1 kHz and matched-endpoint '
-                      'waits (issue 5, left undone)'}
+def live_benchmark(duration_s: float = 10.0) -> dict[str, Any]:
+    """Live ekf_node latency and CPU over Fast DDS on loopback (see live_bench.py).
+
+    Args:
+        duration_s: measured length of each case, s; 0 skips the live benchmark.
+
+    Returns:
+        live_bench.live_suite's results, or {'measured': False, 'reason': ...}.
+    """
+    if duration_s <= 0.0:
+        return {'measured': False, 'reason': 'skipped (--live-s 0)'}
+    try:
+        from gyro_ekf.analysis import live_bench
+    except ImportError as err:
+        return {'measured': False, 'reason': f'rclpy or the ROS messages are missing: {err}'}
+    cases = tuple(dataclasses.replace(case, duration_s=duration_s)
+                  for case in live_bench.DEFAULT_CASES)
+    return live_bench.live_suite(cases)
 
 
 def run_all(data_dir: Path, long_trip_s: float = 3600.0, core_steps: int = 20_000,
-            work: Path | None = None) -> dict[str, Any]:
-    """Every benchmark; returns the JSON-ready results."""
+            work: Path | None = None, live_s: float = 10.0) -> dict[str, Any]:
+    """Every benchmark; returns the JSON-ready results (live_s: length of each live case)."""
     own = work is None
     work = Path(tempfile.mkdtemp(prefix='gyro_ekf_bench_')) if own else work
     results: dict[str, Any] = {'python': sys.version.split()[0], 'cpu_count': os.cpu_count()}
@@ -208,7 +224,7 @@ def run_all(data_dir: Path, long_trip_s: float = 3600.0, core_steps: int = 20_00
     bag = convert_course_log(data_dir, work)
     log.info('gyro-ekf run on the 2016 log')
     results['run_2016'] = run_benchmark(bag, work) if bag is not None else None
-    results['live'] = live_benchmark()
+    results['live'] = live_benchmark(live_s)
     log.info('peak memory on a %.0f s simulated trip', long_trip_s)
     results['memory'] = memory_benchmark(long_trip_s, work)
     if own:
@@ -236,8 +252,7 @@ def table(results: dict[str, Any]) -> str:
                   f"{run['real_time_factor']:.0f}x ({run['real_time_factor_wall']:.0f}x with "
                   'start-up)'),
                  ('run on 2016 log: peak RSS (MB)', f"{run['peak_rss_mb']:.0f}")]
-    live = results['live']
-    rows.append(('live latency', 'not measured' if not live.get('measured') else ''))
+    rows += live_rows(results['live'])
     memory = results['memory']
     for step in ('convert', 'run'):
         item = memory[step]
@@ -246,3 +261,35 @@ def table(results: dict[str, Any]) -> str:
                      f"{', FAILED' if item['exit_code'] else ''})"))
     width = max(len(name) for name, _ in rows)
     return '\n'.join(f'{name:<{width}}  {value}' for name, value in rows)
+
+
+def _ms(values: dict[str, Any] | None) -> str:
+    if not values or values.get('p50') is None:
+        return 'none'
+    return f"{values['p50']:.2f} / {values['p99']:.2f} / {values['max']:.2f}"
+
+
+def live_rows(live: dict[str, Any]) -> list[tuple[str, str]]:
+    """Table rows of the live benchmark: latency, completion latency, drops and CPU per case."""
+    if not live.get('runs'):
+        return [('live latency', f"not measured ({live.get('reason', 'no runs')})")]
+    rows = []
+    for run in live['runs']:
+        name = f"live {run['name']}"
+        if 'latency_ms' not in run:
+            rows.append((name, f"FAILED: {run.get('error', 'unknown error')}"))
+            continue
+        rows.append((f'{name}: imu->pose p50/p99/max (ms)', _ms(run['latency_ms'])))
+        if run['case']['reorder_window_s'] or run['case']['landmarks_hz']:
+            rows.append((f'{name}: from completing msg (ms)', _ms(run['completion_latency_ms'])))
+        lost = run['poses_missing']
+        flushed = run['poses_released_by_idle_flush']
+        rows.append((f'{name}: poses missing', f"{lost} of {run['steps']} "
+                     f"({100.0 * run['drop_share']:.1f}%{', DROPS' if lost else ''})"
+                     + (f', {flushed} only at idle flush' if flushed else '')))
+        rows.append((f'{name}: node CPU (us/step, us/msg)',
+                     f"{run['node_cpu_us_per_step']:.0f}, {run['node_cpu_us_per_message']:.0f}"
+                     f" ({100.0 * run['node_cpu_share']:.0f}% of a core)"))
+        if run.get('error'):
+            rows.append((f'{name}: error', run['error']))
+    return rows

@@ -6,7 +6,8 @@ import argparse
 import logging
 from pathlib import Path
 
-HELP = 'benchmark the core against filterpy, `run` speed and peak memory; write JSON'
+HELP = ('benchmark the core against filterpy, `run` speed, peak memory and live ekf_node '
+        'latency; write JSON')
 
 log = logging.getLogger(__name__)
 
@@ -23,6 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='length of the simulated trip of the memory benchmark, s')
     parser.add_argument('--core-steps', type=int, default=20_000,
                         help='predict+update cycles of the core benchmark')
+    parser.add_argument('--live-s', type=float, default=10.0,
+                        help='measured length of each live ekf_node case (200 Hz, 1 kHz, ...), '
+                             's; 0 skips the live benchmark')
 
 
 def run(args: argparse.Namespace) -> int:
@@ -30,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     from gyro_ekf.analysis.bench import run_all, table
     from gyro_ekf.analysis.outputs import write_summary_json
 
-    results = run_all(args.data, args.long_trip_s, args.core_steps)
+    results = run_all(args.data, args.long_trip_s, args.core_steps, live_s=args.live_s)
     args.output.parent.mkdir(parents=True, exist_ok=True)
     write_summary_json(args.output, results)
     log.info('wrote %s', args.output)

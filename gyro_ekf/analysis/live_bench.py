@@ -1,0 +1,548 @@
+"""Live latency and CPU of ekf_node over Fast DDS on loopback (the live part of `make bench`).
+
+The node runs as a child process (``python -m gyro_ekf.nodes.ekf_node``) with a known
+initial pose and a small landmark map (``landmarks_file``); this process is an rclpy node
+that publishes ``odom`` then ``imu`` with the same header stamp every step, at a fixed rate,
+optionally pole observations on ``landmarks`` (so the filter also updates), and listens to
+``ekf/pose`` (raw CDR, only the stamp is read, so the listener costs little).
+
+Latency. ekf_node holds every message in its reorder buffer until each active input has
+delivered a stamp at least as new and ``reorder_window_s`` of stamp time has passed, so the
+pose of IMU stamp t leaves the node only after the message that *completes* step t. Two
+figures are reported for every pose, matched to its inputs by header stamp:
+
+- ``latency_ms``: from just before the IMU message of stamp t was published to the moment
+  this process's subscription callback received the pose of stamp t (what a consumer of the
+  pose sees; it includes the hold of the reorder buffer);
+- ``completion_latency_ms``: from just before the message that completed step t (worked
+  out from the send order with the node's release rule) was published to the same moment
+  (transport + executor + filter + publish; the node's own processing latency).
+
+With ``reorder_window_s`` = 0 and odom sent before imu the IMU message completes its own
+step, so both figures are equal. Both include serialization, loopback Fast DDS both ways and
+the rclpy executors of the node and of this process. Poses released only by the node's idle
+flush at the end (their completing message was never sent) are counted, not timed.
+
+CPU: utime + stime of the child from /proc/<pid>/stat over the measured phase (first
+measured send to the end of the drain), per step (one imu + one odom) and per input message.
+
+Every rclpy process here runs with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, an explicit
+ROS_DOMAIN_ID (50-89 by PID unless given; the tests use 100-232, the Makefile 42) and
+ROS_LOG_DIR in a temporary directory, set by this module whatever the caller's environment.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from pathlib import Path
+import shutil
+import signal
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+REPO = Path(__file__).resolve().parents[2]
+DOMAIN_BASE = 50
+DOMAIN_SPAN = 40
+LANDMARKS_XY_M = ((5.0, 0.0), (0.0, 5.0), (-5.0, 0.0), (0.0, -5.0), (7.0, 7.0))
+STAMP_ZERO_NS = 1_800_000_000 * 1_000_000_000
+_CLOCK = time.perf_counter
+
+
+@dataclass(frozen=True, slots=True)
+class LiveCase:
+    """One live measurement.
+
+    Attributes:
+        rate_hz: steps per second (one odom and one imu message each).
+        duration_s: measured length, s (the number of measured steps is rate_hz * duration_s).
+        reorder_window_s: the node's reorder_window_s parameter, s.
+        landmarks_hz: rate of pole observations on `landmarks`; 0 = none.
+        reliable_inputs: the node's reliable_inputs parameter (keep-all instead of sensor data
+            QoS on its inputs; this process publishes with the matching QoS).
+        warmup_s: length of the stream sent before the measurement (at least until poses
+            come back), s.
+    """
+
+    rate_hz: float
+    duration_s: float
+    reorder_window_s: float = 0.0
+    landmarks_hz: float = 0.0
+    reliable_inputs: bool = False
+    warmup_s: float = 1.0
+
+    @property
+    def name(self) -> str:
+        """Short label of the case."""
+        parts = [f'{self.rate_hz:g} Hz']
+        if self.reorder_window_s:
+            parts.append(f'window {self.reorder_window_s:g} s')
+        if self.landmarks_hz:
+            parts.append(f'landmarks {self.landmarks_hz:g} Hz')
+        if self.reliable_inputs:
+            parts.append('reliable')
+        return ', '.join(parts)
+
+
+def default_domain_id() -> int:
+    """Return a ROS domain id of this benchmark: 50-89, offset by the process id."""
+    return DOMAIN_BASE + os.getpid() % DOMAIN_SPAN
+
+
+@contextlib.contextmanager
+def ros_environment(domain_id: int | None = None) -> Iterator[dict[str, str]]:
+    """Set loopback discovery, a domain id and a temporary log dir for this process.
+
+    Yields the environment for child processes. The previous values of this process's
+    variables are restored and the temporary directory removed on exit.
+    """
+    domain = default_domain_id() if domain_id is None else int(domain_id)
+    work = Path(tempfile.mkdtemp(prefix='gyro_ekf_live_'))
+    values = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_DOMAIN_ID': str(domain),
+              'ROS_LOG_DIR': str(work / 'ros_log'), 'PYTHONUNBUFFERED': '1'}
+    saved = {key: os.environ.get(key) for key in values}
+    os.environ.update(values)
+    env = dict(os.environ)
+    env['PYTHONPATH'] = os.pathsep.join(
+        [str(REPO), env.get('PYTHONPATH', '')]).rstrip(os.pathsep)
+    env['GYRO_EKF_LIVE_WORK'] = str(work)
+    try:
+        yield env
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def cpu_seconds(pid: int) -> float:
+    """User plus system CPU time of a process so far, s (from /proc/<pid>/stat)."""
+    stat = Path(f'/proc/{pid}/stat').read_text()
+    fields = stat[stat.rindex(')') + 2:].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def completion_indices(streams: list[str], stamps_ns: np.ndarray, window_s: float,
+                       zero_ns: int, targets_ns: np.ndarray) -> np.ndarray:
+    """Index of the send that lets the node release each target stamp; -1 if none did.
+
+    Applies ekf_node's release rule (StreamMerger): after a message arrives, everything up
+    to min(newest stamp - window_s, newest stamp of every stream seen) is released. Stamps
+    are turned into seconds as the node does (TimeOrigin), so float rounding agrees.
+
+    Args:
+        streams: stream of every sent message, in send order, shape (n,).
+        stamps_ns: header stamp of every sent message, ns, shape (n,).
+        window_s: the node's reorder_window_s, s.
+        zero_ns: the node's time zero (the first stamp it received), ns.
+        targets_ns: the IMU stamps to complete, ns, ascending, shape (m,).
+
+    Returns:
+        For each target, the index of the completing send, shape (m,), int; -1 when no sent
+        message completes it (the node's idle flush releases it).
+    """
+    targets_s = (targets_ns - zero_ns) / 1e9
+    result = np.full(targets_s.shape, -1, dtype=np.int64)
+    newest: dict[str, float] = {}
+    overall = -np.inf
+    target = 0
+    for index, (stream, ns) in enumerate(zip(streams, stamps_ns.tolist())):
+        stamp_s = (ns - zero_ns) / 1e9
+        newest[stream] = max(newest.get(stream, -np.inf), stamp_s)
+        overall = max(overall, stamp_s)
+        released_s = min(overall - window_s, min(newest.values()))
+        while target < targets_s.size and targets_s[target] <= released_s:
+            result[target] = index
+            target += 1
+        if target == targets_s.size:
+            break
+    return result
+
+
+def _percentiles(values_s: np.ndarray) -> dict[str, float | None]:
+    if values_s.size == 0:
+        return {'p50': None, 'p90': None, 'p99': None, 'max': None, 'mean': None}
+    ms = values_s * 1e3
+    p50, p90, p99 = np.percentile(ms, [50, 90, 99])
+    return {'p50': float(p50), 'p90': float(p90), 'p99': float(p99), 'max': float(ms.max()),
+            'mean': float(ms.mean())}
+
+
+def _pose_stamp_ns(data: bytes) -> int:
+    """Header stamp of a serialized PoseWithCovarianceStamped (CDR, little endian), ns."""
+    sec, nanosec = struct.unpack_from('<iI', data, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+class _Session:
+    """This process's rclpy side of one run: publishers, raw pose listener, diagnostics."""
+
+    def __init__(self, domain_id: int, case: LiveCase):
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import Pose, PoseArray, PoseWithCovarianceStamped
+        from nav_msgs.msg import Odometry
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import Imu
+
+        from gyro_ekf import topics
+        from gyro_ekf.nodes import qos
+
+        self._rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node('live_bench', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        sensor = qos.sensor_input(case.reliable_inputs)
+        self.imu_pub = self.node.create_publisher(Imu, topics.IMU, sensor)
+        self.odom_pub = self.node.create_publisher(Odometry, topics.ODOM, sensor)
+        self.landmarks_pub = None
+        if case.landmarks_hz > 0.0:
+            self.landmarks_pub = self.node.create_publisher(
+                PoseArray, topics.LANDMARKS, qos.stream_output(case.reliable_inputs))
+        keep_all = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL,
+                              reliability=ReliabilityPolicy.RELIABLE)
+        self.received: list[tuple[int, float]] = []
+        self.node.create_subscription(PoseWithCovarianceStamped, topics.EKF_POSE,
+                                      self._on_pose, keep_all, raw=True)
+        self.diagnostics: list[tuple[float, dict[str, str]]] = []
+        self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS,
+                                      self._on_diagnostics, qos.OUTPUT)
+        self.imu = Imu()
+        self.imu.header.frame_id = topics.IMU_FRAME
+        self.odom = Odometry()
+        self.odom.header.frame_id = topics.ODOM_FRAME
+        self.odom.child_frame_id = topics.BASE_FRAME
+        self.observations = PoseArray()
+        self.observations.header.frame_id = 'scan'
+        for x, y in LANDMARKS_XY_M[:3]:
+            pose = Pose()
+            pose.position.x, pose.position.y = x, y
+            self.observations.poses.append(pose)
+
+    def _on_pose(self, data: bytes) -> None:
+        now = _CLOCK()
+        self.received.append((_pose_stamp_ns(data), now))
+
+    def _on_diagnostics(self, message: Any) -> None:
+        for status in message.status:
+            if 'ekf_node' in status.name:
+                self.diagnostics.append((_CLOCK(), {kv.key: kv.value for kv in status.values}))
+
+    def spin_until(self, condition: Callable[[], bool], timeout_s: float) -> bool:
+        """Spin until condition() holds or timeout_s passes; tell whether it held."""
+        deadline = _CLOCK() + timeout_s
+        while not condition():
+            remaining = deadline - _CLOCK()
+            if remaining <= 0.0:
+                return False
+            self.executor.spin_once(timeout_sec=min(remaining, 0.05))
+        return True
+
+    def spin_until_time(self, deadline: float) -> None:
+        """Serve callbacks until the perf_counter deadline."""
+        while True:
+            remaining = deadline - _CLOCK()
+            if remaining <= 0.0:
+                return
+            self.executor.spin_once(timeout_sec=remaining)
+
+    def close(self) -> None:
+        """Destroy the node and shut its context down."""
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+class _Sender:
+    """Paced sending of steps and observations, with a record of every send."""
+
+    def __init__(self, session: _Session, case: LiveCase):
+        self.session = session
+        self.period_s = 1.0 / case.rate_hz
+        self.period_ns = round(1e9 / case.rate_hz)
+        self.landmark_every = (max(1, round(case.rate_hz / case.landmarks_hz))
+                               if case.landmarks_hz > 0.0 else 0)
+        self.streams: list[str] = []
+        self.stamps_ns: list[int] = []
+        self.times_s: list[float] = []
+        self.imu_sent: dict[int, float] = {}
+        self.step = 0
+        self.lateness_s: list[float] = []
+        self._next_s: float | None = None
+
+    def stamp_of(self, step: int) -> int:
+        """Header stamp of a step, ns."""
+        return STAMP_ZERO_NS + step * self.period_ns
+
+    def _publish(self, stream: str, publisher: Any, message: Any, ns: int) -> float:
+        message.header.stamp.sec, message.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+        sent = _CLOCK()
+        publisher.publish(message)
+        self.streams.append(stream)
+        self.stamps_ns.append(ns)
+        self.times_s.append(sent)
+        return sent
+
+    def send_step(self) -> None:
+        """Publish odom, then imu (and observations every n-th step) of the next step."""
+        session, ns = self.session, self.stamp_of(self.step)
+        if self.landmark_every and self.step % self.landmark_every == 0:
+            self._publish('landmarks', session.landmarks_pub, session.observations, ns)
+        self._publish('odom', session.odom_pub, session.odom, ns)
+        self.imu_sent[ns] = self._publish('imu', session.imu_pub, session.imu, ns)
+        self.step += 1
+
+    def run(self, steps: int, until: Callable[[], bool] | None = None) -> None:
+        """Send steps at the rate (one absolute schedule across calls, spinning in between).
+
+        Stops after `steps` steps, or earlier once until() holds.
+        """
+        if self._next_s is None:
+            self._next_s = _CLOCK()
+        for _ in range(steps):
+            deadline = self._next_s
+            self.session.spin_until_time(deadline)
+            self.lateness_s.append(_CLOCK() - deadline)
+            self.send_step()
+            self._next_s = deadline + self.period_s
+            if until is not None and until():
+                return
+
+
+def _node_command(case: LiveCase, map_file: Path) -> list[str]:
+    params = {
+        'initial_pose.x_m': '0.0', 'initial_pose.y_m': '0.0', 'initial_pose.yaw_rad': '0.0',
+        'initial_position_sigma_m': '0.05', 'initial_yaw_sigma_rad': '0.01',
+        'landmarks_file': str(map_file), 'reorder_window_s': f'{case.reorder_window_s:g}',
+        'reliable_inputs': 'true' if case.reliable_inputs else 'false',
+        'diagnostics_period_s': '0.5', 'publish_every_n': '1',
+    }
+    args = [sys.executable, '-m', 'gyro_ekf.nodes.ekf_node', '--ros-args']
+    for name, value in params.items():
+        args += ['-p', f'{name}:={value}']
+    return args
+
+
+def _stop(child: subprocess.Popen, timeout_s: float = 5.0) -> None:
+    if child.poll() is None:
+        child.send_signal(signal.SIGINT)
+        try:
+            child.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+
+
+def _tail(path: Path, chars: int = 1500) -> str:
+    try:
+        return path.read_text(errors='replace')[-chars:]
+    except OSError:
+        return ''
+
+
+def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
+            ) -> dict[str, Any]:
+    """Run ekf_node in a child process and measure one case (see the module docstring).
+
+    Args:
+        case: rate, length and node settings.
+        env: environment from ros_environment() (this process must run inside it).
+        startup_timeout_s: longest wait for matched endpoints and the first poses, s.
+
+    Returns:
+        JSON-ready results: the case, counts (sent, received, missing), latency and
+        completion latency percentiles (ms), node CPU (s, us per step and per message) and
+        the node's own diagnostics counters; 'error' when the run could not be measured.
+    """
+    work = Path(env['GYRO_EKF_LIVE_WORK'])
+    map_file = work / 'map.yaml'
+    map_file.write_text('landmarks:\n' + ''.join(f'  - [{x}, {y}]\n'
+                                                 for x, y in LANDMARKS_XY_M))
+    node_log = work / f'ekf_node_{case.rate_hz:g}hz_{os.getpid()}_{time.time_ns()}.log'
+    result: dict[str, Any] = {'case': asdict(case), 'name': case.name}
+    session = _Session(int(env['ROS_DOMAIN_ID']), case)
+    child = None
+    try:
+        with node_log.open('w') as output:
+            child = subprocess.Popen(_node_command(case, map_file), env=env, cwd=work,
+                                     stdout=output, stderr=subprocess.STDOUT)
+        result['node_pid'] = child.pid
+        publishers = [session.imu_pub, session.odom_pub]
+        if session.landmarks_pub is not None:
+            publishers.append(session.landmarks_pub)
+        matched = session.spin_until(
+            lambda: child.poll() is None
+            and all(p.get_subscription_count() > 0 for p in publishers)
+            and session.node.count_publishers('/ekf/pose') > 0, startup_timeout_s)
+        if not matched:
+            result['error'] = ('ekf_node exited' if child.poll() is not None else
+                               f'no matched endpoints within {startup_timeout_s} s')
+            result['node_log_tail'] = _tail(node_log)
+            return result
+        sender = _Sender(session, case)
+        # Warm-up: a continuous stream until poses come back (first samples may be lost while
+        # the node's side of discovery settles), then the measurement continues the stream.
+        warm_deadline = _CLOCK() + startup_timeout_s
+        warmup_steps = max(10, round(case.rate_hz * case.warmup_s))
+        while _CLOCK() < warm_deadline and (sender.step < warmup_steps
+                                            or len(session.received) < 10):
+            sender.run(warmup_steps - sender.step if sender.step < warmup_steps else 10)
+        if not session.received:
+            result['error'] = f'no ekf/pose within {startup_timeout_s} s of warm-up'
+            result['node_log_tail'] = _tail(node_log)
+            return result
+        warmup_sent, first_measured = sender.step, len(sender.streams)
+        zero_ns = sender.stamp_of(0)
+        steps = max(1, round(case.rate_hz * case.duration_s))
+        measured = [sender.stamp_of(warmup_sent + k) for k in range(steps)]
+        wanted = set(measured)
+        got: set[int] = set()
+        seen = [0]
+
+        def all_in() -> bool:
+            for stamp, _ in session.received[seen[0]:]:
+                if stamp in wanted:
+                    got.add(stamp)
+            seen[0] = len(session.received)
+            return len(got) == len(wanted)
+
+        cpu_before, wall_before = cpu_seconds(child.pid), _CLOCK()
+        own_before = time.process_time()
+        sender.lateness_s.clear()
+        sender.run(steps)
+        send_end = _CLOCK()
+        # Drain: until every measured pose is in, or none came for longer than the node's
+        # idle flush (0.5 s) needs, bounded.
+        drain_deadline = send_end + 10.0
+
+        def drained() -> bool:
+            quiet = _CLOCK() - (session.received[-1][1] if session.received else send_end)
+            return all_in() or quiet > 1.5 or _CLOCK() > drain_deadline
+        session.spin_until(drained, 11.0)
+        cpu_after, wall_after = cpu_seconds(child.pid), _CLOCK()
+        own_cpu_s = time.process_time() - own_before
+        # Newest node counters, from a diagnostics message sent after the drain.
+        drain_end = _CLOCK()
+        session.spin_until(lambda: bool(session.diagnostics)
+                           and session.diagnostics[-1][0] > drain_end, 3.0)
+        result.update(_summarize(case, sender, session, measured, zero_ns, first_measured,
+                                 send_end - wall_before))
+        cpu_s = cpu_after - cpu_before
+        messages = len(sender.streams) - first_measured
+        result.update({
+            'node_cpu_s': cpu_s, 'wall_s': wall_after - wall_before,
+            'node_cpu_share': cpu_s / (wall_after - wall_before),
+            'node_cpu_us_per_step': cpu_s / steps * 1e6,
+            'node_cpu_us_per_message': cpu_s / messages * 1e6,
+            'bench_cpu_share': own_cpu_s / (wall_after - wall_before),
+            'cpu_clock_tick_s': 1.0 / os.sysconf('SC_CLK_TCK'),
+        })
+        if session.diagnostics:
+            values = session.diagnostics[-1][1]
+            result['node'] = {key: int(values[key]) for key in values
+                              if key == 'estimates' or key == 'published'
+                              or key.startswith('dropped_') or key == 'resets'}
+            result['node']['imu_sent_total'] = sender.step
+            result['node']['imu_lost_before_filter'] = sender.step - result['node'].get(
+                'estimates', 0)
+        if child.poll() is not None:
+            result['error'] = f'ekf_node exited with {child.returncode} during the run'
+            result['node_log_tail'] = _tail(node_log)
+        result['measured'] = 'error' not in result
+        return result
+    finally:
+        if child is not None:
+            _stop(child)
+        session.close()
+
+
+def _summarize(case: LiveCase, sender: _Sender, session: _Session, measured: list[int],
+               zero_ns: int, first_measured: int, send_s: float) -> dict[str, Any]:
+    """Match poses to inputs by stamp; counts and latency percentiles."""
+    arrival: dict[int, float] = {}
+    duplicates = 0
+    for stamp, at in session.received:
+        if stamp in arrival:
+            duplicates += 1
+        else:
+            arrival[stamp] = at
+    targets = np.array(measured, dtype=np.int64)
+    completing = completion_indices(sender.streams, np.array(sender.stamps_ns, dtype=np.int64),
+                                    case.reorder_window_s, zero_ns, targets)
+    times = np.array(sender.times_s)
+    latency, completion, flushed, missing = [], [], 0, []
+    for step, (stamp, index) in enumerate(zip(measured, completing.tolist())):
+        out = arrival.get(stamp)
+        if out is None:
+            missing.append(step)
+        elif index < 0:
+            flushed += 1
+        else:
+            latency.append(out - sender.imu_sent[stamp])
+            completion.append(out - times[index])
+    steps = len(measured)
+    lateness = np.array(sender.lateness_s)
+    return {
+        'steps': steps, 'messages_sent': len(sender.streams) - first_measured,
+        'send_rate_hz': steps / send_s if send_s > 0 else None,
+        'send_lateness_ms': _percentiles(lateness),
+        'poses_received': steps - len(missing), 'poses_missing': len(missing),
+        'missing_steps_first': missing[:20],
+        'poses_released_by_idle_flush': flushed, 'duplicate_poses': duplicates,
+        'drop_share': len(missing) / steps,
+        'latency_ms': _percentiles(np.array(latency)),
+        'completion_latency_ms': _percentiles(np.array(completion)),
+    }
+
+
+DEFAULT_CASES = (
+    LiveCase(200.0, 10.0),
+    LiveCase(1000.0, 10.0),
+    LiveCase(1000.0, 10.0, reliable_inputs=True),
+    LiveCase(200.0, 10.0, reorder_window_s=0.1),
+    LiveCase(200.0, 10.0, landmarks_hz=10.0),
+)
+"""The cases of `make bench`: the two rates with no reorder window (the pure pipeline; sensor
+data QoS, and reliable keep-all inputs at 1 kHz), the node's default 0.1 s window, and 10 Hz
+pole observations as a third input stream."""
+
+
+def live_suite(cases: tuple[LiveCase, ...] = DEFAULT_CASES, domain_id: int | None = None
+               ) -> dict[str, Any]:
+    """Measure every case, each with a fresh ekf_node child, in one ROS environment.
+
+    Args:
+        cases: what to measure.
+        domain_id: ROS domain; None picks one from 50-89 by process id.
+
+    Returns:
+        {'measured': True when every case was, 'domain_id', 'runs': [per-case results]}.
+    """
+    with ros_environment(domain_id) as env:
+        runs = []
+        for case in cases:
+            log.info('live ekf_node latency: %s for %.0f s', case.name, case.duration_s)
+            try:
+                runs.append(measure(case, env))
+            except Exception as err:  # noqa: BLE001 - one failed case must not end the bench
+                log.warning('live case %s failed: %s', case.name, err)
+                runs.append({'case': asdict(case), 'name': case.name, 'measured': False,
+                             'error': f'{type(err).__name__}: {err}'})
+        return {'measured': all(run.get('measured') for run in runs),
+                'domain_id': int(env['ROS_DOMAIN_ID']), 'runs': runs}
