@@ -29,7 +29,7 @@ def _shared(relative: str) -> Path:
     return path
 
 
-@pytest.fixture
+@pytest.fixture(scope='session')
 def shared_data():
     """Return a function mapping a path under ../shared/data/mtrn4010 to an existing Path.
 

@@ -335,7 +335,29 @@ class _TruthSink(_Sink):
                                           dtype=np.float64, count=len(numerator))
 
 
-class _ScanSink(_Sink):
+class _ScanArrays:
+    """What both scan readers fill (stamps, ranges, intensities, first message)."""
+
+    topic: str
+    n: int
+    stamps: np.ndarray
+    ranges: np.ndarray | None
+    intensities: np.ndarray | None
+    first: Any
+
+    def data(self) -> _ScanData | None:
+        """Return the scans read, or None when the topic had none."""
+        first = self.first
+        if first is None or self.ranges is None:
+            return None
+        return _ScanData(
+            self.topic, self.stamps[:self.n], self.ranges[:self.n],
+            None if self.intensities is None else self.intensities[:self.n],
+            (first.angle_min, first.angle_increment, first.range_min, first.range_max),
+            first.header.frame_id)
+
+
+class _ScanSink(_ScanArrays, _Sink):
     msgtype = topics.LASER_SCAN_TYPE
     fields = ('angle_min', 'angle_increment', 'range_min', 'range_max', 'ranges',
               'intensities')
@@ -371,17 +393,6 @@ class _ScanSink(_Sink):
                                f'{rows.start + wrong + 1} has {int(given[wrong])} intensities '
                                f'for {beams} beams')
             self.intensities[rows] = values['intensities']
-
-    def data(self) -> _ScanData | None:
-        """Return the decoded scans, or None when the topic had none."""
-        first = self.first
-        if first is None or self.ranges is None:
-            return None
-        return _ScanData(
-            self.topic, self.stamps[:self.n], self.ranges[:self.n],
-            None if self.intensities is None else self.intensities[:self.n],
-            (first.angle_min, first.angle_increment, first.range_min, first.range_max),
-            first.header.frame_id)
 
 
 def read_bag(path: Path | str, fast: bool = True, acceleration: bool = True) -> BagTrip:
@@ -562,7 +573,7 @@ def _read_bag_rosbags(path: Path, acceleration: bool = True) -> BagTrip:
         landmarks=landmarks, initial_pose=initial_pose)
 
 
-class _ScanCollector:
+class _ScanCollector(_ScanArrays):
     """Preallocated arrays of one LaserScan topic, filled message by message."""
 
     def __init__(self, path: Path, topic: str, count: int) -> None:
@@ -601,17 +612,6 @@ class _ScanCollector:
                                f'{len(message.intensities)} intensities for {beams} beams')
             self.intensities[self.n] = message.intensities
         self.n += 1
-
-    def data(self) -> _ScanData | None:
-        """Return the collected scans, or None when the topic had none."""
-        first = self.first
-        if first is None or self.ranges is None:
-            return None
-        return _ScanData(
-            self.topic, self.stamps[:self.n], self.ranges[:self.n],
-            None if self.intensities is None else self.intensities[:self.n],
-            (first.angle_min, first.angle_increment, first.range_min, first.range_max),
-            first.header.frame_id)
 
 
 def read_trip_bag(path: Path | str) -> Trip:

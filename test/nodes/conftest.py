@@ -20,7 +20,6 @@ from typing import Any
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
-SHARED = REPO.parent / 'shared' / 'data' / 'mtrn4010'
 # Fast DDS accepts domains 0-232; the session-wide conftest uses 100-199 and wraps.
 _domains = itertools.count(215 + os.getpid() % 9)
 
@@ -165,22 +164,13 @@ def ros_processes(tmp_path_factory) -> Iterator[tuple[Processes, Probe]]:
                 os.environ[key] = value
 
 
-def _need(path: Path) -> Path:
-    if not path.exists():
-        message = f'course log {path} is missing (../shared/data must sit beside the repo)'
-        if os.environ.get('CI'):
-            pytest.fail(message)
-        pytest.skip(message)
-    return path
-
-
 @pytest.fixture(scope='session')
-def real_bag(tmp_path_factory) -> Path:
+def real_bag(tmp_path_factory, shared_data) -> Path:
     """The 2016 real log converted to a bag (with its params sidecar)."""
     from gyro_ekf.io import load_course_log, write_trip_bag
 
-    trip = load_course_log([_need(SHARED / '2016_project1'),
-                            _need(SHARED / '2021_aas01' / 'MapMTRN4010.mat')])
+    trip = load_course_log([shared_data('2016_project1'),
+                            shared_data('2021_aas01/MapMTRN4010.mat')])
     return write_trip_bag(trip, tmp_path_factory.mktemp('bags') / 'real2016')
 
 
