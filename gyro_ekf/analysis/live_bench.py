@@ -192,6 +192,17 @@ class _Session:
 
     def __init__(self, domain_id: int, case: LiveCase):
         import rclpy
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        try:
+            self._create(case)
+        except BaseException:
+            self.context.try_shutdown()
+            raise
+
+    def _create(self, case: LiveCase) -> None:
+        import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import Pose, PoseArray, PoseWithCovarianceStamped
         from nav_msgs.msg import Odometry
@@ -202,9 +213,6 @@ class _Session:
         from gyro_ekf import topics
         from gyro_ekf.nodes import qos
 
-        self._rclpy = rclpy
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node('live_bench', context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -356,6 +364,14 @@ def _tail(path: Path, chars: int = 1500) -> str:
         return ''
 
 
+def _warnings(path: Path, most: int = 10) -> list[str]:
+    try:
+        lines = path.read_text(errors='replace').splitlines()
+    except OSError:
+        return []
+    return [line[:300] for line in lines if '[WARN]' in line or '[ERROR]' in line][-most:]
+
+
 def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
             ) -> dict[str, Any]:
     """Run ekf_node in a child process and measure one case (see the module docstring).
@@ -387,11 +403,12 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
         if session.landmarks_pub is not None:
             publishers.append(session.landmarks_pub)
         matched = session.spin_until(
-            lambda: child.poll() is None
-            and all(p.get_subscription_count() > 0 for p in publishers)
-            and session.node.count_publishers('/ekf/pose') > 0, startup_timeout_s)
-        if not matched:
-            result['error'] = ('ekf_node exited' if child.poll() is not None else
+            lambda: child.poll() is not None
+            or (all(p.get_subscription_count() > 0 for p in publishers)
+                and session.node.count_publishers('/ekf/pose') > 0), startup_timeout_s)
+        if not matched or child.poll() is not None:
+            result['error'] = (f'ekf_node exited with {child.returncode}'
+                               if child.poll() is not None else
                                f'no matched endpoints within {startup_timeout_s} s')
             result['node_log_tail'] = _tail(node_log)
             return result
@@ -400,8 +417,8 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
         # the node's side of discovery settles), then the measurement continues the stream.
         warm_deadline = _CLOCK() + startup_timeout_s
         warmup_steps = max(10, round(case.rate_hz * case.warmup_s))
-        while _CLOCK() < warm_deadline and (sender.step < warmup_steps
-                                            or len(session.received) < 10):
+        while _CLOCK() < warm_deadline and child.poll() is None and (
+                sender.step < warmup_steps or len(session.received) < 10):
             sender.run(warmup_steps - sender.step if sender.step < warmup_steps else 10)
         if not session.received:
             result['error'] = f'no ekf/pose within {startup_timeout_s} s of warm-up'
@@ -428,15 +445,20 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
         sender.run(steps)
         send_end = _CLOCK()
         # Drain: until every measured pose is in, or none came for longer than the node's
-        # idle flush (0.5 s) needs, bounded.
+        # idle flush (0.5 s) needs, bounded. The CPU window ends at the last pose received
+        # (not after the quiet wait that follows a drop).
         drain_deadline = send_end + 10.0
+        last = [len(session.received), _CLOCK(), cpu_seconds(child.pid),
+                time.process_time()]
 
         def drained() -> bool:
-            quiet = _CLOCK() - (session.received[-1][1] if session.received else send_end)
-            return all_in() or quiet > 1.5 or _CLOCK() > drain_deadline
+            if len(session.received) != last[0]:
+                last[:] = [len(session.received), _CLOCK(), cpu_seconds(child.pid),
+                           time.process_time()]
+            return all_in() or _CLOCK() - last[1] > 1.5 or _CLOCK() > drain_deadline
         session.spin_until(drained, 11.0)
-        cpu_after, wall_after = cpu_seconds(child.pid), _CLOCK()
-        own_cpu_s = time.process_time() - own_before
+        _, wall_after, cpu_after, own_after = last
+        own_cpu_s = own_after - own_before
         # Newest node counters, from a diagnostics message sent after the drain.
         drain_end = _CLOCK()
         session.spin_until(lambda: bool(session.diagnostics)
@@ -456,14 +478,15 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
         if session.diagnostics:
             values = session.diagnostics[-1][1]
             result['node'] = {key: int(values[key]) for key in values
-                              if key == 'estimates' or key == 'published'
-                              or key.startswith('dropped_') or key == 'resets'}
+                              if key in ('estimates', 'published', 'associated', 'resets')
+                              or key.startswith('dropped_')}
             result['node']['imu_sent_total'] = sender.step
             result['node']['imu_lost_before_filter'] = sender.step - result['node'].get(
                 'estimates', 0)
         if child.poll() is not None:
             result['error'] = f'ekf_node exited with {child.returncode} during the run'
             result['node_log_tail'] = _tail(node_log)
+        result['node_warnings'] = _warnings(node_log)
         result['measured'] = 'error' not in result
         return result
     finally:
