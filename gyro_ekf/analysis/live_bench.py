@@ -481,7 +481,7 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
                               if key in ('estimates', 'published', 'associated', 'resets')
                               or key.startswith('dropped_')}
             result['node']['imu_sent_total'] = sender.step
-            result['node']['imu_lost_before_filter'] = sender.step - result['node'].get(
+            result['node']['imu_lost_incl_warmup'] = sender.step - result['node'].get(
                 'estimates', 0)
         if child.poll() is not None:
             result['error'] = f'ekf_node exited with {child.returncode} during the run'
