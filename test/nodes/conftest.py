@@ -15,6 +15,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -185,3 +186,12 @@ def sim_bag(tmp_path_factory) -> Path:
     config = dataclasses.replace(SimulationConfig(), duration_s=60.0)
     return write_trip_bag(simulate_trip(config, seed=3),
                           tmp_path_factory.mktemp('bags') / 'sim60')
+
+
+@pytest.fixture(scope='session')
+def ros_harness():
+    """Give the harness to tests that start their own processes.
+
+    `from conftest import ...` would pick whichever conftest module pytest imported first.
+    """
+    return SimpleNamespace(Probe=Probe, Processes=Processes, node_env=node_env)

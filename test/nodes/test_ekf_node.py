@@ -107,9 +107,7 @@ def test_bias_on_a_simulated_bag_is_within_002_deg_s_of_the_truth(sim_run, diagn
 
 @pytest.mark.shared_data
 def test_bias_on_the_real_log_is_within_005_deg_s_of_the_calibration(
-        tmp_path_factory, real_bag):
-    from conftest import Probe, Processes, node_env
-
+        tmp_path_factory, real_bag, ros_harness):
     from gyro_ekf.core.calibration import estimate_gyro_bias
     from gyro_ekf.io import read_trip_bag
 
@@ -118,9 +116,9 @@ def test_bias_on_the_real_log_is_within_005_deg_s_of_the_calibration(
                                      speed_stamp_s=trip.speed.stamp_s,
                                      speed_m_s=trip.speed.speed_m_s)
     tmp = tmp_path_factory.mktemp('real')
-    env = node_env(tmp)
-    processes = Processes(env, tmp)
-    probe = Probe(int(env['ROS_DOMAIN_ID']))
+    env = ros_harness.node_env(tmp)
+    processes = ros_harness.Processes(env, tmp)
+    probe = ros_harness.Probe(int(env['ROS_DOMAIN_ID']))
     try:
         _, bias, _, _, _ = _pipeline((processes, probe), real_bag, 5.0, 200)
         final = bias[-1].vector.z
