@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 
 from gyro_ekf.core.angles import wrap_angle
 from gyro_ekf.core.errors import CoreError
-from gyro_ekf.core.models import observation_jacobian, observe, sensor_to_map
+from gyro_ekf.core.models import observe_with_jacobian, sensor_to_map
 from gyro_ekf.core.types import FloatArray, LidarMount
 
 _NO_MOUNT = LidarMount()
@@ -147,8 +147,7 @@ def mahalanobis_sq(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArra
     landmarks = np.asarray(landmarks_xy_m, dtype=np.float64).reshape(-1, 2)
     if landmarks.shape[0] == 0 or z.shape[0] == 0:
         return np.zeros((z.shape[0], landmarks.shape[0]))
-    h = observe(state, landmarks, mount)                       # (k, 2)
-    H = observation_jacobian(state, landmarks, mount)          # (k, 2, 4)
+    h, H = observe_with_jacobian(state, landmarks, mount)      # (k, 2), (k, 2, 4)
     S = H @ np.asarray(P, dtype=np.float64) @ np.swapaxes(H, 1, 2) + R  # (k, 2, 2)
     # Closed-form 2x2 inverse, vectorised over landmarks.
     a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
@@ -202,12 +201,18 @@ def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
     outcome[contested] = AssociationOutcome.DUPLICATE
     outcome[gated_landmarks > 1] = AssociationOutcome.AMBIGUOUS
     landmark = np.where(outcome == AssociationOutcome.MATCHED, nearest, -1)
-    associations = tuple(
-        Association(i, int(landmark[i]), AssociationOutcome(int(outcome[i])),
-                    float(nearest_d2[i]))
-        for i in range(n))
-    return AssociationResult(associations=associations, gate_threshold=threshold,
-                             mahalanobis_sq=d2)
+    return AssociationResult(associations=_associations(landmark, outcome, nearest_d2),
+                             gate_threshold=threshold, mahalanobis_sq=d2)
+
+
+_OUTCOMES = tuple(AssociationOutcome)
+
+
+def _associations(landmark: NDArray[np.int64], outcome: NDArray[np.int64],
+                  mahalanobis: FloatArray) -> tuple[Association, ...]:
+    # tolist() once: per-element numpy scalars would cost more than the association.
+    return tuple(map(Association, range(len(landmark)), landmark.tolist(),
+                     [_OUTCOMES[o] for o in outcome.tolist()], mahalanobis.tolist()))
 
 
 def associate_by_distance(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
@@ -259,9 +264,6 @@ def associate_by_distance(z: FloatArray, state: FloatArray, P: FloatArray, R: Fl
     chosen = np.bincount(nearest[matched], minlength=k)
     outcome[matched & (chosen[nearest] > 1)] = AssociationOutcome.DUPLICATE
     landmark = np.where(outcome == AssociationOutcome.MATCHED, nearest, -1)
-    associations = tuple(
-        Association(i, int(landmark[i]), AssociationOutcome(int(outcome[i])),
-                    float(d2[i, nearest[i]]))
-        for i in range(n))
-    return AssociationResult(associations=associations, gate_threshold=math.inf,
-                             mahalanobis_sq=d2)
+    return AssociationResult(
+        associations=_associations(landmark, outcome, d2[np.arange(n), nearest]),
+        gate_threshold=math.inf, mahalanobis_sq=d2)

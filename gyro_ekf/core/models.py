@@ -101,7 +101,18 @@ def observe(state: FloatArray, landmark_xy_m: FloatArray, mount: LidarMount = _N
 def observation_jacobian(state: FloatArray, landmark_xy_m: FloatArray,
                          mount: LidarMount = _NO_MOUNT) -> FloatArray:
     """H = dh/dx, shape (2, 4) for one landmark or (k, 2, 4) for (k, 2) landmarks."""
-    yaw = state[2]
+    return observe_with_jacobian(state, landmark_xy_m, mount)[1]
+
+
+def observe_with_jacobian(state: FloatArray, landmark_xy_m: FloatArray,
+                          mount: LidarMount = _NO_MOUNT) -> tuple[FloatArray, FloatArray]:
+    """Predict h and H together from one geometry (association needs both per landmark).
+
+    Returns:
+        h: [range m, bearing rad (0 = sensor forward)], shape (..., 2).
+        H: dh/dx, shape (..., 2, 4).
+    """
+    yaw = float(state[2])
     c, s = math.cos(yaw), math.sin(yaw)
     xl, yl = sensor_position(state, mount)
     # d(xL)/d(yaw) and d(yL)/d(yaw): the sensor swings around the reference point.
@@ -112,6 +123,9 @@ def observation_jacobian(state: FloatArray, landmark_xy_m: FloatArray,
     dy = landmarks[..., 1] - yl
     r2 = dx * dx + dy * dy
     r = np.sqrt(r2)
+    h = np.empty(landmarks.shape[:-1] + (2,))
+    h[..., 0] = r
+    h[..., 1] = wrap_angle(np.arctan2(dy, dx) - yaw - mount.yaw_rad)
     jac = np.zeros(landmarks.shape[:-1] + (2, 4))
     jac[..., 0, 0] = -dx / r
     jac[..., 0, 1] = -dy / r
@@ -119,7 +133,7 @@ def observation_jacobian(state: FloatArray, landmark_xy_m: FloatArray,
     jac[..., 1, 0] = dy / r2
     jac[..., 1, 1] = -dx / r2
     jac[..., 1, 2] = (dy * dxl_dyaw - dx * dyl_dyaw) / r2 - 1.0
-    return jac
+    return h, jac
 
 
 def sensor_to_map(state: FloatArray, points_sensor_m: FloatArray,

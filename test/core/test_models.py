@@ -65,6 +65,9 @@ def test_vectorised_observation_matches_single():
     landmarks = RNG.uniform(-10, 10, size=(7, 2))
     many = models.observe(state, landmarks, MOUNTS[2])
     jac = models.observation_jacobian(state, landmarks, MOUNTS[2])
+    fused_h, fused_jac = models.observe_with_jacobian(state, landmarks, MOUNTS[2])
+    np.testing.assert_allclose(fused_h, many, atol=1e-12)
+    np.testing.assert_array_equal(fused_jac, jac)
     for k in range(7):
         np.testing.assert_allclose(many[k], models.observe(state, landmarks[k], MOUNTS[2]))
         np.testing.assert_allclose(jac[k],
