@@ -21,8 +21,8 @@ venv: $(STAMP)
 
 $(STAMP): setup.py package.xml
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet --upgrade pip setuptools wheel
-	$(BIN)/pip install --quiet -e '.[ros,test,bench]'
+	$(BIN)/pip install -qq --upgrade pip setuptools wheel
+	$(BIN)/pip install -qq -e '.[ros,test,bench]'
 	touch $@
 
 demo: $(STAMP)
