@@ -18,7 +18,7 @@ HELP = 'estimate the gyro bias over the static start of a course log or bag'
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add this command's arguments."""
     parser.add_argument('source', nargs='+', type=Path,
-                        help='a bag folder, or course log .mat file(s) / folder')
+                        help='a bag folder, course log .mat file(s) / folder, or a trip .npz')
     defaults = CalibrationConfig()
     parser.add_argument('--window-start-s', type=float, default=defaults.window_start_s,
                         help='start of the static window after the first gyro sample, s')
@@ -30,12 +30,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def load_trip(sources: list[Path]) -> Trip:
-    """Read a bag folder (with metadata.yaml) or course log files into a Trip."""
+    """Read a bag folder (with metadata.yaml), course log files or a simulator trip file."""
     if len(sources) == 1 and (sources[0] / 'metadata.yaml').is_file():
         from gyro_ekf.io.bag_reader import read_trip_bag
         return read_trip_bag(sources[0])
-    from gyro_ekf.io.matlab import load_course_log
-    return load_course_log(sources)
+    from gyro_ekf.io.sources import load_log
+    return load_log(sources)
 
 
 def calibrate_trip(trip: Trip, config: CalibrationConfig,

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from gyro_ekf.core.association import (AssociationOutcome, AssociationResult, associate,
                                        associate_by_distance)
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
-from gyro_ekf.core.detection import PoleDetections, detect_poles, detect_poles_in_scans
+from gyro_ekf.core.detection import PoleDetections, detect_poles_in_scans
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import TimeWentBackwardsError
 from gyro_ekf.core.models import points_to_range_bearing, sensor_to_map
@@ -205,12 +205,6 @@ class EventDriver:
         return Estimate(stamp_s=self.stamp_s if self.stamp_s is not None else 0.0,
                         state=self.ekf.x.copy(), covariance=self.ekf.P.copy(),
                         speed_m_s=self.speed_m_s, yaw_rate_rad_s=rate)
-
-    def on_scan(self, stamp_s: float, ranges_m: FloatArray, angles_rad: FloatArray,
-                intensities: FloatArray | None, mount: LidarMount) -> ObservationReport:
-        """Detect poles in one scan, then treat them as observations."""
-        detections = detect_poles(ranges_m, angles_rad, intensities, self.detector_config)
-        return self.on_detections(stamp_s, detections.points_sensor_m, mount)
 
     def on_detections(self, stamp_s: float, points_sensor_m: FloatArray,
                       mount: LidarMount) -> ObservationReport:
