@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gyro_ekf.core.angles import wrap_angle
+from gyro_ekf.core.angles import wrap_angle, wrap_scalar
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.models import observe_with_jacobian, sensor_to_map
 from gyro_ekf.core.types import FloatArray, LidarMount
@@ -182,7 +182,11 @@ def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
     """
     threshold = gate_threshold(gate_probability)
     z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
-    d2 = mahalanobis_sq(z, state, P, R, landmarks_xy_m, mount)
+    landmarks = np.asarray(landmarks_xy_m, dtype=np.float64).reshape(-1, 2)
+    if 0 < z.shape[0] * landmarks.shape[0] <= SCALAR_PAIRS_MAX:
+        return _associate_scalar(z.tolist(), state, P, R, landmarks.tolist(), mount,
+                                 threshold)
+    d2 = mahalanobis_sq(z, state, P, R, landmarks, mount)
     n, k = d2.shape
     if k == 0:
         return AssociationResult(
@@ -206,6 +210,89 @@ def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
 
 
 _OUTCOMES = tuple(AssociationOutcome)
+
+
+_TAU = 2.0 * math.pi
+
+SCALAR_PAIRS_MAX = 64
+"""Up to this many detection-landmark pairs, ``associate`` works in plain floats.
+
+A scan of a small map (the 2016 trip: 4 detections, 5 poles) costs numpy more in call
+overhead than in arithmetic; the two paths compute the same quantities (tests compare
+them) and a given input always takes the same path, so live and offline runs agree.
+"""
+
+
+def _mahalanobis_rows(z: list[list[float]], state: FloatArray, P: FloatArray, R: FloatArray,
+                      landmarks: list[list[float]], mount: LidarMount) -> list[list[float]]:
+    """mahalanobis_sq in plain floats: d2[i][j] for detection i and landmark j."""
+    x, y, yaw = float(state[0]), float(state[1]), float(state[2])
+    P3 = np.asarray(P, dtype=np.float64)[:3, :3].tolist()
+    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P3
+    (r00, r01), (r10, r11) = np.asarray(R, dtype=np.float64).tolist()
+    c, s = math.cos(yaw), math.sin(yaw)
+    xl = x + mount.x_m * c - mount.y_m * s
+    yl = y + mount.x_m * s + mount.y_m * c
+    dxl = -mount.x_m * s - mount.y_m * c
+    dyl = mount.x_m * c - mount.y_m * s
+    heading = yaw + mount.yaw_rad
+    per_landmark = []
+    for lx, ly in landmarks:
+        dx, dy = lx - xl, ly - yl
+        q = dx * dx + dy * dy
+        r = math.sqrt(q)
+        a0, a1, a2 = -dx / r, -dy / r, -(dx * dxl + dy * dyl) / r
+        b0, b1, b2 = dy / q, -dx / q, (dy * dxl - dx * dyl) / q - 1.0
+        # S = H P H^T + R with H's bias column zero.
+        pa0 = p00 * a0 + p01 * a1 + p02 * a2
+        pa1 = p01 * a0 + p11 * a1 + p12 * a2
+        pa2 = p02 * a0 + p12 * a1 + p22 * a2
+        pb0 = p00 * b0 + p01 * b1 + p02 * b2
+        pb1 = p01 * b0 + p11 * b1 + p12 * b2
+        pb2 = p02 * b0 + p12 * b1 + p22 * b2
+        s00 = a0 * pa0 + a1 * pa1 + a2 * pa2 + r00
+        s01 = a0 * pb0 + a1 * pb1 + a2 * pb2 + r01
+        s10 = b0 * pa0 + b1 * pa1 + b2 * pa2 + r10
+        s11 = b0 * pb0 + b1 * pb1 + b2 * pb2 + r11
+        det = s00 * s11 - s01 * s10
+        if det <= 0.0:
+            raise CoreError('mahalanobis_sq: innovation covariance is not positive definite; '
+                            'check P and R')
+        per_landmark.append((r, wrap_scalar(math.atan2(dy, dx) - heading), s00 / det,
+                             (s01 + s10) / det, s11 / det))
+    # y1 is the bearing innovation wrapped into [-pi, pi) (wrap_scalar, inlined: this
+    # inner loop runs for every detection-landmark pair of every scan).
+    return [[w11 * y0 * y0 - w01 * y0 * y1 + w00 * y1 * y1
+             for h0, h1, w00, w01, w11 in per_landmark
+             for y0, y1 in ((z_range - h0, (z_bearing - h1 + math.pi) % _TAU - math.pi),)]
+            for z_range, z_bearing in z]
+
+
+def _associate_scalar(z: list[list[float]], state: FloatArray, P: FloatArray, R: FloatArray,
+                      landmarks: list[list[float]], mount: LidarMount, threshold: float
+                      ) -> AssociationResult:
+    """associate() for small scans, in plain floats (same outcomes, see SCALAR_PAIRS_MAX)."""
+    d2 = _mahalanobis_rows(z, state, P, R, landmarks, mount)
+    k = len(landmarks)
+    gated = [[j for j in range(k) if row[j] <= threshold] for row in d2]
+    gating_detections = [0] * k
+    for inside in gated:
+        for j in inside:
+            gating_detections[j] += 1
+    associations = []
+    for i, (row, inside) in enumerate(zip(d2, gated)):
+        nearest = min(range(k), key=row.__getitem__)
+        if len(inside) > 1:
+            outcome = AssociationOutcome.AMBIGUOUS
+        elif len(inside) == 1:
+            outcome = (AssociationOutcome.DUPLICATE if gating_detections[nearest] > 1
+                       else AssociationOutcome.MATCHED)
+        else:
+            outcome = AssociationOutcome.UNMATCHED
+        associations.append(Association(
+            i, nearest if outcome is AssociationOutcome.MATCHED else -1, outcome, row[nearest]))
+    return AssociationResult(associations=tuple(associations), gate_threshold=threshold,
+                             mahalanobis_sq=np.array(d2, dtype=np.float64))
 
 
 def _associations(landmark: NDArray[np.int64], outcome: NDArray[np.int64],

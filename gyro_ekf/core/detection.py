@@ -171,23 +171,32 @@ def detect_poles_in_scans(ranges_m: FloatArray, angles_rad: FloatArray,
 
     r = ranges[idx]
     beam_of = idx % beams
-    a = angles[beam_of]
     # A new cluster starts at the first valid beam of every scan, after any invalid beam
     # and at a jump.
     new = np.empty(n, dtype=bool)
     new[0] = True
     new[1:] = (np.diff(idx) != 1) | (beam_of[1:] == 0) | (np.abs(np.diff(r)) > config.range_jump_m)
     starts = np.flatnonzero(new)
-    ends = np.append(starts[1:], n) - 1
     cluster_counts = np.bincount(idx[starts] // beams, minlength=scans)
-    cluster_of = np.cumsum(new) - 1
-
-    x = r * np.cos(a)
-    y = r * np.sin(a)
     if use_intensity:
         used = inten2.ravel()[idx] >= config.reflective_intensity
+        # Only clusters with a reflective return can be poles: keep their beams alone for
+        # the rest (walls are most of a scan's returns; the results do not change).
+        candidate = np.logical_or.reduceat(used, starts)[np.cumsum(new) - 1]
+        if not candidate.all():
+            idx, r, beam_of, new, used = (idx[candidate], r[candidate], beam_of[candidate],
+                                          new[candidate], used[candidate])
+            n = idx.size
+            if n == 0:
+                return [_empty(int(c), use_intensity) for c in cluster_counts]
+            starts = np.flatnonzero(new)
     else:
         used = np.ones(n, dtype=bool)
+    ends = np.append(starts[1:], n) - 1
+    cluster_of = np.cumsum(new) - 1
+    a = angles[beam_of]
+    x = r * np.cos(a)
+    y = r * np.sin(a)
     w = used.astype(np.float64)
     counts = np.add.reduceat(w, starts)
     sum_x = np.add.reduceat(x * w, starts)

@@ -143,6 +143,16 @@ class GyroBiasEkf:
         self._K = (0.0,) * 8
         self.nis = 0.0
 
+    def packed_row(self) -> list[float]:
+        """Return the state and the covariance's upper triangle as 14 plain floats.
+
+        Order: x, y, yaw, b, then P row by row (p00, p01, p02, p03, p11, p12, p13, p22,
+        p23, p33); ``unpack_rows`` turns a stack of them back into states and covariances.
+        For callers that keep every estimate: building two arrays per step would cost more
+        than the step.
+        """
+        return self._s + self._p
+
     def set_pose(self, pose: FloatArray, pose_covariance: FloatArray) -> None:
         """Replace the pose and its 3x3 covariance; keep the bias, its variance, drop coupling."""
         bias, bias_var = self._s[3], self._p[9]
@@ -305,6 +315,18 @@ class GyroBiasEkf:
 
 
 _UPPER = [(i, j) for i in range(STATE_SIZE) for j in range(i, STATE_SIZE)]
+
+
+PACKED_ROW_SIZE = STATE_SIZE + len(_UPPER)
+_FULL_INDEX = np.empty((STATE_SIZE, STATE_SIZE), dtype=np.int64)
+for _k, (_i, _j) in enumerate(_UPPER):
+    _FULL_INDEX[_i, _j] = _FULL_INDEX[_j, _i] = STATE_SIZE + _k
+
+
+def unpack_rows(rows: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Split ``GyroBiasEkf.packed_row`` rows (n, 14) into states (n, 4) and P (n, 4, 4)."""
+    rows = np.asarray(rows, dtype=np.float64).reshape(-1, PACKED_ROW_SIZE)
+    return rows[:, :STATE_SIZE], rows[:, _FULL_INDEX]
 
 
 def _packed(P: FloatArray) -> list[float]:

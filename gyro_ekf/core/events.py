@@ -32,14 +32,21 @@ from gyro_ekf.core.association import (AssociationOutcome, AssociationResult, as
                                        associate_by_distance)
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.detection import PoleDetections, detect_poles_in_scans
-from gyro_ekf.core.ekf import GyroBiasEkf
+from gyro_ekf.core.ekf import GyroBiasEkf, unpack_rows
 from gyro_ekf.core.errors import TimeWentBackwardsError
-from gyro_ekf.core.models import points_to_range_bearing, sensor_to_map
+from gyro_ekf.core.models import sensor_point_to_map, sensor_to_map
 from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount, ScanSeries, Trip
 
 
 DETECTION_BLOCK = 512
 """Scans detected per batch in drive_trip (bounded memory, amortised numpy overhead)."""
+
+_NO_NIS = np.zeros(0)
+_NO_NIS.flags.writeable = False
+_OUTCOME_KEYS = {outcome: outcome.name.lower() for outcome in AssociationOutcome}
+
+ROW_BLOCK = 4096
+"""Estimates drive_trip holds as plain floats before copying them into its arrays."""
 
 
 class EventKind(enum.IntEnum):
@@ -76,16 +83,25 @@ class ObservationReport:
     Attributes:
         stamp_s: s.
         points_sensor_m: detections in the sensor frame, shape (k, 2), m.
-        points_map_m: the same at the prior pose in the map frame, shape (k, 2), m.
+        prior_state: the filter state before this scan's updates, shape (4,).
+        mount: pose of the sensor on the platform.
         association: outcome per detection, or None without a map.
         nis: NIS of every applied update, shape (matched,).
+        points_map_m: the detections placed in the map at the prior pose, shape (k, 2), m
+            (computed on access: most callers never look).
     """
 
     stamp_s: float
     points_sensor_m: FloatArray
-    points_map_m: FloatArray
+    prior_state: FloatArray
+    mount: LidarMount
     association: AssociationResult | None
     nis: FloatArray
+
+    @property
+    def points_map_m(self) -> FloatArray:
+        """The detections in the map frame at the prior pose, shape (k, 2), m."""
+        return sensor_to_map(self.prior_state, self.points_sensor_m, self.mount)
 
 
 @dataclass(slots=True)
@@ -156,6 +172,16 @@ class EventDriver:
         self.rate_rad_s: float | None = None
         self._first_scan_s: float | None = None
 
+    @property
+    def landmarks(self) -> LandmarkMap | None:
+        """The map used for association, or None."""
+        return self._landmarks
+
+    @landmarks.setter
+    def landmarks(self, landmarks: LandmarkMap | None) -> None:
+        self._landmarks = landmarks
+        self._landmark_xy = [] if landmarks is None else landmarks.xy_m.tolist()
+
     def reset(self, pose: FloatArray | None = None, bias_rad_s: float | None = None) -> None:
         """Start over (a looped bag, a ~/reset call): new filter, held inputs and counts."""
         self.ekf.reset(pose, bias_rad_s)
@@ -221,24 +247,29 @@ class EventDriver:
             self._first_scan_s = stamp_s
         points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)
         self.stats.detections += points.shape[0]
-        points_map = sensor_to_map(self.ekf.x, points, mount)
+        prior = self.ekf.x
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
-            return ObservationReport(stamp_s, points, points_map, None, np.zeros(0))
-        z = points_to_range_bearing(points)
+            return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
+        # Plain floats from here: a scan has a handful of poles, and numpy's per-call cost
+        # would outweigh the arithmetic (this runs ~40 times a second on the real trip).
+        z = [[math.hypot(px, py), math.atan2(py, px)] for px, py in points.tolist()]
+        P = self.ekf.P
         if self._recovering(stamp_s):
             self.stats.recoveries += 1
             result = associate_by_distance(
-                z, self.ekf.x, self.ekf.P, self.ekf.R, self.landmarks.xy_m, mount,
+                z, prior, P, self.ekf.R, self.landmarks.xy_m, mount,
                 self.config.recovery_max_distance_m, self.config.recovery_ratio)
         else:
-            result = associate(z, self.ekf.x, self.ekf.P, self.ekf.R, self.landmarks.xy_m,
+            result = associate(z, prior, P, self.ekf.R, self.landmarks.xy_m,
                                mount, self.config.gate_probability)
         nis = []
+        outcomes = self.stats.outcomes
+        landmark_xy = self._landmark_xy
         for match in result.associations:
-            self.stats.outcomes[match.outcome.name.lower()] += 1
+            outcomes[_OUTCOME_KEYS[match.outcome]] += 1
             if match.outcome is AssociationOutcome.MATCHED:
                 nis.append(self.ekf.update(z[match.detection_index],
-                                           self.landmarks.xy_m[match.landmark_index], mount))
+                                           landmark_xy[match.landmark_index], mount))
         if nis:
             self.stats.updates += len(nis)
             self.stats.nis_sum += float(sum(nis))
@@ -246,7 +277,7 @@ class EventDriver:
                 self.stats.longest_gap_s = max(self.stats.longest_gap_s,
                                                stamp_s - self.stats.last_association_s)
             self.stats.last_association_s = stamp_s
-        return ObservationReport(stamp_s, points, points_map, result, np.array(nis))
+        return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
 
     def _recovering(self, stamp_s: float) -> bool:
         """Whether no update has been applied for longer than the recovery delay."""
@@ -436,13 +467,25 @@ def drive_trip(trip: Trip, driver: EventDriver,
     detected: dict[int, tuple[int, list[PoleDetections]]] = {}
     row = 0
     processed = 0
+    # Rows are kept as plain floats and copied into the arrays a block at a time: two
+    # small arrays per IMU step would cost more than the filter step itself.
+    pending: list[list[float]] = []
+    packed_row = driver.ekf.packed_row
+
+    def flush() -> None:
+        if pending:
+            start = row - len(pending)
+            states[start:row], covariances[start:row] = unpack_rows(pending)
+            pending.clear()
+
     for stamp_s, kind, series, index in iter_trip_events(trip):
         if kind is EventKind.IMU:
             driver.step_imu(stamp_s, float(yaw_rates[index]))
             stamps[row] = stamp_s
-            states[row] = driver.ekf.x
-            covariances[row] = driver.ekf.P
+            pending.append(packed_row())
             row += 1
+            if len(pending) == ROW_BLOCK:
+                flush()
         elif kind is EventKind.SPEED:
             driver.on_speed(stamp_s, float(speeds[index]))
         else:
@@ -459,15 +502,21 @@ def drive_trip(trip: Trip, driver: EventDriver,
             report = driver.on_detections(stamp_s, found[index - begin].points_sensor_m,
                                           scan.mount)
             if report.nis.size:
-                pairs = report.association.matched_pairs()
+                pairs = report.association.matched_pairs().tolist()
                 update_stamp.extend([stamp_s] * len(pairs))
-                update_landmark.extend(pairs[:, 1].tolist())
-                update_x.extend(report.points_map_m[pairs[:, 0], 0].tolist())
-                update_y.extend(report.points_map_m[pairs[:, 0], 1].tolist())
+                prior = report.prior_state.tolist()
+                points = report.points_sensor_m
+                for detection, landmark in pairs:
+                    update_landmark.append(landmark)
+                    px, py = sensor_point_to_map(prior, *points[detection].tolist(),
+                                                 scan.mount)
+                    update_x.append(px)
+                    update_y.append(py)
                 update_nis.extend(report.nis.tolist())
         processed += 1
         if progress is not None and processed % 10_000 == 0:
             progress(10_000)
+    flush()
     if progress is not None:
         progress(processed % 10_000)
     updates = UpdateLog(

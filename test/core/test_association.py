@@ -171,3 +171,28 @@ def test_distance_association_pairs_clear_nearest_landmarks_only():
     # The same detections all fall outside the tight chi-square gate.
     gated = associate(z, state, P, R, landmarks)
     assert gated.count(AssociationOutcome.MATCHED) == 0
+
+
+@pytest.mark.parametrize('seed', range(4))
+def test_small_scans_in_plain_floats_match_the_numpy_path(seed, monkeypatch):
+    from gyro_ekf.core import association
+    rng = np.random.default_rng(seed)
+    for _ in range(200):
+        landmarks = rng.uniform(-10.0, 10.0, size=(rng.integers(1, 8), 2))
+        state = np.r_[rng.uniform(-3.0, 3.0, 2), rng.uniform(-math.pi, math.pi), 0.01]
+        root = rng.normal(size=(4, 4)) * rng.uniform(0.001, 0.3)
+        cov = root @ root.T + 1e-6 * np.eye(4)
+        mount = LidarMount(rng.uniform(-0.5, 0.5), rng.uniform(-0.2, 0.2),
+                           float(rng.choice([0.0, math.pi, 0.3])))
+        h = observe(state, landmarks, mount)
+        z = h[rng.integers(0, len(landmarks), rng.integers(1, 8))]
+        z = z + rng.normal(size=z.shape) * [0.05, 0.01]
+        assert z.size // 2 * len(landmarks) <= association.SCALAR_PAIRS_MAX
+        small = associate(z.tolist(), state, cov, R, landmarks, mount, 0.99)
+        monkeypatch.setattr(association, 'SCALAR_PAIRS_MAX', 0)
+        large = associate(z, state, cov, R, landmarks, mount, 0.99)
+        monkeypatch.undo()
+        np.testing.assert_allclose(small.mahalanobis_sq, large.mahalanobis_sq, rtol=1e-9,
+                                   atol=1e-9)
+        assert [(a.landmark_index, a.outcome) for a in small.associations] == \
+            [(a.landmark_index, a.outcome) for a in large.associations]

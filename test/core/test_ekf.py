@@ -109,3 +109,18 @@ def test_zero_or_negative_step_leaves_the_filter_unchanged():
     ekf.predict(1.0, 0.5, 0.0)
     np.testing.assert_array_equal(ekf.x, x)
     np.testing.assert_array_equal(ekf.P, P)
+
+
+def test_packed_rows_unpack_to_the_state_and_covariance():
+    from gyro_ekf.core.ekf import unpack_rows
+    ekf = GyroBiasEkf(EkfConfig(), pose=np.array([1.0, 2.0, 0.3]))
+    rows, states, covariances = [], [], []
+    for step in range(5):
+        ekf.predict(0.5, 0.1 * step, 0.01)
+        ekf.update(np.array([3.0 + 0.01 * step, 0.2]), np.array([4.0, 3.0]))
+        rows.append(ekf.packed_row())
+        states.append(ekf.x)
+        covariances.append(ekf.P)
+    unpacked_states, unpacked_covariances = unpack_rows(rows)
+    np.testing.assert_array_equal(unpacked_states, states)
+    np.testing.assert_array_equal(unpacked_covariances, covariances)

@@ -171,3 +171,25 @@ def test_driver_recovers_landmarks_after_a_gap_by_map_distance():
     assert matched_at and matched_at[0] > 1.0  # the gate refused them until the recovery
     assert driver.stats.recoveries > 0
     assert np.hypot(*driver.ekf.x[:2]) < 0.05  # pulled back onto the truth
+
+
+def test_a_report_places_the_detections_at_the_prior_pose(simulated_runs):
+    from gyro_ekf.core.models import sensor_to_map
+    trip, _ = simulated_runs[0]
+    driver = EventDriver(_config_for(trip), trip.landmarks, trip.initial_pose)
+    scans = trip.scans[0]
+    angles = scans.angles_rad
+    from gyro_ekf.core.detection import detect_poles
+    updated = 0
+    for index in range(40):
+        stamp = float(scans.stamp_s[index])
+        found = detect_poles(scans.ranges_m[index], angles,
+                             None if scans.intensities is None else scans.intensities[index])
+        driver.on_imu(stamp, 0.0)
+        before = driver.ekf.x
+        report = driver.on_detections(stamp, found.points_sensor_m, scans.mount)
+        np.testing.assert_array_equal(report.prior_state, before)
+        np.testing.assert_allclose(report.points_map_m,
+                                   sensor_to_map(before, found.points_sensor_m, scans.mount))
+        updated += report.nis.size
+    assert updated > 0
