@@ -143,6 +143,16 @@ class GyroBiasEkf:
         self._K = (0.0,) * 8
         self.nis = 0.0
 
+    def save(self) -> tuple:
+        """Return everything ``restore`` needs to put the filter back as it is now."""
+        return (list(self._s), list(self._p), self._s_prior, self._p_prior, self._y,
+                self._S, self._K, self.nis)
+
+    def restore(self, saved: tuple) -> None:
+        """Put the filter back into a state returned by ``save``."""
+        s, p, self._s_prior, self._p_prior, self._y, self._S, self._K, self.nis = saved
+        self._s, self._p = list(s), list(p)
+
     def packed_row(self) -> list[float]:
         """Return the state and the covariance's upper triangle as 14 plain floats.
 

@@ -15,6 +15,7 @@ bag) or to drop the event. It is never silently accepted.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import heapq
 from array import array
@@ -190,6 +191,18 @@ class EventDriver:
         self.speed_m_s = 0.0
         self.rate_rad_s = None
         self._first_scan_s = None
+
+    def save(self) -> tuple:
+        """Return everything ``restore`` needs to put the driver back as it is now."""
+        stats = dataclasses.replace(self.stats, outcomes=dict(self.stats.outcomes))
+        return (self.ekf.save(), stats, self.stamp_s, self.speed_m_s, self.rate_rad_s,
+                self._first_scan_s)
+
+    def restore(self, saved: tuple) -> None:
+        """Put the driver back into a state returned by ``save`` (the map is kept)."""
+        ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self._first_scan_s = saved
+        self.ekf.restore(ekf)
+        self.stats = dataclasses.replace(stats, outcomes=dict(stats.outcomes))
 
     def _advance(self, stamp_s: float, what: str) -> None:
         if self.stamp_s is None:

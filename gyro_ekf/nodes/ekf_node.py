@@ -10,7 +10,12 @@ the pose, as RViz's "2D Pose Estimate" does) and, with `use_calibration`, `gyro_
 
 Messages go through the core's StreamMerger (stamp, then speed < observation < IMU, held
 until every active input has passed them) into the same EventDriver `gyro-ekf run` uses, so the
-node and an offline run of a bag give the same numbers. Each IMU sample yields an estimate:
+node and an offline run of a bag give the same numbers. That order makes every pose wait for
+the slowest input (half a scan period on average behind a 10 Hz LiDAR); with
+`late_observation_history_s` > 0, speed and IMU go through at once instead and an observation
+that comes after later inputs is replayed into the filter (core `LaggedObservations`): the
+filter still ends where strict order ends, but a pose published before a scan arrived is a
+prediction without it. Each IMU sample yields an estimate:
 `ekf/pose` (PoseWithCovarianceStamped in `map`), `ekf/odometry` (nav_msgs/Odometry: pose
 with covariance; speed and bias-corrected yaw rate in the twist) and `ekf/bias`
 (Vector3Stamped, z = bias in rad/s), every `publish_every_n`-th sample. `/diagnostics`
@@ -46,6 +51,7 @@ from gyro_ekf import topics
 from gyro_ekf.core.config import EkfConfig, with_stated_noise
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.events import Estimate, EventDriver, EventKind, StreamMerger
+from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
 from gyro_ekf.core.types import LandmarkMap, LidarMount
 from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.nodes import qos
@@ -123,6 +129,11 @@ class EkfNode(Node):
                            'Extra stamp time a message is held behind the newest input, on '
                            'top of waiting until every active input has caught up',
                            's', 0.0, 60.0)
+        history_s = declare(self, 'late_observation_history_s', 0.0,
+                            '0: every input waits in stamp order (poses equal an offline run '
+                            'but wait for the slowest input); > 0: speed and IMU are used at '
+                            'once and observations up to this much stamp time late are '
+                            'replayed into the filter (poses at IMU latency)', 's', 0.0, 10.0)
         stale_s = declare(self, 'stale_input_s', 1.0,
                           'An input silent for this long (wall time) stops holding the others '
                           'back', 's', 0.01, 3600.0)
@@ -157,6 +168,8 @@ class EkfNode(Node):
         self.driver = EventDriver(self.config, landmarks=landmarks, pose=sidecar.initial_pose)
         self._initial_pose = sidecar.initial_pose
         self._buffer = StreamMerger(window_s, max_events, stale_s)
+        self._lagged = (LaggedObservations(self.driver, history_s) if history_s > 0.0
+                        else None)
         self._origin = TimeOrigin(sidecar.time_zero_ns)
         self._calibrated_bias: float | None = None
         self.dropped = dict.fromkeys(DROP_REASONS, 0)
@@ -238,8 +251,28 @@ class EkfNode(Node):
         if not finite(*points.ravel().tolist()):
             self._drop('non_finite', 'landmarks hold a non-finite point')
             return
+        if self._lagged is not None:
+            self._observe_lagged(message.header.stamp, points, mount)
+            return
         self._push(message.header.stamp, EventKind.OBSERVATION, (points, mount), 'landmarks',
                    message.header.frame_id)
+
+    def _observe_lagged(self, stamp, points, mount: LidarMount) -> None:
+        self._last_input = time.monotonic()
+        ns = stamp_ns(stamp)
+        if ns == 0:
+            self._drop('zero_stamp', 'landmarks message with a zero stamp')
+            return
+        stamp_s = self._origin.seconds(ns)
+        try:
+            fate = self._lagged.observation(stamp_s, points, mount)
+        except CoreError as err:
+            self._drop('filter_error', f'the filter refused an observation: {err}')
+            return
+        if fate == ObservationFate.TOO_LATE:
+            behind_s = (self.driver.stamp_s or stamp_s) - stamp_s
+            self._drop('late', f'landmarks stamp {behind_s:.3f} s behind the filter, older '
+                       'than late_observation_history_s')
 
     def _mount(self, frame_id: str) -> LidarMount | None:
         if not self._sidecar.lidars:
@@ -276,7 +309,7 @@ class EkfNode(Node):
         self._process(ready)
 
     def _process(self, events) -> None:
-        driver = self.driver
+        driver = self.driver if self._lagged is None else self._lagged
         for stamp_s, kind, (ns, value) in events:
             try:
                 if kind is EventKind.IMU:
@@ -343,6 +376,8 @@ class EkfNode(Node):
         if self._calibrated_bias is not None:
             self.driver.ekf.set_bias(self._calibrated_bias, self._calibration_sigma)
         self._buffer.clear()
+        if self._lagged is not None:
+            self._lagged.reset()
         self._late_streak = 0
         self.resets += 1
         self.get_logger().warn(f'filter reset: {why}')
@@ -362,8 +397,14 @@ class EkfNode(Node):
     # Housekeeping -----------------------------------------------------------------------
 
     def _flush_when_idle(self) -> None:
-        if len(self._buffer) and time.monotonic() - self._last_input > self._idle_flush_s:
+        held = len(self._buffer) + (self._lagged.held if self._lagged is not None else 0)
+        if held and time.monotonic() - self._last_input > self._idle_flush_s:
             self._process(self._buffer.flush())
+            if self._lagged is not None:
+                try:
+                    self._lagged.flush()
+                except CoreError as err:
+                    self._drop('filter_error', f'the filter refused an observation: {err}')
             self._publish_diagnostics()
 
     def _publish_diagnostics(self) -> None:
@@ -393,6 +434,10 @@ class EkfNode(Node):
             'time_since_association_s': '' if since is None else f'{since:.3f}',
             'estimates': str(self._estimates), 'published': str(self.published),
             'buffered': str(len(self._buffer)), 'resets': str(self.resets),
+            **({} if self._lagged is None else {
+                'held_observations': str(self._lagged.held),
+                'replayed_observations': str(self._lagged.stats.replays),
+                'replayed_events': str(self._lagged.stats.replayed_events)}),
             **{f'dropped_{k}': str(v) for k, v in self.dropped.items()},
         }
         status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: gyro bias EKF',

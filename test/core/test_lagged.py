@@ -1,0 +1,108 @@
+"""Late observations are replayed into the history: the filter ends as strict ordering ends."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from gyro_ekf.core.config import EkfConfig
+from gyro_ekf.core.detection import detect_poles_in_scans
+from gyro_ekf.core.errors import CoreError
+from gyro_ekf.core.events import EventDriver, EventKind, drive_trip, iter_trip_events
+from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
+from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+
+
+@pytest.fixture(scope='module')
+def trip():
+    return simulate_trip(SimulationConfig(duration_s=20.0, static_s=0.0), seed=5)
+
+
+def _driver(trip):
+    config = dataclasses.replace(EkfConfig(), gyro_noise_rad_s=trip.noise.gyro_rad_s,
+                                 speed_noise_m_s=trip.noise.speed_m_s)
+    return EventDriver(config, trip.landmarks, trip.initial_pose)
+
+
+def _detections(trip):
+    scans = trip.scans[0]
+    found = detect_poles_in_scans(scans.ranges_m, scans.angles_rad, scans.intensities)
+    return scans, found
+
+
+def _feed_with_delay(trip, lagged, delay_s, rng=None):
+    """Inputs in stamp order; each scan is handed over once the inputs are delay_s past it."""
+    scans, found = _detections(trip)
+    waiting = []   # (due stamp, scan index)
+    fates = []
+    estimates = {}
+    for stamp_s, kind, _, index in iter_trip_events(trip):
+        if kind is EventKind.OBSERVATION:
+            delay = delay_s if rng is None else rng.uniform(0.0, delay_s)
+            waiting.append((stamp_s + delay, index))
+            continue
+        for due, scan in [w for w in waiting if w[0] <= stamp_s]:
+            waiting.remove((due, scan))
+            fates.append(lagged.observation(float(scans.stamp_s[scan]),
+                                            found[scan].points_sensor_m, scans.mount))
+        if kind is EventKind.IMU:
+            estimates[stamp_s] = lagged.on_imu(stamp_s, float(
+                trip.imu.yaw_rate_rad_s[index]))
+        else:
+            lagged.on_speed(stamp_s, float(trip.speed.speed_m_s[index]))
+    for _, scan in waiting:
+        fates.append(lagged.observation(float(scans.stamp_s[scan]),
+                                        found[scan].points_sensor_m, scans.mount))
+    lagged.flush()
+    return fates, estimates
+
+
+def test_late_observations_end_in_the_strictly_ordered_state(trip):
+    strict = drive_trip(trip, _driver(trip))
+    lagged = LaggedObservations(_driver(trip), history_s=0.5)
+    fates, estimates = _feed_with_delay(trip, lagged, 0.15, np.random.default_rng(1))
+    assert fates.count(ObservationFate.REPLAYED) > 0.5 * len(fates)
+    assert ObservationFate.TOO_LATE not in fates
+    # The same arithmetic in the same order: equal to the last bit.
+    assert lagged.driver.ekf.x.tolist() == strict.estimates.state[-1].tolist()
+    assert lagged.driver.ekf.P.tolist() == strict.estimates.covariance[-1].tolist()
+    assert lagged.driver.stats.snapshot() == strict.stats.snapshot()
+    assert lagged.stats.replays == fates.count(ObservationFate.REPLAYED)
+    # Poses handed out before a scan arrived were predictions: close, not equal.
+    early = np.array([estimates[t].state[:2] for t in strict.estimates.stamp_s])
+    assert np.max(np.hypot(*(early - strict.estimates.state[:, :2]).T)) < 0.05
+
+
+def test_observations_ahead_of_the_inputs_wait_for_them(trip):
+    strict = drive_trip(trip, _driver(trip))
+    lagged = LaggedObservations(_driver(trip), history_s=0.5)
+    scans, found = _detections(trip)
+    # Every scan is handed over before the inputs reach its stamp: nothing is replayed.
+    fates = [lagged.observation(float(t), d.points_sensor_m, scans.mount)
+             for t, d in zip(scans.stamp_s, found)]
+    assert set(fates) == {ObservationFate.HELD} and lagged.held == len(fates)
+    for stamp_s, kind, _, index in iter_trip_events(trip):
+        if kind is EventKind.IMU:
+            lagged.on_imu(stamp_s, float(trip.imu.yaw_rate_rad_s[index]))
+        elif kind is EventKind.SPEED:
+            lagged.on_speed(stamp_s, float(trip.speed.speed_m_s[index]))
+    lagged.flush()
+    assert lagged.held == 0 and lagged.stats.replays == 0
+    assert lagged.driver.ekf.x.tolist() == strict.estimates.state[-1].tolist()
+
+
+def test_observations_older_than_the_history_are_dropped(trip):
+    lagged = LaggedObservations(_driver(trip), history_s=0.05)
+    fates, _ = _feed_with_delay(trip, lagged, 0.3)
+    # All but the last few scans, handed over after the inputs ended, come too late.
+    too_late = fates.count(ObservationFate.TOO_LATE)
+    assert too_late >= len(fates) - 5 and lagged.stats.too_late == too_late
+    assert lagged.driver.stats.scans == len(fates) - too_late
+
+
+def test_history_must_be_a_finite_non_negative_time(trip):
+    for bad in (-0.1, float('nan'), float('inf')):
+        with pytest.raises(CoreError, match='history_s'):
+            LaggedObservations(_driver(trip), bad)
