@@ -30,7 +30,7 @@ from gyro_ekf import topics
 from gyro_ekf.core.types import (
     GroundTruth, ImuSeries, LandmarkMap, LidarMount, NoiseFigures, ScanSeries, SpeedSeries,
     Trip)
-from gyro_ekf.io import fast_cdr, messages as msgs
+from gyro_ekf.io import fast_cdr, mcap_chunks, messages as msgs
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.sidecar import BagParams, read_sidecar, sidecar_path
 
@@ -251,6 +251,13 @@ class _Sink:
         self._stamps: list[int] = []
         self._bytes = 0
 
+    def add_many(self, stamps: np.ndarray, datas: list[bytes | memoryview]) -> None:
+        """Queue raw messages in stamp order and decode them (a batch of a fast reader)."""
+        for start in range(0, len(datas), _BATCH_MESSAGES):
+            self._datas.extend(datas[start:start + _BATCH_MESSAGES])
+            self._stamps.extend(stamps[start:start + _BATCH_MESSAGES].tolist())
+            self.flush()
+
     def add(self, stamp: int, data: bytes) -> None:
         """Queue one raw message; decode the queue when it is full."""
         self._datas.append(data)
@@ -421,24 +428,27 @@ def read_bag(path: Path | str, fast: bool = True, acceleration: bool = True) -> 
         by_topic, counts = _topics(path, reader)
         start = reader.start_time if reader.message_count else 0
         scan_topics = [t for t, c in by_topic.items() if c.msgtype == topics.LASER_SCAN_TYPE]
-        imu = _ImuSink(path, IMU_TOPIC, counts[IMU_TOPIC], acceleration)
-        odom = _OdomSink(path, ODOM_TOPIC, counts[ODOM_TOPIC])
-        scans = {t: _ScanSink(path, t, counts[t]) for t in scan_topics}
-        sinks: dict[str, _Sink] = {IMU_TOPIC: imu, ODOM_TOPIC: odom, **scans}
-        truth = None
-        if GROUND_TRUTH_TOPIC in by_topic:
-            truth = _TruthSink(path, GROUND_TRUTH_TOPIC, counts[GROUND_TRUTH_TOPIC])
-            sinks[GROUND_TRUTH_TOPIC] = truth
-        singles: dict[str, Any] = {}
-        wanted = [c for c in reader.connections
-                  if c.topic in sinks or c.topic in (MAP_TOPIC, INITIAL_POSE_TOPIC)]
-        for connection, stamp, data in reader.messages(connections=wanted):
-            sink = sinks.get(connection.topic)
-            if sink is not None:
-                sink.add(stamp, data)
-            else:
-                singles[connection.topic] = _deserialize(path, connection.topic,
-                                                         connection.msgtype, stamp, data)
+        mcap_file = _single_mcap_file(path)
+        while True:
+            imu = _ImuSink(path, IMU_TOPIC, counts[IMU_TOPIC], acceleration)
+            odom = _OdomSink(path, ODOM_TOPIC, counts[ODOM_TOPIC])
+            scans = {t: _ScanSink(path, t, counts[t]) for t in scan_topics}
+            sinks: dict[str, _Sink] = {IMU_TOPIC: imu, ODOM_TOPIC: odom, **scans}
+            truth = None
+            if GROUND_TRUTH_TOPIC in by_topic:
+                truth = _TruthSink(path, GROUND_TRUTH_TOPIC, counts[GROUND_TRUTH_TOPIC])
+                sinks[GROUND_TRUTH_TOPIC] = truth
+            singles: dict[str, Any] = {}
+            if mcap_file is None:
+                _read_with_rosbags(path, reader, sinks, singles)
+                break
+            try:
+                _read_mcap_fast(path, mcap_file, by_topic, sinks, singles)
+                break
+            except mcap_chunks.UnsupportedMcap as err:
+                # rosbags reads what the fast reader refuses (and names real damage itself).
+                log.debug('%s; reading it with rosbags instead', err)
+                mcap_file = None
         for sink in sinks.values():
             sink.flush()
     except ReaderError as err:
@@ -461,6 +471,48 @@ def read_bag(path: Path | str, fast: bool = True, acceleration: bool = True) -> 
         landmarks=None if landmark_message is None else msgs.landmarks_of(landmark_message),
         initial_pose=None if pose_message is None else np.array(
             msgs.pose_of(pose_message.pose.pose)))
+
+
+def _single_mcap_file(path: Path) -> Path | None:
+    """The bag's one .mcap file when the fast reader may read it, else None."""
+    meta = _metadata(path)
+    files = meta.get('relative_file_paths') or []
+    if (meta.get('storage_identifier') != 'mcap' or meta.get('compression_mode')
+            or len(files) != 1 or not str(files[0]).endswith('.mcap')):
+        return None
+    return path / str(files[0])
+
+
+def _read_with_rosbags(path: Path, reader: Reader, sinks: dict[str, _Sink],
+                       singles: dict[str, Any]) -> None:
+    wanted = [c for c in reader.connections
+              if c.topic in sinks or c.topic in (MAP_TOPIC, INITIAL_POSE_TOPIC)]
+    for connection, stamp, data in reader.messages(connections=wanted):
+        sink = sinks.get(connection.topic)
+        if sink is not None:
+            sink.add(stamp, data)
+        else:
+            singles[connection.topic] = _deserialize(path, connection.topic,
+                                                     connection.msgtype, stamp, data)
+
+
+def _read_mcap_fast(path: Path, mcap_file: Path, by_topic: dict[str, Any],
+                    sinks: dict[str, _Sink], singles: dict[str, Any]) -> None:
+    """Read the sink topics with mcap_chunks: the same bytes, a few times faster."""
+    def consume(topic: str, batch: mcap_chunks.TopicMessages) -> None:
+        sink = sinks.get(topic)
+        if sink is not None:
+            sink.add_many(batch.log_time_ns, batch.payloads)
+        elif len(batch.payloads):
+            singles[topic] = _deserialize(path, topic, by_topic[topic].msgtype,
+                                          int(batch.log_time_ns[-1]),
+                                          bytes(batch.payloads[-1]))
+
+    wanted = [t for t in by_topic if t in sinks or t in (MAP_TOPIC, INITIAL_POSE_TOPIC)]
+    try:
+        mcap_chunks.stream_topics(mcap_file, wanted, consume)
+    except OSError as err:
+        raise BagError(f'{path}: cannot read the bag: {err}') from None
 
 
 def _has_accel(imu_message: Any) -> bool:

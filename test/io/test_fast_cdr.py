@@ -311,3 +311,41 @@ def test_write_rows_is_byte_identical_to_writer_write(tmp_path, storage):
     with Reader(one) as a, Reader(batch) as b:
         assert [(c.topic, t, bytes(d)) for c, t, d in a.messages()] == [
             (c.topic, t, bytes(d)) for c, t, d in b.messages()]
+
+
+@pytest.mark.parametrize('compress', [False, True])
+def test_mcap_bags_are_read_by_the_chunk_reader_in_batches(tmp_path, monkeypatch, compress):
+    from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+    from gyro_ekf.io import mcap_chunks
+    batches = []
+    stream = mcap_chunks.stream_topics
+
+    def small_batches(path, topics, consumer, batch_messages=65_536):
+        def count(topic, batch):
+            batches.append(topic)
+            consumer(topic, batch)
+        return stream(path, topics, count, batch_messages=50)
+
+    monkeypatch.setattr(mcap_chunks, 'stream_topics', small_batches)
+    bag = tmp_path / 'simulated'
+    # 60 s of 10 Hz scans fill several 1 MB chunks, so the reader hands over several batches.
+    write_trip_bag(simulate_trip(SimulationConfig(duration_s=60.0), seed=3), bag,
+                   compress=compress)
+    assert_fast_read_is_rosbags_read(bag)
+    assert batches.count('/scan') > 1
+
+
+def test_a_bag_the_chunk_reader_refuses_midway_is_read_by_rosbags(tmp_path, monkeypatch):
+    from gyro_ekf.io import mcap_chunks
+    stream = mcap_chunks.stream_topics
+
+    def refuse_after_a_batch(path, topics, consumer, batch_messages=65_536):
+        def first_then_refuse(topic, batch):
+            consumer(topic, batch)
+            raise mcap_chunks.UnsupportedMcap(f'{path}: refused for the test')
+        return stream(path, topics, first_then_refuse, batch_messages=20)
+
+    monkeypatch.setattr(mcap_chunks, 'stream_topics', refuse_after_a_batch)
+    bag = tmp_path / 'synthetic'
+    write_trip_bag(make_trip(), bag)
+    assert_fast_read_is_rosbags_read(bag)
