@@ -109,6 +109,7 @@ class _Scan:
         self.orphans: set[int] = set()
         self.zstd: Any = None
         self.last_time = [-1] * len(self.topics)
+        self.mapped: mmap.mmap | None = None
 
     def fail(self, what: str) -> UnsupportedMcap:
         return UnsupportedMcap(f'{self.path}: {what}')
@@ -267,6 +268,7 @@ class _Scan:
                 self.chunk(buf, body, end)
                 if self.consumer is not None and self.pending >= self.batch_messages:
                     self.emit()
+                    self.release(end)
             elif opcode == _CHANNEL:
                 self.channel(buf, body, end)
             elif opcode == _SCHEMA:
@@ -316,6 +318,15 @@ class _Scan:
             self.consumer(topic, batch)
         self.pending = 0
 
+    def release(self, end: int) -> None:
+        """Let go of the mapped pages before `end` (their messages were handed over).
+
+        Resident pages of a file mapping count in the process's memory; without this a
+        one-hour bag read through the map would stay resident as a whole.
+        """
+        if self.mapped is not None and hasattr(mmap, 'MADV_DONTNEED'):
+            self.mapped.madvise(mmap.MADV_DONTNEED, 0, end - end % mmap.PAGESIZE)
+
     def msgtypes(self) -> dict[str, str]:
         """Wanted topic -> its message type, for every wanted topic with a channel."""
         msgtypes: dict[str, str] = {}
@@ -350,20 +361,20 @@ class _Scan:
         return TopicMessages(msgtype, times, payloads)
 
 
-def _map(path: Path) -> memoryview:
+def _map(path: Path) -> tuple[memoryview, mmap.mmap | None]:
     """Map the file read-only (reading 100 MB into fresh memory costs more than parsing)."""
     with open(path, 'rb') as stream:
         size = stream.seek(0, 2)
         if size == 0:
-            return memoryview(b'')
+            return memoryview(b''), None
         try:
             mapped = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
         except (OSError, ValueError):
             stream.seek(0)
-            return memoryview(stream.read())
-    if hasattr(mapped, 'madvise') and hasattr(mmap, 'MADV_WILLNEED'):
-        mapped.madvise(mmap.MADV_WILLNEED)
-    return memoryview(mapped)
+            return memoryview(stream.read()), None
+    if hasattr(mmap, 'MADV_SEQUENTIAL'):
+        mapped.madvise(mmap.MADV_SEQUENTIAL)
+    return memoryview(mapped), mapped
 
 
 def read_topics(path: Path | str, topics: Collection[str]) -> dict[str, TopicMessages]:
@@ -416,7 +427,7 @@ def stream_topics(path: Path | str, topics: Collection[str],
 
 def _scan_file(scan: _Scan) -> None:
     path = scan.path
-    data = _map(path)
+    data, scan.mapped = _map(path)
     size = len(data)
     if size < 2 * len(MAGIC) or data[:len(MAGIC)] != MAGIC:
         raise scan.fail('not an MCAP file (bad leading magic)')
