@@ -148,9 +148,14 @@ def run_benchmark(bag: Path, work: Path, repeats: int = 3) -> dict[str, Any]:
 
     The factor is trip duration over the run's own processing time (bag read to last
     output, from summary.json), and over the child's whole wall time (Python start-up and
-    imports included). The run is repeated: this machine's speed drifts by a quarter from
-    one second to the next, so the median is reported with the spread.
+    imports included). The run is repeated, as run-to-run noise on a shared machine is
+    large, and the median is reported with the spread.
+
+    Raises:
+        ValueError: repeats < 1.
     """
+    if repeats < 1:
+        raise ValueError(f'repeats must be at least 1, got {repeats}')
     out = work / 'run_out'
     runs = []
     for _ in range(repeats):

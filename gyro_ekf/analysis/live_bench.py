@@ -71,10 +71,10 @@ class LiveCase:
         landmarks_hz: rate of pole observations on `landmarks`; 0 = none.
         reliable_inputs: the node's reliable_inputs parameter (keep-all instead of sensor data
             QoS on its inputs; this process publishes with the matching QoS).
-        late_observation_history_s: the node's late_observation_history_s parameter, s (> 0:
-            observations no longer hold the other inputs back, they are replayed).
         warmup_s: length of the stream sent before the measurement (at least until poses
             come back), s.
+        late_observation_history_s: the node's late_observation_history_s parameter, s (> 0:
+            observations no longer hold the other inputs back, they are replayed).
     """
 
     rate_hz: float
@@ -519,7 +519,9 @@ def _summarize(case: LiveCase, sender: _Sender, session: _Session, measured: lis
     completing = completion_indices([sender.streams[i] for i in held_back],
                                     np.array(sender.stamps_ns, dtype=np.int64)[held_back],
                                     case.reorder_window_s, zero_ns, targets)
-    completing = np.where(completing >= 0, np.array(held_back + [0])[completing], -1)
+    # Back from positions among the held-back sends to positions among all sends.
+    completing = np.where(completing >= 0,
+                          np.asarray(held_back, dtype=np.int64)[np.maximum(completing, 0)], -1)
     times = np.array(sender.times_s)
     latency, completion, flushed, missing = [], [], 0, []
     for step, (stamp, index) in enumerate(zip(measured, completing.tolist())):

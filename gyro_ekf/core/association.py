@@ -157,7 +157,9 @@ def mahalanobis_sq(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArra
                         'check P and R')
     y0 = z[:, None, 0] - h[None, :, 0]                        # (n, k)
     y1 = wrap_angle(z[:, None, 1] - h[None, :, 1])            # (n, k)
-    return (d * y0 * y0 - (b + c) * y0 * y1 + a * y1 * y1) / det
+    d2 = (d * y0 * y0 - (b + c) * y0 * y1 + a * y1 * y1) / det
+    # A landmark at the sensor has no bearing (NaN): it must never be anyone's nearest.
+    return np.where(np.isnan(d2), np.inf, d2)
 
 
 def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
@@ -218,8 +220,9 @@ SCALAR_PAIRS_MAX = 64
 """Up to this many detection-landmark pairs, ``associate`` works in plain floats.
 
 A scan of a small map (the 2016 trip: 4 detections, 5 poles) costs numpy more in call
-overhead than in arithmetic; the two paths compute the same quantities (tests compare
-them) and a given input always takes the same path, so live and offline runs agree.
+overhead than in arithmetic; the two paths compute the same quantities to rounding (tests
+compare them) and a given input always takes the same path, so live and offline runs agree
+to the bit.
 """
 
 
@@ -240,6 +243,10 @@ def _mahalanobis_rows(z: list[list[float]], state: FloatArray, P: FloatArray, R:
     for lx, ly in landmarks:
         dx, dy = lx - xl, ly - yl
         q = dx * dx + dy * dy
+        if q == 0.0:
+            # A landmark at the sensor has no bearing: nothing can match it.
+            per_landmark.append((0.0, 0.0, math.nan, math.nan, math.nan))
+            continue
         r = math.sqrt(q)
         a0, a1, a2 = -dx / r, -dy / r, -(dx * dxl + dy * dyl) / r
         b0, b1, b2 = dy / q, -dx / q, (dy * dxl - dx * dyl) / q - 1.0
@@ -262,10 +269,13 @@ def _mahalanobis_rows(z: list[list[float]], state: FloatArray, P: FloatArray, R:
                              (s01 + s10) / det, s11 / det))
     # y1 is the bearing innovation wrapped into [-pi, pi) (wrap_scalar, inlined: this
     # inner loop runs for every detection-landmark pair of every scan).
-    return [[w11 * y0 * y0 - w01 * y0 * y1 + w00 * y1 * y1
+    rows = [[w11 * y0 * y0 - w01 * y0 * y1 + w00 * y1 * y1
              for h0, h1, w00, w01, w11 in per_landmark
              for y0, y1 in ((z_range - h0, (z_bearing - h1 + math.pi) % _TAU - math.pi),)]
             for z_range, z_bearing in z]
+    if any(math.isnan(w00) for _, _, w00, _, _ in per_landmark):
+        rows = [[math.inf if math.isnan(d2) else d2 for d2 in row] for row in rows]
+    return rows
 
 
 def _associate_scalar(z: list[list[float]], state: FloatArray, P: FloatArray, R: FloatArray,

@@ -328,9 +328,17 @@ _UPPER = [(i, j) for i in range(STATE_SIZE) for j in range(i, STATE_SIZE)]
 
 
 PACKED_ROW_SIZE = STATE_SIZE + len(_UPPER)
-_FULL_INDEX = np.empty((STATE_SIZE, STATE_SIZE), dtype=np.int64)
-for _k, (_i, _j) in enumerate(_UPPER):
-    _FULL_INDEX[_i, _j] = _FULL_INDEX[_j, _i] = STATE_SIZE + _k
+
+
+def _full_index() -> np.ndarray:
+    # Column of a packed row that holds P[i, j], for every i, j.
+    index = np.empty((STATE_SIZE, STATE_SIZE), dtype=np.int64)
+    for k, (i, j) in enumerate(_UPPER):
+        index[i, j] = index[j, i] = STATE_SIZE + k
+    return index
+
+
+_FULL_INDEX = _full_index()
 
 
 def unpack_rows(rows: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -11,8 +11,10 @@ later event, takes the observation, and the later events are applied again. An
 observation stamped ahead of the filter waits until a speed or IMU event passes it.
 
 The filter ends in exactly the state strict ordering gives (the same arithmetic in the
-same order, see ``EventDriver``); only the estimates already handed out before a late
-observation arrived were predictions without it.
+same order, see ``EventDriver``) for every observation that arrives within the history;
+only the estimates already handed out before a late observation arrived were predictions
+without it. A change made to the filter from outside (a new pose, a seeded bias, a new map)
+cannot be replayed: call ``forget_history`` after it, so no replay undoes it.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import bisect
 import heapq
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -46,11 +49,13 @@ class LagStats:
         replays: late observations put back into the history.
         replayed_events: events applied again because of them.
         too_late: observations older than the history, dropped.
+        refused: held observations the filter refused (CoreError), dropped.
     """
 
     replays: int = 0
     replayed_events: int = 0
     too_late: int = 0
+    refused: int = 0
 
 
 class LaggedObservations:
@@ -62,16 +67,29 @@ class LaggedObservations:
         stats: replay counts.
     """
 
-    def __init__(self, driver: EventDriver, history_s: float):
+    def __init__(self, driver: EventDriver, history_s: float, max_held: int = 10_000,
+                 on_refused: Callable[[float, CoreError], None] | None = None):
         """Wrap a driver; keep history_s seconds (stamp time) of applied events.
 
+        Args:
+            driver: the filter to drive.
+            history_s: stamp time of history kept, s.
+            max_held: most observations held ahead of the inputs; beyond it the oldest is
+                applied at once (inputs that stopped must not grow the queue forever).
+            on_refused: told (stamp, error) of a held observation the filter refuses while
+                a speed or IMU sample releases it (that sample is still applied).
+
         Raises:
-            CoreError: history_s is negative or not finite.
+            CoreError: history_s is negative or not finite, or max_held < 1.
         """
         if not (history_s >= 0.0 and math.isfinite(history_s)):
             raise CoreError(f'history_s must be a finite number >= 0, got {history_s}')
+        if max_held < 1:
+            raise CoreError(f'max_held must be at least 1, got {max_held}')
         self.driver = driver
         self.history_s = history_s
+        self.max_held = max_held
+        self.on_refused = on_refused
         self.stats = LagStats()
         # (stamp_s, kind, arrival) keys, and per event (kind, payload, state before it).
         self._keys: list[tuple[float, int, int]] = []
@@ -81,10 +99,22 @@ class LaggedObservations:
 
     def reset(self) -> None:
         """Forget the history and the held observations (after a driver reset)."""
-        self._keys.clear()
-        self._events.clear()
+        self.forget_history()
         self._pending.clear()
         self.stats = LagStats()
+
+    def forget_history(self) -> None:
+        """Forget what could be replayed (after the filter was changed from outside).
+
+        Observations older than the filter's last event then count as too late.
+        """
+        del self._keys[:-1]
+        del self._events[:-1]
+        if self._events:
+            # The newest key still bounds what is late, but its saved state predates the
+            # change and must never be restored.
+            kind, value, _ = self._events[-1]
+            self._events[-1] = (kind, value, None)
 
     @property
     def held(self) -> int:
@@ -114,19 +144,29 @@ class LaggedObservations:
         key = (stamp_s, int(EventKind.OBSERVATION), next(self._arrival))
         if not self._keys or key > self._keys[-1]:
             heapq.heappush(self._pending, (stamp_s, key[2], payload))
+            if len(self._pending) > self.max_held:
+                self._apply_observation(*heapq.heappop(self._pending))
             return ObservationFate.HELD
-        if key < self._keys[0]:
+        position = bisect.bisect_right(self._keys, key)
+        if key < self._keys[0] or self._events[position][2] is None:
             self.stats.too_late += 1
             return ObservationFate.TOO_LATE
-        position = bisect.bisect_right(self._keys, key)
-        _, _, saved = self._events[position]
-        later = list(zip(self._keys[position:], self._events[position:]))
+        now = self.driver.save()
+        keys, events = list(self._keys), list(self._events)
+        later = list(zip(keys[position:], events[position:]))
         del self._keys[position:]
         del self._events[position:]
-        self.driver.restore(saved)
-        self._apply_observation(stamp_s, key[2], payload)
-        for (event_stamp, _, arrival), (kind, value, _) in later:
-            self._apply_keyed(event_stamp, kind, value, arrival)
+        try:
+            self.driver.restore(events[position][2])
+            self._apply_observation(stamp_s, key[2], payload)
+            for (event_stamp, _, arrival), (kind, value, _) in later:
+                self._apply_keyed(event_stamp, kind, value, arrival)
+        except CoreError:
+            # The filter refused the late observation (or a later scan after it): put
+            # everything back as it was, as if the observation had never come.
+            self._keys[:], self._events[:] = keys, events
+            self.driver.restore(now)
+            raise
         self.stats.replays += 1
         self.stats.replayed_events += len(later)
         return ObservationFate.REPLAYED
@@ -134,15 +174,22 @@ class LaggedObservations:
     def flush(self) -> None:
         """Apply every held observation now (the inputs stopped: end of data)."""
         while self._pending:
-            stamp_s, arrival, payload = heapq.heappop(self._pending)
-            self._apply_observation(stamp_s, arrival, payload)
+            self._apply_held(*heapq.heappop(self._pending))
 
     def _release_before(self, stamp_s: float, kind: EventKind) -> None:
         # Observations sort after speed and before IMU samples of the same stamp.
         while self._pending and (self._pending[0][0] < stamp_s or (
                 self._pending[0][0] == stamp_s and kind is EventKind.IMU)):
-            observation_s, arrival, payload = heapq.heappop(self._pending)
-            self._apply_observation(observation_s, arrival, payload)
+            self._apply_held(*heapq.heappop(self._pending))
+
+    def _apply_held(self, stamp_s: float, arrival: int, payload: Any) -> None:
+        # A refused observation must not take the speed or IMU sample that released it down.
+        try:
+            self._apply_observation(stamp_s, arrival, payload)
+        except CoreError as err:
+            self.stats.refused += 1
+            if self.on_refused is not None:
+                self.on_refused(stamp_s, err)
 
     def _apply(self, stamp_s: float, kind: EventKind, value: Any) -> None:
         self._apply_keyed(stamp_s, kind, value, next(self._arrival))

@@ -5,10 +5,11 @@ at the log's time zero); `BagTrip.start_time_ns` is that message's stamp. What n
 carries (LiDAR mounts, stated noise, true bias) comes from the params sidecar beside the bag;
 without a sidecar the mounts default to the platform origin and a warning says so.
 
-`read_bag` takes the raw messages from rosbags' Reader and decodes the sensor topics in
-batches with numpy (`fast_cdr`), which gives the values rosbags' deserialisation gives
-(`read_bag(fast=False)` is that reference path); `iter_bag_messages` yields rosbags message
-objects one by one.
+`read_bag` takes the raw messages of a single-file MCAP bag from `mcap_chunks` (a small
+chunk reader, several times faster), of any other bag, or one that reader refuses, from
+rosbags' Reader, and decodes the sensor topics in batches with numpy (`fast_cdr`), which
+gives the values rosbags' deserialisation gives (`read_bag(fast=False)` is that reference
+path); `iter_bag_messages` yields rosbags message objects one by one.
 """
 
 from __future__ import annotations
@@ -447,7 +448,7 @@ def read_bag(path: Path | str, fast: bool = True, acceleration: bool = True) -> 
                 break
             except mcap_chunks.UnsupportedMcap as err:
                 # rosbags reads what the fast reader refuses (and names real damage itself).
-                log.debug('%s; reading it with rosbags instead', err)
+                log.info('%s; reading it with rosbags instead', err)
                 mcap_file = None
         for sink in sinks.values():
             sink.flush()
@@ -474,7 +475,7 @@ def read_bag(path: Path | str, fast: bool = True, acceleration: bool = True) -> 
 
 
 def _single_mcap_file(path: Path) -> Path | None:
-    """The bag's one .mcap file when the fast reader may read it, else None."""
+    """Return the bag's one .mcap file when mcap_chunks may read it, else None."""
     meta = _metadata(path)
     files = meta.get('relative_file_paths') or []
     if (meta.get('storage_identifier') != 'mcap' or meta.get('compression_mode')

@@ -409,8 +409,8 @@ def stream_topics(path: Path | str, topics: Collection[str],
     batch_messages have been read (at a chunk boundary), so memory stays bounded on long
     bags. Batches of one topic come in ascending log time; a file whose chunks are not in
     that order raises UnsupportedMcap (batches already handed over stay with the consumer,
-    who should start over with another reader). The consumer runs while the garbage
-    collector is paused, as the scan itself does.
+    who should start over with another reader). Batches handed over during the scan reach
+    the consumer while the garbage collector is paused (see read_topics); keep it short.
 
     Returns:
         topic -> message type, for every wanted topic with a channel in the file.

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
@@ -133,7 +134,8 @@ class EkfNode(Node):
                             '0: every input waits in stamp order (poses equal an offline run '
                             'but wait for the slowest input); > 0: speed and IMU are used at '
                             'once and observations up to this much stamp time late are '
-                            'replayed into the filter (poses at IMU latency)', 's', 0.0, 10.0)
+                            'replayed into the filter (poses at IMU latency; each late scan '
+                            'costs a replay of the inputs after it)', 's', 0.0, 5.0)
         stale_s = declare(self, 'stale_input_s', 1.0,
                           'An input silent for this long (wall time) stops holding the others '
                           'back', 's', 0.01, 3600.0)
@@ -168,8 +170,9 @@ class EkfNode(Node):
         self.driver = EventDriver(self.config, landmarks=landmarks, pose=sidecar.initial_pose)
         self._initial_pose = sidecar.initial_pose
         self._buffer = StreamMerger(window_s, max_events, stale_s)
-        self._lagged = (LaggedObservations(self.driver, history_s) if history_s > 0.0
-                        else None)
+        self._lagged = (LaggedObservations(self.driver, history_s, max_events,
+                                           on_refused=self._observation_refused)
+                        if history_s > 0.0 else None)
         self._origin = TimeOrigin(sidecar.time_zero_ns)
         self._calibrated_bias: float | None = None
         self.dropped = dict.fromkeys(DROP_REASONS, 0)
@@ -257,8 +260,9 @@ class EkfNode(Node):
         self._push(message.header.stamp, EventKind.OBSERVATION, (points, mount), 'landmarks',
                    message.header.frame_id)
 
-    def _observe_lagged(self, stamp, points, mount: LidarMount) -> None:
-        self._last_input = time.monotonic()
+    def _observe_lagged(self, stamp: Time, points: np.ndarray, mount: LidarMount) -> None:
+        # Not an input that ends the idle wait: held scans wait for the speed and IMU
+        # samples, and are flushed when those stop (end of data).
         ns = stamp_ns(stamp)
         if ns == 0:
             self._drop('zero_stamp', 'landmarks message with a zero stamp')
@@ -267,12 +271,17 @@ class EkfNode(Node):
         try:
             fate = self._lagged.observation(stamp_s, points, mount)
         except CoreError as err:
-            self._drop('filter_error', f'the filter refused an observation: {err}')
+            self._observation_refused(stamp_s, err)
             return
         if fate == ObservationFate.TOO_LATE:
-            behind_s = (self.driver.stamp_s or stamp_s) - stamp_s
+            filter_s = self.driver.stamp_s
+            behind_s = 0.0 if filter_s is None else filter_s - stamp_s
             self._drop('late', f'landmarks stamp {behind_s:.3f} s behind the filter, older '
-                       'than late_observation_history_s')
+                       'than late_observation_history_s or than a pose, bias or map change')
+
+    def _observation_refused(self, stamp_s: float, err: CoreError) -> None:
+        self._drop('filter_error', f'the filter refused the observation at {stamp_s:.3f} s: '
+                   f'{err}')
 
     def _mount(self, frame_id: str) -> LidarMount | None:
         if not self._sidecar.lidars:
@@ -309,6 +318,7 @@ class EkfNode(Node):
         self._process(ready)
 
     def _process(self, events) -> None:
+        # With late observations replayed, only speed and IMU samples come through here.
         driver = self.driver if self._lagged is None else self._lagged
         for stamp_s, kind, (ns, value) in events:
             try:
@@ -321,7 +331,7 @@ class EkfNode(Node):
                 elif kind is EventKind.SPEED:
                     driver.on_speed(stamp_s, value)
                 else:
-                    driver.on_detections(stamp_s, value[0], value[1])
+                    self.driver.on_detections(stamp_s, value[0], value[1])
             except CoreError as err:
                 self._drop('filter_error', f'the filter refused a {kind.name.lower()} event: '
                            f'{err}')
@@ -345,6 +355,7 @@ class EkfNode(Node):
             self._drop('non_finite', f'{topics.LANDMARK_MAP} holds a non-finite landmark')
         else:
             self.driver.landmarks = LandmarkMap(points)
+            self._forget_history()
             self.get_logger().info(f'landmark map: {points.shape[0]} landmarks')
 
     def _on_initial_pose(self, message: PoseWithCovarianceStamped) -> None:
@@ -354,6 +365,7 @@ class EkfNode(Node):
             self._drop('non_finite', f'{topics.INITIAL_POSE}: {err}')
             return
         self.driver.ekf.set_pose(pose, covariance)
+        self._forget_history()
         self.get_logger().info(f'pose set to {np.round(pose, 4).tolist()} '
                                f'({topics.INITIAL_POSE})')
 
@@ -364,9 +376,15 @@ class EkfNode(Node):
             return
         self._calibrated_bias = bias
         self.driver.ekf.set_bias(bias, self._calibration_sigma)
+        self._forget_history()
         self.get_logger().info(
             f'bias seeded from {topics.GYRO_BIAS}: {math.degrees(bias):+.4f} deg/s '
             f'(sigma {math.degrees(self._calibration_sigma):.4f} deg/s)')
+
+    def _forget_history(self) -> None:
+        # A replay restores states saved before this change and would undo it.
+        if self._lagged is not None:
+            self._lagged.forget_history()
 
     # Resets -----------------------------------------------------------------------------
 
@@ -401,10 +419,7 @@ class EkfNode(Node):
         if held and time.monotonic() - self._last_input > self._idle_flush_s:
             self._process(self._buffer.flush())
             if self._lagged is not None:
-                try:
-                    self._lagged.flush()
-                except CoreError as err:
-                    self._drop('filter_error', f'the filter refused an observation: {err}')
+                self._lagged.flush()
             self._publish_diagnostics()
 
     def _publish_diagnostics(self) -> None:
@@ -437,7 +452,8 @@ class EkfNode(Node):
             **({} if self._lagged is None else {
                 'held_observations': str(self._lagged.held),
                 'replayed_observations': str(self._lagged.stats.replays),
-                'replayed_events': str(self._lagged.stats.replayed_events)}),
+                'replayed_events': str(self._lagged.stats.replayed_events),
+                'refused_held_observations': str(self._lagged.stats.refused)}),
             **{f'dropped_{k}': str(v) for k, v in self.dropped.items()},
         }
         status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: gyro bias EKF',

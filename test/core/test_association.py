@@ -196,3 +196,17 @@ def test_small_scans_in_plain_floats_match_the_numpy_path(seed, monkeypatch):
                                    atol=1e-9)
         assert [(a.landmark_index, a.outcome) for a in small.associations] == \
             [(a.landmark_index, a.outcome) for a in large.associations]
+
+
+def test_a_landmark_at_the_sensor_matches_nothing_in_either_path(monkeypatch):
+    from gyro_ekf.core import association
+    landmarks = np.array([[0.0, 0.0], [5.0, 0.0]])
+    state = np.array([0.0, 0.0, 0.0, 0.0])
+    z = np.array([[5.0, 0.0], [0.5, 0.1]])
+    small = associate(z, state, P, R, landmarks, LidarMount(), 0.99)
+    assert [a.landmark_index for a in small.associations] == [1, -1]
+    assert math.isinf(small.mahalanobis_sq[0, 0])
+    monkeypatch.setattr(association, 'SCALAR_PAIRS_MAX', 0)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        large = associate(z, state, P, R, landmarks, LidarMount(), 0.99)
+    assert [a.landmark_index for a in large.associations] == [1, -1]

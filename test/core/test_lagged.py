@@ -106,3 +106,89 @@ def test_history_must_be_a_finite_non_negative_time(trip):
     for bad in (-0.1, float('nan'), float('inf')):
         with pytest.raises(CoreError, match='history_s'):
             LaggedObservations(_driver(trip), bad)
+
+
+def _inputs_until(trip, lagged, until_s, after_s=-1.0):
+    """Speed and IMU samples stamped in (after_s, until_s], in order."""
+    for stamp_s, kind, _, index in iter_trip_events(trip):
+        if stamp_s <= after_s:
+            continue
+        if stamp_s > until_s:
+            return
+        if kind is EventKind.IMU:
+            lagged.on_imu(stamp_s, float(trip.imu.yaw_rate_rad_s[index]))
+        elif kind is EventKind.SPEED:
+            lagged.on_speed(stamp_s, float(trip.speed.speed_m_s[index]))
+
+
+def test_a_refused_late_observation_changes_neither_filter_nor_history(trip, monkeypatch):
+    scans, found = _detections(trip)
+    lagged = LaggedObservations(_driver(trip), history_s=0.5)
+    _inputs_until(trip, lagged, 2.0)
+    before = lagged.driver.save()
+    real = EventDriver.on_detections
+
+    def refuse(self, stamp_s, points, mount):
+        raise CoreError('innovation covariance is not positive definite (test)')
+
+    monkeypatch.setattr(EventDriver, 'on_detections', refuse)
+    late = int(np.searchsorted(scans.stamp_s, 1.8))
+    with pytest.raises(CoreError, match='test'):
+        lagged.observation(float(scans.stamp_s[late]), found[late].points_sensor_m,
+                           scans.mount)
+    monkeypatch.setattr(EventDriver, 'on_detections', real)
+    assert lagged.driver.ekf.x.tolist() == before[0][0]
+    assert lagged.driver.stamp_s == before[2]
+    # The history is intact: the same scan is replayed once the filter takes it.
+    fate = lagged.observation(float(scans.stamp_s[late]), found[late].points_sensor_m,
+                              scans.mount)
+    assert fate == ObservationFate.REPLAYED and lagged.driver.stamp_s == before[2]
+
+
+def test_a_refused_held_observation_does_not_take_the_imu_sample_down(trip, monkeypatch):
+    scans, found = _detections(trip)
+    refused = []
+    lagged = LaggedObservations(_driver(trip), history_s=0.5,
+                                on_refused=lambda stamp, err: refused.append(stamp))
+    _inputs_until(trip, lagged, 1.0)
+    ahead = int(np.searchsorted(scans.stamp_s, 1.5))
+    assert lagged.observation(float(scans.stamp_s[ahead]), found[ahead].points_sensor_m,
+                              scans.mount) == ObservationFate.HELD
+    imu_before = lagged.driver.stats.imu
+
+    def refuse(self, stamp_s, points, mount):
+        raise CoreError('refused for the test')
+
+    monkeypatch.setattr(EventDriver, 'on_detections', refuse)
+    _inputs_until(trip, lagged, 2.0, after_s=1.0)
+    assert refused == [float(scans.stamp_s[ahead])] and lagged.stats.refused == 1
+    assert lagged.driver.stats.imu > imu_before and lagged.held == 0
+
+
+def test_after_an_outside_change_nothing_older_is_replayed(trip):
+    scans, found = _detections(trip)
+    lagged = LaggedObservations(_driver(trip), history_s=0.5)
+    _inputs_until(trip, lagged, 2.0)
+    lagged.driver.ekf.set_bias(0.01, 0.001)
+    lagged.forget_history()
+    late = int(np.searchsorted(scans.stamp_s, 1.9))
+    fate = lagged.observation(float(scans.stamp_s[late]), found[late].points_sensor_m,
+                              scans.mount)
+    assert fate == ObservationFate.TOO_LATE
+    assert lagged.driver.ekf.bias_rad_s == 0.01   # not undone by a replay
+    _inputs_until(trip, lagged, 2.5, after_s=2.0)   # new history builds up again
+    late = int(np.searchsorted(scans.stamp_s, 2.3))
+    assert lagged.observation(float(scans.stamp_s[late]), found[late].points_sensor_m,
+                              scans.mount) == ObservationFate.REPLAYED
+
+
+def test_held_observations_are_bounded(trip):
+    scans, found = _detections(trip)
+    lagged = LaggedObservations(_driver(trip), history_s=0.5, max_held=3)
+    _inputs_until(trip, lagged, 0.5)
+    for index in range(10, 20):
+        lagged.observation(float(scans.stamp_s[index]), found[index].points_sensor_m,
+                           scans.mount)
+    assert lagged.held == 3 and lagged.driver.stats.scans == 7
+    with pytest.raises(CoreError, match='max_held'):
+        LaggedObservations(_driver(trip), 0.5, max_held=0)
