@@ -28,7 +28,8 @@ def _offline(bag):
     return bag_trip, run
 
 
-def _pipeline(ros_processes, bag, rate: float, publish_every: int):
+def _pipeline(ros_processes, bag, rate: float, publish_every: int,
+              ekf_args: tuple[str, ...] = ('-p', 'reorder_window_s:=1.0')):
     """Run detector + EKF on a replayed bag; return the probe's odometry, bias, diagnostics."""
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Vector3Stamped
@@ -43,8 +44,8 @@ def _pipeline(ros_processes, bag, rate: float, publish_every: int):
     diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
     lossless = ('-p', 'reliable_inputs:=true')
     processes.node('landmark_detector_node', *lossless)
-    processes.node('ekf_node', '--params-file', f'{bag}.params.yaml', *lossless,
-                   '-p', 'reorder_window_s:=1.0', '-p', f'publish_every_n:={publish_every}')
+    processes.node('ekf_node', '--params-file', f'{bag}.params.yaml', *lossless, *ekf_args,
+                   '-p', f'publish_every_n:={publish_every}')
     probe.spin_until(lambda: probe.node.count_publishers('/ekf/odometry') > 0, 20,
                      'the EKF node')
     replay = processes.run(

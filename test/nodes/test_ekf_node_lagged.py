@@ -1,0 +1,54 @@
+"""ekf_node with late scans replayed (late_observation_history_s), fed a replayed bag.
+
+In its own module, so its processes run in their own ROS domain next to nobody else's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_ekf_node import _offline, _pipeline, _rows, PUBLISH_EVERY
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture(scope='module')
+def lagged_run(ros_processes, sim_bag, diagnostics_of):
+    """The simulated bag through the pipeline with late scans replayed, and drive_trip."""
+    odometry, _, diagnostics, replay, bag_trip = _pipeline(
+        ros_processes, sim_bag, 5.0, PUBLISH_EVERY, ('-p', 'late_observation_history_s:=0.5'))
+    # Two more periodic statuses: the last scans (after the last IMU sample) are in.
+    _, probe = ros_processes
+    seen = len(diagnostics)
+    probe.spin_until(lambda: len(diagnostics) >= seen + 2, 10, 'two more diagnostics')
+    _, run = _offline(sim_bag)
+    return odometry, diagnostics_of(diagnostics, '/ekf_node: gyro bias EKF'), replay, \
+        bag_trip, run
+
+
+def test_poses_stay_close_to_the_offline_core(lagged_run):
+    odometry, _, replay, bag_trip, run = lagged_run
+    assert 'all acknowledged: True' in replay
+    offline = run.estimates
+    rows = np.searchsorted(offline.stamp_s, _rows(odometry, bag_trip.start_time_ns))
+    assert len(odometry) == len(offline.stamp_s) // PUBLISH_EVERY
+    live = np.array([(m.pose.pose.position.x, m.pose.pose.position.y) for m in odometry])
+    print(f'largest distance from the offline pose: '
+          f'{np.abs(live - offline.state[rows, :2]).max() * 1e3:.2f} mm')
+    # A pose published before the detector's scan reached the filter is a prediction
+    # without it: close to the offline one, not equal.
+    assert np.abs(live - offline.state[rows, :2]).max() < 0.01
+
+
+def test_the_filter_ends_where_the_offline_core_ends(lagged_run):
+    _, values, _, _, run = lagged_run
+    assert values is not None
+    print(f"replayed {values['replayed_observations']} scans, "
+          f"{values['replayed_events']} inputs again")
+    assert int(values['replayed_observations']) > 0
+    assert int(values['dropped_late']) == 0 and int(values['held_observations']) == 0
+    # Every scan arrived within the history: the same updates, the same final bias.
+    assert int(values['associated']) == run.stats.updates
+    assert values['bias_deg_s'] == f'{math.degrees(run.estimates.state[-1, 3]):.5f}'
