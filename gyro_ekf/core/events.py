@@ -22,7 +22,7 @@ from array import array
 import itertools
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -315,11 +315,15 @@ class StreamMerger:
     holding the others back; ``max_events`` bounds what is held. An event older than one
     already released is late: ``push`` returns it in ``late`` instead of releasing it out
     of order. Ties release speed, observation, IMU, as iter_trip_events orders them, so a
-    live run feeds the EventDriver what an offline run does.
+    live run feeds the EventDriver what an offline run does. At the start nothing is
+    released until every expected stream has spoken (or stale_after_s has passed): the
+    first messages of two topics reach a subscriber in either order, and releasing the
+    first would make the other late.
     """
 
     def __init__(self, window_s: float, max_events: int = 20_000, stale_after_s: float = 1.0,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic,
+                 expected_streams: Iterable[str] = ()):
         """Hold events window_s of stamp time at least, at most max_events at once.
 
         Args:
@@ -328,10 +332,14 @@ class StreamMerger:
             stale_after_s: a stream silent for this long (wall time, s) stops holding
                 events back.
             clock: wall clock (monotonic seconds); replaceable in tests.
+            expected_streams: streams to wait for before the first release (at most
+                stale_after_s after the first event).
         """
         self.window_s = window_s
         self.max_events = max_events
         self.stale_after_s = stale_after_s
+        self.expected_streams = frozenset(expected_streams)
+        self._started: float | None = None
         self._clock = clock
         self._heap: list[tuple[float, int, int, Any]] = []
         self._arrival = itertools.count()
@@ -353,10 +361,16 @@ class StreamMerger:
         if stamp_s < self._released_s:
             return [], [payload]
         now = self._clock()
+        if self._started is None:
+            self._started = now
         newest_of_stream = self._streams.get(stream, (-math.inf, now))[0]
         self._streams[stream] = (max(newest_of_stream, stamp_s), now)
         self._newest_s = max(self._newest_s, stamp_s)
         heapq.heappush(self._heap, (stamp_s, int(kind), next(self._arrival), payload))
+        if (self._released_s == -math.inf and not self.expected_streams <= self._streams.keys()
+                and now - self._started <= self.stale_after_s
+                and len(self._heap) <= self.max_events):
+            return [], []
         watermark = min((newest for newest, seen in self._streams.values()
                          if now - seen <= self.stale_after_s), default=math.inf)
         return self._release(min(self._newest_s - self.window_s, watermark)), []
@@ -369,6 +383,7 @@ class StreamMerger:
         """Drop everything and forget the streams and stamps seen (after a reset)."""
         self._heap.clear()
         self._streams.clear()
+        self._started = None
         self._newest_s = -math.inf
         self._released_s = -math.inf
 

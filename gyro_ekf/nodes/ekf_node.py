@@ -169,7 +169,8 @@ class EkfNode(Node):
         landmarks = load_landmarks_file(landmarks_file) if landmarks_file else None
         self.driver = EventDriver(self.config, landmarks=landmarks, pose=sidecar.initial_pose)
         self._initial_pose = sidecar.initial_pose
-        self._buffer = StreamMerger(window_s, max_events, stale_s)
+        self._buffer = StreamMerger(window_s, max_events, stale_s,
+                                    expected_streams=('imu', 'odom'))
         self._lagged = (LaggedObservations(self.driver, history_s, max_events,
                                            on_refused=self._observation_refused)
                         if history_s > 0.0 else None)

@@ -193,3 +193,19 @@ def test_a_report_places_the_detections_at_the_prior_pose(simulated_runs):
                                    sensor_to_map(before, found.points_sensor_m, scans.mount))
         updated += report.nis.size
     assert updated > 0
+
+
+def test_merger_waits_for_the_expected_streams_before_the_first_release():
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0],
+                          expected_streams=('imu', 'odom'))
+    assert buffer.push('imu', 1.0, EventKind.IMU, 'imu1') == ([], [])
+    # odom's first message is older than imu's: without the wait it would be late.
+    ready, late = buffer.push('odom', 0.99, EventKind.SPEED, 'odom0')
+    assert late == [] and [p for _, _, p in ready] == ['odom0']   # imu1 waits for odom
+    # After a reset it waits again; a stream that never comes stops the wait when stale.
+    buffer.clear()
+    assert buffer.push('imu', 2.0, EventKind.IMU, 'imu2') == ([], [])
+    now[0] = 1.5
+    ready, _ = buffer.push('imu', 2.01, EventKind.IMU, 'imu3')
+    assert [p for _, _, p in ready] == ['imu2', 'imu3']
