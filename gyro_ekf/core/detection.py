@@ -20,9 +20,10 @@ width is ``chord + r * dtheta`` (r = range of the cluster centroid, dtheta = bea
 Centre. The returns lie on the pole's front surface. A return at lateral offset u from
 the ray through the cluster centroid lies ``sqrt(R^2 - u^2)`` in front of the centre
 (R = ``pole_radius_m``), so the centroid is pushed back along its ray by the mean of that
-depth. For a single central return this is exactly R, as the course states ("about 5 cm
-behind the mean of its returns"); for a densely sampled pole it is pi/4 R, which removes
-the 1 cm bias a plain push by R would leave.
+depth. For a densely sampled pole that mean is pi/4 R, which removes the 1 cm bias a plain
+push by R (the course's "about 5 cm behind the mean of its returns") would leave. A single
+return says nothing about where across the pole it struck, so it is pushed back by the
+depth expected given that its neighbours missed (``single_return_depth``), not by R.
 """
 
 from __future__ import annotations
@@ -78,6 +79,29 @@ class PoleDetections:
     def bearings_rad(self) -> FloatArray:
         """Bearing of each pole centre (0 = forward, counter-clockwise), shape (k,), rad."""
         return np.arctan2(self.points_sensor_m[:, 1], self.points_sensor_m[:, 0])
+
+
+def single_return_depth(radius_m: float, beam_gap_m: FloatArray) -> FloatArray:
+    """Return how far behind a pole's only return its centre lies, on average, m.
+
+    The return lies on its own ray, so its lateral offset u from the centre is unknown;
+    pushing it back by R (a dead-centre hit) puts far poles about 1 cm too far. With beams
+    beam_gap_m apart at the pole (range times beam spacing), one beam alone hits the pole
+    when |u| < a = min(R, gap - R) (the neighbours miss it), so u is uniform on [0, a]
+    and the mean of sqrt(R^2 - u^2) over it is
+    (a sqrt(R^2 - a^2) + R^2 asin(a / R)) / (2 a): pi R / 4 when beams are wider apart
+    than the pole, R when its neighbours barely miss it.
+
+    Args:
+        radius_m: pole radius R, m.
+        beam_gap_m: lateral distance between neighbouring beams at the pole, m (array).
+    """
+    gap = np.asarray(beam_gap_m, dtype=np.float64)
+    if radius_m <= 0.0:
+        return np.zeros_like(gap)
+    a = np.clip(gap - radius_m, 1e-9 * radius_m, radius_m)
+    root = np.sqrt(np.maximum(radius_m * radius_m - a * a, 0.0))
+    return (a * root + radius_m * radius_m * np.arcsin(a / radius_m)) / (2.0 * a)
 
 
 def _empty(cluster_count: int, used_intensities: bool) -> PoleDetections:
@@ -245,6 +269,7 @@ def detect_poles_in_scans(ranges_m: FloatArray, angles_rad: FloatArray,
     radius = config.pole_radius_m
     depth = np.sqrt(np.maximum(radius * radius - lateral * lateral, 0.0)) * w
     push = np.add.reduceat(depth, starts) / safe_counts
+    push = np.where(counts == 1, single_return_depth(radius, mean_r * spacing), push)
     centre = np.column_stack([mean_x + push * ux, mean_y + push * uy])[sel]
 
     first_flat = idx[starts[sel]]
