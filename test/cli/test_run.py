@@ -52,6 +52,23 @@ def test_run_on_a_simulated_bag_meets_the_accuracy_bounds(tmp_path, simulated_ba
         assert (out / name).exists(), name
 
 
+@pytest.mark.parametrize('seed', [11, 12, 13])
+def test_unseen_simulated_trips_moving_from_the_start_meet_the_bounds(tmp_path, seed):
+    # Seeds fixed before their results were known (the core's event tests use them too).
+    trip = simulate_trip(SimulationConfig(duration_s=120.0, static_s=0.0), seed=seed)
+    bag = write_trip_bag(trip, tmp_path / f'sim_seed{seed}')
+    code, summary = _run(bag, tmp_path / 'out', '--no-plots', '--no-bag')
+    assert code == 0
+    truth = summary['ground_truth']
+    print(f"seed {seed}: RMSE {truth['position_rmse_m'] * 1e3:.1f} mm, NEES in band "
+          f"{truth['nees_share_in_band']:.3f}, bias error "
+          f"{truth['bias_error_final_deg_s']:+.4f} deg/s")
+    assert summary['offline_bias'] is None    # no static window: the EKF alone finds it
+    assert truth['position_rmse_m'] <= 0.02
+    assert abs(truth['bias_error_final_deg_s']) <= 0.02
+    assert truth['nees_share_in_band'] >= 0.9
+
+
 def test_run_refuses_to_overwrite_without_force(tmp_path, simulated_bag, capsys):
     bag, _ = simulated_bag
     out = tmp_path / 'out'
