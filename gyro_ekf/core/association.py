@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 
 from gyro_ekf.core.angles import wrap_angle, wrap_scalar
 from gyro_ekf.core.errors import CoreError
-from gyro_ekf.core.models import observe_with_jacobian, sensor_to_map
+from gyro_ekf.core.models import observe_with_jacobian, sensor_position, sensor_to_map
 from gyro_ekf.core.types import FloatArray, LidarMount
 
 _NO_MOUNT = LidarMount()
@@ -229,13 +229,13 @@ to the bit.
 def _mahalanobis_rows(z: list[list[float]], state: FloatArray, P: FloatArray, R: FloatArray,
                       landmarks: list[list[float]], mount: LidarMount) -> list[list[float]]:
     """mahalanobis_sq in plain floats: d2[i][j] for detection i and landmark j."""
-    x, y, yaw = float(state[0]), float(state[1]), float(state[2])
+    yaw = float(state[2])
     P3 = np.asarray(P, dtype=np.float64)[:3, :3].tolist()
     (p00, p01, p02), (_, p11, p12), (_, _, p22) = P3
     (r00, r01), (r10, r11) = np.asarray(R, dtype=np.float64).tolist()
     c, s = math.cos(yaw), math.sin(yaw)
-    xl = x + mount.x_m * c - mount.y_m * s
-    yl = y + mount.x_m * s + mount.y_m * c
+    # Plain floats: numpy scalars would spread through the per-landmark loop below.
+    xl, yl = (float(v) for v in sensor_position(state, mount))
     dxl = -mount.x_m * s - mount.y_m * c
     dyl = mount.x_m * c - mount.y_m * s
     heading = yaw + mount.yaw_rad

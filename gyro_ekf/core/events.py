@@ -35,7 +35,7 @@ from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.detection import PoleDetections, detect_poles_in_scans
 from gyro_ekf.core.ekf import GyroBiasEkf, unpack_rows
 from gyro_ekf.core.errors import TimeWentBackwardsError
-from gyro_ekf.core.models import sensor_point_to_map, sensor_to_map
+from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map, sensor_to_map
 from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount, ScanSeries, Trip
 
 
@@ -265,7 +265,7 @@ class EventDriver:
             return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
         # Plain floats from here: a scan has a handful of poles, and numpy's per-call cost
         # would outweigh the arithmetic (this runs ~40 times a second on the real trip).
-        z = [[math.hypot(px, py), math.atan2(py, px)] for px, py in points.tolist()]
+        z = points_to_range_bearing(points).tolist()
         P = self.ekf.P
         if self._recovering(stamp_s):
             self.stats.recoveries += 1

@@ -145,7 +145,7 @@ class LaggedObservations:
         if not self._keys or key > self._keys[-1]:
             heapq.heappush(self._pending, (stamp_s, key[2], payload))
             if len(self._pending) > self.max_held:
-                self._apply_observation(*heapq.heappop(self._pending))
+                self._apply_held(*heapq.heappop(self._pending))
             return ObservationFate.HELD
         position = bisect.bisect_right(self._keys, key)
         if key < self._keys[0] or self._events[position][2] is None:
@@ -158,7 +158,7 @@ class LaggedObservations:
         del self._events[position:]
         try:
             self.driver.restore(events[position][2])
-            self._apply_observation(stamp_s, key[2], payload)
+            self._apply_keyed(stamp_s, EventKind.OBSERVATION, payload, key[2])
             for (event_stamp, _, arrival), (kind, value, _) in later:
                 self._apply_keyed(event_stamp, kind, value, arrival)
         except CoreError:
@@ -185,7 +185,7 @@ class LaggedObservations:
     def _apply_held(self, stamp_s: float, arrival: int, payload: Any) -> None:
         # A refused observation must not take the speed or IMU sample that released it down.
         try:
-            self._apply_observation(stamp_s, arrival, payload)
+            self._apply_keyed(stamp_s, EventKind.OBSERVATION, payload, arrival)
         except CoreError as err:
             self.stats.refused += 1
             if self.on_refused is not None:
@@ -193,9 +193,6 @@ class LaggedObservations:
 
     def _apply(self, stamp_s: float, kind: EventKind, value: Any) -> None:
         self._apply_keyed(stamp_s, kind, value, next(self._arrival))
-
-    def _apply_observation(self, stamp_s: float, arrival: int, payload: Any) -> None:
-        self._apply_keyed(stamp_s, EventKind.OBSERVATION, payload, arrival)
 
     def _apply_keyed(self, stamp_s: float, kind: EventKind, value: Any, arrival: int) -> None:
         saved = self.driver.save()

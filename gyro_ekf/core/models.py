@@ -150,11 +150,8 @@ def sensor_to_map(state: FloatArray, points_sensor_m: FloatArray,
 def sensor_point_to_map(state: list[float] | FloatArray, x_m: float, y_m: float,
                         mount: LidarMount = _NO_MOUNT) -> tuple[float, float]:
     """One sensor-frame point to the map frame in plain floats (sensor_to_map for one)."""
-    x, y, yaw = float(state[0]), float(state[1]), float(state[2])
-    c, s = math.cos(yaw), math.sin(yaw)
-    xl = x + mount.x_m * c - mount.y_m * s
-    yl = y + mount.x_m * s + mount.y_m * c
-    heading = yaw + mount.yaw_rad
+    xl, yl = (float(v) for v in sensor_position(state, mount))
+    heading = float(state[2]) + mount.yaw_rad
     ch, sh = math.cos(heading), math.sin(heading)
     return xl + ch * x_m - sh * y_m, yl + sh * x_m + ch * y_m
 

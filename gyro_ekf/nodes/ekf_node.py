@@ -264,9 +264,8 @@ class EkfNode(Node):
     def _observe_lagged(self, stamp: Time, points: np.ndarray, mount: LidarMount) -> None:
         # Not an input that ends the idle wait: held scans wait for the speed and IMU
         # samples, and are flushed when those stop (end of data).
-        ns = stamp_ns(stamp)
-        if ns == 0:
-            self._drop('zero_stamp', 'landmarks message with a zero stamp')
+        ns = self._stamp_ns(stamp, 'landmarks')
+        if ns is None:
             return
         stamp_s = self._origin.seconds(ns)
         try:
@@ -279,6 +278,14 @@ class EkfNode(Node):
             behind_s = 0.0 if filter_s is None else filter_s - stamp_s
             self._drop('late', f'landmarks stamp {behind_s:.3f} s behind the filter, older '
                        'than late_observation_history_s or than a pose, bias or map change')
+
+    def _stamp_ns(self, stamp: Time, what: str) -> int | None:
+        """Return the stamp in ns, or None (dropped and counted) when it is zero."""
+        ns = stamp_ns(stamp)
+        if ns == 0:
+            self._drop('zero_stamp', f'{what} message with a zero stamp')
+            return None
+        return ns
 
     def _observation_refused(self, stamp_s: float, err: CoreError) -> None:
         self._drop('filter_error', f'the filter refused the observation at {stamp_s:.3f} s: '
@@ -299,9 +306,8 @@ class EkfNode(Node):
 
     def _push(self, stamp, kind: EventKind, value, what: str, stream: str) -> None:
         self._last_input = time.monotonic()
-        ns = stamp_ns(stamp)
-        if ns == 0:
-            self._drop('zero_stamp', f'{what} message with a zero stamp')
+        ns = self._stamp_ns(stamp, what)
+        if ns is None:
             return
         stamp_s = self._origin.seconds(ns)
         ready, late = self._buffer.push(stream, stamp_s, kind, (ns, value))
