@@ -153,17 +153,36 @@ def test_non_reflective_narrow_object_depends_on_mode():
     assert len(detect_poles(ranges, ANGLES, None, DetectorConfig())) == 1
 
 
-def test_two_poles_and_edge_clusters():
-    poles = [_polar(2.0, ANGLES[0]), _polar(3.0, ANGLES[180]), _polar(2.5, ANGLES[360])]
-    ranges, intensities = _cast(poles)
+@pytest.mark.parametrize('use_intensity', [True, False])
+@pytest.mark.parametrize('range_m', [1.0, 2.0, 4.0])
+def test_pole_cut_by_the_field_of_view_is_placed_from_its_inner_edge(range_m, use_intensity):
+    # Centres from a quarter beam to 2.5 beams outside the first and last beams: part of
+    # the pole is never sampled, so the centroid of its returns lies inward of the centre.
+    step = float(ANGLES[1] - ANGLES[0])
+    for beyond in (0.25, 1.0, 2.5):
+        for bearing in (ANGLES[0] - beyond * step, ANGLES[-1] + beyond * step):
+            centre = _polar(range_m, bearing)
+            ranges, intensities = _cast([centre], wall_x=12.0)
+            found = detect_poles(ranges, ANGLES, intensities if use_intensity else None,
+                                 DetectorConfig(min_width_m=0.0))
+            if not intensities.any():  # far and outside enough that no beam hits it
+                assert len(found) == 0
+                continue
+            assert len(found) == 1, (beyond, bearing)
+            assert found.first_beams[0] == 0 or found.last_beams[0] == ANGLES.size - 1
+            # Half a beam of edge quantisation: r * step / 2 across the ray at most.
+            error = np.linalg.norm(found.points_sensor_m[0] - centre)
+            assert error < range_m * step / 2 + 0.003, (beyond, bearing, error)
+
+
+def test_cut_pole_hidden_on_its_inner_side_is_not_reported():
+    step = float(ANGLES[1] - ANGLES[0])
+    pole = _polar(3.0, ANGLES[0] - 0.5 * step)
+    # A closer pole right next to it hides its inner edge.
+    ranges, intensities = _cast([pole, _polar(1.0, ANGLES[5])])
     found = detect_poles(ranges, ANGLES, intensities, DetectorConfig())
-    assert len(found) == 3
-    np.testing.assert_array_equal(found.touches_edge, [True, False, True])
-    assert found.first_beams[0] == 0 and found.last_beams[2] == 360
-    # The middle pole is exact; the cut-off ones lie within a pole radius.
-    np.testing.assert_allclose(found.points_sensor_m[1], poles[1], atol=0.003)
-    for i in (0, 2):
-        assert np.linalg.norm(found.points_sensor_m[i] - poles[i]) < RADIUS
+    assert len(found) == 1
+    np.testing.assert_allclose(found.points_sensor_m[0], _polar(1.0, ANGLES[5]), atol=0.003)
 
 
 def test_invalid_beams_split_clusters():
@@ -217,6 +236,6 @@ def test_batched_detection_equals_scan_by_scan(with_intensity):
         single = detect_poles(ranges[k], scans.angles_rad,
                               None if intensities is None else intensities[k])
         for name in ('points_sensor_m', 'widths_m', 'beam_counts', 'first_beams',
-                     'last_beams', 'touches_edge'):
+                     'last_beams'):
             np.testing.assert_array_equal(getattr(found, name), getattr(single, name))
         assert found.cluster_count == single.cluster_count
