@@ -169,8 +169,14 @@ class EkfNode(Node):
         landmarks = load_landmarks_file(landmarks_file) if landmarks_file else None
         self.driver = EventDriver(self.config, landmarks=landmarks, pose=sidecar.initial_pose)
         self._initial_pose = sidecar.initial_pose
+        # The first landmarks come later than the first IMU and odometry messages (the
+        # detector works on each scan first), so wait for every configured LiDAR frame too,
+        # or its first scans would be late; stale_input_s bounds the wait.
+        expected = ['imu', 'odom']
+        if history_s == 0.0:  # replayed observations do not pass the merger
+            expected += [frame for frame, _ in sidecar.lidars.values()]
         self._buffer = StreamMerger(window_s, max_events, stale_s,
-                                    expected_streams=('imu', 'odom'))
+                                    expected_streams=expected)
         self._lagged = (LaggedObservations(self.driver, history_s, max_events,
                                            on_refused=self._observation_refused)
                         if history_s > 0.0 else None)
