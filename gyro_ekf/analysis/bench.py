@@ -60,7 +60,9 @@ def core_benchmark(steps: int = 20_000, dt_s: float = 0.005, seed: int = 0
     from gyro_ekf.core.ekf import GyroBiasEkf
     from gyro_ekf.core.types import LidarMount
 
-    config = EkfConfig(initial_position_sigma_m=0.1, initial_yaw_sigma_rad=0.05)
+    # The report's model: filterpy's R is one matrix, without the per-landmark map term.
+    config = EkfConfig(initial_position_sigma_m=0.1, initial_yaw_sigma_rad=0.05,
+                       landmark_sigma_m=0.0)
     mount = LidarMount(0.4, 0.0, 0.0)
     data = _inputs(steps, seed)
     ours = GyroBiasEkf(config, pose=[0.0, 0.0, 0.3], bias_rad_s=0.0)
@@ -96,7 +98,7 @@ def core_benchmark(steps: int = 20_000, dt_s: float = 0.005, seed: int = 0
         theirs.F = models.process_jacobian(x, speed, dt_s)
         theirs.Q = models.process_noise(x, dt_s, config.speed_noise_m_s,
                                         config.gyro_noise_rad_s,
-                                        config.position_process_noise_m_s,
+                                        config.position_random_walk_m_sqrt_s,
                                         config.bias_random_walk_rad_s2)
         theirs.x = models.predict_state(x, speed, rate, dt_s).reshape(4, 1)
         theirs.P = theirs.F @ theirs.P @ theirs.F.T + theirs.Q

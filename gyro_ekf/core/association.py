@@ -5,9 +5,12 @@ convention, see ``models.points_to_range_bearing``) and landmark j::
 
     h_j = observe(x, l_j, mount)               expected observation, (2,)
     H_j = observation_jacobian(x, l_j, mount)  (2, 4)
-    S_j = H_j P H_j^T + R                      innovation covariance, (2, 2)
+    S_j = H_j P H_j^T + R_j                    innovation covariance, (2, 2)
     y_ij = z_i - h_j, bearing wrapped          innovation, (2,)
     d2_ij = y_ij^T S_j^-1 y_ij                 squared Mahalanobis distance
+
+where R_j = R + diag(s2, s2 / r_j^2) adds the map's own uncertainty (s2: variance of a
+landmark's position along any axis, r_j: predicted range; see ``ekf.GyroBiasEkf``).
 
 Landmark j lies inside detection i's gate when d2_ij <= g, where g is the chi-square
 quantile with 2 degrees of freedom at the gate probability p; for 2 dof it has the closed
@@ -129,7 +132,8 @@ def gate_threshold(gate_probability: float) -> float:
 
 
 def mahalanobis_sq(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
-                   landmarks_xy_m: FloatArray, mount: LidarMount = _NO_MOUNT) -> FloatArray:
+                   landmarks_xy_m: FloatArray, mount: LidarMount = _NO_MOUNT,
+                   landmark_var_m2: float = 0.0) -> FloatArray:
     """Squared Mahalanobis distance of every detection to every landmark.
 
     Args:
@@ -139,6 +143,8 @@ def mahalanobis_sq(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArra
         R: observation noise covariance, shape (2, 2), [m^2, rad^2].
         landmarks_xy_m: landmark positions in the map frame, shape (k, 2), m.
         mount: the LiDAR's pose on the platform.
+        landmark_var_m2: variance of each landmark's map position along any axis, m^2
+            (``observation_noise`` adds it to R).
 
     Returns:
         d2, shape (n, k).
@@ -149,6 +155,10 @@ def mahalanobis_sq(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArra
         return np.zeros((z.shape[0], landmarks.shape[0]))
     h, H = observe_with_jacobian(state, landmarks, mount)      # (k, 2), (k, 2, 4)
     S = H @ np.asarray(P, dtype=np.float64) @ np.swapaxes(H, 1, 2) + R  # (k, 2, 2)
+    if landmark_var_m2 > 0.0:
+        S[:, 0, 0] += landmark_var_m2
+        with np.errstate(divide='ignore'):
+            S[:, 1, 1] += landmark_var_m2 / np.square(h[:, 0])
     # Closed-form 2x2 inverse, vectorised over landmarks.
     a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
     det = a * d - b * c
@@ -164,7 +174,8 @@ def mahalanobis_sq(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArra
 
 def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
               landmarks_xy_m: FloatArray, mount: LidarMount = _NO_MOUNT,
-              gate_probability: float = 0.99) -> AssociationResult:
+              gate_probability: float = 0.99, landmark_var_m2: float = 0.0
+              ) -> AssociationResult:
     """Associate the detections of one scan with the map.
 
     Args:
@@ -175,6 +186,7 @@ def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
         landmarks_xy_m: landmark positions in the map frame, shape (k, 2), m.
         mount: the LiDAR's pose on the platform.
         gate_probability: probability mass of the chi-square (2 dof) gate.
+        landmark_var_m2: variance of each landmark's map position along any axis, m^2.
 
     Returns:
         One association per detection, with counts.
@@ -187,8 +199,8 @@ def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
     landmarks = np.asarray(landmarks_xy_m, dtype=np.float64).reshape(-1, 2)
     if 0 < z.shape[0] * landmarks.shape[0] <= SCALAR_PAIRS_MAX:
         return _associate_scalar(z.tolist(), state, P, R, landmarks.tolist(), mount,
-                                 threshold)
-    d2 = mahalanobis_sq(z, state, P, R, landmarks, mount)
+                                 threshold, landmark_var_m2)
+    d2 = mahalanobis_sq(z, state, P, R, landmarks, mount, landmark_var_m2)
     n, k = d2.shape
     if k == 0:
         return AssociationResult(
@@ -227,7 +239,8 @@ to the bit.
 
 
 def _mahalanobis_rows(z: list[list[float]], state: FloatArray, P: FloatArray, R: FloatArray,
-                      landmarks: list[list[float]], mount: LidarMount) -> list[list[float]]:
+                      landmarks: list[list[float]], mount: LidarMount,
+                      landmark_var_m2: float = 0.0) -> list[list[float]]:
     """mahalanobis_sq in plain floats: d2[i][j] for detection i and landmark j."""
     yaw = float(state[2])
     P3 = np.asarray(P, dtype=np.float64)[:3, :3].tolist()
@@ -257,10 +270,10 @@ def _mahalanobis_rows(z: list[list[float]], state: FloatArray, P: FloatArray, R:
         pb0 = p00 * b0 + p01 * b1 + p02 * b2
         pb1 = p01 * b0 + p11 * b1 + p12 * b2
         pb2 = p02 * b0 + p12 * b1 + p22 * b2
-        s00 = a0 * pa0 + a1 * pa1 + a2 * pa2 + r00
+        s00 = a0 * pa0 + a1 * pa1 + a2 * pa2 + r00 + landmark_var_m2
         s01 = a0 * pb0 + a1 * pb1 + a2 * pb2 + r01
         s10 = b0 * pa0 + b1 * pa1 + b2 * pa2 + r10
-        s11 = b0 * pb0 + b1 * pb1 + b2 * pb2 + r11
+        s11 = b0 * pb0 + b1 * pb1 + b2 * pb2 + r11 + landmark_var_m2 / q
         det = s00 * s11 - s01 * s10
         if det <= 0.0:
             raise CoreError('mahalanobis_sq: innovation covariance is not positive definite; '
@@ -279,10 +292,10 @@ def _mahalanobis_rows(z: list[list[float]], state: FloatArray, P: FloatArray, R:
 
 
 def _associate_scalar(z: list[list[float]], state: FloatArray, P: FloatArray, R: FloatArray,
-                      landmarks: list[list[float]], mount: LidarMount, threshold: float
-                      ) -> AssociationResult:
+                      landmarks: list[list[float]], mount: LidarMount, threshold: float,
+                      landmark_var_m2: float = 0.0) -> AssociationResult:
     """associate() for small scans, in plain floats (same outcomes, see SCALAR_PAIRS_MAX)."""
-    d2 = _mahalanobis_rows(z, state, P, R, landmarks, mount)
+    d2 = _mahalanobis_rows(z, state, P, R, landmarks, mount, landmark_var_m2)
     k = len(landmarks)
     gated = [[j for j in range(k) if row[j] <= threshold] for row in d2]
     gating_detections = [0] * k
@@ -314,8 +327,8 @@ def _associations(landmark: NDArray[np.int64], outcome: NDArray[np.int64],
 
 def associate_by_distance(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
                           landmarks_xy_m: FloatArray, mount: LidarMount = _NO_MOUNT,
-                          max_distance_m: float = 1.0, ratio: float = 0.3
-                          ) -> AssociationResult:
+                          max_distance_m: float = 1.0, ratio: float = 0.3,
+                          landmark_var_m2: float = 0.0) -> AssociationResult:
     """Re-associate by map-frame distance, for a filter that has lost its landmarks.
 
     After a long stretch without updates the covariance no longer describes the error
@@ -334,6 +347,8 @@ def associate_by_distance(z: FloatArray, state: FloatArray, P: FloatArray, R: Fl
         mount: the LiDAR's pose on the platform.
         max_distance_m: farthest a detection may lie from its landmark, m.
         ratio: nearest distance must be at most this share of the second nearest.
+        landmark_var_m2: variance of each landmark's map position, m^2 (for the reported
+            distances).
 
     Returns:
         One association per detection: MATCHED, UNMATCHED (too far), AMBIGUOUS (fails the
@@ -341,10 +356,10 @@ def associate_by_distance(z: FloatArray, state: FloatArray, P: FloatArray, R: Fl
     """
     z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
     landmarks = np.asarray(landmarks_xy_m, dtype=np.float64).reshape(-1, 2)
-    d2 = mahalanobis_sq(z, state, P, R, landmarks, mount)
+    d2 = mahalanobis_sq(z, state, P, R, landmarks, mount, landmark_var_m2)
     n, k = d2.shape
     if k == 0:
-        return associate(z, state, P, R, landmarks, mount)
+        return associate(z, state, P, R, landmarks, mount, landmark_var_m2=landmark_var_m2)
     points = sensor_to_map(state, np.column_stack([z[:, 0] * np.cos(z[:, 1]),
                                                    z[:, 0] * np.sin(z[:, 1])]), mount)
     distance = np.hypot(points[:, None, 0] - landmarks[None, :, 0],

@@ -17,6 +17,10 @@ Update (posterior) with one range/bearing observation z of a known landmark::
     P = (I - K H) P- (I - K H)^T + K R K^T     (Joseph form: stays symmetric and positive
                                                  semi-definite despite rounding)
 
+R is the sensor noise diag(sigma_r^2, sigma_b^2) plus what an uncertain map adds
+(``observation_noise``): a real map is surveyed to about a centimetre, a simulator's map
+is exact.
+
 Because the bias enters yaw through ``-T`` in J, landmark updates that correct yaw also
 correct the bias: that is how the filter finds the bias online.
 
@@ -58,7 +62,8 @@ class GyroBiasEkf:
         S: last innovation covariance, shape (2, 2).
         K: last Kalman gain, shape (4, 2).
         nis: last normalised innovation squared y^T S^-1 y.
-        R: observation noise covariance, shape (2, 2).
+        R: sensor noise covariance, shape (2, 2) (``observation_noise`` adds the map's).
+        landmark_var_m2: variance of a landmark's map position along any axis, m^2.
     """
 
     def __init__(self, config: EkfConfig | None = None, pose: FloatArray | None = None,
@@ -74,10 +79,12 @@ class GyroBiasEkf:
         self.config = config or EkfConfig()
         self._r_range = self.config.range_noise_m ** 2
         self._r_bearing = self.config.bearing_noise_rad ** 2
+        self._landmark_var = self.config.landmark_sigma_m ** 2
         self.R = np.diag([self._r_range, self._r_bearing])
+        self.landmark_var_m2 = self._landmark_var
         self._sigma_v2 = self.config.speed_noise_m_s ** 2
         self._sigma_w2 = self.config.gyro_noise_rad_s ** 2
-        self._q_pos2 = self.config.position_process_noise_m_s ** 2
+        self._q_pos2 = self.config.position_random_walk_m_sqrt_s ** 2
         self._q_b2 = self.config.bias_random_walk_rad_s2 ** 2
         self.reset(pose, bias_rad_s, covariance)
 
@@ -205,7 +212,7 @@ class GyroBiasEkf:
         # along the heading).
         t2 = dt_s * dt_s
         qv = t2 * self._sigma_v2
-        qp = t2 * self._q_pos2
+        qp = dt_s * self._q_pos2
         self._p = [
             m00 + a * m02 + qv * c * c + qp,
             m01 + b * m02 + qv * c * s,
@@ -224,11 +231,22 @@ class GyroBiasEkf:
         """Innovation y (2,), its covariance S (2, 2) and H (2, 4) for one observation."""
         z_hat, H = observe_one(self._s, landmark_xy_m, mount)
         y = np.array([z[0] - z_hat[0], wrap_scalar(z[1] - z_hat[1])])
-        return y, H @ self.P @ H.T + self.R, H
+        return y, H @ self.P @ H.T + self.observation_noise(float(z_hat[0])), H
+
+    def observation_noise(self, range_m: float) -> FloatArray:
+        """R of one landmark at a predicted range (m): sensor noise plus map uncertainty.
+
+        A landmark's map position off by sigma along any axis moves its range by sigma and
+        its bearing by sigma / range, so the map adds diag(sigma^2, sigma^2 / range^2).
+        """
+        m2 = self._landmark_var
+        return np.diag([self._r_range + m2, self._r_bearing + m2 / (range_m * range_m)])
 
     def update(self, z: FloatArray, landmark_xy_m: FloatArray,
-               mount: LidarMount = _NO_MOUNT) -> float:
+               mount: LidarMount = _NO_MOUNT, noise_scale: float = 1.0) -> float:
         """Correct with z = [range m, bearing rad] (0 = sensor forward) of a known landmark.
+
+        ``noise_scale`` multiplies R (sensor and map) for this observation only.
 
         Returns:
             The normalised innovation squared (NIS) of this observation.
@@ -266,9 +284,11 @@ class GyroBiasEkf:
         b2 = p02 * h10 + p12 * h11 + p22 * h12
         b3 = p03 * h10 + p13 * h11 + p23 * h12
         # S = H P H^T + R and its inverse.
-        s00 = h00 * a0 + h01 * a1 + h02 * a2 + self._r_range
+        rr = (self._r_range + self._landmark_var) * noise_scale
+        rb = (self._r_bearing + self._landmark_var / r2) * noise_scale
+        s00 = h00 * a0 + h01 * a1 + h02 * a2 + rr
         s01 = h00 * b0 + h01 * b1 + h02 * b2
-        s11 = h10 * b0 + h11 * b1 + h12 * b2 + self._r_bearing
+        s11 = h10 * b0 + h11 * b1 + h12 * b2 + rb
         det = s00 * s11 - s01 * s01
         if not (det > 0.0 and s00 > 0.0):
             raise CoreError(f'innovation covariance is not positive definite: '
@@ -301,7 +321,6 @@ class GyroBiasEkf:
         b32 = p23 - k30 * a2 - k31 * b2
         b33 = p33 - k30 * a3 - k31 * b3
         # C = B H^T; each row minus K R is what multiplies K^T.
-        rr, rb = self._r_range, self._r_bearing
         c00 = b00 * h00 + b01 * h01 + b02 * h02 - rr * k00
         c01 = b00 * h10 + b01 * h11 + b02 * h12 - rb * k01
         c10 = b10 * h00 + b11 * h01 + b12 * h02 - rr * k10

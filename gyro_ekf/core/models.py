@@ -10,7 +10,10 @@ yaw rate rad/s, bias included). From the MTRN4010 Project 3 report
     b   += 0 (+ random walk)          [0, 0,  0,             1]]
 
     Q = Ju Pu Ju^T + Q2,   Ju = [[T cos(yaw), 0], [T sin(yaw), 0], [0, T], [0, 0]],
-    Pu = diag(sigma_v^2, sigma_w^2),   Q2 = diag((q_pos T)^2, (q_pos T)^2, 0, (q_b T)^2).
+    Pu = diag(sigma_v^2, sigma_w^2),   Q2 = diag(q^2 T, q^2 T, 0, (q_b T)^2).
+
+The report's Q2 has (q_pos T)^2 for x and y; here they follow a random walk of density q
+(m/sqrt(s)), so the position noise per second does not depend on the IMU rate.
 
 Observation of a landmark at (xa, ya) by a LiDAR mounted at (Lx, Ly, alpha) on the
 platform (``../shared/data/mtrn4010/README.md``, "Observation model")::
@@ -70,13 +73,13 @@ def input_jacobian(state: FloatArray, dt_s: float) -> FloatArray:
 
 
 def process_noise(state: FloatArray, dt_s: float, speed_sigma_m_s: float,
-                  rate_sigma_rad_s: float, position_noise_m_s: float,
+                  rate_sigma_rad_s: float, position_walk_m_sqrt_s: float,
                   bias_walk_rad_s2: float) -> FloatArray:
     """Q = Ju Pu Ju^T + Q2 over one step, shape (4, 4)."""
     ju = input_jacobian(state, dt_s)
     pu = np.diag([speed_sigma_m_s ** 2, rate_sigma_rad_s ** 2])
-    q2 = np.diag([(position_noise_m_s * dt_s) ** 2, (position_noise_m_s * dt_s) ** 2, 0.0,
-                  (bias_walk_rad_s2 * dt_s) ** 2])
+    position_var = position_walk_m_sqrt_s ** 2 * dt_s
+    q2 = np.diag([position_var, position_var, 0.0, (bias_walk_rad_s2 * dt_s) ** 2])
     return ju @ pu @ ju.T + q2
 
 

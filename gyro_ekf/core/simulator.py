@@ -24,11 +24,11 @@ The platform stands still for ``static_s`` (speed exactly 0), then drives a figu
   1.0) and wall segments (intensity 0.0); per-beam Gaussian range noise; no return (+inf)
   beyond ``lidar_max_range_m``. A whole scan is taken at its stamp (no sweep motion).
 
-``Trip.noise`` holds the figures the simulator used: gyro (z) and speed white-noise
-sigmas, the **per-beam** range noise, and for the bearing the standard deviation of a
-uniform quantisation over one beam spacing (increment / sqrt(12)). A detected pole centre
-averages several beams, so its effective noise is usually below these per-beam figures;
-``test/core/test_simulator.py`` checks that detected poles stay within them.
+``Trip.noise`` states the gyro (z) and speed white-noise sigmas the simulator used and an
+exact map (landmark_m = 0). It states no range or bearing figure: the EKF's are the noise
+of a detected pole centre, which averages several beams and so lies below the per-beam
+range noise and the beam quantisation (increment / sqrt(12));
+``test/core/test_simulator.py`` checks that detected poles stay within those.
 """
 
 from __future__ import annotations
@@ -449,8 +449,7 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
         ground_truth=GroundTruth(stamp_s=truth_t, pose=truth_pose),
         true_gyro_bias_rad_s=bias,
         noise=NoiseFigures(gyro_rad_s=config.gyro_noise_z_rad_s,
-                           speed_m_s=config.speed_noise_m_s, range_m=config.range_noise_m,
-                           bearing_rad=config.lidar_increment_rad / math.sqrt(12.0)),
+                           speed_m_s=config.speed_noise_m_s, landmark_m=0.0),
         walls=walls,
         static_duration_s=config.static_s,
     )

@@ -150,12 +150,15 @@ class NoiseFigures:
         speed_m_s: speed noise, m/s.
         range_m: LiDAR range noise, m.
         bearing_rad: LiDAR bearing noise, rad.
+        landmark_m: uncertainty of each landmark's map position, m; 0 for a simulator's
+            own map, which is exact.
     """
 
     gyro_rad_s: float | None = None
     speed_m_s: float | None = None
     range_m: float | None = None
     bearing_rad: float | None = None
+    landmark_m: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -17,6 +17,7 @@ exactly what rosbag2 expects). It is a ROS 2 parameters file, so nodes take it w
         noise:                                    # only the figures the log states
           gyro_rad_s: 0.01745329
           speed_m_s: 0.08
+          landmark_m: 0.0                         # a simulator's map is exact
         true_gyro_bias_rad_s: [0.0, 0.0, 0.005235988]   # only when known
 
 All values are SI; names end in their unit. Unknown entries are left out (ROS parameters have
@@ -37,7 +38,7 @@ from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures, Trip
 from gyro_ekf.io.errors import BagError
 
 SUFFIX = '.params.yaml'
-NOISE_KEYS = ('gyro_rad_s', 'speed_m_s', 'range_m', 'bearing_rad')
+NOISE_KEYS = ('gyro_rad_s', 'speed_m_s', 'range_m', 'bearing_rad', 'landmark_m')
 
 
 @dataclass(frozen=True, slots=True)

@@ -3,8 +3,9 @@
 Keys (arrays; strings are 0-d unicode arrays):
 
 - `format` = 'gyro_ekf.trip', `format_version` = 1 (checked on load).
-- `name`, `initial_pose` (3,), `static_duration_s` (), `noise` (4,): gyro rad/s, speed m/s,
-  range m, bearing rad, NaN = not stated.
+- `name`, `initial_pose` (3,), `static_duration_s` (), `noise` (5,): gyro rad/s, speed m/s,
+  range m, bearing rad, landmark map sigma m, NaN = not stated (files with 4 state no map
+  sigma).
 - `imu.stamp_s` (n,), `imu.angular_velocity_rad_s` (n, 3), `imu.axes_known` (3,) bool and,
   optionally, `imu.linear_acceleration_m_s2` (n, 3).
 - `speed.stamp_s` (n,), `speed.speed_m_s` (n,).
@@ -54,7 +55,8 @@ def trip_arrays(trip: Trip) -> dict[str, np.ndarray]:
         'initial_pose': np.asarray(trip.initial_pose, dtype=np.float64),
         'static_duration_s': np.array(float(trip.static_duration_s)),
         'noise': np.array([_nan_if_none(noise.gyro_rad_s), _nan_if_none(noise.speed_m_s),
-                           _nan_if_none(noise.range_m), _nan_if_none(noise.bearing_rad)]),
+                           _nan_if_none(noise.range_m), _nan_if_none(noise.bearing_rad),
+                           _nan_if_none(noise.landmark_m)]),
         'imu.stamp_s': np.asarray(trip.imu.stamp_s, dtype=np.float64),
         'imu.angular_velocity_rad_s': np.asarray(trip.imu.angular_velocity_rad_s,
                                                  dtype=np.float64),
@@ -225,7 +227,10 @@ def _load(keys: _Keys) -> Trip:
         pose = keys.get('ground_truth.pose', 2, 3)
         keys.same_length('ground_truth.pose', pose, 'ground_truth.stamp_s', truth_s.size)
         truth = GroundTruth(stamp_s=truth_s, pose=pose)
-    noise = keys.get('noise', 1, 4)
+    noise = keys.get('noise', 1)
+    if noise.size not in (4, 5):
+        raise LogFormatError(f"{keys.path.name}: key 'noise' has shape {noise.shape}, "
+                             'expected 4 or 5 figures')
     return Trip(
         name=str(keys.get('name')),
         imu=ImuSeries(stamp_s=imu_s, angular_velocity_rad_s=rates,

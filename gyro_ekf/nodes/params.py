@@ -130,7 +130,8 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
     Args:
         node: the node.
         lidars: declare `lidar.topics` and `lidar.<topic>.{frame_id,x_m,y_m,yaw_rad}`.
-        noise: declare `noise.{gyro_rad_s,speed_m_s,range_m,bearing_rad}` (0 = not stated).
+        noise: declare `noise.{gyro_rad_s,speed_m_s,range_m,bearing_rad}` (0 = not stated)
+            and `noise.landmark_m` (negative = not stated: 0 states an exact map).
         pose: declare `initial_pose.{x_m,y_m,yaw_rad}`.
     """
     zero_ns = declare(node, 'trip.log_time_zero_ns', 0,
@@ -160,9 +161,12 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
     if noise:
         stated = {}
         for key, target in NOISE_FIELDS.items():
-            value = declare(node, f'noise.{key}', 0.0,
+            # A map can be exact, so its figure uses a negative value for "not stated".
+            unset = -1.0 if key == 'landmark_m' else 0.0
+            value = declare(node, f'noise.{key}', unset,
                             f'Noise figure the bag states; replaces {target} when '
-                            'use_stated_noise is true. 0 = not stated', '', 0.0, None)
-            stated[key] = value if value > 0.0 else None
+                            f'use_stated_noise is true. {unset:g} = not stated', '', unset,
+                            None)
+            stated[key] = value if value > unset else None
         figures = NoiseFigures(**stated)
     return SidecarParams(int(zero_ns), np.array(initial, dtype=np.float64), mounts, figures)

@@ -10,7 +10,7 @@ import pytest
 from gyro_ekf.core.association import (AssociationOutcome, associate, gate_threshold,
                                        mahalanobis_sq)
 from gyro_ekf.core.errors import CoreError
-from gyro_ekf.core.models import observe
+from gyro_ekf.core.models import observe, observe_with_jacobian
 from gyro_ekf.core.types import LidarMount
 
 MOUNT = LidarMount(0.46, 0.0, 0.0)
@@ -188,14 +188,31 @@ def test_small_scans_in_plain_floats_match_the_numpy_path(seed, monkeypatch):
         z = h[rng.integers(0, len(landmarks), rng.integers(1, 8))]
         z = z + rng.normal(size=z.shape) * [0.05, 0.01]
         assert z.size // 2 * len(landmarks) <= association.SCALAR_PAIRS_MAX
-        small = associate(z.tolist(), state, cov, R, landmarks, mount, 0.99)
+        map_var = float(rng.choice([0.0, 0.01 ** 2, 0.1 ** 2]))
+        small = associate(z.tolist(), state, cov, R, landmarks, mount, 0.99, map_var)
         monkeypatch.setattr(association, 'SCALAR_PAIRS_MAX', 0)
-        large = associate(z, state, cov, R, landmarks, mount, 0.99)
+        large = associate(z, state, cov, R, landmarks, mount, 0.99, map_var)
         monkeypatch.undo()
         np.testing.assert_allclose(small.mahalanobis_sq, large.mahalanobis_sq, rtol=1e-9,
                                    atol=1e-9)
         assert [(a.landmark_index, a.outcome) for a in small.associations] == \
             [(a.landmark_index, a.outcome) for a in large.associations]
+
+
+def test_map_uncertainty_widens_the_gate_by_range_and_bearing():
+    # An isotropic map error of sigma adds sigma^2 to the range variance and
+    # (sigma / range)^2 to the bearing variance: the same innovation counts for less.
+    state = np.array([0.0, 0.0, 0.0, 0.0])
+    landmarks = np.array([[4.0, 0.0]])
+    z = np.array([[4.05, 0.01]])
+    exact = mahalanobis_sq(z, state, P, R, landmarks)[0, 0]
+    sigma = 0.03
+    widened = mahalanobis_sq(z, state, P, R, landmarks, landmark_var_m2=sigma ** 2)[0, 0]
+    h, H = observe_with_jacobian(state, landmarks, LidarMount())
+    S = H[0] @ P @ H[0].T + R + np.diag([sigma ** 2, (sigma / 4.0) ** 2])
+    y = z[0] - h[0]
+    assert widened == pytest.approx(float(y @ np.linalg.solve(S, y)), rel=1e-12)
+    assert widened < exact
 
 
 def test_a_landmark_at_the_sensor_matches_nothing_in_either_path(monkeypatch):

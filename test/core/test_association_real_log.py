@@ -44,7 +44,7 @@ def _dead_reckon(trip, config: EkfConfig):
         dt = float(stamps[k + 1] - stamps[k])
         J = process_jacobian(x, speeds[k], dt)
         Q = process_noise(x, dt, config.speed_noise_m_s, config.gyro_noise_rad_s,
-                          config.position_process_noise_m_s, config.bias_random_walk_rad_s2)
+                          config.position_random_walk_m_sqrt_s, config.bias_random_walk_rad_s2)
         P = J @ P @ J.T + Q
         x = predict_state(x, speeds[k], rates[k], dt)
         states.append(x)
@@ -60,7 +60,7 @@ def test_detected_poles_associate_with_the_map_by_dead_reckoning(shared_data):
     assert trip.landmarks is not None and len(trip.landmarks) == 5
     config = EkfConfig(gyro_noise_rad_s=math.radians(1.4), speed_noise_m_s=0.4,
                        range_noise_m=0.16, bearing_noise_rad=math.radians(1.1),
-                       position_process_noise_m_s=0.03)
+                       position_random_walk_m_sqrt_s=0.0021)
     stamps, states, covariances, bias = _dead_reckon(trip, config)
     assert abs(math.degrees(bias) - (-0.9748)) < 0.001
 

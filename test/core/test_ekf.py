@@ -45,7 +45,7 @@ def _simulate_and_filter(seed, config, duration_s=60.0, dt_s=0.01, obs_every=20)
 
 CONSISTENT = EkfConfig(gyro_noise_rad_s=math.radians(1.0), speed_noise_m_s=0.05,
                        range_noise_m=0.05, bearing_noise_rad=math.radians(1.0),
-                       position_process_noise_m_s=0.0, bias_random_walk_rad_s2=0.0)
+                       position_random_walk_m_sqrt_s=0.0, bias_random_walk_rad_s2=0.0)
 
 
 def test_average_nees_inside_chi_square_band_over_monte_carlo():
@@ -86,7 +86,7 @@ def test_one_cycle_matches_filterpy_extended_kalman_filter():
     theirs.F = models.process_jacobian(theirs.x.ravel(), speed, dt)
     theirs.Q = models.process_noise(theirs.x.ravel(), dt, config.speed_noise_m_s,
                                     config.gyro_noise_rad_s,
-                                    config.position_process_noise_m_s,
+                                    config.position_random_walk_m_sqrt_s,
                                     config.bias_random_walk_rad_s2)
     theirs.x = models.predict_state(theirs.x.ravel(), speed, rate, dt).reshape(4, 1)
     theirs.P = theirs.F @ theirs.P @ theirs.F.T + theirs.Q
@@ -95,9 +95,16 @@ def test_one_cycle_matches_filterpy_extended_kalman_filter():
     np.testing.assert_allclose(ours.P, theirs.P, rtol=1e-12, atol=1e-18)
     landmark = np.array([4.0, 5.0])
     z = models.observe(ours.x, landmark, MOUNT) + [0.05, 0.01]
+    # The map's uncertainty (config.landmark_sigma_m) moves the landmark's range by sigma
+    # and its bearing by sigma / range: filterpy gets it written out as R.
+    expected_range = float(models.observe(ours.x, landmark, MOUNT)[0])
+    map_var = config.landmark_sigma_m ** 2
+    assert map_var > 0.0
+    R = ours.R + np.diag([map_var, map_var / expected_range ** 2])
+    np.testing.assert_allclose(ours.observation_noise(expected_range), R, rtol=1e-15)
     theirs.update(z.reshape(2, 1),
                   lambda x: models.observation_jacobian(x.ravel(), landmark, MOUNT),
-                  lambda x: models.observe(x.ravel(), landmark, MOUNT).reshape(2, 1))
+                  lambda x: models.observe(x.ravel(), landmark, MOUNT).reshape(2, 1), R=R)
     ours.update(z, landmark, MOUNT)
     np.testing.assert_allclose(ours.x, theirs.x.ravel(), atol=1e-12)
     np.testing.assert_allclose(ours.P, theirs.P, rtol=1e-9, atol=1e-15)

@@ -209,3 +209,64 @@ def test_merger_waits_for_the_expected_streams_before_the_first_release():
     now[0] = 1.5
     ready, _ = buffer.push('imu', 2.01, EventKind.IMU, 'imu3')
     assert [p for _, _, p in ready] == ['imu2', 'imu3']
+
+
+def _frozen_scans(driver, truth, landmarks, mount, start_s, count, bearing_error_rad):
+    from gyro_ekf.core.models import observe
+    z = observe(truth, landmarks.xy_m, mount)
+    z[:, 1] += bearing_error_rad  # the same beams every scan: the same error
+    points = np.column_stack([z[:, 0] * np.cos(z[:, 1]), z[:, 0] * np.sin(z[:, 1])])
+    for k in range(count):
+        stamp = start_s + 0.1 * k
+        driver.on_imu(stamp, 0.0)
+        driver.on_detections(stamp, points, mount)
+    return start_s + 0.1 * count
+
+
+def test_repeated_observations_at_rest_do_not_make_the_filter_overconfident():
+    from gyro_ekf.core.types import LandmarkMap, LidarMount
+    landmarks = LandmarkMap(np.array([[4.0, 1.0], [5.0, -2.0], [3.0, 3.0]]))
+    truth = np.array([0.0, 0.0, 0.0, 0.0])
+    mount = LidarMount()
+    error = math.radians(0.2)   # twice the default bearing sigma
+    yaw_z = {}
+    for rest_speed in (-1.0, 0.001):   # never at rest / the default
+        # A quiet gyro, so that the yaw sigma comes from the landmark updates.
+        config = EkfConfig(rest_speed_m_s=rest_speed, landmark_sigma_m=0.0,
+                           gyro_noise_rad_s=1e-4, initial_bias_sigma_rad_s=1e-4,
+                           initial_position_sigma_m=0.01, initial_yaw_sigma_rad=0.01)
+        driver = EventDriver(config, landmarks, pose=truth[:3], bias_rad_s=0.0)
+        driver.on_speed(0.0, 0.0)
+        _frozen_scans(driver, truth, landmarks, mount, 0.0, 100, error)
+        yaw_z[rest_speed] = abs(driver.ekf.x[2]) / math.sqrt(driver.ekf.P[2, 2])
+    # 100 scans taken as independent shrink the yaw sigma far below the one error they all
+    # share; weighted, the error stays about as many sigmas off as one scan's would be.
+    assert yaw_z[-1.0] > 5.0
+    assert yaw_z[0.001] < 3.0
+
+
+def test_moving_ends_the_down_weighting_of_a_stop():
+    from gyro_ekf.core.types import LandmarkMap, LidarMount
+    landmarks = LandmarkMap(np.array([[4.0, 1.0], [5.0, -2.0]]))
+    truth = np.array([0.0, 0.0, 0.0, 0.0])
+    mount = LidarMount()
+
+    def yaw_variance_drop(driver, start_s):
+        before = driver.ekf.P[2, 2]
+        _frozen_scans(driver, truth, landmarks, mount, start_s, 1, 0.0)
+        return driver.ekf.P[2, 2] / before
+
+    config = EkfConfig(initial_yaw_sigma_rad=0.01)
+    driver = EventDriver(config, landmarks, pose=truth[:3], bias_rad_s=0.0)
+    driver.on_speed(0.0, 0.0)
+    end = _frozen_scans(driver, truth, landmarks, mount, 0.0, 30, 0.0)
+    at_rest = yaw_variance_drop(driver, end)
+    driver.on_speed(end + 0.1, 1e-3 + 1e-6)       # moves (above rest_speed_m_s) ...
+    driver.on_speed(end + 0.1001, 0.0)           # ... and stops again
+    after_moving = yaw_variance_drop(driver, end + 0.2)
+    fresh = EventDriver(config, landmarks, pose=truth[:3], bias_rad_s=0.0)
+    fresh.on_speed(0.0, 0.0)
+    first = yaw_variance_drop(fresh, 0.0)
+    assert at_rest > 0.95          # the 31st look at the same poles adds little
+    assert after_moving < at_rest  # a new stop counts from one again
+    assert first < 0.5

@@ -99,7 +99,7 @@ def test_jacobians_and_Q_equal_the_report_with_its_numbers():
                   [0, 0, 1, -T], [0, 0, 0, 1]])
     Ju = np.array([[T * math.cos(phi), 0], [T * math.sin(phi), 0], [0, T], [0, 0]])
     Pu = np.diag([0.3 ** 2, (1.7 * math.pi / 180) ** 2])
-    Q = Ju @ Pu @ Ju.T + np.diag([(0.03 * T) ** 2, (0.03 * T) ** 2, 0, (q_b * T) ** 2])
+    Q = Ju @ Pu @ Ju.T + np.diag([0.03 ** 2 * T, 0.03 ** 2 * T, 0, (q_b * T) ** 2])
     state = np.array([1.0, 2.0, phi, 0.01])
     np.testing.assert_allclose(models.process_jacobian(state, v, T), J)
     np.testing.assert_allclose(models.input_jacobian(state, T), Ju)
@@ -107,7 +107,7 @@ def test_jacobians_and_Q_equal_the_report_with_its_numbers():
                                                     q_b), Q, rtol=1e-12, atol=0)
     # The filter's written-out Q is the same: from P = 0 one step gives P = Q.
     config = EkfConfig(speed_noise_m_s=0.3, gyro_noise_rad_s=1.7 * math.pi / 180,
-                       position_process_noise_m_s=0.03, bias_random_walk_rad_s2=q_b,
+                       position_random_walk_m_sqrt_s=0.03, bias_random_walk_rad_s2=q_b,
                        initial_bias_sigma_rad_s=0.0)
     ekf = GyroBiasEkf(config, pose=state[:3], bias_rad_s=state[3])
     ekf.predict(v, 0.2, T)

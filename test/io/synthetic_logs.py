@@ -197,7 +197,8 @@ def make_trip(seed: int = 0, n: int = 400, m: int = 30) -> Trip:
         ground_truth=GroundTruth(stamp_s=scan_s, pose=np.column_stack([
             rng.normal(0, 5, m), rng.normal(0, 5, m), rng.uniform(-3.1, 3.1, m)])),
         true_gyro_bias_rad_s=np.array([0.001, -0.002, 0.003]),
-        noise=NoiseFigures(gyro_rad_s=0.02, speed_m_s=0.05, range_m=None, bearing_rad=0.01),
+        noise=NoiseFigures(gyro_rad_s=0.02, speed_m_s=0.05, range_m=None, bearing_rad=0.01,
+                           landmark_m=0.0),
         walls=None,
         static_duration_s=1.25)
 

@@ -202,7 +202,9 @@ def test_sidecar_is_a_ros2_params_file(tmp_path, synthetic_trip):
     assert params['lidar']['scan2'] == {'frame_id': 'laser2', 'x_m': -0.2, 'y_m': 0.0,
                                         'yaw_rad': math.pi}
     assert params['initial_pose'] == {'x_m': 1.5, 'y_m': -2.5, 'yaw_rad': 0.7}
-    assert params['noise'] == {'gyro_rad_s': 0.02, 'speed_m_s': 0.05, 'bearing_rad': 0.01}
+    # An exact map (0) is a statement, not a missing figure.
+    assert params['noise'] == {'gyro_rad_s': 0.02, 'speed_m_s': 0.05, 'bearing_rad': 0.01,
+                               'landmark_m': 0.0}
     assert params['true_gyro_bias_rad_s'] == [0.001, -0.002, 0.003]
     assert params['trip']['log_time_zero_ns'] == START_NS
     sidecar = read_sidecar(bag)

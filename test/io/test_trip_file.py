@@ -25,6 +25,23 @@ def test_save_load_round_trip(tmp_path, synthetic_trip):
         assert str(data['format']) == 'gyro_ekf.trip' and int(data['format_version']) == 1
 
 
+def test_a_trip_file_without_a_map_figure_still_loads(tmp_path, synthetic_trip):
+    # Files written before the map figure existed hold four noise figures.
+    path = save_trip(synthetic_trip, tmp_path / 'trip.npz')
+    with np.load(path) as data:
+        arrays = {key: data[key] for key in data.files}
+    assert arrays['noise'].shape == (5,)
+    arrays['noise'] = arrays['noise'][:4]
+    np.savez(tmp_path / 'old.npz', **arrays)
+    back = load_trip(tmp_path / 'old.npz')
+    assert back.noise.landmark_m is None
+    assert back.noise.gyro_rad_s == synthetic_trip.noise.gyro_rad_s
+    arrays['noise'] = arrays['noise'][:3]
+    np.savez(tmp_path / 'bad.npz', **arrays)
+    with pytest.raises(LogFormatError, match="bad.npz: key 'noise'"):
+        load_trip(tmp_path / 'bad.npz')
+
+
 def test_existing_trip_file_needs_force(tmp_path, synthetic_trip):
     path = save_trip(synthetic_trip, tmp_path / 'trip.npz')
     with pytest.raises(LogFormatError, match='exists already'):

@@ -57,6 +57,20 @@ def test_config_file_sets_only_declared_parameters_with_descriptions(ros_env):
         context.try_shutdown()
 
 
+@pytest.mark.parametrize('node, config_name', [
+    ('ekf_node', 'EkfConfig'), ('landmark_detector_node', 'DetectorConfig'),
+    ('calibration_node', 'CalibrationConfig')])
+def test_config_file_holds_the_core_defaults(node, config_name):
+    import dataclasses
+
+    from gyro_ekf.core import config as core_config
+    config_type = getattr(core_config, config_name)
+    values = yaml.safe_load(CONFIG.read_text())[node]['ros__parameters']
+    defaults = config_type()
+    for field in dataclasses.fields(config_type):
+        assert values.get(field.name) == getattr(defaults, field.name), field.name
+
+
 @pytest.mark.ros
 def test_bag_sidecar_reaches_the_ekf_node(ros_env, sim_bag):
     import rclpy
@@ -75,6 +89,9 @@ def test_bag_sidecar_reaches_the_ekf_node(ros_env, sim_bag):
             frame, mount = params.lidars['scan']
             assert node._sidecar.mount_for_frame(frame) == mount
             assert node.config.gyro_noise_rad_s == params.noise.gyro_rad_s
+            # A simulator's map is exact: a stated 0 must win over the default.
+            assert params.noise.landmark_m == 0.0
+            assert node.config.landmark_sigma_m == 0.0
             assert node._origin.zero_ns == params.log_time_zero_ns
         finally:
             node.destroy_node()

@@ -4,7 +4,8 @@
   counter-clockwise; >= 16000 cm is no return (+inf). No intensities.
 - `data.LidarCfg` Lx, Ly in m and Alpha in DEGREES (its `info` says so) -> LidarMount.
 - `data.etc.ns` = [speed sigma m/s, gyro sigma rad/s, (undocumented, ignored),
-  injected gyro bias rad/s]: the stated noise and the true bias [0, 0, ns(4)].
+  injected gyro bias rad/s]: the stated noise and the true bias [0, 0, ns(4)]. The map is
+  the simulator's own, so it is stated exact (landmark_m = 0).
 - Ground truth `data.verify.poseL` at the LiDAR events; initial pose `data.pose0`; map
   `data.Landmarks`; walls `data.Walls`.
 """
@@ -73,7 +74,7 @@ def read(path: Path, variables: dict | None = None) -> Trip:
         initial_pose=_sim.pose(path, variables, 'data.pose0'),
         ground_truth=events.ground_truth,
         true_gyro_bias_rad_s=np.array([0.0, 0.0, ns[3]]),
-        noise=NoiseFigures(gyro_rad_s=ns[1], speed_m_s=ns[0]),
+        noise=NoiseFigures(gyro_rad_s=ns[1], speed_m_s=ns[0], landmark_m=0.0),
         walls=_sim.points(path, variables, 'data.Walls') if mat.has_field(
             variables, 'data.Walls') else None,
         static_duration_s=0.0)

@@ -7,7 +7,8 @@
   'laser', Lidar2 -> topic 'scan2' frame 'laser2'. Both scan arrays share the LiDAR events.
 - Ground truth `data.verify.poseL`; initial pose `data.pose0`; map `data.Context.Landmarks`
   (the sparser `Landmarks2`/`Landmarks4` are not converted); walls `data.Context.Walls`.
-- The log states no noise figures and no bias value, so those stay unknown.
+- The log states no sensor noise figures and no bias value, so those stay unknown. Its map
+  is the one the simulator drew the scans from, so it is stated exact (landmark_m = 0).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gyro_ekf.core.types import LandmarkMap, LidarMount, ScanSeries, Trip
+from gyro_ekf.core.types import LandmarkMap, LidarMount, NoiseFigures, ScanSeries, Trip
 from gyro_ekf.io.errors import LogFormatError
 from gyro_ekf.io.matlab import _common as mat
 from gyro_ekf.io.matlab import _sim
@@ -93,4 +94,5 @@ def read(path: Path, variables: dict | None = None) -> Trip:
         initial_pose=_sim.pose(path, variables, 'data.pose0'),
         ground_truth=events.ground_truth,
         walls=_sim.points(path, variables, walls) if mat.has_field(variables, walls) else None,
+        noise=NoiseFigures(landmark_m=0.0),
         static_duration_s=0.0)
