@@ -291,7 +291,9 @@ class EventDriver:
         # scans would shrink P N times and the error not at all. The n-th update of a
         # landmark by one LiDAR during a stop uses n R, so a stop adds about ln N scans'
         # worth, and the yaw drift is still tracked (that is how the bias is found at rest).
-        at_rest = abs(self.speed_m_s) <= self.config.rest_speed_m_s
+        # Without any speed message yet the platform is not known to stand still.
+        at_rest = (self.stats.speed > 0
+                   and abs(self.speed_m_s) <= self.config.rest_speed_m_s)
         for match in result.associations:
             outcomes[_OUTCOME_KEYS[match.outcome]] += 1
             if match.outcome is AssociationOutcome.MATCHED:

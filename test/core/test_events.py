@@ -270,3 +270,11 @@ def test_moving_ends_the_down_weighting_of_a_stop():
     assert at_rest > 0.95          # the 31st look at the same poles adds little
     assert after_moving < at_rest  # a new stop counts from one again
     assert first < 0.5
+    # Without odometry the platform is not known to stand still: no down-weighting, so
+    # the same 30 scans shrink P further than at a known stop.
+    stopped = EventDriver(config, landmarks, pose=truth[:3], bias_rad_s=0.0)
+    stopped.on_speed(0.0, 0.0)
+    blind = EventDriver(config, landmarks, pose=truth[:3], bias_rad_s=0.0)
+    for driver in (stopped, blind):
+        _frozen_scans(driver, truth, landmarks, mount, 0.0, 30, 0.0)
+    assert np.trace(blind.ekf.P[:3, :3]) < 0.5 * np.trace(stopped.ekf.P[:3, :3])
