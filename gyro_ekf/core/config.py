@@ -63,7 +63,8 @@ class EkfConfig:
         'q^2 T to each.', 0.0, 10.0)
     bias_random_walk_rad_s2: float = config_field(
         DEG / 600.0, 'rad/s^2',
-        'Bias random walk q_b: Q2 adds (q_b T)^2 to the bias (1 deg/s per 10 minutes).',
+        'Bias drift q_b: Q2 adds (q_b T)^2 to the bias each step (the course\'s sigma_b = '
+        'T x 1 deg/s per 10 minutes).',
         0.0, 1.0)
     initial_bias_rad_s: float = config_field(
         0.0, 'rad/s', 'Bias state at start when no calibration seeds it.', -1.0, 1.0)
@@ -92,6 +93,10 @@ class EkfConfig:
         0.001, 'm/s', 'At or below this |speed| the platform stands still: the n-th update of '
         'a landmark by one LiDAR during a stop uses n times its noise (the same beams hit '
         'the same pole, so its error repeats). Negative: never.', -1.0, 10.0)
+    rest_yaw_rate_rad_s: float = config_field(
+        1.0 * DEG, 'rad/s', 'Turning faster than this (gyro minus bias) the platform is not '
+        'standing still, whatever its speed (a turn on the spot brings other beams onto '
+        'the poles).', 0.0, 10.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -192,4 +197,8 @@ def with_stated_noise(config: EkfConfig, noise: NoiseFigures) -> EkfConfig:
     """
     changes = {target: float(getattr(noise, key)) for key, target in STATED_NOISE_FIELDS.items()
                if getattr(noise, key) is not None}
-    return dataclasses.replace(config, **changes)
+    if not changes:
+        return config
+    # Checked like any other value, so a bad figure is refused with its name.
+    return make_config(EkfConfig, {**dataclasses.asdict(config), **changes},
+                       source='stated noise figures')

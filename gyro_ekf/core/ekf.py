@@ -246,7 +246,8 @@ class GyroBiasEkf:
                mount: LidarMount = _NO_MOUNT, noise_scale: float = 1.0) -> float:
         """Correct with z = [range m, bearing rad] (0 = sensor forward) of a known landmark.
 
-        ``noise_scale`` multiplies R (sensor and map) for this observation only.
+        ``noise_scale`` multiplies R (sensor and map) for this observation only; the NIS
+        is still taken against the unscaled R, so it keeps measuring the sensor.
 
         Returns:
             The normalised innovation squared (NIS) of this observation.
@@ -339,6 +340,11 @@ class GyroBiasEkf:
         self._y = (y0, y1)
         self._S = (s00, s01, s11)
         self._K = (k00, k01, k10, k11, k20, k21, k30, k31)
+        if noise_scale != 1.0:
+            u00 = s00 - rr + rr / noise_scale
+            u11 = s11 - rb + rb / noise_scale
+            det = u00 * u11 - s01 * s01
+            i00, i01, i11 = u11 / det, -s01 / det, u00 / det
         self.nis = y0 * (i00 * y0 + i01 * y1) + y1 * (i01 * y0 + i11 * y1)
         return self.nis
 

@@ -231,7 +231,7 @@ class EventDriver:
         self._advance(stamp_s, 'speed')
         self.speed_m_s = speed_m_s
         self.stats.speed += 1
-        if self._rest_updates and abs(speed_m_s) > self.config.rest_speed_m_s:
+        if self._rest_updates and not self._still():
             self._rest_updates.clear()
 
     def on_imu(self, stamp_s: float, yaw_rate_rad_s: float) -> Estimate:
@@ -244,6 +244,8 @@ class EventDriver:
         self._advance(stamp_s, 'imu')
         self.rate_rad_s = yaw_rate_rad_s
         self.stats.imu += 1
+        if self._rest_updates and not self._still():
+            self._rest_updates.clear()
 
     def estimate(self) -> Estimate:
         """Return a snapshot of the filter (state and covariance are copies)."""
@@ -291,9 +293,7 @@ class EventDriver:
         # scans would shrink P N times and the error not at all. The n-th update of a
         # landmark by one LiDAR during a stop uses n R, so a stop adds about ln N scans'
         # worth, and the yaw drift is still tracked (that is how the bias is found at rest).
-        # Without any speed message yet the platform is not known to stand still.
-        at_rest = (self.stats.speed > 0
-                   and abs(self.speed_m_s) <= self.config.rest_speed_m_s)
+        at_rest = self._still()
         for match in result.associations:
             outcomes[_OUTCOME_KEYS[match.outcome]] += 1
             if match.outcome is AssociationOutcome.MATCHED:
@@ -313,6 +313,14 @@ class EventDriver:
                                                stamp_s - self.stats.last_association_s)
             self.stats.last_association_s = stamp_s
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
+
+    def _still(self) -> bool:
+        """Whether the platform is known to stand still (speed and turn rate near zero)."""
+        # Without a speed or gyro message yet, it is not known to.
+        return (self.stats.speed > 0 and self.rate_rad_s is not None
+                and abs(self.speed_m_s) <= self.config.rest_speed_m_s
+                and abs(self.rate_rad_s - self.ekf.bias_rad_s)
+                <= self.config.rest_yaw_rate_rad_s)
 
     def _recovering(self, stamp_s: float) -> bool:
         """Whether no update has been applied for longer than the recovery delay."""

@@ -155,7 +155,10 @@ def parse_yaml(text: str, path: Path) -> BagParams:
             for k in ('x_m', 'y_m', 'yaw_rad')]
     for key in NOISE_KEYS:
         if key in noise:
-            _get(tree, f'noise.{key}', number, path)
+            value = _get(tree, f'noise.{key}', number, path)
+            if not math.isfinite(value) or value < 0.0:
+                raise BagError(f"{path.name}: parameter 'noise.{key}' must be a "
+                               f'non-negative number, got {value}')
     return BagParams(
         name=str(_get(tree, 'trip.name', str, path)),
         log_time_zero_ns=int(_get(tree, 'trip.log_time_zero_ns', int, path)),

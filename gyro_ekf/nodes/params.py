@@ -161,12 +161,17 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
     if noise:
         stated = {}
         for key, target in NOISE_FIELDS.items():
-            # A map can be exact, so its figure uses a negative value for "not stated".
-            unset = -1.0 if key == 'landmark_m' else 0.0
-            value = declare(node, f'noise.{key}', unset,
+            if key == 'landmark_m':
+                # A map can be exact, so "not stated" is a negative value here.
+                value = declare(node, f'noise.{key}', -1.0,
+                                f'Map figure the bag states; replaces {target} when '
+                                'use_stated_noise is true. Negative = not stated, '
+                                '0 = an exact map')
+                stated[key] = value if value >= 0.0 else None
+                continue
+            value = declare(node, f'noise.{key}', 0.0,
                             f'Noise figure the bag states; replaces {target} when '
-                            f'use_stated_noise is true. {unset:g} = not stated', '', unset,
-                            None)
-            stated[key] = value if value > unset else None
+                            'use_stated_noise is true. 0 = not stated', '', 0.0, None)
+            stated[key] = value if value > 0.0 else None
         figures = NoiseFigures(**stated)
     return SidecarParams(int(zero_ns), np.array(initial, dtype=np.float64), mounts, figures)

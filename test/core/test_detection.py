@@ -177,12 +177,36 @@ def test_pole_cut_by_the_field_of_view_is_placed_from_its_inner_edge(range_m, us
 
 def test_cut_pole_hidden_on_its_inner_side_is_not_reported():
     step = float(ANGLES[1] - ANGLES[0])
-    pole = _polar(3.0, ANGLES[0] - 0.5 * step)
-    # A closer pole right next to it hides its inner edge.
-    ranges, intensities = _cast([pole, _polar(1.0, ANGLES[5])])
+    far = _polar(3.0, ANGLES[0] - 0.5 * step)
+    near = _polar(1.0, ANGLES[0] + 7 * step)
+    alone, intensities = _cast([far])
+    assert len(detect_poles(alone, ANGLES, intensities, DetectorConfig())) == 1
+    # A closer pole right next to it hides its inner edge: only the near one is reported.
+    ranges, intensities = _cast([far, near])
+    assert np.isfinite(ranges[:2]).all() and ranges[1] > 2.0 and ranges[2] < 1.5
     found = detect_poles(ranges, ANGLES, intensities, DetectorConfig())
     assert len(found) == 1
-    np.testing.assert_allclose(found.points_sensor_m[0], _polar(1.0, ANGLES[5]), atol=0.003)
+    np.testing.assert_allclose(found.points_sensor_m[0], near, atol=0.003)
+
+
+def test_cut_pole_with_beams_in_decreasing_angle_order():
+    # A scan may run clockwise (negative angle increment): the edge logic must follow.
+    angles = ANGLES[::-1].copy()
+    step = float(angles[1] - angles[0])
+    for bearing in (angles[0] - step, angles[-1] + step):   # beyond either end
+        centre = _polar(2.0, bearing)
+        ranges, intensities = _cast([centre], angles=angles)
+        found = detect_poles(ranges, angles, intensities, DetectorConfig())
+        assert len(found) == 1
+        error = np.linalg.norm(found.points_sensor_m[0] - centre)
+        assert error < 2.0 * abs(step) / 2 + 0.003, (bearing, error)
+
+
+def test_pole_filling_the_whole_field_of_view_is_not_reported():
+    angles = np.radians([-1.0, -0.5, 0.0, 0.5, 1.0])
+    ranges, intensities = _cast([_polar(1.0, 0.0)], angles=angles)
+    assert np.isfinite(ranges).all()
+    assert len(detect_poles(ranges, angles, intensities, DetectorConfig())) == 0
 
 
 def test_invalid_beams_split_clusters():

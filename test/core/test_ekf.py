@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 from scipy.stats import chi2
 
 from gyro_ekf.core import models
@@ -131,3 +132,25 @@ def test_packed_rows_unpack_to_the_state_and_covariance():
     unpacked_states, unpacked_covariances = unpack_rows(rows)
     np.testing.assert_array_equal(unpacked_states, states)
     np.testing.assert_array_equal(unpacked_covariances, covariances)
+
+
+def test_a_scaled_update_uses_scaled_noise_and_reports_the_nis_of_the_sensor():
+    config = EkfConfig(initial_position_sigma_m=0.1, initial_yaw_sigma_rad=0.05)
+    landmark = np.array([4.0, 5.0])
+    scaled = GyroBiasEkf(config, pose=[1.0, 2.0, 0.5], bias_rad_s=0.01)
+    plain = GyroBiasEkf(config, pose=[1.0, 2.0, 0.5], bias_rad_s=0.01)
+    z = models.observe(scaled.x, landmark, MOUNT) + [0.05, 0.01]
+    y = z - models.observe(scaled.x, landmark, MOUNT)
+    H = models.observation_jacobian(scaled.x, landmark, MOUNT)
+    P0 = scaled.P
+    R = scaled.observation_noise(float(models.observe(scaled.x, landmark, MOUNT)[0]))
+    nis = scaled.update(z, landmark, MOUNT, noise_scale=5.0)
+    # The NIS measures the sensor (unscaled R); the correction uses 5 R.
+    assert nis == pytest.approx(float(y @ np.linalg.solve(H @ P0 @ H.T + R, y)), rel=1e-9)
+    S = H @ P0 @ H.T + 5.0 * R
+    K = P0 @ H.T @ np.linalg.inv(S)
+    A = np.eye(4) - K @ H
+    np.testing.assert_allclose(scaled.P, A @ P0 @ A.T + K @ (5.0 * R) @ K.T, rtol=1e-9,
+                               atol=1e-15)
+    plain.update(z, landmark, MOUNT)
+    assert np.trace(scaled.P) > np.trace(plain.P)

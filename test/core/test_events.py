@@ -268,7 +268,7 @@ def test_moving_ends_the_down_weighting_of_a_stop():
     fresh.on_speed(0.0, 0.0)
     first = yaw_variance_drop(fresh, 0.0)
     assert at_rest > 0.95          # the 31st look at the same poles adds little
-    assert after_moving < at_rest  # a new stop counts from one again
+    assert after_moving < 0.5      # a new stop counts from one again
     assert first < 0.5
     # Without odometry the platform is not known to stand still: no down-weighting, so
     # the same 30 scans shrink P further than at a known stop.
@@ -278,3 +278,41 @@ def test_moving_ends_the_down_weighting_of_a_stop():
     for driver in (stopped, blind):
         _frozen_scans(driver, truth, landmarks, mount, 0.0, 30, 0.0)
     assert np.trace(blind.ekf.P[:3, :3]) < 0.5 * np.trace(stopped.ekf.P[:3, :3])
+
+
+def test_turning_on_the_spot_is_not_standing_still():
+    from gyro_ekf.core.types import LandmarkMap, LidarMount
+    landmarks = LandmarkMap(np.array([[4.0, 1.0], [5.0, -2.0]]))
+    truth = np.array([0.0, 0.0, 0.0, 0.0])
+    mount = LidarMount()
+    config = EkfConfig(initial_yaw_sigma_rad=0.01)
+    drops = []
+    for turn_rate in (0.0, math.radians(5.0)):
+        driver = EventDriver(config, landmarks, pose=truth[:3], bias_rad_s=0.0)
+        driver.on_speed(0.0, 0.0)
+        end = _frozen_scans(driver, truth, landmarks, mount, 0.0, 30, 0.0)
+        driver.on_imu(end, turn_rate)     # speed 0, but turning (or not) ...
+        driver.on_imu(end + 0.001, 0.0)   # ... then still again
+        before = driver.ekf.P[2, 2]
+        _frozen_scans(driver, truth, landmarks, mount, end + 0.002, 1, 0.0)
+        drops.append(driver.ekf.P[2, 2] / before)
+    # Still, the 31st look at the same poles counts 1/31; after the turn it counts fully.
+    assert drops[1] < 0.5 * drops[0]
+
+
+def test_a_restored_driver_repeats_the_down_weighting_of_a_stop():
+    # Late-scan replay restores the driver: the counts of the stop must come back too.
+    from gyro_ekf.core.types import LandmarkMap, LidarMount
+    landmarks = LandmarkMap(np.array([[4.0, 1.0], [5.0, -2.0]]))
+    truth = np.array([0.0, 0.0, 0.0, 0.0])
+    mount = LidarMount()
+    driver = EventDriver(EkfConfig(initial_yaw_sigma_rad=0.01), landmarks, pose=truth[:3],
+                         bias_rad_s=0.0)
+    driver.on_speed(0.0, 0.0)
+    end = _frozen_scans(driver, truth, landmarks, mount, 0.0, 10, 0.0)
+    saved = driver.save()
+    _frozen_scans(driver, truth, landmarks, mount, end, 10, 0.0)
+    first = driver.ekf.P.copy()
+    driver.restore(saved)
+    _frozen_scans(driver, truth, landmarks, mount, end, 10, 0.0)
+    np.testing.assert_array_equal(driver.ekf.P, first)

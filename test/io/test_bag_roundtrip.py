@@ -242,6 +242,25 @@ def test_reader_errors(tmp_path, synthetic_trip):
         read_sidecar(bag)
 
 
+def test_sidecar_noise_figures_must_be_non_negative(tmp_path, synthetic_trip):
+    bag = write_trip_bag(synthetic_trip, tmp_path / 'bag')
+    text = sidecar_path(bag).read_text()
+    assert 'landmark_m: 0.0' in text
+    sidecar_path(bag).write_text(text.replace('landmark_m: 0.0', 'landmark_m: -1.0'))
+    with pytest.raises(BagError, match=r"bag.params.yaml: parameter 'noise.landmark_m' must "
+                                       r'be a non-negative number'):
+        read_sidecar(bag)
+
+
+def test_stated_figures_are_checked_like_parameters():
+    from gyro_ekf.core.config import EkfConfig, with_stated_noise
+    from gyro_ekf.core.errors import CoreError
+    from gyro_ekf.core.types import NoiseFigures
+    assert with_stated_noise(EkfConfig(), NoiseFigures(landmark_m=0.0)).landmark_sigma_m == 0.0
+    with pytest.raises(CoreError, match='stated noise figures.*landmark_sigma_m'):
+        with_stated_noise(EkfConfig(), NoiseFigures(landmark_m=20.0))
+
+
 def test_bag_without_imu_topic_is_refused(tmp_path):
     from rosbags.rosbag2 import Writer
     from gyro_ekf.io.messages import initial_pose_message, serialize
