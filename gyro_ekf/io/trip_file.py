@@ -19,6 +19,7 @@ Keys (arrays; strings are 0-d unicode arrays):
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 import tempfile
@@ -31,6 +32,8 @@ from gyro_ekf.core.types import (
     GroundTruth, ImuSeries, LandmarkMap, LidarMount, NoiseFigures, ScanSeries, SpeedSeries,
     Trip)
 from gyro_ekf.io.errors import LogFormatError
+
+log = logging.getLogger(__name__)
 
 FORMAT = 'gyro_ekf.trip'
 FORMAT_VERSION = 1
@@ -231,6 +234,10 @@ def _load(keys: _Keys) -> Trip:
     if noise.size not in (4, 5):
         raise LogFormatError(f"{keys.path.name}: key 'noise' has shape {noise.shape}, "
                              'expected 4 or 5 figures')
+    if noise.size == 4:
+        log.warning('%s: written by an older gyro_ekf, it states no map figure and may state '
+                    "per-beam range and bearing figures; simulate it again for today's",
+                    keys.path.name)
     return Trip(
         name=str(keys.get('name')),
         imu=ImuSeries(stamp_s=imu_s, angular_velocity_rad_s=rates,
