@@ -172,8 +172,6 @@ class EventDriver:
         self.speed_m_s = 0.0
         self.rate_rad_s: float | None = None
         self._first_scan_s: float | None = None
-        # Updates per (landmark, LiDAR) since the platform stopped (see on_detections).
-        self._rest_updates: dict[tuple[int, LidarMount], int] = {}
 
     @property
     def landmarks(self) -> LandmarkMap | None:
@@ -184,6 +182,8 @@ class EventDriver:
     def landmarks(self, landmarks: LandmarkMap | None) -> None:
         self._landmarks = landmarks
         self._landmark_xy = [] if landmarks is None else landmarks.xy_m.tolist()
+        # The rest counts are per landmark index: a new map starts them again.
+        self._rest_updates: dict[tuple[int, LidarMount], int] = {}
 
     def reset(self, pose: FloatArray | None = None, bias_rad_s: float | None = None) -> None:
         """Start over (a looped bag, a ~/reset call): new filter, held inputs and counts."""
