@@ -47,7 +47,6 @@ from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.types import FloatArray
 
 IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 
 @dataclass(frozen=True, slots=True)

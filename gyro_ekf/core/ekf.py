@@ -79,9 +79,8 @@ class GyroBiasEkf:
         self.config = config or EkfConfig()
         self._r_range = self.config.range_noise_m ** 2
         self._r_bearing = self.config.bearing_noise_rad ** 2
-        self._landmark_var = self.config.landmark_sigma_m ** 2
+        self.landmark_var_m2 = self.config.landmark_sigma_m ** 2
         self.R = np.diag([self._r_range, self._r_bearing])
-        self.landmark_var_m2 = self._landmark_var
         self._sigma_v2 = self.config.speed_noise_m_s ** 2
         self._sigma_w2 = self.config.gyro_noise_rad_s ** 2
         self._q_pos2 = self.config.position_random_walk_m_sqrt_s ** 2
@@ -239,7 +238,7 @@ class GyroBiasEkf:
         A landmark's map position off by sigma along any axis moves its range by sigma and
         its bearing by sigma / range, so the map adds diag(sigma^2, sigma^2 / range^2).
         """
-        m2 = self._landmark_var
+        m2 = self.landmark_var_m2
         return np.diag([self._r_range + m2, self._r_bearing + m2 / (range_m * range_m)])
 
     def update(self, z: FloatArray, landmark_xy_m: FloatArray,
@@ -285,8 +284,8 @@ class GyroBiasEkf:
         b2 = p02 * h10 + p12 * h11 + p22 * h12
         b3 = p03 * h10 + p13 * h11 + p23 * h12
         # S = H P H^T + R and its inverse.
-        rr = (self._r_range + self._landmark_var) * noise_scale
-        rb = (self._r_bearing + self._landmark_var / r2) * noise_scale
+        rr = (self._r_range + self.landmark_var_m2) * noise_scale
+        rb = (self._r_bearing + self.landmark_var_m2 / r2) * noise_scale
         s00 = h00 * a0 + h01 * a1 + h02 * a2 + rr
         s01 = h00 * b0 + h01 * b1 + h02 * b2
         s11 = h10 * b0 + h11 * b1 + h12 * b2 + rb
