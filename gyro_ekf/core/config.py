@@ -143,7 +143,39 @@ class DetectorConfig:
         50.0, 'm', 'Returns beyond this range are ignored.', 0.1, 1000.0)
 
 
-ConfigT = TypeVar('ConfigT', EkfConfig, CalibrationConfig, DetectorConfig)
+@dataclass(frozen=True, slots=True)
+class InputLimits:
+    """What a value entering the core may be: checked once, where it enters.
+
+    Values outside these limits are not physics a wheeled robot produces; they are a damaged
+    file, a broken driver or a hostile message, and the filter would turn them into a
+    confident wrong answer (a 1e300 rad/s yaw rate swings the heading by 105 deg and locks
+    the filter onto the wrong pole). Offline such a sample is an error naming file, field
+    and index (or, with --skip-bad, dropped and counted); live it is dropped and counted
+    per reason in /diagnostics. `core/validation.py` holds the checks.
+    """
+
+    max_yaw_rate_rad_s: float = config_field(
+        35.0, 'rad/s', 'Largest plausible |angular velocity| on any gyro axis; beyond it a '
+        'sample is refused (2000 deg/s, the top range of common MEMS gyros).', 0.1, 1e3)
+    max_speed_m_s: float = config_field(
+        50.0, 'm/s', 'Largest plausible |odometry speed|; beyond it a sample is refused.',
+        0.1, 1e3)
+    max_stamp_jump_s: float = config_field(
+        30.0, 's', 'Largest forward jump of a stream\'s stamps taken as an ordinary gap; a '
+        'longer one is flagged offline and, live, a message this far ahead of the filter is '
+        'dropped unless the other inputs confirm the new time.', 0.1, 1e6)
+    max_coordinate_m: float = config_field(
+        1e5, 'm', 'Largest plausible |x| or |y| of a landmark, an initial pose or a detection.',
+        1.0, 1e9)
+    max_mount_offset_m: float = config_field(
+        10.0, 'm', 'Largest plausible distance of a LiDAR mount from base_link.', 0.01, 1e3)
+    quaternion_norm_tolerance: float = config_field(
+        0.01, '1', 'A quaternion whose norm differs from 1 by more than this is refused.',
+        1e-9, 0.5)
+
+
+ConfigT = TypeVar('ConfigT', EkfConfig, CalibrationConfig, DetectorConfig, InputLimits)
 
 
 def config_fields(config_type: type) -> list[dataclasses.Field]:

@@ -1,5 +1,7 @@
 """Errors raised by the estimation core."""
 
+from __future__ import annotations
+
 from gyro_ekf.errors import GyroEkfError
 
 
@@ -13,3 +15,22 @@ class CalibrationError(CoreError):
 
 class TimeWentBackwardsError(CoreError):
     """An event is older than the last one the filter processed."""
+
+
+class InvalidInputError(CoreError):
+    """A value entering the core failed its check; names where it came from.
+
+    Attributes:
+        source: the file, bag or topic the value came from.
+        field: what the value is ('imu.angular_velocity.z', 'lidar.scan2.yaw_rad').
+        index: the sample index within that field, or None for a single value.
+        reason: what is wrong with it.
+    """
+
+    def __init__(self, source: str, field: str, index: int | None, reason: str):
+        self.source = source
+        self.field = field
+        self.index = index
+        self.reason = reason
+        where = field if index is None else f'{field}[{index}]'
+        super().__init__(f'{source}: {where}: {reason}')
