@@ -58,8 +58,10 @@ def coordinate_problem(values: Sequence[float], limits: InputLimits = LIMITS) ->
 
 
 def bad_values(values: NDArray, limit: float) -> BoolArray:
-    """Mask of the rows of `values` (shape (n,) or (n, k)) that hold a non-finite value or
-    one beyond +-limit."""
+    """Mask of the rows of `values` (shape (n,) or (n, k)) that are bad.
+
+    A row is bad when it holds a non-finite value or one beyond +-limit.
+    """
     array = np.asarray(values, dtype=np.float64)
     with np.errstate(invalid='ignore'):
         bad = ~np.isfinite(array) | (np.abs(array) > limit)
