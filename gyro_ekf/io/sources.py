@@ -15,7 +15,7 @@ from gyro_ekf.core.types import Trip
 from gyro_ekf.core.validation import InputReport, validate_trip
 from gyro_ekf.io import trip_file
 from gyro_ekf.io.errors import LogFormatError
-from gyro_ekf.io.matlab import load_course_log
+from gyro_ekf.io.matlab import expand_paths, load_course_log
 
 
 def load_log(paths: Sequence[Path | str], map_path: Path | str | None = None) -> Trip:
@@ -64,5 +64,6 @@ def load_checked_log(paths: Sequence[Path | str], map_path: Path | str | None = 
     else:
         trip = load_course_log(inputs + ([Path(map_path)] if map_path is not None else []),
                                strict_time=not skip_bad)
-        source = ', '.join(p.name for p in inputs)
+        # The files the log was read from, so that an error names the file as well.
+        source = ', '.join(p.name for p in expand_paths(inputs))
     return validate_trip(trip, source, limits or InputLimits(), skip_bad=skip_bad)
