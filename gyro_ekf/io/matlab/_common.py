@@ -179,6 +179,13 @@ def check_stamps(path: Path, dotted: str, counts: NDArray[Any], strict: bool = T
     steps = np.diff(counts.astype(np.int64))
     if steps.size and steps.min() < 0:
         i = int(np.argmax(steps < 0))
+        if i > 0 and counts[i - 1] <= counts[i + 1]:
+            # One stamp far ahead of both neighbours (a flipped bit): name that one.
+            raise LogFormatError(
+                f"{path.name}: field '{dotted}' jumps ahead at index {i} "
+                f'({int(counts[i - 1])} -> {int(counts[i])} counts of 0.1 ms, '
+                f'+{steps[i - 1] / COUNTS_PER_S:.4f} s) and back after it; expected '
+                'non-decreasing stamps')
         raise LogFormatError(
             f"{path.name}: field '{dotted}' goes back in time at index {i + 1} "
             f'({int(counts[i])} -> {int(counts[i + 1])} counts of 0.1 ms, '
