@@ -32,8 +32,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def load_trip(sources: list[Path], skip_bad: bool = False) -> Trip:
-    """Read a bag folder (with metadata.yaml), course log files or a simulator trip file,
-    checked by the validation boundary (bad samples refused, or dropped with skip_bad)."""
+    """Read a bag folder (with metadata.yaml), course log files or a simulator trip file.
+
+    The trip passes the validation boundary: bad samples are refused, or dropped and
+    counted with skip_bad.
+    """
     if len(sources) == 1 and (sources[0] / 'metadata.yaml').is_file():
         from gyro_ekf.core.validation import validate_trip
         from gyro_ekf.io.bag_reader import read_trip_bag

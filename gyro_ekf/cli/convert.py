@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_skip_bad_argument(parser: argparse.ArgumentParser) -> None:
-    """The --skip-bad option of the commands that read logs or bags."""
+    """Add the --skip-bad option of the commands that read logs or bags."""
     parser.add_argument('--skip-bad', action='store_true',
                         help='drop samples that fail the input checks (not finite, beyond '
                         'the limits, stamps going back or a lone stamp far ahead) and count '

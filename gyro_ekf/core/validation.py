@@ -64,8 +64,10 @@ def coordinate_problem(values: Sequence[float], limits: InputLimits = LIMITS) ->
 
 
 def bad_values(values: NDArray, limit: float) -> BoolArray:
-    """Mask of the rows of `values` (shape (n,) or (n, k)) that hold a non-finite value or
-    one beyond +-limit."""
+    """Return the mask of the rows of `values` (shape (n,) or (n, k)) that are bad.
+
+    A row is bad when it holds a non-finite value or one beyond +-limit.
+    """
     array = np.asarray(values, dtype=np.float64)
     with np.errstate(invalid='ignore'):
         bad = ~np.isfinite(array) | (np.abs(array) > limit)
@@ -353,7 +355,7 @@ def _check_scans(scan: ScanSeries, stream: _Stream, source: str,
 
 
 def _check_fixed(trip: Trip, source: str, limits: InputLimits) -> None:
-    """The values with nothing to skip: map, initial pose, noise figures, known bias."""
+    """Refuse bad values with nothing to skip: map, initial pose, noise figures, bias."""
     if trip.landmarks is not None:
         xy = np.asarray(trip.landmarks.xy_m, dtype=np.float64)
         bad = bad_values(xy, limits.max_coordinate_m)
@@ -388,8 +390,10 @@ def _check_fixed(trip: Trip, source: str, limits: InputLimits) -> None:
 
 def _check_timeline(streams: list[tuple[str, FloatArray]], source: str,
                     limits: InputLimits) -> None:
-    """Refuse a stretch in which no stream says anything for longer than the jump limit:
-    the filter would predict through it in 0.1 s steps."""
+    """Refuse a stretch without any sample longer than the jump limit.
+
+    The filter would predict through it in 0.1 s steps.
+    """
     stamps = np.concatenate([s for _, s in streams if len(s)] or [np.zeros(0)])
     if stamps.size < 2:
         return

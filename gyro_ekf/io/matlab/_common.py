@@ -179,8 +179,9 @@ def check_stamps(path: Path, dotted: str, counts: NDArray[Any], strict: bool = T
     steps = np.diff(counts.astype(np.int64))
     if steps.size and steps.min() < 0:
         i = int(np.argmax(steps < 0))
-        if i > 0 and counts[i - 1] <= counts[i + 1]:
-            # One stamp far ahead of both neighbours (a flipped bit): name that one.
+        before, spike, after = (int(c) for c in counts[i - 1:i + 2]) if i > 0 else (0, 0, -1)
+        if before <= after and 10 * (after - before) < spike - before:
+            # One stamp far ahead of two close neighbours (a flipped bit): name that one.
             raise LogFormatError(
                 f"{path.name}: field '{dotted}' jumps ahead at index {i} "
                 f'({int(counts[i - 1])} -> {int(counts[i])} counts of 0.1 ms, '
