@@ -259,3 +259,19 @@ def test_trip_file_whose_time_goes_back_10_s(tmp_path, capsys, caplog, sim_trip)
     assert leftovers(tmp_path) == ['trip.npz']
     assert main(['-q', 'convert', str(path), '-o', str(tmp_path / 'bag'), '--skip-bad']) == 0
     assert 'speed.stamp_s (time went back)' in caplog.text
+
+
+def test_run_on_a_bag_whose_last_imu_stamp_jumped_300000_s_ends(tmp_path, capsys, sim_trip):
+    stamps = sim_trip.imu.stamp_s.copy()
+    stamps[-1] += 300_000.0     # nothing after it comes back: only the jump limit catches it
+    bag = _bag_of(dataclasses.replace(sim_trip, imu=dataclasses.replace(
+        sim_trip.imu, stamp_s=stamps)), tmp_path)
+    out = tmp_path / 'out'
+    _fails(capsys, ['run', str(bag), '-o', str(out)],
+           f'bag: imu.stamp_s[{len(stamps) - 1}]: stamp jumped ahead 300000 s')
+    assert not out.exists()
+    assert main(['-q', 'run', str(bag), '-o', str(out), '--skip-bad', '--no-plots', '--no-bag',
+                 '--no-progress']) == 0
+    summary = _strict_json((out / 'summary.json').read_text())
+    assert summary['input']['dropped'][0]['reason'] == 'stamp jumped ahead'
+    assert summary['trip']['duration_s'] < 21.0
