@@ -11,11 +11,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from gyro_ekf.core.config import InputLimits
+from gyro_ekf.core.errors import InvalidInputError
 from gyro_ekf.core.types import Trip
 from gyro_ekf.core.validation import InputReport, validate_trip
 from gyro_ekf.io import trip_file
 from gyro_ekf.io.errors import LogFormatError
-from gyro_ekf.io.matlab import expand_paths, load_course_log
+from gyro_ekf.io.matlab import detect_course_log, expand_paths, load_course_log
 
 
 def load_log(paths: Sequence[Path | str], map_path: Path | str | None = None) -> Trip:
@@ -60,10 +61,19 @@ def load_checked_log(paths: Sequence[Path | str], map_path: Path | str | None = 
         if len(expanded) != 1 or map_path is not None:
             raise LogFormatError(
                 f'{trips[0].name}: a trip file carries everything itself; give it alone')
-        trip, source = trip_file.load_trip(trips[0]), trips[0].name
-    else:
-        trip = load_course_log(inputs + ([Path(map_path)] if map_path is not None else []),
-                               strict_time=not skip_bad)
-        # The files the log was read from, so that an error names the file as well.
-        source = ', '.join(p.name for p in expand_paths(inputs))
-    return validate_trip(trip, source, limits or InputLimits(), skip_bad=skip_bad)
+        return validate_trip(trip_file.load_trip(trips[0]), trips[0].name,
+                             limits or InputLimits(), skip_bad=skip_bad)
+    given = inputs + ([Path(map_path)] if map_path is not None else [])
+    trip = load_course_log(given, strict_time=not skip_bad)
+    source = ', '.join(p.name for p in expand_paths(inputs))
+    try:
+        return validate_trip(trip, source, limits or InputLimits(), skip_bad=skip_bad)
+    except InvalidInputError as err:
+        # Name the one file the bad value came from (the 2016 log spreads over three).
+        files = detect_course_log(given).files
+        variable = {'imu': 'IMU', 'speed': 'Vel', 'lidar': 'dataL',
+                    'landmarks': 'Map'}.get(err.field.split('.')[0])
+        if variable not in files or len(set(files.values())) == 1:
+            raise
+        raise InvalidInputError(files[variable].name, err.field, err.index,
+                                err.reason) from None

@@ -68,7 +68,7 @@ def test_real_2016_log_with_ten_nan_gyro_samples(shared_data, tmp_path, capsys, 
     log = _damaged_2016(shared_data, tmp_path / 'log', _nan_gyro(20_000, 10))
     bag = tmp_path / 'bag'
     _fails(capsys, ['convert', str(log), '-o', str(bag)],
-           'IMU_dataC.mat', 'imu.angular_velocity.z[20000]: nan is not finite')
+           'error: IMU_dataC.mat: imu.angular_velocity.z[20000]: nan is not finite')
     assert leftovers(tmp_path) == ['log']
 
     assert main(['convert', str(log), '-o', str(bag), '--skip-bad']) == 0
@@ -99,13 +99,13 @@ def test_2016_log_one_inf_gyro_and_one_nan_speed(tmp_path, capsys, caplog):
         variables['IMU']['DATAf'][5, 40] = np.inf
     write_2016(tmp_path / 'a', change=inf_gyro)
     _fails(capsys, ['convert', str(tmp_path / 'a'), '-o', str(tmp_path / 'bag_a')],
-           'IMU_dataC.mat', 'imu.angular_velocity.z[40]: inf is not finite')
+           'error: IMU_dataC.mat: imu.angular_velocity.z[40]: inf is not finite')
 
     def nan_speed(variables):
         variables['Vel']['speeds'][7] = np.nan
     write_2016(tmp_path / 'b', change=nan_speed)
     _fails(capsys, ['convert', str(tmp_path / 'b'), '-o', str(tmp_path / 'bag_b')],
-           'Speed_dataC.mat', 'speed.speed_m_s[7]: nan is not finite')
+           'error: Speed_dataC.mat: speed.speed_m_s[7]: nan is not finite')
     assert main(['convert', str(tmp_path / 'b'), '-o', str(tmp_path / 'bag_b'),
                  '--skip-bad']) == 0
     assert '1 speed.speed_m_s (not finite)' in caplog.text
@@ -275,3 +275,13 @@ def test_run_on_a_bag_whose_last_imu_stamp_jumped_300000_s_ends(tmp_path, capsys
     summary = _strict_json((out / 'summary.json').read_text())
     assert summary['input']['dropped'][0]['reason'] == 'stamp jumped ahead'
     assert summary['trip']['duration_s'] < 21.0
+
+
+def test_2016_log_with_a_nan_landmark_in_its_map_names_the_map(tmp_path, capsys):
+    write_2016(tmp_path / 'log')
+    scipy.io.savemat(tmp_path / 'log' / 'MapMTRN4010.mat', {'Map': {
+        'x': np.array([1.0, np.nan, 3.0], dtype=np.float32),
+        'y': np.array([4.0, 5.0, 6.5], dtype=np.float32), 'n': 3}})
+    _fails(capsys, ['convert', str(tmp_path / 'log'), '-o', str(tmp_path / 'bag'), '--skip-bad'],
+           'error: MapMTRN4010.mat: landmarks.xy_m[1]: nan is not finite')
+    assert not (tmp_path / 'bag').exists()
