@@ -54,7 +54,7 @@ def add_skip_bad_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def warn_dropped(report: Any) -> None:
-    """Log the one warning line of an InputReport that dropped samples."""
+    """Log the one warning line of an InputReport that dropped or flagged anything."""
     line = report.warning()
     if line:
         log.warning('%s', line)

@@ -162,6 +162,9 @@ class InputReport:
         samples_dropped: stream ('imu', 'speed', 'scan', 'ground_truth') -> samples dropped.
         time_breaks: stream -> how many times its stamps went back (each a segment whose
             older samples were dropped).
+        gaps: forward jumps beyond the limit that a stream stays after (a sensor silent for
+            a while); kept, since the other streams carry the filter through them, and
+            flagged: one text per gap.
     """
 
     source: str
@@ -170,6 +173,7 @@ class InputReport:
     first_index: dict[tuple[str, str], int] = field(default_factory=dict)
     samples_dropped: dict[str, int] = field(default_factory=dict)
     time_breaks: dict[str, int] = field(default_factory=dict)
+    gaps: list[str] = field(default_factory=list)
 
     @property
     def total_dropped(self) -> int:
@@ -183,12 +187,15 @@ class InputReport:
         self.first_index.setdefault(key, first)
 
     def warning(self) -> str | None:
-        """One line for the user when anything was dropped, else None."""
-        if not self.dropped:
-            return None
-        parts = ', '.join(f'{n} {field_name} ({reason})'
-                          for (field_name, reason), n in self.dropped.items())
-        return f'{self.source}: --skip-bad dropped {self.total_dropped} samples: {parts}'
+        """One line for the user when anything was dropped or flagged, else None."""
+        lines = []
+        if self.dropped:
+            parts = ', '.join(f'{n} {field_name} ({reason})'
+                              for (field_name, reason), n in self.dropped.items())
+            lines.append(f'--skip-bad dropped {self.total_dropped} samples: {parts}')
+        if self.gaps:
+            lines.append(f'{len(self.gaps)} long gap(s) in a stream: {"; ".join(self.gaps)}')
+        return f'{self.source}: ' + '; '.join(lines) if lines else None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready view (the `input` section of summary.json)."""
@@ -199,7 +206,7 @@ class InputReport:
             'dropped': [{'field': f, 'reason': r, 'count': n,
                          'first_index': self.first_index[(f, r)]}
                         for (f, r), n in self.dropped.items()],
-            'time_breaks': dict(self.time_breaks)}
+            'time_breaks': dict(self.time_breaks), 'gaps': list(self.gaps)}
 
 
 class _Stream:
@@ -242,8 +249,9 @@ class _Stream:
         With skip_bad a sample older than the last kept one is dropped (the stream went
         back: a counted segment break, its older samples dropped until time passes the
         last kept stamp again) and a lone sample far ahead of its neighbours (a flipped
-        bit) is dropped; a stream that jumps ahead and stays there is refused either way,
-        since predicting through the gap would take the filter hours.
+        bit) is dropped. A stream that jumps ahead and stays there is a sensor silent for
+        a while: kept and flagged in the report; whether any stream covers the gap is
+        checked on the whole trip (`_check_timeline`).
         """
         stamps = self.stamps
         self.flag(f'{self.name}.stamp_s', ~np.isfinite(stamps), NOT_FINITE,
@@ -272,9 +280,10 @@ class _Stream:
                 reason = (f'stamp jumped ahead {t - last:.6g} s (from {last:.6f} s to '
                           f'{t:.6f} s; the limit is {jump:g} s)')
                 if after is not None and t <= after <= t + jump:
-                    raise InvalidInputError(
-                        self.source, field_name, int(index[k]),
-                        reason + ' and the stream stays there; split the log at the gap')
+                    self.report.gaps.append(f'{field_name}[{int(index[k])}]: {reason}')
+                    last = t
+                    going_back = False
+                    continue
                 problem = (JUMPED_AHEAD, reason)
             else:
                 last = t

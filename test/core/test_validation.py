@@ -190,29 +190,36 @@ def test_a_lone_stamp_300000_s_ahead_is_refused_or_dropped():
     assert checked.imu.stamp_s.max() < 11.0
 
 
-def test_a_stream_that_jumps_ahead_and_stays_is_refused_even_with_skip_bad():
-    trip = _trip()
-    stamps = trip.imu.stamp_s.copy()
-    stamps[500:] += 300_000.0
-    with pytest.raises(InvalidInputError, match=r'imu.stamp_s\[500\]: stamp jumped ahead .* '
-                                                r'stays there'):
-        validate_trip(_with_imu(trip, stamps=stamps), 'x', skip_bad=True)
+def test_a_silent_sensor_is_flagged_and_kept_while_other_streams_cover_the_gap():
+    trip = _trip(n=20_000)     # 100 s of IMU and speed
+    scan = trip.scans[0]
+    stamps = scan.stamp_s.copy()
+    stamps[20:] += 60.0        # the LiDAR says nothing for 60 s, then carries on
+    checked, report = validate_trip(dataclasses.replace(
+        trip, scans=(dataclasses.replace(scan, stamp_s=stamps),)), 'x')
+    assert checked.scans[0].stamp_s is stamps and report.total_dropped == 0
+    assert report.gaps == ['lidar.scan.stamp_s[20]: stamp jumped ahead 60.25 s (from 4.752000 s '
+                           'to 65.002000 s; the limit is 30 s)']
+    assert '1 long gap(s) in a stream' in report.warning()
 
 
-def test_a_gap_in_every_stream_is_refused():
+def test_a_gap_no_stream_covers_is_refused_even_with_skip_bad():
     trip = _trip()
-    late = 100.0
 
     def shift(stamps):
-        return np.where(stamps > 5.0, stamps + late, stamps)
-    bad = dataclasses.replace(
+        return np.where(stamps > 5.0, stamps + 300_000.0, stamps)
+    # The IMU alone jumps 300 000 s and stays: the other streams end at 10 s.
+    with pytest.raises(InvalidInputError, match=r'x: stamps: no stream has a sample between '
+                                                r'9.99\d+ s and 300005.00\d+ s'):
+        validate_trip(_with_imu(trip, stamps=shift(trip.imu.stamp_s)), 'x', skip_bad=True)
+    # Every stream jumps together.
+    every = dataclasses.replace(
         _with_imu(trip, stamps=shift(trip.imu.stamp_s)),
         speed=SpeedSeries(shift(trip.speed.stamp_s), trip.speed.speed_m_s),
         scans=(dataclasses.replace(trip.scans[0], stamp_s=shift(trip.scans[0].stamp_s)),))
-    # Each stream jumps 100 s and stays: refused at the first one checked.
-    with pytest.raises(InvalidInputError, match='stays there'):
-        validate_trip(bad, 'x', skip_bad=True)
-    # A stream that starts 100 s after the others leaves a gap no stream covers.
+    with pytest.raises(InvalidInputError, match='a gap of 300000 s'):
+        validate_trip(every, 'x', skip_bad=True)
+    # A stream that starts long after the others leaves a gap no stream covers.
     late_speed = dataclasses.replace(trip, speed=SpeedSeries(
         trip.speed.stamp_s[:10] + 200.0, trip.speed.speed_m_s[:10]))
     with pytest.raises(InvalidInputError, match=r'x: stamps: no stream has a sample between'):
