@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 import logging
+import math
 from pathlib import Path
 from typing import Any
 
@@ -84,6 +85,12 @@ def _is_pipeline_section(key: str) -> bool:
     return key.rstrip('/').rsplit('/', 1)[-1] in PIPELINE_NODES
 
 
+def _require_finite(source: str, name: str, value: Any) -> None:
+    """Refuse .nan and .inf: NaN passes every bounds comparison of make_config."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ParamsFileError(f"{source}: parameter '{name}' = {value} is not finite")
+
+
 def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
     """Parse params-file text; see the module docstring for what is read.
 
@@ -124,6 +131,15 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
                 log.debug('%s: %s: %r is not a filter parameter; skipped', source, node, name)
                 continue
             values[owner][short] = value
+    for group, named in values.items():
+        for short, value in named.items():
+            _require_finite(source, f'{group}.{short}', value)
+    if 'calibration_bias_sigma_rad_s' in options:
+        sigma = options['calibration_bias_sigma_rad_s']
+        _require_finite(source, 'calibration_bias_sigma_rad_s', sigma)
+        if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or sigma <= 0.0:
+            raise ParamsFileError(f"{source}: parameter 'calibration_bias_sigma_rad_s' must be "
+                                  f'a positive number, got {sigma!r}')
     built: dict[str, Any] = {}
     for group, kind in _CONFIG_TYPES.items():
         try:

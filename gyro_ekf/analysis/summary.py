@@ -10,6 +10,8 @@ Definitions (see `metrics` for the band and the interpolation):
   matched, and the longest time without any applied landmark update, counted from the first
   to the last estimate (so a trip that starts with no pole in view counts that stretch).
 - *NIS*: of every applied update (2 dof): mean and share inside the two-sided 95 % band.
+- *Input*: what the validation boundary dropped (with --skip-bad): samples per stream,
+  counts per field and reason with the first index, and how often a stream's time went back.
 - *Ground truth* (only when the trip has it): position RMSE and max error, heading RMSE
   over the estimates inside the truth's span; pose NEES (3 dof) mean and share inside the
   band; bias error (estimate minus the known injected bias) at the end and averaged over
@@ -27,6 +29,7 @@ import numpy as np
 from gyro_ekf.analysis import metrics
 from gyro_ekf.analysis.offline import OfflineRun
 from gyro_ekf.core.types import BIAS, FloatArray
+from gyro_ekf.core.validation import InputReport
 
 BIAS_SETTLING_TOLERANCE_RAD_S = math.radians(0.05)
 """Half-width of the band the bias error must stay in to count as settled (0.05 deg/s)."""
@@ -46,8 +49,14 @@ def association_stamps(run: OfflineRun) -> FloatArray:
     return np.unique(run.result.updates.stamp_s)
 
 
-def summarize(run: OfflineRun) -> dict[str, Any]:
-    """Compute the summary.json numbers as a JSON-ready dict (SI, plus deg/s for biases)."""
+def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[str, Any]:
+    """Compute the summary.json numbers as a JSON-ready dict (SI, plus deg/s for biases).
+
+    Args:
+        run: the offline run.
+        input_report: what the validation boundary dropped from the trip; the `input`
+            section is null without it.
+    """
     estimates = run.result.estimates
     stamps = estimates.stamp_s
     trip = run.trip
@@ -104,6 +113,7 @@ def summarize(run: OfflineRun) -> dict[str, Any]:
         'updates': int(nis.size), 'mean': float(nis.mean()) if nis.size else math.nan,
         'dof': 2, 'band': nis_band, 'share_in_band': metrics.share_inside(nis, *nis_band)}
 
+    summary['input'] = None if input_report is None else input_report.to_dict()
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gyro_ekf.cli.convert import add_skip_bad_argument, warn_dropped
 from gyro_ekf.core.calibration import estimate_gyro_bias
 from gyro_ekf.core.config import CalibrationConfig
 from gyro_ekf.core.types import BiasEstimate, Trip
@@ -27,15 +28,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--ignore-speed', action='store_true',
                         help='do not use the speed stream to confirm the platform is still')
     parser.add_argument('--json', action='store_true', help='print JSON instead of a table')
+    add_skip_bad_argument(parser)
 
 
-def load_trip(sources: list[Path]) -> Trip:
-    """Read a bag folder (with metadata.yaml), course log files or a simulator trip file."""
+def load_trip(sources: list[Path], skip_bad: bool = False) -> Trip:
+    """Read a bag folder (with metadata.yaml), course log files or a simulator trip file.
+
+    The trip passes the validation boundary: bad samples are refused, or dropped and
+    counted with skip_bad.
+    """
     if len(sources) == 1 and (sources[0] / 'metadata.yaml').is_file():
+        from gyro_ekf.core.validation import validate_trip
         from gyro_ekf.io.bag_reader import read_trip_bag
-        return read_trip_bag(sources[0])
-    from gyro_ekf.io.sources import load_log
-    return load_log(sources)
+        trip, report = validate_trip(read_trip_bag(sources[0]), sources[0].name,
+                                     skip_bad=skip_bad)
+    else:
+        from gyro_ekf.io.sources import load_checked_log
+        trip, report = load_checked_log(sources, skip_bad=skip_bad)
+    warn_dropped(report)
+    return trip
 
 
 def calibrate_trip(trip: Trip, config: CalibrationConfig,
@@ -67,13 +78,14 @@ def estimate_to_dict(estimate: BiasEstimate, axes_known: tuple[bool, bool, bool]
 
 def run(args: argparse.Namespace) -> int:
     """Calibrate and print the per-axis bias; a refused window is an error (exit 1)."""
-    trip = load_trip(args.source)
+    trip = load_trip(args.source, skip_bad=args.skip_bad)
     config = CalibrationConfig(window_start_s=args.window_start_s,
                                window_length_s=args.window_length_s)
     estimate = calibrate_trip(trip, config, use_speed=not args.ignore_speed)
     report = estimate_to_dict(estimate, trip.imu.axes_known)
     if args.json:
-        print(json.dumps(report, indent=2))
+        # Standard JSON: a NaN would be a bug upstream, so refuse it rather than print it.
+        print(json.dumps(report, indent=2, allow_nan=False))
         return 0
     print(f'{trip.name}: static window {estimate.window_start_s:.2f}-'
           f'{estimate.window_end_s:.2f} s, {estimate.n_samples} samples')

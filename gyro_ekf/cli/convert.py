@@ -42,6 +42,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         f'default {DEFAULT_EPOCH_NS // 10**9} s = 2023-11-14T22:13:20Z')
     parser.add_argument('--force', action='store_true',
                         help='replace an existing OUT_BAG and its params file')
+    add_skip_bad_argument(parser)
+
+
+def add_skip_bad_argument(parser: argparse.ArgumentParser) -> None:
+    """Add the --skip-bad option of the commands that read logs or bags."""
+    parser.add_argument('--skip-bad', action='store_true',
+                        help='drop samples that fail the input checks (not finite, beyond '
+                        'the limits, stamps going back or a lone stamp far ahead) and count '
+                        'them, instead of stopping at the first')
+
+
+def warn_dropped(report: Any) -> None:
+    """Log the one warning line of an InputReport that dropped or flagged anything."""
+    line = report.warning()
+    if line:
+        log.warning('%s', line)
 
 
 def parse_start_time(text: str) -> int:
@@ -89,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
     from gyro_ekf.io.bag_writer import write_trip_bag
     from gyro_ekf.io.sidecar import sidecar_path
-    from gyro_ekf.io.sources import load_log
+    from gyro_ekf.io.sources import load_checked_log
 
     start_ns = DEFAULT_EPOCH_NS if args.start_time is None else parse_start_time(
         str(args.start_time))
@@ -99,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
             if existing.exists():
                 raise BagError(f'{existing}: exists already; use --force to replace it')
     began = time.monotonic()
-    trip = load_log(args.sources, args.map)
+    trip, report = load_checked_log(args.sources, args.map, skip_bad=args.skip_bad)
+    warn_dropped(report)
     progress, bar = _progress_bar()
     try:
         write_trip_bag(trip, output, storage=args.storage, start_time_ns=start_ns,

@@ -15,6 +15,8 @@ import sys
 import time
 from typing import Any
 
+from gyro_ekf.cli.convert import add_skip_bad_argument, warn_dropped
+
 HELP = 'run calibration and the EKF on a bag offline; write CSV, bag, summary and plots'
 
 log = logging.getLogger(__name__)
@@ -39,6 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--use-calibration', action='store_true',
                         help='seed the EKF bias from the static window (as the EKF node\'s '
                         'use_calibration); by default the online bias is found independently')
+    add_skip_bad_argument(parser)
 
 
 def _progress_bar(total: int, enabled: bool) -> Any:
@@ -87,14 +90,17 @@ def run(args: argparse.Namespace) -> int:
     from gyro_ekf.analysis.offline import event_count, run_trip
     from gyro_ekf.analysis.params_file import PipelineParams, read_params_file
     from gyro_ekf.analysis.summary import summarize
+    from gyro_ekf.core.validation import validate_trip
     from gyro_ekf.io.bag_reader import read_bag
 
     params = read_params_file(args.params_file) if args.params_file else PipelineParams()
-    folder = outputs.prepare_output_dir(args.output, force=args.force)
     began = time.perf_counter()
     bag = read_bag(args.bag, acceleration=False)  # the EKF does not use it
-    trip = bag.trip
+    # Checked before the output folder exists, so refused input leaves nothing behind.
+    trip, report = validate_trip(bag.trip, Path(args.bag).name, skip_bad=args.skip_bad)
+    warn_dropped(report)
     read_s = time.perf_counter() - began
+    folder = outputs.prepare_output_dir(args.output, force=args.force)
     use_stated = not args.ignore_stated_noise and bool(params.options.get('use_stated_noise',
                                                                           True))
     show = not args.no_progress and sys.stderr.isatty()
@@ -102,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         result = run_trip(trip, params, use_stated_noise=use_stated, progress=bar.update,
                           use_calibration=True if args.use_calibration else None)
     est = result.result.estimates
-    summary = summarize(result)
+    summary = summarize(result, report)
     outputs.write_estimates_csv(folder / outputs.ESTIMATES_CSV, est.stamp_s, est.state,
                                 est.covariance)
     if not args.no_bag:

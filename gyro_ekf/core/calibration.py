@@ -88,6 +88,14 @@ def estimate_gyro_bias(stamp_s: FloatArray, angular_velocity_rad_s: FloatArray,
                      np.asarray(speed_m_s, dtype=np.float64), start, end, stamps[0], config)
 
     known = np.array(axes_known, dtype=bool)
+    # NaN passes every `>` threshold below, so a non-finite sample must be refused here or
+    # it becomes a NaN bias.
+    bad = ~np.isfinite(window_rates[:, known]).all(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise CalibrationError(
+            f'the static window holds a non-finite gyro sample at '
+            f'{window_stamps[i] - stamps[0]:.3f} s ({window_rates[i].tolist()} rad/s)')
     bias = np.where(known, window_rates.mean(axis=0), 0.0)
     sigma = np.where(known, window_rates.std(axis=0, ddof=1), 0.0)
     half = count // 2
@@ -113,7 +121,8 @@ def _check_speed(speed_stamps: FloatArray, speeds: FloatArray, start: float, end
     inside = (speed_stamps >= start) & (speed_stamps <= end)
     if not inside.any():
         return
-    moving = np.flatnonzero(np.abs(speeds[inside]) > config.max_speed_m_s)
+    # `not <=` so that a NaN speed cannot pass as standing still.
+    moving = np.flatnonzero(~(np.abs(speeds[inside]) <= config.max_speed_m_s))
     if moving.size:
         first = moving[0]
         raise CalibrationError(

@@ -140,6 +140,11 @@ class GyroBiasEkf:
              else np.asarray(covariance, dtype=np.float64))
         if P.shape != (STATE_SIZE, STATE_SIZE):
             raise CoreError(f'initial covariance has shape {P.shape}, expected (4, 4)')
+        # A NaN here would surface much later as "SVD did not converge" in an update.
+        if pose.shape != (3,) or not np.isfinite(pose).all() or not math.isfinite(bias):
+            raise CoreError(f'initial state {pose.tolist()} with bias {bias} is not finite')
+        if not np.isfinite(P).all():
+            raise CoreError('initial covariance is not finite')
         self._s = [float(pose[0]), float(pose[1]), wrap_scalar(float(pose[2])), bias]
         self._p = _packed(0.5 * (P + P.T))
         self._s_prior = list(self._s)

@@ -12,13 +12,19 @@ one numpy pass.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+import dataclasses
+from dataclasses import dataclass, field
 import math
-from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from gyro_ekf.core.config import InputLimits
+from gyro_ekf.core.errors import InvalidInputError
+from gyro_ekf.core.types import (FloatArray, GroundTruth, ImuSeries, ScanSeries, SpeedSeries,
+                                 Trip)
 
 BoolArray = NDArray[np.bool_]
 
@@ -58,7 +64,7 @@ def coordinate_problem(values: Sequence[float], limits: InputLimits = LIMITS) ->
 
 
 def bad_values(values: NDArray, limit: float) -> BoolArray:
-    """Mask of the rows of `values` (shape (n,) or (n, k)) that are bad.
+    """Return the mask of the rows of `values` (shape (n,) or (n, k)) that are bad.
 
     A row is bad when it holds a non-finite value or one beyond +-limit.
     """
@@ -131,3 +137,340 @@ def mount_problem(x_m: float, y_m: float, yaw_rad: float,
         return (f'mount offset {math.hypot(x_m, y_m):.6g} m exceeds the limit '
                 f'{limits.max_mount_offset_m:g} m')
     return None
+
+
+# --- The offline boundary: a whole Trip, from a course log, a trip file or a bag. ---------
+
+NOT_FINITE = 'not finite'
+BEYOND_LIMIT = 'beyond limit'
+NEGATIVE = 'negative'
+TIME_WENT_BACK = 'time went back'
+JUMPED_AHEAD = 'stamp jumped ahead'
+
+
+@dataclass
+class InputReport:
+    """What the offline boundary found in one trip.
+
+    Attributes:
+        source: the file or bag the trip came from.
+        skip_bad: whether bad samples were dropped (True) or refused (False).
+        dropped: (field, reason) -> number of samples dropped for it; reasons are the short
+            keys NOT_FINITE, BEYOND_LIMIT, NEGATIVE, TIME_WENT_BACK, JUMPED_AHEAD. A sample
+            is counted once, under the first check it failed.
+        first_index: (field, reason) -> index of the first such sample in the source series.
+        samples_dropped: stream ('imu', 'speed', 'scan', 'ground_truth') -> samples dropped.
+        time_breaks: stream -> how many times its stamps went back (each a segment whose
+            older samples were dropped).
+        gaps: forward jumps beyond the limit that a stream stays after (a sensor silent for
+            a while); kept, since the other streams carry the filter through them, and
+            flagged: one text per gap.
+    """
+
+    source: str
+    skip_bad: bool = False
+    dropped: dict[tuple[str, str], int] = field(default_factory=dict)
+    first_index: dict[tuple[str, str], int] = field(default_factory=dict)
+    samples_dropped: dict[str, int] = field(default_factory=dict)
+    time_breaks: dict[str, int] = field(default_factory=dict)
+    gaps: list[str] = field(default_factory=list)
+
+    @property
+    def total_dropped(self) -> int:
+        """Samples dropped over all streams."""
+        return sum(self.samples_dropped.values())
+
+    def count(self, field_name: str, reason: str, first: int, n: int) -> None:
+        """Record n dropped samples of one field for one reason."""
+        key = (field_name, reason)
+        self.dropped[key] = self.dropped.get(key, 0) + n
+        self.first_index.setdefault(key, first)
+
+    def warning(self) -> str | None:
+        """One line for the user when anything was dropped or flagged, else None."""
+        lines = []
+        if self.dropped:
+            parts = ', '.join(f'{n} {field_name} ({reason})'
+                              for (field_name, reason), n in self.dropped.items())
+            lines.append(f'--skip-bad dropped {self.total_dropped} samples: {parts}')
+        if self.gaps:
+            lines.append(f'{len(self.gaps)} long gap(s) in a stream: {"; ".join(self.gaps)}')
+        return f'{self.source}: ' + '; '.join(lines) if lines else None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready view (the `input` section of summary.json)."""
+        return {
+            'source': self.source, 'skip_bad': self.skip_bad,
+            'samples_dropped_total': self.total_dropped,
+            'samples_dropped': dict(self.samples_dropped),
+            'dropped': [{'field': f, 'reason': r, 'count': n,
+                         'first_index': self.first_index[(f, r)]}
+                        for (f, r), n in self.dropped.items()],
+            'time_breaks': dict(self.time_breaks), 'gaps': list(self.gaps)}
+
+
+class _Stream:
+    """The checks of one series: a keep mask that bad rows leave, or the first error."""
+
+    def __init__(self, name: str, stamps: NDArray, source: str, limits: InputLimits,
+                 report: InputReport):
+        self.name = name
+        self.stamps = np.asarray(stamps, dtype=np.float64)
+        self.keep = np.ones(self.stamps.shape[0], dtype=bool)
+        self.source = source
+        self.limits = limits
+        self.report = report
+
+    def flag(self, field_name: str, bad: BoolArray, reason: str,
+             describe: Callable[[int], str]) -> None:
+        """Drop (or, without skip_bad, refuse at the first of) the rows marked in `bad`."""
+        new = bad & self.keep
+        if not new.any():
+            return
+        first = int(np.argmax(new))
+        if not self.report.skip_bad:
+            raise InvalidInputError(self.source, field_name, first, describe(first))
+        self.report.count(field_name, reason, first, int(new.sum()))
+        self.keep &= ~new
+
+    def values(self, field_name: str, values: NDArray, limit: float, unit: str) -> None:
+        """Rows of `values` (shape (n,)) must be finite and within +-limit."""
+        array = np.asarray(values, dtype=np.float64)
+        finite = np.isfinite(array)
+        self.flag(field_name, ~finite, NOT_FINITE, lambda i: f'{array[i]} is not finite')
+        with np.errstate(invalid='ignore'):
+            beyond = finite & (np.abs(array) > limit)
+        self.flag(field_name, beyond, BEYOND_LIMIT,
+                  lambda i: value_problem(float(array[i]), limit, unit) or '')
+
+    def time(self) -> None:
+        """Stamps finite and non-decreasing, forward steps within max_stamp_jump_s.
+
+        With skip_bad a sample older than the last kept one is dropped (the stream went
+        back: a counted segment break, its older samples dropped until time passes the
+        last kept stamp again) and a lone sample far ahead of its neighbours (a flipped
+        bit) is dropped. A stream that jumps ahead and stays there is a sensor silent for
+        a while: kept and flagged in the report; whether any stream covers the gap is
+        checked on the whole trip (`_check_timeline`).
+        """
+        stamps = self.stamps
+        self.flag(f'{self.name}.stamp_s', ~np.isfinite(stamps), NOT_FINITE,
+                  lambda i: f'stamp {stamps[i]} is not finite')
+        index = np.flatnonzero(self.keep)
+        kept = stamps[index]
+        steps = np.diff(kept)
+        jump = self.limits.max_stamp_jump_s
+        if not steps.size or (steps.min() >= 0.0 and steps.max() <= jump):
+            return
+        field_name = f'{self.name}.stamp_s'
+        times = kept.tolist()
+        last = times[0]
+        going_back = False
+        for k in range(1, len(times)):
+            t = times[k]
+            if t < last:
+                problem = (TIME_WENT_BACK, f'time went back {last - t:.6g} s '
+                                           f'(from {last:.6f} s to {t:.6f} s)')
+                if not going_back:
+                    self.report.time_breaks[self.name] = \
+                        self.report.time_breaks.get(self.name, 0) + 1
+                going_back = True
+            elif t - last > jump:
+                after = times[k + 1] if k + 1 < len(times) else None
+                reason = (f'stamp jumped ahead {t - last:.6g} s (from {last:.6f} s to '
+                          f'{t:.6f} s; the limit is {jump:g} s)')
+                if after is not None and t <= after <= t + jump:
+                    self.report.gaps.append(f'{field_name}[{int(index[k])}]: {reason}')
+                    last = t
+                    going_back = False
+                    continue
+                problem = (JUMPED_AHEAD, reason)
+            else:
+                last = t
+                going_back = False
+                continue
+            i = int(index[k])
+            if not self.report.skip_bad:
+                raise InvalidInputError(self.source, field_name, i, problem[1])
+            self.report.count(field_name, problem[0], i, 1)
+            self.keep[i] = False
+
+    def finish(self) -> NDArray | None:
+        """Row indices to keep, or None when every row is kept; counts the dropped rows."""
+        dropped = int((~self.keep).sum())
+        if not dropped:
+            return None
+        self.report.samples_dropped[self.name] = \
+            self.report.samples_dropped.get(self.name, 0) + dropped
+        return np.flatnonzero(self.keep)
+
+
+def _refuse(source: str, field_name: str, index: int | None, problem: str | None) -> None:
+    if problem:
+        raise InvalidInputError(source, field_name, index, problem)
+
+
+def _check_imu(imu: ImuSeries, stream: _Stream, limits: InputLimits) -> ImuSeries:
+    rates = np.asarray(imu.angular_velocity_rad_s)
+    for axis, known in zip(range(3), imu.axes_known):
+        if known:
+            stream.values(f'imu.angular_velocity.{"xyz"[axis]}', rates[:, axis],
+                          limits.max_yaw_rate_rad_s, 'rad/s')
+    if imu.linear_acceleration_m_s2 is not None:
+        accel = np.asarray(imu.linear_acceleration_m_s2)
+        for axis in range(3):
+            stream.values(f'imu.linear_acceleration.{"xyz"[axis]}', accel[:, axis], math.inf,
+                          'm/s^2')
+    stream.time()
+    keep = stream.finish()
+    if keep is None:
+        return imu
+    return dataclasses.replace(
+        imu, stamp_s=imu.stamp_s[keep], angular_velocity_rad_s=rates[keep],
+        linear_acceleration_m_s2=None if imu.linear_acceleration_m_s2 is None
+        else imu.linear_acceleration_m_s2[keep])
+
+
+def _check_scans(scan: ScanSeries, stream: _Stream, source: str,
+                 limits: InputLimits) -> ScanSeries:
+    prefix = f'lidar.{scan.topic}'
+    n = scan.beam_count
+    _refuse(source, f'{prefix}.geometry', None, scan_geometry_problem(
+        scan.angle_min_rad, scan.angle_min_rad + scan.angle_increment_rad * (n - 1),
+        scan.angle_increment_rad, n, scan.range_min_m, scan.range_max_m))
+    mount = scan.mount
+    _refuse(source, f'{prefix}.mount', None, mount_problem(mount.x_m, mount.y_m, mount.yaw_rad,
+                                                           limits))
+    ranges = scan.ranges_m
+    # No return is +inf or NaN (REP-117); only a negative range is impossible.
+    with np.errstate(invalid='ignore'):
+        negative = ranges < 0.0
+    stream.flag(f'{prefix}.ranges_m', negative.any(axis=1), NEGATIVE, lambda i: (
+        f'range {ranges[i][negative[i]][0]} m at beam {int(np.argmax(negative[i]))} is '
+        'negative'))
+    if scan.intensities is not None:
+        intensities = scan.intensities
+        bad = ~np.isfinite(intensities)
+        stream.flag(f'{prefix}.intensities', bad.any(axis=1), NOT_FINITE, lambda i: (
+            f'intensity {intensities[i][bad[i]][0]} at beam {int(np.argmax(bad[i]))} is not '
+            'finite'))
+    stream.time()
+    keep = stream.finish()
+    if keep is None:
+        return scan
+    return dataclasses.replace(
+        scan, stamp_s=scan.stamp_s[keep], ranges_m=ranges[keep],
+        intensities=None if scan.intensities is None else scan.intensities[keep])
+
+
+def _check_fixed(trip: Trip, source: str, limits: InputLimits) -> None:
+    """Refuse bad values with nothing to skip: map, initial pose, noise figures, bias."""
+    if trip.landmarks is not None:
+        xy = np.asarray(trip.landmarks.xy_m, dtype=np.float64)
+        bad = bad_values(xy, limits.max_coordinate_m)
+        if bad.any():
+            i = int(np.argmax(bad))
+            _refuse(source, 'landmarks.xy_m', i, coordinate_problem(xy[i], limits))
+    pose = np.asarray(trip.initial_pose, dtype=np.float64)
+    if pose.shape != (3,):
+        _refuse(source, 'initial_pose', None, f'has shape {pose.shape}, expected (3,)')
+    _refuse(source, 'initial_pose', None, coordinate_problem(pose[:2], limits) or (
+        None if math.isfinite(pose[2]) else f'yaw {pose[2]} is not finite'))
+    for key in ('gyro_rad_s', 'speed_m_s', 'range_m', 'bearing_rad', 'landmark_m'):
+        value = getattr(trip.noise, key)
+        if value is not None and not (math.isfinite(value) and value >= 0.0):
+            _refuse(source, f'noise.{key}', None,
+                    f'{value} is not a finite non-negative standard deviation')
+    if trip.true_gyro_bias_rad_s is not None:
+        bias = np.asarray(trip.true_gyro_bias_rad_s, dtype=np.float64)
+        bad = bad_values(bias, limits.max_yaw_rate_rad_s)
+        if bad.any():
+            i = int(np.argmax(bad))
+            _refuse(source, 'true_gyro_bias_rad_s', i,
+                    rate_problem(float(bias[i]), limits))
+    if not (math.isfinite(trip.static_duration_s) and trip.static_duration_s >= 0.0):
+        _refuse(source, 'static_duration_s', None,
+                f'{trip.static_duration_s} is not a finite non-negative duration')
+    if trip.walls is not None and np.isinf(trip.walls).any():
+        # NaN rows separate the polylines; an infinite vertex is damage.
+        _refuse(source, 'walls', int(np.argmax(np.isinf(trip.walls).any(axis=1))),
+                'vertex is infinite')
+
+
+def _check_timeline(streams: list[tuple[str, FloatArray]], source: str,
+                    limits: InputLimits) -> None:
+    """Refuse a stretch without any sample longer than the jump limit.
+
+    The filter would predict through it in 0.1 s steps.
+    """
+    stamps = np.concatenate([s for _, s in streams if len(s)] or [np.zeros(0)])
+    if stamps.size < 2:
+        return
+    ordered = np.sort(stamps)
+    steps = np.diff(ordered)
+    k = int(np.argmax(steps))
+    if steps[k] > limits.max_stamp_jump_s:
+        raise InvalidInputError(
+            source, 'stamps', None,
+            f'no stream has a sample between {ordered[k]:.6f} s and {ordered[k + 1]:.6f} s, '
+            f'a gap of {steps[k]:.6g} s (the limit is {limits.max_stamp_jump_s:g} s); split '
+            'the log at the gap')
+
+
+def validate_trip(trip: Trip, source: str, limits: InputLimits = LIMITS,
+                  skip_bad: bool = False) -> tuple[Trip, InputReport]:
+    """Check every value of a trip before it reaches the filter.
+
+    Per sample (IMU rows, speed samples, scans, ground-truth poses): finite values within
+    `limits`, ranges not negative (+inf/NaN mean no return), intensities finite, stamps
+    finite and non-decreasing with forward steps within `limits.max_stamp_jump_s`. Once per
+    trip: beam geometry, LiDAR mounts, landmark map, initial pose, stated noise figures,
+    the known bias; these have nothing to skip, so they are always refused.
+
+    Args:
+        trip: the trip as read.
+        source: file or bag name for messages ('trip2016.mat').
+        limits: the plausible ranges.
+        skip_bad: drop bad samples and count them instead of refusing the first.
+
+    Returns:
+        The trip (the same object when nothing was dropped) and what was dropped.
+
+    Raises:
+        InvalidInputError: names source, field, index and reason, e.g.
+            "IMU_dataC.mat: imu.angular_velocity.z[1234]: nan is not finite".
+    """
+    report = InputReport(source=source, skip_bad=skip_bad)
+    _check_fixed(trip, source, limits)
+
+    imu = _check_imu(trip.imu, _Stream('imu', trip.imu.stamp_s, source, limits, report), limits)
+
+    stream = _Stream('speed', trip.speed.stamp_s, source, limits, report)
+    stream.values('speed.speed_m_s', trip.speed.speed_m_s, limits.max_speed_m_s, 'm/s')
+    stream.time()
+    keep = stream.finish()
+    speed = trip.speed if keep is None else SpeedSeries(
+        stamp_s=trip.speed.stamp_s[keep], speed_m_s=trip.speed.speed_m_s[keep])
+
+    scans = tuple(_check_scans(s, _Stream(f'lidar.{s.topic}', s.stamp_s, source, limits,
+                                          report), source, limits) for s in trip.scans)
+
+    truth = trip.ground_truth
+    if truth is not None:
+        stream = _Stream('ground_truth', truth.stamp_s, source, limits, report)
+        pose = np.asarray(truth.pose, dtype=np.float64)
+        for column, name, limit, unit in ((0, 'x', limits.max_coordinate_m, 'm'),
+                                          (1, 'y', limits.max_coordinate_m, 'm'),
+                                          (2, 'yaw', math.inf, 'rad')):
+            stream.values(f'ground_truth.pose.{name}', pose[:, column], limit, unit)
+        stream.time()
+        keep = stream.finish()
+        if keep is not None:
+            truth = GroundTruth(stamp_s=truth.stamp_s[keep], pose=truth.pose[keep])
+
+    _check_timeline([('imu', imu.stamp_s), ('speed', speed.stamp_s)]
+                    + [(s.topic, s.stamp_s) for s in scans], source, limits)
+    if not report.samples_dropped:
+        return trip, report
+    return dataclasses.replace(trip, imu=imu, speed=speed, scans=scans,
+                               ground_truth=truth), report

@@ -35,6 +35,7 @@ import numpy as np
 import yaml
 
 from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures, Trip
+from gyro_ekf.core.validation import coordinate_problem, mount_problem
 from gyro_ekf.io.errors import BagError
 
 SUFFIX = '.params.yaml'
@@ -153,6 +154,21 @@ def parse_yaml(text: str, path: Path) -> BagParams:
             raise BagError(f"{path.name}: parameter 'true_gyro_bias_rad_s' must be 3 numbers")
     pose = [float(_get(tree, f'initial_pose.{k}', number, path))
             for k in ('x_m', 'y_m', 'yaw_rad')]
+    # YAML spells NaN and inf (.nan, .inf); a NaN mount would leave every detection
+    # unassociated with no error, so the values are checked here where they enter.
+    problem = coordinate_problem(pose[:2]) or (None if math.isfinite(pose[2]) else
+                                               f'yaw_rad {pose[2]} is not finite')
+    if problem:
+        raise BagError(f"{path.name}: parameter 'initial_pose': {problem}")
+    for topic, (_, mount) in lidars.items():
+        problem = mount_problem(mount.x_m, mount.y_m, mount.yaw_rad)
+        if problem:
+            raise BagError(f"{path.name}: parameter 'lidar.{topic}': {problem} "
+                           f'({mount.x_m}, {mount.y_m}, {mount.yaw_rad})')
+    static_s = float(_get(tree, 'trip.static_duration_s', number, path))
+    if not (math.isfinite(static_s) and static_s >= 0.0):
+        raise BagError(f"{path.name}: parameter 'trip.static_duration_s' must be a "
+                       f'non-negative number, got {static_s}')
     for key in NOISE_KEYS:
         if key in noise:
             value = _get(tree, f'noise.{key}', number, path)
@@ -162,7 +178,7 @@ def parse_yaml(text: str, path: Path) -> BagParams:
     return BagParams(
         name=str(_get(tree, 'trip.name', str, path)),
         log_time_zero_ns=int(_get(tree, 'trip.log_time_zero_ns', int, path)),
-        static_duration_s=float(_get(tree, 'trip.static_duration_s', number, path)),
+        static_duration_s=static_s,
         initial_pose=np.array(pose),
         lidars=lidars,
         noise=NoiseFigures(**{k: float(noise[k]) if k in noise else None

@@ -1,17 +1,32 @@
-"""One entry point for every input `gyro-ekf convert` accepts: course logs and trip files."""
+"""One entry point for every input `gyro-ekf convert` accepts: course logs and trip files.
+
+Every trip read here passes the validation boundary (`core.validation.validate_trip`)
+before anyone uses it: a bad value is an InvalidInputError naming the file, field and
+index, or with skip_bad a dropped and counted sample.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
 
+from gyro_ekf.core.config import InputLimits
+from gyro_ekf.core.errors import InvalidInputError
 from gyro_ekf.core.types import Trip
+from gyro_ekf.core.validation import InputReport, validate_trip
 from gyro_ekf.io import trip_file
 from gyro_ekf.io.errors import LogFormatError
-from gyro_ekf.io.matlab import load_course_log
+from gyro_ekf.io.matlab import detect_course_log, expand_paths, load_course_log
 
 
 def load_log(paths: Sequence[Path | str], map_path: Path | str | None = None) -> Trip:
+    """Read and check a course log or trip file; see load_checked_log (bad input refused)."""
+    return load_checked_log(paths, map_path)[0]
+
+
+def load_checked_log(paths: Sequence[Path | str], map_path: Path | str | None = None,
+                     skip_bad: bool = False, limits: InputLimits | None = None
+                     ) -> tuple[Trip, InputReport]:
     """Read a course log (.mat files or their folder) or a simulator trip file (.npz).
 
     Args:
@@ -19,13 +34,18 @@ def load_log(paths: Sequence[Path | str], map_path: Path | str | None = None) ->
             one trip file and no .mat files).
         map_path: the landmark map (MapMTRN4010.mat) for the 2016/2021 logs, when it is not
             among `paths` or beside them.
+        skip_bad: drop bad samples (and stamps that go back) and count them instead of
+            refusing the first.
+        limits: plausible input ranges; InputLimits() when None.
 
     Returns:
-        The trip.
+        The checked trip and what the check dropped.
 
     Raises:
         LogFormatError: anything load_course_log or load_trip refuses, or a trip file mixed
             with other inputs.
+        InvalidInputError: a bad value (without skip_bad), or one with nothing to skip (map,
+            mount, initial pose, noise figures, a stream that jumps ahead and stays there).
     """
     inputs = [Path(p) for p in paths]
     if not inputs:
@@ -41,5 +61,19 @@ def load_log(paths: Sequence[Path | str], map_path: Path | str | None = None) ->
         if len(expanded) != 1 or map_path is not None:
             raise LogFormatError(
                 f'{trips[0].name}: a trip file carries everything itself; give it alone')
-        return trip_file.load_trip(trips[0])
-    return load_course_log(inputs + ([Path(map_path)] if map_path is not None else []))
+        return validate_trip(trip_file.load_trip(trips[0]), trips[0].name,
+                             limits or InputLimits(), skip_bad=skip_bad)
+    given = inputs + ([Path(map_path)] if map_path is not None else [])
+    trip = load_course_log(given, strict_time=not skip_bad)
+    source = ', '.join(p.name for p in expand_paths(inputs))
+    try:
+        return validate_trip(trip, source, limits or InputLimits(), skip_bad=skip_bad)
+    except InvalidInputError as err:
+        # Name the one file the bad value came from (the 2016 log spreads over three).
+        files = detect_course_log(given).files
+        variable = {'imu': 'IMU', 'speed': 'Vel', 'lidar': 'dataL',
+                    'landmarks': 'Map'}.get(err.field.split('.')[0])
+        if variable not in files or len(set(files.values())) == 1:
+            raise
+        raise InvalidInputError(files[variable].name, err.field, err.index,
+                                err.reason) from None

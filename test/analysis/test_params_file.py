@@ -73,3 +73,20 @@ def test_a_bag_sidecar_is_a_valid_params_file_with_no_filter_values():
     params = read_params_text(sidecar, 's.yaml')
     assert params.ekf == EkfConfig()
     assert math.isclose(params.calibration.window_length_s, 5.0)
+
+
+@pytest.mark.parametrize('line, message', [
+    # NaN passes every bounds comparison, so it is refused by name before them.
+    ('gyro_noise_rad_s: .nan', "'ekf.gyro_noise_rad_s' = nan is not finite"),
+    ('ekf: {speed_noise_m_s: .inf}', "'ekf.speed_noise_m_s' = inf is not finite"),
+    ('detector: {max_width_m: -.inf}', "'detector.max_width_m' = -inf is not finite"),
+    ('calibration_bias_sigma_rad_s: .nan', "'calibration_bias_sigma_rad_s' = nan is not"),
+    ('calibration_bias_sigma_rad_s: -0.1', "'calibration_bias_sigma_rad_s' must be a positive"),
+])
+def test_non_finite_values_are_refused_naming_file_and_key(tmp_path, line, message):
+    path = tmp_path / 'bad.yaml'
+    path.write_text(f'/**:\n  ros__parameters:\n    {line}\n')
+    with pytest.raises(ParamsFileError) as caught:
+        read_params_file(path)
+    assert str(caught.value).startswith(f'{path}: parameter ')
+    assert message in str(caught.value)

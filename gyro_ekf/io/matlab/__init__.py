@@ -156,13 +156,15 @@ def detect_course_log(paths: Sequence[Path | str]) -> CourseLog:
     return CourseLog(project2016.FORMAT, roles)
 
 
-def load_course_log(paths: Sequence[Path]) -> Trip:
+def load_course_log(paths: Sequence[Path], strict_time: bool = True) -> Trip:
     """Detect the course log in `paths` and read it into a Trip (SI, ROS conventions).
 
     Args:
         paths: the log's .mat files, the map (MapMTRN4010.mat) where needed, or folders of
             .mat files. For the 2016 and 2021 logs a map lying beside the log is found
             by itself.
+        strict_time: refuse stamps that go back (False leaves them to the validation
+            boundary, which with --skip-bad drops the older samples and counts them).
 
     Returns:
         The trip, stamps in s since the log's first stamp.
@@ -177,12 +179,13 @@ def load_course_log(paths: Sequence[Path]) -> Trip:
     files = detected.files
     map_path = files.get(aas2021.MAP_VARIABLE)
     if detected.vintage == 'sim2022':
-        trip = sim2022.read(files[SIM_VARIABLE])
+        trip = sim2022.read(files[SIM_VARIABLE], strict_time=strict_time)
     elif detected.vintage == 'sim2023':
-        trip = sim2023.read(files[SIM_VARIABLE])
+        trip = sim2023.read(files[SIM_VARIABLE], strict_time=strict_time)
     elif detected.vintage == aas2021.FORMAT:
         assert map_path is not None
-        trip = aas2021.read(files[aas2021.LOG_VARIABLE], aas2021.read_map(map_path))
+        trip = aas2021.read(files[aas2021.LOG_VARIABLE], aas2021.read_map(map_path),
+                            strict_time)
     else:
         if map_path is None:
             log.warning('%s: no map (MapMTRN4010.mat) given or found beside the 2016 log; '
@@ -190,7 +193,7 @@ def load_course_log(paths: Sequence[Path]) -> Trip:
         trip = project2016.read(
             files[project2016.IMU_VARIABLE], files[project2016.SPEED_VARIABLE],
             files[project2016.LASER_VARIABLE],
-            aas2021.read_map(map_path) if map_path is not None else None)
+            aas2021.read_map(map_path) if map_path is not None else None, strict_time)
     if map_path is not None and detected.vintage.startswith('sim'):
         log.warning('%s: a simulated log carries its own map; ignoring %s',
                     files[SIM_VARIABLE].name, map_path.name)

@@ -165,15 +165,28 @@ def check_length(path: Path, dotted: str, length: int, other: str, expected: int
             f"{path.name}: field '{dotted}' has {length} samples but '{other}' has {expected}")
 
 
-def check_stamps(path: Path, dotted: str, counts: NDArray[Any]) -> None:
+def check_stamps(path: Path, dotted: str, counts: NDArray[Any], strict: bool = True) -> None:
     """Require stamps (counts of 0.1 ms) to be non-decreasing.
+
+    With `strict` False nothing is checked here: `gyro-ekf convert --skip-bad` leaves time
+    that goes back to the validation boundary, which drops the older samples and counts them.
 
     Raises:
         LogFormatError: names the field, the index and both values.
     """
+    if not strict:
+        return
     steps = np.diff(counts.astype(np.int64))
     if steps.size and steps.min() < 0:
         i = int(np.argmax(steps < 0))
+        before, spike, after = (int(c) for c in counts[i - 1:i + 2]) if i > 0 else (0, 0, -1)
+        if before <= after and 10 * (after - before) < spike - before:
+            # One stamp far ahead of two close neighbours (a flipped bit): name that one.
+            raise LogFormatError(
+                f"{path.name}: field '{dotted}' jumps ahead at index {i} "
+                f'({int(counts[i - 1])} -> {int(counts[i])} counts of 0.1 ms, '
+                f'+{steps[i - 1] / COUNTS_PER_S:.4f} s) and back after it; expected '
+                'non-decreasing stamps')
         raise LogFormatError(
             f"{path.name}: field '{dotted}' goes back in time at index {i + 1} "
             f'({int(counts[i])} -> {int(counts[i + 1])} counts of 0.1 ms, '

@@ -40,7 +40,8 @@ class SimEvents:
     ground_truth: GroundTruth
 
 
-def read_events(path: Path, variables: dict[str, Any], scan_field: str) -> SimEvents:
+def read_events(path: Path, variables: dict[str, Any], scan_field: str,
+                strict_time: bool = True) -> SimEvents:
     """Check and decode `data.table`, `data.vw` and `data.verify.poseL`.
 
     Args:
@@ -60,7 +61,7 @@ def read_events(path: Path, variables: dict[str, Any], scan_field: str) -> SimEv
     if table.shape[1] == 0:
         raise LogFormatError(f"{path.name}: field 'data.table' holds no events")
     times, indices, kinds = table[0], table[1], table[2]
-    mat.check_stamps(path, 'data.table(1,:)', times)
+    mat.check_stamps(path, 'data.table(1,:)', times, strict_time)
     unknown = (kinds != LIDAR_EVENT) & (kinds != SAMPLE_EVENT)
     if unknown.any():
         i = int(np.argmax(unknown))

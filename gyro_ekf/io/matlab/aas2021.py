@@ -42,7 +42,7 @@ def read_map(path: Path) -> LandmarkMap:
     return LandmarkMap(xy_m=np.column_stack([x, y]).astype(np.float64))
 
 
-def read(path: Path, landmarks: LandmarkMap) -> Trip:
+def read(path: Path, landmarks: LandmarkMap, strict_time: bool = True) -> Trip:
     """Read the event table into a Trip.
 
     Args:
@@ -61,7 +61,7 @@ def read(path: Path, landmarks: LandmarkMap) -> Trip:
     events = mat.array(variables, 'A.Z', path, (3, None), 'iuf')
     mat.check_length(path, 'A.Z', events.shape[1], 'A.t', times.size)
     words = mat.array(variables, 'A.scans', path, (project2016.SICK_BEAMS, None), 'u')
-    mat.check_stamps(path, 'A.t', times)
+    mat.check_stamps(path, 'A.t', times, strict_time)
     if times.size == 0:
         raise LogFormatError(f"{path.name}: field 'A.t' holds no events")
 

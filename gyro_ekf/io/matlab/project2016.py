@@ -87,7 +87,7 @@ def sick_angles(path: Path, variables: dict, dotted: str) -> tuple[float, float]
 
 
 def read(imu_path: Path, speed_path: Path, laser_path: Path,
-         landmarks: LandmarkMap | None) -> Trip:
+         landmarks: LandmarkMap | None, strict_time: bool = True) -> Trip:
     """Read the 2016 trio into a Trip.
 
     Args:
@@ -106,20 +106,20 @@ def read(imu_path: Path, speed_path: Path, laser_path: Path,
     imu_times = mat.array(imu_vars, 'IMU.times', imu_path, (None,), 'iu')
     data = mat.array(imu_vars, 'IMU.DATAf', imu_path, (9, None), 'f')
     mat.check_length(imu_path, 'IMU.DATAf', data.shape[1], 'IMU.times', imu_times.size)
-    mat.check_stamps(imu_path, 'IMU.times', imu_times)
+    mat.check_stamps(imu_path, 'IMU.times', imu_times, strict_time)
 
     speed_vars = mat.load_mat(speed_path)
     speed_times = mat.array(speed_vars, 'Vel.times', speed_path, (None,), 'iu')
     speeds = mat.array(speed_vars, 'Vel.speeds', speed_path, (None,), 'f')
     mat.check_length(speed_path, 'Vel.speeds', speeds.size, 'Vel.times', speed_times.size)
-    mat.check_stamps(speed_path, 'Vel.times', speed_times)
+    mat.check_stamps(speed_path, 'Vel.times', speed_times, strict_time)
 
     laser_vars = mat.load_mat(laser_path)
     laser_times = mat.array(laser_vars, 'dataL.times', laser_path, (None,), 'iu')
     words = mat.array(laser_vars, 'dataL.Scans', laser_path, (SICK_BEAMS, None), 'u')
     mat.check_length(laser_path, 'dataL.Scans', words.shape[1], 'dataL.times',
                      laser_times.size)
-    mat.check_stamps(laser_path, 'dataL.times', laser_times)
+    mat.check_stamps(laser_path, 'dataL.times', laser_times, strict_time)
     angle_min, increment = sick_angles(laser_path, laser_vars, 'dataL.angles')
     ranges, intensities = decode_sick_scans(laser_path, 'dataL.Scans', words)
 

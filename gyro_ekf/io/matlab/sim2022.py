@@ -37,7 +37,7 @@ def is_this_format(variables: dict) -> bool:
         variables, 'data.scans2')
 
 
-def read(path: Path, variables: dict | None = None) -> Trip:
+def read(path: Path, variables: dict | None = None, strict_time: bool = True) -> Trip:
     """Read data019b.mat-style logs into a Trip.
 
     Args:
@@ -48,7 +48,7 @@ def read(path: Path, variables: dict | None = None) -> Trip:
         LogFormatError: a field is missing or inconsistent.
     """
     variables = mat.load_mat(path) if variables is None else variables
-    events = _sim.read_events(path, variables, 'data.scans')
+    events = _sim.read_events(path, variables, 'data.scans', strict_time)
     words = mat.array(variables, 'data.scans', path, (BEAMS, None), 'u')
     rows = words[:, events.scan_columns].T
     ranges = mat.decode_ranges(rows, rows >= NO_RETURN_CM)

@@ -63,7 +63,7 @@ def _scan(path: Path, variables: dict, columns: np.ndarray, stamp_s: np.ndarray,
         topic=topic, frame_id=frame_id)
 
 
-def read(path: Path, variables: dict | None = None) -> Trip:
+def read(path: Path, variables: dict | None = None, strict_time: bool = True) -> Trip:
     """Read DataUsr_006k.mat-style logs into a Trip.
 
     Args:
@@ -74,7 +74,7 @@ def read(path: Path, variables: dict | None = None) -> Trip:
         LogFormatError: a field is missing or inconsistent.
     """
     variables = mat.load_mat(path) if variables is None else variables
-    events = _sim.read_events(path, variables, 'data.scans')
+    events = _sim.read_events(path, variables, 'data.scans', strict_time)
     first = mat.array(variables, 'data.scans', path, (None, None), 'u')
     second = mat.array(variables, 'data.scans2', path, (None, None), 'u')
     if second.shape != first.shape:

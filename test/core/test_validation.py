@@ -1,0 +1,261 @@
+"""The offline validation boundary (core.validation.validate_trip) on hand-made trips."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+
+import numpy as np
+import pytest
+
+from gyro_ekf.core.calibration import estimate_gyro_bias
+from gyro_ekf.core.config import CalibrationConfig, InputLimits
+from gyro_ekf.core.ekf import GyroBiasEkf
+from gyro_ekf.core.errors import CalibrationError, CoreError, InvalidInputError
+from gyro_ekf.core.types import (GroundTruth, ImuSeries, LandmarkMap, LidarMount, NoiseFigures,
+                                 ScanSeries, SpeedSeries, Trip)
+from gyro_ekf.core.validation import (JUMPED_AHEAD, NOT_FINITE, TIME_WENT_BACK,
+                                      validate_trip)
+
+
+def _trip(n: int = 2000, m: int = 40) -> Trip:
+    """A plain 10 s trip at 200 Hz / 4 Hz with a map, a LiDAR and ground truth."""
+    rng = np.random.default_rng(5)
+    imu_s = np.arange(n) * 0.005
+    scan_s = 0.002 + np.arange(m) * 0.25
+    ranges = rng.uniform(0.5, 30.0, (m, 181)).astype(np.float32)
+    ranges[:, ::7] = np.inf     # no return (REP-117)
+    ranges[:, 3] = np.nan       # also no return
+    return Trip(
+        name='hand', imu=ImuSeries(imu_s, rng.normal(0.0, 0.2, (n, 3))),
+        speed=SpeedSeries(imu_s.copy(), rng.uniform(0.0, 2.0, n)),
+        scans=(ScanSeries(scan_s, ranges, rng.integers(0, 8, (m, 181)).astype(np.float32),
+                          -math.pi / 2, math.pi / 180, 0.0, 80.0, LidarMount(0.4, 0.0, 0.0)),),
+        landmarks=LandmarkMap(rng.uniform(-20.0, 20.0, (5, 2))),
+        initial_pose=np.array([1.0, 2.0, 0.3]),
+        ground_truth=GroundTruth(scan_s.copy(), rng.normal(0.0, 3.0, (m, 3))),
+        noise=NoiseFigures(gyro_rad_s=0.02, landmark_m=0.0))
+
+
+def _with_imu(trip: Trip, rates=None, stamps=None) -> Trip:
+    imu = dataclasses.replace(
+        trip.imu, angular_velocity_rad_s=trip.imu.angular_velocity_rad_s if rates is None
+        else rates, stamp_s=trip.imu.stamp_s if stamps is None else stamps)
+    return dataclasses.replace(trip, imu=imu)
+
+
+def test_a_good_trip_passes_unchanged():
+    trip = _trip()
+    checked, report = validate_trip(trip, 'hand.npz')
+    assert checked is trip
+    assert report.total_dropped == 0 and report.warning() is None
+    assert report.to_dict()['dropped'] == []
+
+
+def test_ten_nan_gyro_samples_refused_naming_field_and_index_or_dropped_and_counted():
+    trip = _trip()
+    rates = trip.imu.angular_velocity_rad_s.copy()
+    rates[1234:1244, 2] = np.nan
+    bad = _with_imu(trip, rates)
+    with pytest.raises(InvalidInputError) as caught:
+        validate_trip(bad, 'trip2016.mat')
+    assert str(caught.value) == 'trip2016.mat: imu.angular_velocity.z[1234]: nan is not finite'
+    assert (caught.value.field, caught.value.index) == ('imu.angular_velocity.z', 1234)
+
+    checked, report = validate_trip(bad, 'trip2016.mat', skip_bad=True)
+    assert len(checked.imu.stamp_s) == len(trip.imu.stamp_s) - 10
+    assert np.isfinite(checked.imu.angular_velocity_rad_s).all()
+    assert report.dropped == {('imu.angular_velocity.z', NOT_FINITE): 10}
+    assert report.first_index[('imu.angular_velocity.z', NOT_FINITE)] == 1234
+    assert report.samples_dropped == {'imu': 10}
+    assert '10 imu.angular_velocity.z (not finite)' in report.warning()
+    assert checked.speed is trip.speed      # the other streams are left alone
+
+
+def test_inf_gyro_and_implausible_yaw_rate_are_refused():
+    trip = _trip()
+    rates = trip.imu.angular_velocity_rad_s.copy()
+    rates[7, 2] = np.inf
+    with pytest.raises(InvalidInputError, match=r'imu.angular_velocity.z\[7\]: inf is not fin'):
+        validate_trip(_with_imu(trip, rates), 'x')
+    rates[7, 2] = 1e300
+    with pytest.raises(InvalidInputError, match=r'z\[7\]: \|1e\+300\| rad/s exceeds the limit '
+                                                r'35 rad/s'):
+        validate_trip(_with_imu(trip, rates), 'x')
+    assert validate_trip(_with_imu(trip, rates), 'x', InputLimits(max_yaw_rate_rad_s=1e3),
+                         skip_bad=True)[1].total_dropped == 1
+
+
+def test_unknown_gyro_axes_are_not_checked():
+    trip = _trip()
+    rates = trip.imu.angular_velocity_rad_s.copy()
+    rates[:, 0] = np.nan
+    imu = dataclasses.replace(trip.imu, angular_velocity_rad_s=rates,
+                              axes_known=(False, True, True))
+    checked, report = validate_trip(dataclasses.replace(trip, imu=imu), 'x')
+    assert report.total_dropped == 0
+
+
+@pytest.mark.parametrize('value, reason', [(np.nan, 'nan is not finite'),
+                                           (-80.0, '|-80| m/s exceeds the limit 50 m/s')])
+def test_bad_speed(value, reason):
+    trip = _trip()
+    speeds = trip.speed.speed_m_s.copy()
+    speeds[99] = value
+    bad = dataclasses.replace(trip, speed=SpeedSeries(trip.speed.stamp_s, speeds))
+    with pytest.raises(InvalidInputError, match=rf'x: speed.speed_m_s\[99\]: {re.escape(reason)}'):
+        validate_trip(bad, 'x')
+    checked, report = validate_trip(bad, 'x', skip_bad=True)
+    assert len(checked.speed.speed_m_s) == len(speeds) - 1 and report.samples_dropped == {
+        'speed': 1}
+
+
+def test_scans_negative_range_and_nan_intensity_drop_the_scan():
+    trip = _trip()
+    scan = trip.scans[0]
+    ranges = scan.ranges_m.copy()
+    ranges[5, 17] = -3.0
+    intensities = scan.intensities.copy()
+    intensities[9, 2] = np.nan
+    bad = dataclasses.replace(trip, scans=(dataclasses.replace(
+        scan, ranges_m=ranges, intensities=intensities),))
+    with pytest.raises(InvalidInputError, match=r'lidar.scan.ranges_m\[5\]: range -3.0 m at '
+                                                r'beam 17 is negative'):
+        validate_trip(bad, 'x')
+    checked, report = validate_trip(bad, 'x', skip_bad=True)
+    assert len(checked.scans[0].stamp_s) == len(scan.stamp_s) - 2
+    assert report.samples_dropped == {'lidar.scan': 2}
+
+
+@pytest.mark.parametrize('change, match', [
+    (dict(angle_increment_rad=0.0), 'lidar.scan.geometry: angle_increment is 0'),
+    (dict(range_max_m=float('nan')), 'lidar.scan.geometry: beam geometry'),
+    (dict(mount=LidarMount(float('nan'), 0.0, 0.0)), 'lidar.scan.mount: mount is not finite'),
+    (dict(mount=LidarMount(0.0, 50.0, 0.0)), 'lidar.scan.mount: mount offset 50 m exceeds'),
+])
+def test_scan_geometry_and_mount_are_always_refused(change, match):
+    trip = _trip()
+    bad = dataclasses.replace(trip, scans=(dataclasses.replace(trip.scans[0], **change),))
+    with pytest.raises(InvalidInputError, match=re.escape(match)):
+        validate_trip(bad, 'x', skip_bad=True)
+
+
+@pytest.mark.parametrize('change, match', [
+    (lambda t: dict(landmarks=LandmarkMap(np.array([[1.0, 2.0], [np.nan, 3.0]]))),
+     'x: landmarks.xy_m[1]: nan is not finite'),
+    (lambda t: dict(landmarks=LandmarkMap(np.array([[1.0, 2e9]]))),
+     'x: landmarks.xy_m[0]: |2e+09| m exceeds the limit'),
+    (lambda t: dict(initial_pose=np.array([np.nan, 0.0, 0.0])),
+     'x: initial_pose: nan is not finite'),
+    (lambda t: dict(initial_pose=np.array([0.0, 0.0, np.inf])),
+     'x: initial_pose: yaw inf is not finite'),
+    (lambda t: dict(noise=NoiseFigures(gyro_rad_s=np.inf)), 'x: noise.gyro_rad_s: inf is not'),
+    (lambda t: dict(noise=NoiseFigures(range_m=-0.1)), 'x: noise.range_m: -0.1 is not'),
+    (lambda t: dict(true_gyro_bias_rad_s=np.array([0.0, np.nan, 0.0])),
+     'x: true_gyro_bias_rad_s[1]: nan is not finite'),
+])
+def test_map_pose_and_noise_have_nothing_to_skip(change, match):
+    trip = _trip()
+    with pytest.raises(InvalidInputError, match=re.escape(match)):
+        validate_trip(dataclasses.replace(trip, **change(trip)), 'x', skip_bad=True)
+
+
+def test_time_going_back_ten_seconds():
+    trip = _trip(n=6000)
+    stamps = trip.imu.stamp_s.copy()
+    stamps[2000:] -= 10.0   # 10 s in, the clock steps back 10 s
+    bad = _with_imu(trip, stamps=stamps)
+    with pytest.raises(InvalidInputError, match=r'x: imu.stamp_s\[2000\]: time went back 9.995 s '
+                                                r'\(from 9.995000 s to 0.000000 s\)'):
+        validate_trip(bad, 'x')
+    checked, report = validate_trip(bad, 'x', skip_bad=True)
+    # The older samples are dropped until time passes the last kept stamp again.
+    assert np.all(np.diff(checked.imu.stamp_s) >= 0)
+    assert report.dropped == {('imu.stamp_s', TIME_WENT_BACK): 1999}
+    assert report.first_index[('imu.stamp_s', TIME_WENT_BACK)] == 2000
+    assert report.time_breaks == {'imu': 1}
+    assert checked.imu.stamp_s[-1] == stamps[-1]
+
+
+def test_a_lone_stamp_300000_s_ahead_is_refused_or_dropped():
+    trip = _trip()
+    stamps = trip.imu.stamp_s.copy()
+    stamps[500] += 300_000.0   # one flipped bit
+    bad = _with_imu(trip, stamps=stamps)
+    with pytest.raises(InvalidInputError, match=r'imu.stamp_s\[500\]: stamp jumped ahead 300000'):
+        validate_trip(bad, 'x')
+    checked, report = validate_trip(bad, 'x', skip_bad=True)
+    assert report.dropped == {('imu.stamp_s', JUMPED_AHEAD): 1}
+    assert checked.imu.stamp_s.max() < 11.0
+
+
+def test_a_silent_sensor_is_flagged_and_kept_while_other_streams_cover_the_gap():
+    trip = _trip(n=20_000)     # 100 s of IMU and speed
+    scan = trip.scans[0]
+    stamps = scan.stamp_s.copy()
+    stamps[20:] += 60.0        # the LiDAR says nothing for 60 s, then carries on
+    checked, report = validate_trip(dataclasses.replace(
+        trip, scans=(dataclasses.replace(scan, stamp_s=stamps),)), 'x')
+    assert checked.scans[0].stamp_s is stamps and report.total_dropped == 0
+    assert report.gaps == ['lidar.scan.stamp_s[20]: stamp jumped ahead 60.25 s (from 4.752000 s '
+                           'to 65.002000 s; the limit is 30 s)']
+    assert '1 long gap(s) in a stream' in report.warning()
+
+
+def test_a_gap_no_stream_covers_is_refused_even_with_skip_bad():
+    trip = _trip()
+
+    def shift(stamps):
+        return np.where(stamps > 5.0, stamps + 300_000.0, stamps)
+    # The IMU alone jumps 300 000 s and stays: the other streams end at 10 s.
+    with pytest.raises(InvalidInputError, match=r'x: stamps: no stream has a sample between '
+                                                r'9.99\d+ s and 300005.00\d+ s'):
+        validate_trip(_with_imu(trip, stamps=shift(trip.imu.stamp_s)), 'x', skip_bad=True)
+    # Every stream jumps together.
+    every = dataclasses.replace(
+        _with_imu(trip, stamps=shift(trip.imu.stamp_s)),
+        speed=SpeedSeries(shift(trip.speed.stamp_s), trip.speed.speed_m_s),
+        scans=(dataclasses.replace(trip.scans[0], stamp_s=shift(trip.scans[0].stamp_s)),))
+    with pytest.raises(InvalidInputError, match='a gap of 300000 s'):
+        validate_trip(every, 'x', skip_bad=True)
+    # A stream that starts long after the others leaves a gap no stream covers.
+    late_speed = dataclasses.replace(trip, speed=SpeedSeries(
+        trip.speed.stamp_s[:10] + 200.0, trip.speed.speed_m_s[:10]))
+    with pytest.raises(InvalidInputError, match=r'x: stamps: no stream has a sample between'):
+        validate_trip(late_speed, 'x', skip_bad=True)
+
+
+def test_nan_stamp_and_nan_ground_truth():
+    trip = _trip()
+    stamps = trip.imu.stamp_s.copy()
+    stamps[3] = np.nan
+    with pytest.raises(InvalidInputError, match=r'imu.stamp_s\[3\]: stamp nan is not finite'):
+        validate_trip(_with_imu(trip, stamps=stamps), 'x')
+    pose = trip.ground_truth.pose.copy()
+    pose[4, 2] = np.nan
+    bad = dataclasses.replace(trip, ground_truth=GroundTruth(trip.ground_truth.stamp_s, pose))
+    with pytest.raises(InvalidInputError, match=r'ground_truth.pose.yaw\[4\]'):
+        validate_trip(bad, 'x')
+    checked, report = validate_trip(bad, 'x', skip_bad=True)
+    assert len(checked.ground_truth.stamp_s) == len(pose) - 1
+
+
+def test_ekf_refuses_a_non_finite_start():
+    with pytest.raises(CoreError, match='initial state .* is not finite'):
+        GyroBiasEkf(pose=np.array([np.nan, 0.0, 0.0]))
+    with pytest.raises(CoreError, match='initial covariance is not finite'):
+        GyroBiasEkf(covariance=np.full((4, 4), np.nan))
+
+
+def test_calibration_refuses_non_finite_samples_instead_of_a_nan_bias():
+    stamps = np.arange(2000) * 0.005
+    rates = np.zeros((2000, 3)) + 0.01
+    rates[300, 2] = np.nan
+    with pytest.raises(CalibrationError, match='non-finite gyro sample at 1.500 s'):
+        estimate_gyro_bias(stamps, rates, CalibrationConfig())
+    rates[300, 2] = 0.01
+    speeds = np.zeros(2000)
+    speeds[400] = np.nan
+    with pytest.raises(CalibrationError, match='platform moved: speed nan'):
+        estimate_gyro_bias(stamps, rates, CalibrationConfig(), stamps, speeds)
