@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections import Counter
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 import gzip
 import hashlib
 import importlib
@@ -27,6 +27,7 @@ import multiprocessing
 from pathlib import Path
 import pkgutil
 import random
+import re
 import shutil
 import tarfile
 import tempfile
@@ -61,7 +62,7 @@ class Case:
             path.write_bytes(data)
 
     def to_bytes(self) -> bytes:
-        """A gzip'd tar of the files plus case.json (note and meta); deterministic."""
+        """Pack the files plus case.json (note, meta) as a deterministic gzip'd tar."""
         buffer = io.BytesIO()
         with tarfile.open(fileobj=buffer, mode='w', format=tarfile.USTAR_FORMAT) as tar:
             entries = dict(self.files)
@@ -135,8 +136,10 @@ class Target:
         raise NotImplementedError
 
     def check(self, case: Case, folder: Path, run: bool) -> Verdict:
-        """Judge the case, whose files are written in `folder`; `run` asks for the slow
-        end-to-end check (gyro-ekf run) where the target has one."""
+        """Judge the case, whose files are written in `folder`.
+
+        `run` asks for the slow end-to-end check (gyro-ekf run) where the target has one.
+        """
         raise NotImplementedError
 
 
@@ -277,6 +280,13 @@ def _save(results: list, corpus: Path) -> None:
                 f'{verdict.kind}: {note}\n{verdict.detail}\n', encoding='utf-8')
 
 
+def _kind_of(detail: str) -> str:
+    """The class of a silently wrong detail: its first two parts, numbers left out."""
+    head = ': '.join(detail.split(': ')[:2])
+    head = re.sub(r'/tmp/\S+', 'BAG', head)
+    return re.sub(r'[-+]?\d[\d.e+]*', '#', head)[:90]
+
+
 def _print(summary: dict[str, Any], out: Any) -> None:
     out(f"{'target':<12} {'inputs':>6} {'correct':>7} {'clean':>6} {'uncaught':>8} "
         f"{'hang':>5} {'silent':>6}")
@@ -289,12 +299,7 @@ def _print(summary: dict[str, Any], out: Any) -> None:
     for name, p in summary['targets'].items():
         if p['exceptions']:
             out(f'{name}: ' + ', '.join(f'{k} x{v}' for k, v in p['exceptions'].items()))
-        silent = Counter(f['detail'].split(':')[0] for f in p['failures']
-                         if f['kind'] == 'silent')
+        silent = Counter(_kind_of(f['detail']) for f in p['failures'] if f['kind'] == 'silent')
         if silent:
             out(f'{name}: silently wrong: ' + ', '.join(f'{k} x{v}' for k, v in
                                                         silent.most_common()))
-
-
-def verdict_dict(verdict: Verdict) -> dict[str, Any]:
-    return asdict(verdict)

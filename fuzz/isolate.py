@@ -7,12 +7,13 @@ allocation fails as MemoryError inside the child instead of swapping the machine
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 import os
 import pickle
 import resource
 import select
 import signal
+import sys
 import time
 import traceback
 from typing import Any, Callable
@@ -43,7 +44,6 @@ class Outcome:
     message: str = ''
     where: str = ''
     seconds: float = 0.0
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def _type_name(error: BaseException) -> str:
@@ -93,6 +93,8 @@ def call(function: Callable[..., Any], *args: Any, timeout_s: float = TIMEOUT_S)
             devnull = os.open(os.devnull, os.O_WRONLY)
             os.dup2(devnull, 1)
             os.dup2(devnull, 2)
+            # Also the Python-level streams: pytest replaces them with its own capture.
+            sys.stdout = sys.stderr = open(os.devnull, 'w', encoding='utf-8')
             limit = _vm_bytes() + MEMORY_HEADROOM_BYTES
             resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
             try:

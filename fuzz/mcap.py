@@ -209,8 +209,11 @@ def with_crcs(data: bytes, on: bool) -> bytes:
 
 
 def replace_chunk(data: bytes, index: int, records: bytes, retime: bool = True) -> bytes:
-    """The file with chunk `index`'s records replaced (recompressed, CRC kept or added as
-    the original had it, sizes, times and the summary's offsets made consistent)."""
+    """Return the file with chunk `index`'s records replaced.
+
+    The chunk is recompressed, its CRC kept (or left 0) as the original had it, and its
+    sizes, times and the summary's offsets made consistent.
+    """
     parts = split(data)
     chunk_records = [r for r in parts if r.opcode == CHUNK]
     record = chunk_records[index]

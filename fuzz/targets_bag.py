@@ -33,7 +33,7 @@ HUGE = (2 ** 64 - 1, 2 ** 63 - 1, 2 ** 63, 2 ** 62, 2 ** 40, 2 ** 32, 2 ** 31, 1
 
 
 def tiny_config() -> Any:
-    """A 1 s trip at low rates: bags of a few tens of KB, quick to read and to run."""
+    """Return a 1 s trip at low rates: bags of a few tens of KB, quick to read and run."""
     from gyro_ekf.core.simulator import SimulationConfig
     return dataclasses.replace(
         SimulationConfig(), duration_s=1.0, static_s=0.5, imu_rate_hz=20.0,
@@ -228,9 +228,11 @@ class BagBytes(_BagTarget):
 
 
 class McapChunk(_BagTarget):
-    """Mutations inside a chunk's records; the chunk is recompressed and its CRC, sizes,
-    times and the summary's offsets are made true again, so the readers get past the
-    checks and decode the damaged records."""
+    """Mutations inside a chunk's records, with the file made consistent again.
+
+    The chunk is recompressed and its CRC, sizes, times and the summary's offsets are made
+    true, so the readers get past those checks and decode the damaged records.
+    """
 
     name = 'mcap_chunk'
     share = 1.0

@@ -159,4 +159,3 @@ def mutate_payload(data: bytes, rng: random.Random) -> tuple[bytes, str]:
 
 
 TARGETS = [Cdr()]
-

@@ -69,7 +69,7 @@ _DELETE = object()
 
 
 def change_value(rng: random.Random) -> Callable[[dict[str, Any]], str]:
-    """A change hook for a synthetic writer; it returns what it did (kept in a list)."""
+    """Make a change hook for a synthetic writer; what it did goes to `change.notes`."""
     def change(variables: dict[str, Any]) -> None:
         leaves = _arrays(variables)
         times = [p for p in leaves if p[-1] in TIME_KEYS]

@@ -1,9 +1,9 @@
-"""Params-file target: config/gyro_ekf.yaml with a value made bad, a key dropped or the text
-damaged, through `read_params_file`.
+"""Params-file target: config/gyro_ekf.yaml, damaged, through `read_params_file`.
 
-The reader must refuse a bad file with a ParamsFileError (a GyroEkfError) or return configs
-holding only finite values within their bounds; a returned NaN or inf (or a node option of
-the wrong kind) is silently wrong: the filter would run on it.
+A value is made bad (NaN, inf, huge, negative, the wrong type), a key dropped or the
+text damaged. The reader must refuse a bad file with a ParamsFileError (a GyroEkfError)
+or return configs holding only finite values within their bounds; a returned NaN or inf
+(or a node option of the wrong kind) is silently wrong: the filter would run on it.
 """
 
 from __future__ import annotations
@@ -60,8 +60,6 @@ class Params(Target):
         if outcome.status == 'ok' and outcome.value:
             verdict.worse('silent', f'read_params_file returned: {outcome.value[0]}')
         return verdict
-
-
 
 
 TARGETS = [Params()]
