@@ -41,14 +41,22 @@ def tiny_config() -> Any:
         lidar_increment_rad=0.17)
 
 
-def write_seed_bag(folder: Path, tiny: bool, compress: bool, seed: int = 1) -> dict[str, bytes]:
+def write_seed_bag(folder: Path, tiny: bool, compress: bool, seed: int = 1,
+                   storage: str = 'mcap') -> dict[str, bytes]:
     """Simulate a trip and write it as a bag under folder; return its files by case name."""
     from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
     from gyro_ekf.io.bag_writer import write_trip_bag
     config = tiny_config() if tiny else dataclasses.replace(SimulationConfig(), duration_s=10.0)
     folder.mkdir(parents=True, exist_ok=True)
-    write_trip_bag(simulate_trip(config, seed=seed), folder / BAG, compress=compress)
-    return {name: (folder / name).read_bytes() for name in (MCAP, META, SIDECAR)}
+    write_trip_bag(simulate_trip(config, seed=seed), folder / BAG, compress=compress,
+                   storage=storage)
+    names = [f'{BAG}/{p.name}' for p in sorted((folder / BAG).iterdir())] + [SIDECAR]
+    return {name: (folder / name).read_bytes() for name in names}
+
+
+def data_file(files: dict[str, bytes]) -> str:
+    """The bag's storage file among a case's files (.mcap or .db3)."""
+    return next(n for n in sorted(files) if n.endswith(('.mcap', '.db3')))
 
 
 # -- calls made in a child (isolate.call) --------------------------------------------
@@ -159,11 +167,23 @@ class _BagTarget(Target):
                     if outcome.status != 'ok':
                         raise RuntimeError(f'seed {label} does not read: {outcome}')
                     _BagTarget.originals[label] = outcome.value['fields']
+        # sqlite3 bags go through rosbags alone; blind byte mutations only.
+        for compress in (False, True):
+            label = 'tinysql' + ('z' if compress else '')
+            files = write_seed_bag(workdir / label, True, compress, storage='sqlite3')
+            _BagTarget.seeds[label] = files
+            outcome = isolate.call(read_fast, workdir / label / BAG, timeout_s=60)
+            if outcome.status != 'ok':
+                raise RuntimeError(f'seed {label} does not read: {outcome}')
+            _BagTarget.originals[label] = outcome.value['fields']
 
-    def pick(self, rng: random.Random) -> tuple[str, dict[str, bytes]]:
-        tiny = [k for k in sorted(self.seeds) if k.startswith('tiny')]
-        full = [k for k in sorted(self.seeds) if k.startswith('full')]
-        label = rng.choice(tiny if rng.random() < 0.8 else full)
+    def pick(self, rng: random.Random, sqlite: bool = False) -> tuple[str, dict[str, bytes]]:
+        mcap_seeds = [k for k in sorted(self.seeds) if 'sql' not in k]
+        tiny = [k for k in mcap_seeds if k.startswith('tiny')]
+        full = [k for k in mcap_seeds if k.startswith('full')]
+        sql = [k for k in sorted(self.seeds) if 'sql' in k]
+        draw = rng.random()
+        label = rng.choice(sql if sqlite and draw < 0.2 else tiny if draw < 0.84 else full)
         return label, dict(self.seeds[label])
 
     def case(self, label: str, files: dict[str, bytes], note: str) -> Case:
@@ -222,8 +242,9 @@ class BagBytes(_BagTarget):
     share = 1.0
 
     def generate(self, rng: random.Random) -> Case:
-        label, files = self.pick(rng)
-        files[MCAP], note = mutate_bytes(files[MCAP], rng)
+        label, files = self.pick(rng, sqlite=True)
+        name = data_file(files)
+        files[name], note = mutate_bytes(files[name], rng)
         return self.case(label, files, note)
 
 
@@ -325,7 +346,7 @@ class BagMeta(_BagTarget):
     share = 0.6
 
     def generate(self, rng: random.Random) -> Case:
-        label, files = self.pick(rng)
+        label, files = self.pick(rng, sqlite=True)
         if rng.random() < 0.5:
             files[META], note = mutate_metadata(files[META], rng)
         else:
