@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     names = [n for n in args.targets.split(',') if n]
     summary = fuzz(names, args.seed, args.inputs, args.budget_s, args.jobs, args.run_every,
                    args.corpus, args.report)
-    failing = sum(summary['total'][k] for k in FAILING)
+    failing = sum(summary['total'][k] for k in FAILING) + summary['total']['fuzzer_errors']
     print(f'fuzz: report {args.report}; failing inputs in {args.corpus}/' if failing else
           f'fuzz: report {args.report}; nothing failed')
     return 1 if failing else 0

@@ -173,8 +173,12 @@ _TARGETS: dict[str, Target] = {}
 
 def _one(name: str, index: int, seed: int, run: bool) -> tuple[str, int, Verdict, str, bytes]:
     target = _TARGETS[name]
-    case = target.generate(case_rng(seed, name, index))
-    verdict = judge(target, case, run)
+    try:
+        case = target.generate(case_rng(seed, name, index))
+        verdict = judge(target, case, run)
+    except Exception as error:  # noqa: B902 - a bug of the fuzzer, reported as such
+        # Not the project's fault, and not to be lost either: its own kind in the report.
+        return name, index, Verdict('fuzzer', f'fuzzer error: {error!r}'), '', b''
     blob = case.to_bytes() if verdict.kind in FAILING else b''
     return name, index, verdict, case.note, blob
 
@@ -262,9 +266,11 @@ def _summarise(targets: list[Target], results: list, seed: int, elapsed: float,
                     for r in mine if r[2].kind in FAILING]
         per[target.name] = {
             'inputs': len(mine), **{k: kinds.get(k, 0) for k in KINDS},
+            'fuzzer_errors': [r[2].detail for r in mine if r[2].kind == 'fuzzer'],
             'exceptions': dict(errors.most_common()), 'where': dict(where.most_common()),
             'failures': failures}
     total = {k: sum(p[k] for p in per.values()) for k in ('inputs', *KINDS)}
+    total['fuzzer_errors'] = sum(len(p['fuzzer_errors']) for p in per.values())
     return {'seed': seed, 'elapsed_s': round(elapsed, 1), 'budget_s': budget_s,
             'total': total, 'targets': per}
 
@@ -297,6 +303,9 @@ def _print(summary: dict[str, Any], out: Any) -> None:
     out(f"{'total':<12} {t['inputs']:>6} {t['correct']:>7} {t['clean']:>6} "
         f"{t['uncaught']:>8} {t['hang']:>5} {t['silent']:>6}   ({summary['elapsed_s']} s)")
     for name, p in summary['targets'].items():
+        if p['fuzzer_errors']:
+            out(f"{name}: {len(p['fuzzer_errors'])} inputs not judged (a fuzzer bug): "
+                f"{p['fuzzer_errors'][0]}")
         if p['exceptions']:
             out(f'{name}: ' + ', '.join(f'{k} x{v}' for k, v in p['exceptions'].items()))
         silent = Counter(_kind_of(f['detail']) for f in p['failures'] if f['kind'] == 'silent')

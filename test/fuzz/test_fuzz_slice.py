@@ -15,6 +15,7 @@ def test_fuzz_slice_has_no_uncaught_hang_or_silently_wrong(tmp_path):
                    run_every=10 ** 9, corpus=tmp_path / 'failures',
                    report=tmp_path / 'fuzz.json', out=lambda line: None)
     assert summary['total']['inputs'] == sum(SLICE.values())
+    assert summary['total']['fuzzer_errors'] == 0, summary
     failures = [f"{name} #{f['index']} {f['kind']}: {f['note']} -> {f['detail']}"
                 for name, p in summary['targets'].items() for f in p['failures']]
     counts = {k: summary['total'][k] for k in FAILING}
