@@ -103,10 +103,11 @@ def trip_problems(trip: Any) -> list[str]:
                 scan.range_min_m, scan.range_max_m)
             if problem:
                 out.append(f'{scan.topic}: {problem}')
+        # NaN is REP-117's "erroneous measurement" and +inf its "no return"; a negative
+        # range is neither.
         with np.errstate(invalid='ignore'):
-            if np.isnan(np.asarray(scan.ranges_m, dtype=np.float64)).any() or (
-                    np.asarray(scan.ranges_m) < 0).any():
-                out.append(f'{scan.topic}: NaN or negative range')
+            if (np.asarray(scan.ranges_m) < 0).any():
+                out.append(f'{scan.topic}: negative range')
         problem = validation.mount_problem(scan.mount.x_m, scan.mount.y_m, scan.mount.yaw_rad)
         if problem:
             out.append(f'{scan.topic}: {problem}')
