@@ -15,7 +15,7 @@ export MPLBACKEND := Agg
 
 DEMO_BAG := bags/sim_static_start
 
-.PHONY: venv demo test bags bench lint clean
+.PHONY: venv demo test bags bench fuzz lint clean
 
 venv: $(STAMP)
 
@@ -36,6 +36,11 @@ bags: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/gyro-ekf bench -o results/bench.json
+
+# Mutated bags, chunks, CDR payloads, course logs and params files through the readers;
+# bounded (FUZZ_ARGS, e.g. --budget-s 60 --seed 3), writes results/fuzz.json.
+fuzz: $(STAMP)
+	$(BIN)/python -m fuzz $(FUZZ_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/python -m pytest -q -m linter test

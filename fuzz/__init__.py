@@ -1,0 +1,1 @@
+"""The project's fuzzer (`make fuzz`, `python -m fuzz --help`): see fuzz/harness.py."""
