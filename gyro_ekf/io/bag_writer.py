@@ -267,8 +267,11 @@ def _write(plans: list[TopicPlan], staged: Path, plugin: StoragePlugin, total: i
         progress(total, total)
 
 
-def claim_bag_target(path: Path, force: bool) -> Path:
+def claim_bag_target(path: Path, force: bool, sidecar: bool = True) -> Path:
     """Check that a bag folder (and its params sidecar) may be written; return the sidecar.
+
+    sidecar=False: only the bag folder is written (`gyro-ekf record`), an existing sidecar
+    beside it is none of this writer's business.
 
     With force, an existing bag folder is replaced only when it holds nothing but a bag's
     own files (metadata.yaml, *.mcap, *.db3, ...): a user's notes or sub-folders in it are
@@ -279,13 +282,15 @@ def claim_bag_target(path: Path, force: bool) -> Path:
             holds a file that is not part of a bag (named).
     """
     params_path = sidecar_path(path)
-    existing = [p for p in (path, params_path) if p.exists() or p.is_symlink()]
+    ours = (path, params_path) if sidecar else (path,)
+    existing = [p for p in ours if p.exists() or p.is_symlink()]
     if existing and not force:
         raise BagError(f'{existing[0]}: exists already; use --force to replace it')
     if path.is_symlink() or (path.exists() and not path.is_dir()):
         raise BagError(f'{path}: exists and is not a bag folder; --force replaces only a bag '
                        'folder')
-    if params_path.is_symlink() or (params_path.exists() and not params_path.is_file()):
+    if sidecar and (params_path.is_symlink()
+                    or (params_path.exists() and not params_path.is_file())):
         raise BagError(f'{params_path}: exists and is not a params file; --force replaces '
                        'only a file')
     if path.is_dir():
