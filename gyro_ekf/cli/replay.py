@@ -122,18 +122,24 @@ def run(args: argparse.Namespace) -> int:
     """Replay the bag; returns the exit code."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
 
+    from gyro_ekf.cli.signals import StopRequest
     from gyro_ekf.errors import GyroEkfError
     from gyro_ekf.nodes.replayer import Replayer
 
+    # SIGINT/SIGTERM end the replay between two messages: the summary is still printed.
+    stop = StopRequest()
     source = BagSource(args.bag, args.topics, args.start_s, args.duration_s)
-    rclpy.init(args=['gyro-ekf-replay', *args.ros_args])
+    rclpy.init(args=['gyro-ekf-replay', *args.ros_args],
+               signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
         try:
             node = Replayer(source.topics, args.clock)
         except ValueError as err:
             raise GyroEkfError(f'{args.bag}: {err}') from None
+        node.stop = stop
         needs: dict[str, int] = {}
         for topic, count in args.wait_for:
             names = [t.name for t in source.topics if not t.latched] if topic is None else [
@@ -143,13 +149,18 @@ def run(args: argparse.Namespace) -> int:
                     raise GyroEkfError(f'--wait-for: topic {name!r} is not replayed')
                 needs[name] = max(needs.get(name, 0), count)
         short = node.wait_for_subscribers(needs, args.wait_timeout_s)
+        if stop:
+            log.info('stopped by %s before the replay began', stop.requested)
+            return 0
         if short:
             raise GyroEkfError(f'subscribers did not appear within {args.wait_timeout_s} s: '
                                + ', '.join(f'{k} has {v} of {needs[k]}'
                                            for k, v in short.items()))
         report = node.play(source, args.rate, args.loop, args.clock_hz)
         print(report.summary(), flush=True)
-        return 0 if report.acknowledged else 1
+        # A stop request is the normal end of --loop; then unacknowledged messages of a
+        # reader that was still busy are no failure.
+        return 0 if report.acknowledged or stop else 1
     except (KeyboardInterrupt, ExternalShutdownException):
         return 130
     finally:
