@@ -37,7 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='publish /clock from the bag stamps (for use_sim_time)')
     parser.add_argument('--clock-hz', type=float, default=100.0,
                         help='/clock messages per second of bag time')
-    parser.add_argument('--loop', action='store_true', help='start over at the end')
+    parser.add_argument('--loop', action='store_true',
+                        help='start over at the end, until SIGINT/SIGTERM')
+    parser.add_argument('--loops', type=int, default=None, metavar='N',
+                        help='with or without --loop: stop after N passes over the bag')
     parser.add_argument('--topics', nargs='+', metavar='TOPIC',
                         help='replay only these topics (default: all)')
     parser.add_argument('--start-s', type=float, default=0.0,
@@ -156,7 +159,10 @@ def run(args: argparse.Namespace) -> int:
             raise GyroEkfError(f'subscribers did not appear within {args.wait_timeout_s} s: '
                                + ', '.join(f'{k} has {v} of {needs[k]}'
                                            for k, v in short.items()))
-        report = node.play(source, args.rate, args.loop, args.clock_hz)
+        if args.loops is not None and args.loops < 1:
+            raise GyroEkfError(f'--loops must be at least 1, got {args.loops}')
+        report = node.play(source, args.rate, args.loop or args.loops is not None,
+                           args.clock_hz, max_loops=args.loops)
         print(report.summary(), flush=True)
         # A stop request is the normal end of --loop; then unacknowledged messages of a
         # reader that was still busy are no failure.

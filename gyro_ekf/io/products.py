@@ -24,7 +24,7 @@ STAGING_PATTERNS = ('.*.tmp', '.*.staging', '.*.old')
 
 def first_foreign(folder: Path, files: tuple[str, ...],
                   folders: dict[str, tuple[str, ...]] | None = None) -> Path | None:
-    """The first entry of folder (sorted, recursing into product folders) that is not ours.
+    """Find the first entry of folder (sorted, into product folders) that is not ours.
 
     Args:
         folder: an existing folder.
@@ -54,5 +54,5 @@ def first_foreign(folder: Path, files: tuple[str, ...],
 
 
 def os_reason(err: OSError) -> str:
-    """The OS error in words, e.g. 'read-only file system' or 'no space left on device'."""
+    """Put an OS error in words, e.g. 'read-only file system' or 'no space left on device'."""
     return os.strerror(err.errno).lower() if err.errno else (str(err) or type(err).__name__)

@@ -72,7 +72,8 @@ class RecordingBag:
         self.path = Path(path)
         self.flush_s = flush_s
         plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
-        self.storage_file = self.path / f'{self.path.name}.{"mcap" if storage == "mcap" else "db3"}'
+        suffix = 'mcap' if storage == 'mcap' else 'db3'
+        self.storage_file = self.path / f'{self.path.name}.{suffix}'
         self._writer = Writer(self.path, version=9, storage_plugin=plugin)
         self._connections: dict[str, Any] = {}
         self._chunks_seen = 0

@@ -142,7 +142,7 @@ class JitterStats:
         return min(index, len(self._bins) - 1)
 
     def quantile(self, share: float) -> float:
-        """The sample at share of the count (upper edge of its bin, at most the max), s."""
+        """Return the sample at share of the count (upper edge of its bin, at most the max), s."""
         if not self.count:
             return 0.0
         rank = min(self.count - 1, int(share * self.count))
@@ -233,7 +233,7 @@ class Replayer(Node):
 
     def play(self, messages: Callable[[], Iterator[RawMessage]], rate: float, loop: bool,
              clock_hz: float = 100.0, ack_timeout_s: float = 30.0,
-             latch_ack_timeout_s: float = 2.0) -> ReplayReport:
+             latch_ack_timeout_s: float = 2.0, max_loops: int | None = None) -> ReplayReport:
         """Publish every message at its stamp / rate (rate 0 = as fast as possible).
 
         Args:
@@ -245,6 +245,7 @@ class Replayer(Node):
                 (at most _STOPPED_ACK_S after a stop request).
             latch_ack_timeout_s: after the first latched message, wait this long for its
                 acknowledgement so readers have it before the sensor stream starts.
+            max_loops: with loop, stop after this many passes (None = until stopped).
         """
         jitter = JitterStats()
         published = 0
@@ -292,7 +293,7 @@ class Replayer(Node):
                     close()  # a generator's reader is closed now, not at garbage collection
             if start_ns is not None and stamp is not None:
                 bag_s += (stamp - start_ns) / 1e9
-            if not loop or start_ns is None:
+            if not loop or start_ns is None or (max_loops is not None and loops >= max_loops):
                 break
         stopped = self.stop()
         timeout = min(ack_timeout_s, _STOPPED_ACK_S) if stopped else ack_timeout_s

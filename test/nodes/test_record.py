@@ -142,8 +142,8 @@ def test_force_replaces_an_old_bag_but_not_a_folder_with_other_files(ros_process
     bag = tmp_path / 'notes'
     bag.mkdir()
     (bag / 'notes.txt').write_text('mine')
-    process = processes.start('record_foreign', *_record_args('/record_foreign', bag,
-                                                               '--force', '--duration-s', '1'))
+    process = processes.start('record_foreign', *_record_args(
+        '/record_foreign', bag, '--force', '--duration-s', '1'))
     assert process.wait(timeout=60) == 1
     output = processes.log('record_foreign')
     assert f'{bag / "notes.txt"}: is not part of a bag' in output
