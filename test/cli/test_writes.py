@@ -115,8 +115,8 @@ def test_run_force_replaces_its_own_products(short_bag, tmp_path):
     assert main(['-q', 'run', str(short_bag), '-o', str(out), '--force', '--no-plots',
                  '--no-progress']) == 0
     # The new output replaces the old as a whole: no stale figure of the earlier run.
-    assert sorted(p.name for p in out.iterdir()) == ['estimates', 'estimates.csv',
-                                                    'summary.json']
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ['estimates', 'estimates.csv', 'summary.json']
     assert sorted(p.name for p in tmp_path.iterdir()) == ['out']
 
 
