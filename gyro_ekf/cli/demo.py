@@ -17,7 +17,6 @@ and a ROS_DOMAIN_ID (42 unless the environment sets one).
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import os
@@ -171,6 +170,7 @@ def _wait_for_recorder(env: dict[str, str], timeout_s: float) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns the exit code."""
+    from gyro_ekf.analysis.outputs import write_summary_json
     from gyro_ekf.io import bag_summary, read_sidecar
     from gyro_ekf.io.errors import BagError
 
@@ -240,7 +240,7 @@ def run(args: argparse.Namespace) -> int:
         figure = plot_live_trajectory(trip, pose_xy, output / 'trajectory.png',
                                       f'{trip.name}: live ekf_node at x{args.rate:g}')
         _say(f'wrote {figure}')
-    (output / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
+    write_summary_json(output / 'summary.json', summary)
     _print(summary)
     if problems:
         raise DemoFailed('the result is wrong: ' + '; '.join(problems)

@@ -74,7 +74,10 @@ class RecordingBag:
         plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
         suffix = 'mcap' if storage == 'mcap' else 'db3'
         self.storage_file = self.path / f'{self.path.name}.{suffix}'
-        self._writer = Writer(self.path, version=9, storage_plugin=plugin)
+        try:
+            self._writer = Writer(self.path, version=9, storage_plugin=plugin)
+        except WriterError as err:
+            raise BagError(f'{self.path}: cannot record: {err}') from None
         self._connections: dict[str, Any] = {}
         self._chunks_seen = 0
         self._dirty = False
