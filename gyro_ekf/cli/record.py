@@ -1,4 +1,9 @@
-"""`gyro-ekf record`: record topics into a bag (a stand-in for `ros2 bag record`)."""
+"""`gyro-ekf record`: record topics into a bag (a stand-in for `ros2 bag record`).
+
+The bag is written where it stays (OUT/OUT.mcap) and made readable on disk every
+`--flush-s` (`io.recording`), so a `kill -9` loses at most that much; SIGINT and SIGTERM
+(also in a background job) finish it cleanly. It prints where the bag goes when it starts.
+"""
 
 from __future__ import annotations
 
