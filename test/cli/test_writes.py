@@ -84,6 +84,14 @@ def test_simulate_force_refuses_a_file_where_the_bag_goes(tmp_path, capsys):
     assert out.read_text() == 'my notes'
 
 
+def test_simulate_force_refuses_a_folder_where_the_trip_file_goes(tmp_path, capsys):
+    out = tmp_path / 'trip.npz'
+    _user_folder(out)
+    assert main(['simulate', '-o', str(out), '--duration-s', '5', '--force']) == 1
+    assert 'exists and is not a trip file' in capsys.readouterr().err
+    assert _user_files_intact(out)
+
+
 def test_make_bags_force_refuses_a_bag_folder_with_a_user_file(tmp_path, capsys):
     bag = tmp_path / 'sim_static_start'
     bag.mkdir()
