@@ -13,7 +13,9 @@ stamped at time zero (or at the first sample if a trip starts before zero).
 
 The bag is written into a hidden temporary sibling folder and renamed into place only when
 complete, together with its params sidecar (`gyro_ekf.io.sidecar`); a failure or interrupt
-removes the temporary files and leaves any previous output untouched.
+removes the temporary files and leaves any previous output untouched. With force, an existing
+output is replaced only when it is a bag folder holding nothing but a bag's own files
+(`claim_bag_target`); a read-only or full file system is one BagError naming the bag.
 """
 
 from __future__ import annotations
