@@ -59,3 +59,12 @@ def test_a_signal_ends_a_looping_replay_cleanly(ros_processes, tmp_path, signum,
     assert 'Traceback' not in output
     assert f'(stopped by {signum.name})' in output
     assert output.count('replayed ') == 1
+
+
+def test_loops_n_replays_the_bag_n_times_and_ends(ros_processes):
+    processes, _ = ros_processes
+    output = processes.run('replay_loops', 'gyro_ekf.cli.main', 'replay', str(BAG), '--loops',
+                           '3', '--rate', '0', '--topics', 'odom', '--duration-s', '0.5',
+                           '--ros-args', '-r', '__ns:=/replay_loops', timeout_s=60)
+    # 0.5 s of 100 Hz odometry from the first message, both ends included: 51 per pass.
+    assert 'replayed 153 messages (3 pass(es)' in output, output
