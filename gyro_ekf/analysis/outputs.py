@@ -77,26 +77,28 @@ def prepare_output_dir(path: Path | str, force: bool = False) -> Path:
 
 @contextmanager
 def staged_output_dir(path: Path | str, force: bool = False) -> Iterator[Path]:
-    """Yield a staging folder beside path; on success it replaces path as a whole.
+    """Yield a staging folder beside path; on success its products replace path's.
 
-    A previous output stays untouched until the new one is complete; on any failure the
-    staging folder is removed. OS errors (read-only file system, disk full) become one
-    OutputError naming the path.
+    A previous output stays untouched until the new one is complete (then its products go,
+    including any the new run does not write, such as figures after --no-plots); the folder
+    itself stays. On any failure the staging folder is removed. OS errors (read-only file
+    system, disk full) become one OutputError naming the path.
 
     Raises:
         OutputError: as prepare_output_dir, or the file system refused a write.
     """
     path = prepare_output_dir(path, force)
+    where = path.absolute()  # `-o .` has no name of its own to stage beside
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.staging',
-                                        dir=path.parent))
+        where.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f'.{where.name}.', suffix='.staging',
+                                        dir=where.parent))
     except OSError as err:
         raise OutputError(f'{path}: cannot write the outputs: {_reason(err)}') from None
     try:
         yield staging
         os.chmod(staging, 0o777 & ~_umask())
-        _swap_into_place(staging, path)
+        _swap_into_place(staging, where, force)
     except OSError as err:
         raise OutputError(f'{path}: cannot write the outputs: {_reason(err)}') from None
     except OutputError as err:
@@ -106,21 +108,41 @@ def staged_output_dir(path: Path | str, force: bool = False) -> Iterator[Path]:
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def _swap_into_place(staging: Path, path: Path) -> None:
-    """Rename staging onto path; a previous folder is moved aside first and then removed."""
+def _swap_into_place(staging: Path, path: Path, force: bool) -> None:
+    """Move the staged products into path (created if missing); old products are removed.
+
+    An existing folder stays (its permissions, a mount point, a shell's cwd): its old
+    products are moved aside first and restored if a move fails.
+    """
     if not path.exists():
         os.replace(staging, path)
         return
+    prepare_output_dir(path, force)  # again: nothing foreign appeared during the run
     old = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.old', dir=path.parent))
+    moved_old: list[str] = []
+    moved_new: list[str] = []
     try:
-        os.replace(path, old / path.name)
-        try:
-            os.replace(staging, path)
-        except OSError:
-            os.replace(old / path.name, path)
-            raise
+        for entry in sorted(path.iterdir()):
+            os.replace(entry, old / entry.name)
+            moved_old.append(entry.name)
+        for entry in sorted(staging.iterdir()):
+            os.replace(entry, path / entry.name)
+            moved_new.append(entry.name)
+    except OSError:
+        for name in moved_new:
+            _remove(path / name)
+        for name in moved_old:
+            os.replace(old / name, path / name)
+        raise
     finally:
         shutil.rmtree(old, ignore_errors=True)
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
 
 
 def _reason(err: OSError) -> str:

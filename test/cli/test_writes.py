@@ -103,6 +103,16 @@ def test_make_bags_force_refuses_a_bag_folder_with_a_user_file(tmp_path, capsys)
     assert (bag / 'metadata.yaml').read_text() == 'old'
 
 
+def test_run_into_the_current_folder(short_bag, tmp_path, monkeypatch):
+    work = tmp_path / 'work'
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert main(['-q', 'run', str(short_bag), '-o', '.', '--no-plots', '--no-progress']) == 0
+    names = sorted(p.name for p in work.iterdir())
+    assert names == ['estimates', 'estimates.csv', 'summary.json']
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['work']
+
+
 def test_run_force_refuses_a_folder_holding_user_files(short_bag, tmp_path, capsys):
     out = tmp_path / 'out'
     assert main(['-q', 'run', str(short_bag), '-o', str(out), '--no-plots',
@@ -120,8 +130,10 @@ def test_run_force_replaces_its_own_products(short_bag, tmp_path):
     out = tmp_path / 'out'
     assert main(['-q', 'run', str(short_bag), '-o', str(out), '--no-progress']) == 0
     assert (out / 'trajectory.png').exists()
+    folder = out.stat().st_ino
     assert main(['-q', 'run', str(short_bag), '-o', str(out), '--force', '--no-plots',
                  '--no-progress']) == 0
+    assert out.stat().st_ino == folder   # the folder stays, its products are replaced
     # The new output replaces the old as a whole: no stale figure of the earlier run.
     names = sorted(p.name for p in out.iterdir())
     assert names == ['estimates', 'estimates.csv', 'summary.json']
