@@ -49,7 +49,7 @@ class BagSink:
             BagError: the output exists without force, holds something that is not part of
                 a bag, or cannot be written.
         """
-        from gyro_ekf.io.bag_writer import claim_bag_target
+        from gyro_ekf.io.bag_writer import LATCHED_QOS, SENSOR_QOS, claim_bag_target
         from gyro_ekf.io.errors import BagError
         from gyro_ekf.io.products import os_reason
         from gyro_ekf.io.recording import RecordingBag
@@ -62,6 +62,7 @@ class BagSink:
         except OSError as err:
             raise BagError(f'{path}: cannot record: {os_reason(err)}') from None
         self.path = path
+        self._qos = {True: LATCHED_QOS, False: SENSOR_QOS}
         self._bag = RecordingBag(path, storage, flush_s)
         self.storage_file = self._bag.storage_file
 
@@ -73,9 +74,7 @@ class BagSink:
     def __call__(self, topic: str, msgtype: str, stamp_ns: int, data: bytes,
                  latched: bool) -> None:
         """Write one message."""
-        from gyro_ekf.io.bag_writer import LATCHED_QOS, SENSOR_QOS
-
-        self._bag.write(topic, msgtype, stamp_ns, data, LATCHED_QOS if latched else SENSOR_QOS)
+        self._bag.write(topic, msgtype, stamp_ns, data, self._qos[bool(latched)])
 
     def tick(self) -> None:
         """Checkpoint now and then (called from the spin loop)."""

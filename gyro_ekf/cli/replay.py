@@ -28,6 +28,13 @@ def _rate(text: str) -> float:
     return value
 
 
+def _count(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be >= 1, got {text}')
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add this command's arguments."""
     parser.add_argument('bag', type=Path, help='rosbag2 folder (mcap or sqlite3)')
@@ -39,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='/clock messages per second of bag time')
     parser.add_argument('--loop', action='store_true',
                         help='start over at the end, until SIGINT/SIGTERM')
-    parser.add_argument('--loops', type=int, default=None, metavar='N',
+    parser.add_argument('--loops', type=_count, default=None, metavar='N',
                         help='with or without --loop: stop after N passes over the bag')
     parser.add_argument('--topics', nargs='+', metavar='TOPIC',
                         help='replay only these topics (default: all)')
@@ -159,8 +166,6 @@ def run(args: argparse.Namespace) -> int:
             raise GyroEkfError(f'subscribers did not appear within {args.wait_timeout_s} s: '
                                + ', '.join(f'{k} has {v} of {needs[k]}'
                                            for k, v in short.items()))
-        if args.loops is not None and args.loops < 1:
-            raise GyroEkfError(f'--loops must be at least 1, got {args.loops}')
         report = node.play(source, args.rate, args.loop or args.loops is not None,
                            args.clock_hz, max_loops=args.loops)
         print(report.summary(), flush=True)
