@@ -256,6 +256,9 @@ class Replayer(Node):
         clock_message = Clock()
         while self._running():
             loops += 1
+            if loop:
+                self.get_logger().info(f'pass {loops}'
+                                       + (f' of {max_loops}' if max_loops else ''))
             start_ns = None
             last_clock_ns = None
             wall_start = time.perf_counter()
