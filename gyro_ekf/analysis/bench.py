@@ -8,6 +8,10 @@
 - *memory*: peak resident memory of `gyro-ekf convert` and `gyro-ekf run` on a long
   simulated trip, each in its own child process (``os.wait4`` reports the child's maximum
   resident set size).
+- *loop_memory*: `gyro-ekf replay --loops 30` of a bundled bag at a high rate into
+  landmark_detector_node and ekf_node (child processes, loopback DDS): the resident memory
+  (VmRSS from /proc/PID/status) of the replayer and of each node, sampled twice a second;
+  growth is the last sample minus the first one of the third pass (goal < 5 MB).
 - *live*: ekf_node in a child process over Fast DDS on loopback, fed odom + imu at 200 Hz
   and 1 kHz: latency from an IMU message in to its pose out (p50/p99/max, matched by header
   stamp), poses missing and the node's CPU per message (`live_bench.py`).
@@ -230,9 +234,132 @@ def live_benchmark(duration_s: float = 10.0) -> dict[str, Any]:
     return live_bench.live_suite(cases)
 
 
+REPO = Path(__file__).resolve().parents[2]
+LOOP_BAG = REPO / 'bags' / 'sim_static_start'
+LOOP_GOAL_MB = 5.0
+
+
+def vm_rss_mb(pid: int) -> float | None:
+    """Resident set size of a running process, MB (VmRSS of /proc/PID/status); None if gone."""
+    try:
+        for line in Path(f'/proc/{pid}/status').read_text().splitlines():
+            if line.startswith('VmRSS:'):
+                return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def rss_growth(times_s: list[float], rss_mb: list[float], warm_up_s: float
+               ) -> dict[str, float | None]:
+    """Growth of a sampled RSS after warm_up_s.
+
+    Returns:
+        The first sample after warm_up_s, the last one, their difference and the
+        least-squares slope per minute over those samples (MB; None without two samples).
+    """
+    picked = [(t, m) for t, m in zip(times_s, rss_mb) if t >= warm_up_s]
+    if len(picked) < 2:
+        return {'rss_after_warm_up_mb': None, 'rss_end_mb': None, 'growth_mb': None,
+                'slope_mb_per_min': None}
+    t = np.array([p[0] for p in picked])
+    m = np.array([p[1] for p in picked])
+    slope = float(np.polyfit(t, m, 1)[0] * 60.0) if np.ptp(t) > 0 else None
+    return {'rss_after_warm_up_mb': float(m[0]), 'rss_end_mb': float(m[-1]),
+            'growth_mb': float(m[-1] - m[0]), 'slope_mb_per_min': slope}
+
+
+def _passes_begun(replay_log: Path) -> int:
+    """Passes the replay has begun, from its 'pass N' log lines."""
+    try:
+        return replay_log.read_text(errors='replace').count(': pass ')
+    except OSError:
+        return 0
+
+
+def loop_memory_benchmark(bag: Path = LOOP_BAG, loops: int = 30, rate: float = 20.0,
+                          domain_id: int | None = None, timeout_s: float = 1800.0
+                          ) -> dict[str, Any]:
+    """RSS growth of replay --loops and of the nodes it feeds (see the module docstring).
+
+    Args:
+        bag: a bag with a params sidecar (a bundled one).
+        loops: passes over the bag.
+        rate: replay speed-up factor.
+        domain_id: ROS domain of the children (default: live_bench's choice).
+        timeout_s: give up (and report it) after this long.
+    """
+    from gyro_ekf.analysis import live_bench
+    from gyro_ekf.cli.demo import _config_file
+
+    params = [str(f) for f in (_config_file(), bag.parent / (bag.name + '.params.yaml'))
+              if f is not None and f.exists()]
+    params_args = [a for f in params for a in ('--params-file', f)]
+    results: dict[str, Any] = {'bag': str(bag), 'loops': loops, 'rate': rate,
+                               'goal_growth_mb': LOOP_GOAL_MB}
+    with live_bench.ros_environment(domain_id) as env:
+        work = Path(env['GYRO_EKF_LIVE_WORK'])
+        names = ('landmark_detector_node', 'ekf_node', 'replay')
+        commands = {
+            'landmark_detector_node': [sys.executable, '-m',
+                                       'gyro_ekf.nodes.landmark_detector_node', '--ros-args',
+                                       *params_args],
+            'ekf_node': [sys.executable, '-m', 'gyro_ekf.nodes.ekf_node', '--ros-args',
+                         *params_args],
+            'replay': _gyro_ekf('replay', str(bag), '--loops', str(loops), '--rate', f'{rate:g}',
+                                '--topics', 'imu', 'odom', 'scan', 'landmark_map',
+                                'initialpose', '--wait-for', 'imu:1', '--wait-for', 'scan:1'),
+        }
+        children: dict[str, subprocess.Popen] = {}
+        samples: dict[str, list[float]] = {name: [] for name in names}
+        times: list[float] = []
+        warm_up_s = None
+        try:
+            for name in names:
+                with (work / f'{name}.log').open('w') as out:
+                    children[name] = subprocess.Popen(commands[name], env=env, stdout=out,
+                                                      stderr=subprocess.STDOUT)
+            began = time.monotonic()
+            replay = children['replay']
+            while replay.poll() is None and time.monotonic() - began < timeout_s:
+                now = time.monotonic() - began
+                # The first two passes load code, caches and DDS history: growth is
+                # counted from the start of the third (the replay logs each pass).
+                if warm_up_s is None and _passes_begun(work / 'replay.log') > min(2, loops - 1):
+                    warm_up_s = now
+                rss = {name: vm_rss_mb(children[name].pid) for name in names}
+                if all(v is not None for v in rss.values()):
+                    times.append(now)
+                    for name in names:
+                        samples[name].append(rss[name])
+                time.sleep(0.5)
+            wall_s = time.monotonic() - began
+            results['finished'] = replay.poll() is not None
+            results['replay_exit_code'] = replay.poll()
+        finally:
+            for child in children.values():
+                live_bench._stop(child)
+        results['wall_s'] = wall_s
+        tail = live_bench._tail(work / 'replay.log', 2000).splitlines()
+        results['replay_summary'] = next((line for line in reversed(tail)
+                                          if line.startswith('replayed ')), '\n'.join(tail[-3:]))
+        results['warm_up_s'] = warm_up_s
+        if warm_up_s is None:
+            warm_up_s = math.inf  # the third pass never began: no figure
+        for name in names:
+            results[name] = rss_growth(times, samples[name], warm_up_s)
+            growth = results[name]['growth_mb']
+            results[name]['within_goal'] = growth is not None and growth < LOOP_GOAL_MB
+    return results
+
+
 def run_all(data_dir: Path, long_trip_s: float = 3600.0, core_steps: int = 20_000,
-            work: Path | None = None, live_s: float = 10.0) -> dict[str, Any]:
-    """Every benchmark; returns the JSON-ready results (live_s: length of each live case)."""
+            work: Path | None = None, live_s: float = 10.0, loop_count: int = 30,
+            loop_rate: float = 20.0) -> dict[str, Any]:
+    """Run every benchmark; returns the JSON-ready results.
+
+    live_s is the length of each live case; loop_count 0 skips the loop memory case.
+    """
     own = work is None
     work = Path(tempfile.mkdtemp(prefix='gyro_ekf_bench_')) if own else work
     results: dict[str, Any] = {'python': sys.version.split()[0], 'cpu_count': os.cpu_count()}
@@ -242,6 +369,9 @@ def run_all(data_dir: Path, long_trip_s: float = 3600.0, core_steps: int = 20_00
     log.info('gyro-ekf run on the 2016 log')
     results['run_2016'] = run_benchmark(bag, work) if bag is not None else None
     results['live'] = live_benchmark(live_s)
+    if loop_count > 0:
+        log.info('memory of replay --loops %d and the nodes it feeds', loop_count)
+        results['loop_memory'] = loop_memory_benchmark(loops=loop_count, rate=loop_rate)
     log.info('peak memory on a %.0f s simulated trip', long_trip_s)
     results['memory'] = memory_benchmark(long_trip_s, work)
     if own:
@@ -272,6 +402,7 @@ def table(results: dict[str, Any]) -> str:
                   f'start-up{spread})'),
                  ('run on 2016 log: peak RSS (MB)', f"{run['peak_rss_mb']:.0f}")]
     rows += live_rows(results['live'])
+    rows += loop_memory_rows(results.get('loop_memory'))
     memory = results['memory']
     for step in ('convert', 'run'):
         item = memory[step]
@@ -280,6 +411,23 @@ def table(results: dict[str, Any]) -> str:
                      f"{', FAILED' if item['exit_code'] else ''})"))
     width = max(len(name) for name, _ in rows)
     return '\n'.join(f'{name:<{width}}  {value}' for name, value in rows)
+
+
+def loop_memory_rows(loop: dict[str, Any] | None) -> list[tuple[str, str]]:
+    """Table rows of the loop memory case: RSS growth per process."""
+    if not loop:
+        return []
+    rows = []
+    for name in ('replay', 'ekf_node', 'landmark_detector_node'):
+        item = loop.get(name) or {}
+        if item.get('growth_mb') is None:
+            rows.append((f"{name} RSS growth, {loop['loops']} loops", 'not measured'))
+            continue
+        rows.append((f"{name} RSS growth, {loop['loops']} loops x{loop['rate']:g} (MB)",
+                     f"{item['growth_mb']:+.1f} ({item['rss_after_warm_up_mb']:.0f} -> "
+                     f"{item['rss_end_mb']:.0f}, {item['slope_mb_per_min']:+.2f} MB/min"
+                     f"{'' if item['within_goal'] else ', OVER GOAL'})"))
+    return rows
 
 
 def _ms(values: dict[str, Any] | None) -> str:

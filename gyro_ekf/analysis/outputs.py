@@ -1,9 +1,10 @@
 """Writers of the products of `gyro-ekf run`: estimates CSV, summary JSON, estimates bag.
 
 Every writer builds its file (or bag folder) under a temporary name beside the target and
-renames it into place, so an interrupted run never leaves a half-written product. The
-output folder itself is claimed once with `prepare_output_dir`, which refuses to write into
-a folder that already holds files unless asked to (`--force`).
+renames it into place, so an interrupted run never leaves a half-written product. `gyro-ekf
+run` builds all its products in a staging folder (`staged_output_dir`) that replaces the
+output folder only when complete. `prepare_output_dir` refuses a folder that already holds
+files unless asked to (`--force`), and even then one holding anything but run's own products.
 """
 
 from __future__ import annotations
@@ -42,19 +43,111 @@ _BAG_BLOCK_ROWS = 1024
 _INT32_MAX = 2**31 - 1
 
 
+RUN_PRODUCTS = (SUMMARY_JSON, ESTIMATES_CSV, 'trajectory.png', 'bias.png', 'errors.png',
+                'nis.png')
+"""Files `gyro-ekf run` writes into its output folder (besides the ESTIMATES_BAG folder)."""
+
+
 def prepare_output_dir(path: Path | str, force: bool = False) -> Path:
-    """Create the output folder, or accept an existing one that is empty (or with force).
+    """Check that an output folder may be written: absent, empty, or (with force) ours.
+
+    Nothing is created here: `staged_output_dir` builds the products beside the folder and
+    renames them into place, so a run that fails leaves no folder behind.
 
     Raises:
-        OutputError: the path is a file, or a non-empty folder without force.
+        OutputError: the path is a file, a non-empty folder without force, or a folder that
+            holds something `gyro-ekf run` does not write (named; force never deletes it).
     """
+    from gyro_ekf.io.products import BAG_FILES, first_foreign
+
     path = Path(path)
-    if path.exists() and not path.is_dir():
+    if path.is_symlink() or (path.exists() and not path.is_dir()):
         raise OutputError(f'{path}: exists and is not a folder')
-    if path.is_dir() and any(path.iterdir()) and not force:
-        raise OutputError(f'{path}: folder is not empty; use --force to overwrite its products')
-    path.mkdir(parents=True, exist_ok=True)
+    if path.is_dir() and any(path.iterdir()):
+        if not force:
+            raise OutputError(f'{path}: folder is not empty; use --force to overwrite its '
+                              'products')
+        foreign = first_foreign(path, RUN_PRODUCTS, {ESTIMATES_BAG: BAG_FILES})
+        if foreign is not None:
+            raise OutputError(f'{foreign}: is not a product of gyro-ekf run; --force replaces '
+                              'only its own products (summary.json, estimates.csv, estimates/, '
+                              'the PNGs): move it away first')
     return path
+
+
+@contextmanager
+def staged_output_dir(path: Path | str, force: bool = False) -> Iterator[Path]:
+    """Yield a staging folder beside path; on success its products replace path's.
+
+    A previous output stays untouched until the new one is complete (then its products go,
+    including any the new run does not write, such as figures after --no-plots); the folder
+    itself stays. On any failure the staging folder is removed. OS errors (read-only file
+    system, disk full) become one OutputError naming the path.
+
+    Raises:
+        OutputError: as prepare_output_dir, or the file system refused a write.
+    """
+    path = prepare_output_dir(path, force)
+    where = path.absolute()  # `-o .` has no name of its own to stage beside
+    try:
+        where.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f'.{where.name}.', suffix='.staging',
+                                        dir=where.parent))
+    except OSError as err:
+        raise OutputError(f'{path}: cannot write the outputs: {_reason(err)}') from None
+    try:
+        yield staging
+        os.chmod(staging, 0o777 & ~_umask())
+        _swap_into_place(staging, where, force)
+    except OSError as err:
+        raise OutputError(f'{path}: cannot write the outputs: {_reason(err)}') from None
+    except OutputError as err:
+        # A writer inside names its staged file; the user knows only the output folder.
+        raise OutputError(str(err).replace(str(staging), str(path))) from None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _swap_into_place(staging: Path, path: Path, force: bool) -> None:
+    """Move the staged products into path (created if missing); old products are removed.
+
+    An existing folder stays (its permissions, a mount point, a shell's cwd): its old
+    products are moved aside first and restored if a move fails.
+    """
+    if not path.exists():
+        os.replace(staging, path)
+        return
+    prepare_output_dir(path, force)  # again: nothing foreign appeared during the run
+    old = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.old', dir=path.parent))
+    moved_old: list[str] = []
+    moved_new: list[str] = []
+    try:
+        for entry in sorted(path.iterdir()):
+            os.replace(entry, old / entry.name)
+            moved_old.append(entry.name)
+        for entry in sorted(staging.iterdir()):
+            os.replace(entry, path / entry.name)
+            moved_new.append(entry.name)
+    except OSError:
+        for name in moved_new:
+            _remove(path / name)
+        for name in moved_old:
+            os.replace(old / name, path / name)
+        raise
+    finally:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def _reason(err: OSError) -> str:
+    from gyro_ekf.io.products import os_reason
+    return os_reason(err)
 
 
 def _umask() -> int:
@@ -65,14 +158,24 @@ def _umask() -> int:
 
 @contextmanager
 def staged_file(target: Path) -> Iterator[Path]:
-    """Yield a temporary path beside target; rename it onto target if the block succeeds."""
-    handle, name = tempfile.mkstemp(prefix=f'.{target.name}.', suffix='.tmp', dir=target.parent)
+    """Yield a temporary path beside target; rename it onto target if the block succeeds.
+
+    Raises:
+        OutputError: the file system refused a write (read-only, full), naming target.
+    """
+    try:
+        handle, name = tempfile.mkstemp(prefix=f'.{target.name}.', suffix='.tmp',
+                                        dir=target.parent)
+    except OSError as err:
+        raise OutputError(f'{target}: cannot write: {_reason(err)}') from None
     os.close(handle)
     staged = Path(name)
     try:
         yield staged
         os.chmod(staged, 0o666 & ~_umask())
         os.replace(staged, target)
+    except OSError as err:
+        raise OutputError(f'{target}: cannot write: {_reason(err)}') from None
     finally:
         if staged.exists():
             staged.unlink()
@@ -267,7 +370,10 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     if len(stamps_ns) and (stamps_ns.min() < 0 or stamps_ns.max() // NS_PER_S > _INT32_MAX):
         raise OutputError(f'{path}: stamps outside builtin_interfaces/Time (int32 seconds)')
     encoder = _EstimateEncoder()
-    aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
+    try:
+        aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
+    except OSError as err:
+        raise OutputError(f'{path}: cannot write the estimates bag: {_reason(err)}') from None
     staged = aside / path.name
     try:
         with Writer(staged, version=_BAG_VERSION, storage_plugin=plugins[storage]) as writer:
@@ -281,8 +387,10 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
                     stamps_ns[block], state[block], P[block], speed_m_s[block],
                     yaw_rate_rad_s[block]))
         os.replace(staged, path)
-    except (WriterError, OSError) as err:
-        raise OutputError(f'{path}: cannot write the estimates bag: {err}') from err
+    except WriterError as err:
+        raise OutputError(f'{path}: cannot write the estimates bag: {err}') from None
+    except OSError as err:
+        raise OutputError(f'{path}: cannot write the estimates bag: {_reason(err)}') from None
     finally:
         shutil.rmtree(aside, ignore_errors=True)
     return path

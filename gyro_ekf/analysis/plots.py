@@ -91,6 +91,12 @@ def plot_trajectory(run: OfflineRun, path: Path) -> Path:
         focus.append(trip.landmarks.xy_m)
     if trip.ground_truth is not None:
         focus.append(trip.ground_truth.pose[:, :2])
+    _map_axes(axes, focus, f'{trip.name}: trajectory')
+    return _save(figure, path)
+
+
+def _map_axes(axes: Any, focus: list[FloatArray], title: str) -> None:
+    """Limits around the focus points, equal aspect, map-frame labels, grid and legend."""
     span = np.concatenate(focus)
     low, high = np.nanmin(span, axis=0), np.nanmax(span, axis=0)
     margin = 0.1 * max(float(np.max(high - low)), 1.0)
@@ -99,9 +105,37 @@ def plot_trajectory(run: OfflineRun, path: Path) -> Path:
     axes.set_aspect('equal', adjustable='box')
     axes.set_xlabel('x (m, map frame)')
     axes.set_ylabel('y (m, map frame)')
-    axes.set_title(f'{trip.name}: trajectory')
+    axes.set_title(title)
     axes.grid(True, alpha=0.3)
     axes.legend(loc='best', fontsize='small')
+
+
+def plot_live_trajectory(trip: Any, pose_xy_m: FloatArray, path: Path, title: str) -> Path:
+    """Write the map-frame path the live ekf_node published, with truth and landmarks.
+
+    Args:
+        trip: the replayed Trip (ground truth and landmarks, when it has them).
+        pose_xy_m: shape (n, 2), the recorded /ekf/pose positions, m.
+        path: the PNG to write.
+        title: figure title.
+    """
+    plt = _pyplot()
+    figure, axes = plt.subplots(figsize=(8, 7))
+    pose_xy_m = np.asarray(pose_xy_m, dtype=np.float64).reshape(-1, 2)
+    focus = [pose_xy_m]
+    if trip.ground_truth is not None:
+        axes.plot(trip.ground_truth.pose[:, 0], trip.ground_truth.pose[:, 1],
+                  color=_COLOURS['truth'], lw=2.0, alpha=0.5, label='ground truth')
+        focus.append(trip.ground_truth.pose[:, :2])
+    keep = _decimate(len(pose_xy_m))
+    axes.plot(pose_xy_m[keep, 0], pose_xy_m[keep, 1], color=_COLOURS['ekf'], lw=1.2,
+              label='ekf_node (live, recorded /ekf/pose)')
+    if trip.landmarks is not None and len(trip.landmarks):
+        axes.scatter(trip.landmarks.xy_m[:, 0], trip.landmarks.xy_m[:, 1], marker='*', s=120,
+                     color=_COLOURS['landmark'], edgecolor='black', zorder=5,
+                     label='landmarks (map)')
+        focus.append(trip.landmarks.xy_m)
+    _map_axes(axes, focus, title)
     return _save(figure, path)
 
 

@@ -5,6 +5,10 @@ processes (use_sim_time, the bag's params sidecar, lossless QoS), records `gyro_
 `ekf/pose`, `ekf/bias` and `/diagnostics` into OUTDIR/bag, replays the bag with /clock at a
 speed-up, stops everything (SIGINT, then kill after a timeout) and prints a summary: offline
 bias, calibration-node bias, online bias with its sigma, true bias and final position error.
+It says what it is doing while it runs (a line per stage on stderr), writes the live
+trajectory figure (OUTDIR/trajectory.png) and checks its own result (`verdict`): it exits 1
+naming each problem when the online bias is more than 0.02 deg/s from the truth, the final
+position error is above 5 cm, or ekf_node's diagnostics report a filter reset.
 
 Discovery stays on this machine: every process gets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 and a ROS_DOMAIN_ID (42 unless the environment sets one).
@@ -13,7 +17,6 @@ and a ROS_DOMAIN_ID (42 unless the environment sets one).
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import os
@@ -23,12 +26,60 @@ import sys
 import time
 from pathlib import Path
 
+from gyro_ekf.errors import GyroEkfError
+
 HELP = 'run the nodes on a replayed bag, record their output and print a summary'
 
 log = logging.getLogger(__name__)
 
 DEFAULT_DOMAIN_ID = '42'
 RECORDED = ('gyro_bias', 'ekf/pose', 'ekf/bias', '/diagnostics')
+BIAS_LIMIT_DEG_S = 0.02
+"""Largest accepted distance of the online bias from the true bias, deg/s."""
+POSITION_LIMIT_M = 0.05
+"""Largest accepted final position error, m."""
+EKF_STATUS = 'ekf_node: gyro bias EKF'
+
+
+def _say(text: str) -> None:
+    """One progress line on stderr (the summary table goes to stdout)."""
+    print(f'demo: {text}', file=sys.stderr, flush=True)
+
+
+def verdict(summary: dict, bias_limit_deg_s: float = BIAS_LIMIT_DEG_S,
+            position_limit_m: float = POSITION_LIMIT_M) -> list[str]:
+    """List what is wrong with a demo's result; empty when it is right.
+
+    Args:
+        summary: the demo summary (`_summary`): online_bias_deg_s, true_bias_deg_s,
+            final_position_error_m, ekf_resets, has_ground_truth.
+        bias_limit_deg_s: largest accepted |online - true bias|, deg/s.
+        position_limit_m: largest accepted final position error, m.
+
+    Returns:
+        One sentence per problem.
+    """
+    problems = []
+    online, truth = summary.get('online_bias_deg_s'), summary.get('true_bias_deg_s')
+    if online is None:
+        problems.append('ekf_node published no bias (/ekf/bias not recorded)')
+    elif truth is not None and not abs(online - truth) <= bias_limit_deg_s:
+        problems.append(f'online bias {online:+.4f} deg/s is {abs(online - truth):.4f} deg/s '
+                        f'from the true {truth:+.4f} (limit {bias_limit_deg_s:g})')
+    error = summary.get('final_position_error_m')
+    if error is None:
+        if summary.get('has_ground_truth'):
+            problems.append('no final position error: ekf_node published no pose '
+                            '(/ekf/pose not recorded)')
+    elif not error <= position_limit_m:
+        problems.append(f'final position error {error:.3f} m is above {position_limit_m:g} m')
+    resets = summary.get('ekf_resets')
+    if resets is None:
+        problems.append("no diagnostics from ekf_node: its filter resets are unknown")
+    elif resets > 0:
+        problems.append(f'ekf_node reset its filter {resets} time(s) '
+                        '(see ekf_node.log for the reason)')
+    return problems
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -101,8 +152,6 @@ def _wait_for_recorder(env: dict[str, str], timeout_s: float) -> None:
     """Wait until the recorder subscribed to the node outputs (graph discovery)."""
     import rclpy
 
-    from gyro_ekf.errors import GyroEkfError
-
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=int(env['ROS_DOMAIN_ID']))
     node = rclpy.create_node('gyro_ekf_demo', context=context)
@@ -121,6 +170,7 @@ def _wait_for_recorder(env: dict[str, str], timeout_s: float) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns the exit code."""
+    from gyro_ekf.analysis.outputs import write_summary_json
     from gyro_ekf.io import bag_summary, read_sidecar
     from gyro_ekf.io.errors import BagError
 
@@ -140,6 +190,8 @@ def run(args: argparse.Namespace) -> int:
              if f is not None and f.exists()]
     params_files = [arg for f in files for arg in ('--params-file', f)]
     group = _Group(env, output)
+    _say(f'starting calibration_node, {len(scan_topics)} landmark detector(s), ekf_node and '
+         f'the recorder (logs in {output})')
     try:
         group.start('calibration_node', ['gyro_ekf.nodes.calibration_node', '--ros-args',
                                          *params_files, *node_args])
@@ -154,6 +206,7 @@ def run(args: argparse.Namespace) -> int:
         recorder = group.start('record', [
             'gyro_ekf.cli.main', 'record', *RECORDED, '-o', str(output / 'bag'), '--force',
             '--use-sim-time', '--idle-exit-s', '3'])
+        _say('waiting for the nodes and the recorder to discover each other')
         _wait_for_recorder(env, 30.0)
         present = {t.name.lstrip('/') for t in bag_summary(bag).topics}
         latched = [t for t in ('landmark_map', 'initialpose') if t in present]
@@ -162,22 +215,64 @@ def run(args: argparse.Namespace) -> int:
                        '--wait-for', 'imu:2', '--wait-for', 'odom:2']
         replay_args += [arg for t in scan_topics for arg in ('--wait-for', f'{t}:1')]
         replay = group.start('replay', replay_args)
-        try:
-            code = replay.wait(timeout=args.timeout_s)
-        except subprocess.TimeoutExpired:
-            raise BagError(f'{bag}: the replay did not finish within {args.timeout_s} s') from None
+        code = _wait_replay(replay, bag, args, bag_summary(bag).duration_ns / 1e9)
         if code != 0:
             raise BagError(f'{bag}: the replay failed (exit {code}); see '
                            f'{output / "replay.log"}')
+        _say('replay done; waiting for the recorder to see the outputs settle')
         recorder.wait(timeout=60)
     finally:
+        _say('stopping the nodes')
         group.stop()
+    _say('reading the recorded bag')
     summary = _summary(bag, output / 'bag', params)
     summary['wall_time_s'] = round(time.monotonic() - started, 1)
     summary['replay'] = (output / 'replay.log').read_text().strip().splitlines()[-1]
-    (output / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
+    pose_xy = summary.pop('pose_xy_m')
+    trip = summary.pop('trip')
+    problems = verdict(summary)
+    summary['verdict'] = {'ok': not problems, 'problems': problems,
+                          'bias_limit_deg_s': BIAS_LIMIT_DEG_S,
+                          'position_limit_m': POSITION_LIMIT_M}
+    if len(pose_xy):
+        from gyro_ekf.analysis.plots import plot_live_trajectory
+
+        figure = plot_live_trajectory(trip, pose_xy, output / 'trajectory.png',
+                                      f'{trip.name}: live ekf_node at x{args.rate:g}')
+        _say(f'wrote {figure}')
+    write_summary_json(output / 'summary.json', summary)
     _print(summary)
+    if problems:
+        raise DemoFailed('the result is wrong: ' + '; '.join(problems)
+                         + f' (details in {output})')
+    print('verdict: OK (online bias within '
+          f'{BIAS_LIMIT_DEG_S:g} deg/s of the truth, final position within '
+          f'{POSITION_LIMIT_M * 100:g} cm, no filter reset)')
     return 0
+
+
+class DemoFailed(GyroEkfError):
+    """The demo ran but its own result is wrong (see `verdict`)."""
+
+
+def _wait_replay(replay: subprocess.Popen, bag: Path, args: argparse.Namespace,
+                 duration_s: float) -> int:
+    """Wait for the replay, saying every few seconds how far it should be; its exit code."""
+    from gyro_ekf.io.errors import BagError
+
+    expected_s = duration_s / args.rate if args.rate > 0 else 0.0
+    _say(f'replaying {bag} ({duration_s:.0f} s of data) at x{args.rate:g}: about '
+         f'{expected_s:.0f} s')
+    began = time.monotonic()
+    while True:
+        try:
+            return replay.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            elapsed = time.monotonic() - began
+            if elapsed > args.timeout_s:
+                raise BagError(f'{bag}: the replay did not finish within {args.timeout_s} s'
+                               ) from None
+            _say(f'replaying: {elapsed:.0f} s of about {expected_s:.0f} s')
 
 
 def _summary(bag: Path, recorded: Path, params) -> dict:
@@ -201,13 +296,24 @@ def _summary(bag: Path, recorded: Path, params) -> dict:
         summary['offline_bias_deg_s'] = None
         summary['offline_note'] = str(err)
     last: dict = {}
+    pose_xy = []
+    resets = None
     for message in iter_bag_messages(recorded):
         if message.topic == '/diagnostics':
             for status in message.message.status:
-                if status.name.endswith('ekf_node: gyro bias EKF'):
+                if status.name.endswith(EKF_STATUS):
                     last['diagnostics'] = {kv.key: kv.value for kv in status.values}
+                    # Cumulative in the node; the largest seen counts (the last may be lost).
+                    resets = max(resets or 0, int(last['diagnostics'].get('resets', 0)))
         else:
             last[message.topic] = message.message
+            if message.topic == '/ekf/pose':
+                position = message.message.pose.pose.position
+                pose_xy.append((position.x, position.y))
+    summary['ekf_resets'] = resets
+    summary['has_ground_truth'] = trip.ground_truth is not None
+    summary['pose_xy_m'] = np.array(pose_xy, dtype=np.float64).reshape(-1, 2)
+    summary['trip'] = trip
     if '/gyro_bias' in last:
         summary['calibration_node_bias_deg_s'] = math.degrees(last['/gyro_bias'].vector.z)
     if '/ekf/bias' in last:
@@ -241,6 +347,8 @@ def _print(summary: dict) -> None:
          + ('' if sigma is None else f' +- {sigma:.4f} (1 sigma)')),
         ('true bias', number('true_bias_deg_s', 'deg/s')),
         ('final position error', number('final_position_error_m', 'm', 3)),
+        ('ekf_node filter resets', '-' if summary.get('ekf_resets') is None
+         else str(summary['ekf_resets'])),
         ('wall time', f'{summary["wall_time_s"]:.1f} s'),
     ]
     width = max(len(name) for name, _ in rows)

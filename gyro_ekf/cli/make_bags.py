@@ -47,8 +47,13 @@ def build_bundled_bags(directory: Path, force: bool = False) -> list[Path]:
     """Simulate and write every bundled bag (with its params sidecar) into directory."""
     from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
     from gyro_ekf.io.bag_writer import write_trip_bag
+    from gyro_ekf.io.errors import BagError
+    from gyro_ekf.io.products import os_reason
 
-    directory.mkdir(parents=True, exist_ok=True)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise BagError(f'{directory}: cannot write the bags: {os_reason(err)}') from None
     written = []
     for bag in BUNDLED_BAGS:
         config = dataclasses.replace(SimulationConfig(), **bag.settings)

@@ -1,16 +1,17 @@
-"""`gyro-ekf record`: record topics into a bag (a stand-in for `ros2 bag record`)."""
+"""`gyro-ekf record`: record topics into a bag (a stand-in for `ros2 bag record`).
+
+The bag is written where it stays (OUT/OUT.mcap) and made readable on disk every
+`--flush-s` (`io.recording`), so a `kill -9` loses at most that much; SIGINT and SIGTERM
+(also in a background job) finish it cleanly. It prints where the bag goes when it starts.
+"""
 
 from __future__ import annotations
 
 import argparse
 import logging
-import os
 import shutil
-import signal
-import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
 HELP = 'record topics into a rosbag2 folder (mcap, metadata version 9)'
 
@@ -25,89 +26,91 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('-o', '--output', type=Path, required=True, help='bag folder to create')
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                         help='storage plugin')
-    parser.add_argument('--force', action='store_true', help='replace an existing bag')
+    parser.add_argument('--force', action='store_true',
+                        help='replace an existing bag (never a folder holding other files)')
     parser.add_argument('--use-sim-time', action='store_true',
                         help='stamp messages with /clock time instead of the system clock')
     parser.add_argument('--duration-s', type=float, default=None,
                         help='stop after this much wall time')
     parser.add_argument('--idle-exit-s', type=float, default=None,
                         help='stop when no message arrived for this long (after the first)')
+    parser.add_argument('--flush-s', type=float, default=1.0,
+                        help='make the bag readable on disk (index, metadata.yaml) this '
+                        'often, s: what a kill -9 can lose')
 
 
 class BagSink:
-    """Writes raw messages into a bag folder staged aside and renamed into place on close."""
+    """Writes raw messages into the bag folder where it stays, checkpointed (io.recording)."""
 
-    def __init__(self, path: Path, storage: str, force: bool):
-        """Open a staged writer beside path.
+    def __init__(self, path: Path, storage: str, force: bool, flush_s: float = 1.0):
+        """Claim the folder (with force, replacing only an earlier bag) and start the bag.
 
         Raises:
-            BagError: the output exists and force is not set.
+            BagError: the output exists without force, holds something that is not part of
+                a bag, or cannot be written.
         """
-        from rosbags.rosbag2 import StoragePlugin, Writer
-
+        from gyro_ekf.io.bag_writer import LATCHED_QOS, SENSOR_QOS, claim_bag_target
         from gyro_ekf.io.errors import BagError
+        from gyro_ekf.io.products import os_reason
+        from gyro_ekf.io.recording import RecordingBag
 
-        if path.exists() and not force:
-            raise BagError(f'{path}: exists already; use --force to replace it')
+        claim_bag_target(path, force, sidecar=False)
+        try:
+            if path.exists():
+                shutil.rmtree(path)  # an earlier bag only (checked above)
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise BagError(f'{path}: cannot record: {os_reason(err)}') from None
         self.path = path
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self._aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp',
-                                            dir=path.parent))
-        plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
-        self._writer = Writer(self._aside / path.name, version=9, storage_plugin=plugin)
-        self._writer.open()
-        self._connections: dict[str, Any] = {}
-        self.count = 0
+        self._qos = {True: LATCHED_QOS, False: SENSOR_QOS}
+        self._bag = RecordingBag(path, storage, flush_s)
+        self.storage_file = self._bag.storage_file
+
+    @property
+    def count(self) -> int:
+        """Messages written."""
+        return self._bag.count
 
     def __call__(self, topic: str, msgtype: str, stamp_ns: int, data: bytes,
                  latched: bool) -> None:
         """Write one message."""
-        connection = self._connections.get(topic)
-        if connection is None:
-            from gyro_ekf.io import messages
-            from gyro_ekf.io.bag_writer import LATCHED_QOS, SENSOR_QOS
+        self._bag.write(topic, msgtype, stamp_ns, data, self._qos[bool(latched)])
 
-            qos = LATCHED_QOS if latched else SENSOR_QOS
-            connection = self._writer.add_connection(topic, msgtype,
-                                                     typestore=messages.TYPESTORE,
-                                                     offered_qos_profiles=[qos])
-            self._connections[topic] = connection
-        self._writer.write(connection, stamp_ns, data)
-        self.count += 1
+    def tick(self) -> None:
+        """Checkpoint now and then (called from the spin loop)."""
+        self._bag.tick()
 
     def close(self) -> Path:
-        """Finish the bag and move it into place."""
-        try:
-            self._writer.close()
-            if self.path.exists():
-                shutil.rmtree(self.path)
-            os.replace(self._aside / self.path.name, self.path)
-        finally:
-            shutil.rmtree(self._aside, ignore_errors=True)
-        return self.path
+        """Finish the bag in place."""
+        return self._bag.close()
 
-    def abort(self) -> None:
-        """Drop the staged bag."""
-        shutil.rmtree(self._aside, ignore_errors=True)
+    def discard(self) -> Path:
+        """Close and remove the bag (nothing was recorded)."""
+        self._bag.close()
+        shutil.rmtree(self.path, ignore_errors=True)
+        return self.path
 
 
 def run(args: argparse.Namespace) -> int:
-    """Record until Ctrl-C, --duration-s or --idle-exit-s; returns the exit code."""
+    """Record until SIGINT/SIGTERM, --duration-s or --idle-exit-s; returns the exit code."""
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.parameter import Parameter
     from rclpy.signals import SignalHandlerOptions
 
+    from gyro_ekf.cli.signals import StopRequest
     from gyro_ekf.errors import GyroEkfError
     from gyro_ekf.nodes.recorder import Recorder
 
-    sink = BagSink(args.output, args.storage, args.force)
-    # SIGINT and SIGTERM end the loop below as KeyboardInterrupt, so the bag is closed.
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    stop = StopRequest()
+    sink = BagSink(args.output, args.storage, args.force, args.flush_s)
+    print(f'recording into {sink.storage_file} (metadata.yaml refreshed every '
+          f'{args.flush_s:g} s; if this process is killed, the bag holds what came before '
+          f'the last refresh: `gyro-ekf reindex {args.output}` repairs a torn end)',
+          flush=True)
     rclpy.init(args=['gyro-ekf-record', *args.ros_args],
                signal_handler_options=SignalHandlerOptions.NO)
     node = None
-    interrupted = False
     try:
         try:
             node = Recorder(args.topics, sink, parameter_overrides=[
@@ -117,8 +120,9 @@ def run(args: argparse.Namespace) -> int:
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         started = time.monotonic()
-        while rclpy.ok():
+        while rclpy.ok() and not stop:
             executor.spin_once(timeout_sec=0.05)
+            sink.tick()
             now = time.monotonic()
             if args.duration_s is not None and now - started >= args.duration_s:
                 break
@@ -126,16 +130,15 @@ def run(args: argparse.Namespace) -> int:
                     and now - node.last_message >= args.idle_exit_s):
                 break
     except (KeyboardInterrupt, ExternalShutdownException):
-        interrupted = True
-    except BaseException:
-        sink.abort()
-        raise
+        stop.requested = stop.requested or 'interrupt'
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-    path = sink.close()
+        # Whatever ended the loop (a signal, an error), the bag is finished in place; one
+        # that never got its node (a bad type) is removed.
+        path = sink.close() if node is not None else sink.discard()
     counts = {t.name: t.count for t in node.recorded.values()} if node else {}
     log.info('%s: %d messages %s%s', path, sink.count, counts,
-             ' (interrupted)' if interrupted else '')
+             f' (stopped by {stop.requested})' if stop else '')
     return 0

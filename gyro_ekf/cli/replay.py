@@ -28,6 +28,13 @@ def _rate(text: str) -> float:
     return value
 
 
+def _count(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be >= 1, got {text}')
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add this command's arguments."""
     parser.add_argument('bag', type=Path, help='rosbag2 folder (mcap or sqlite3)')
@@ -37,7 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='publish /clock from the bag stamps (for use_sim_time)')
     parser.add_argument('--clock-hz', type=float, default=100.0,
                         help='/clock messages per second of bag time')
-    parser.add_argument('--loop', action='store_true', help='start over at the end')
+    parser.add_argument('--loop', action='store_true',
+                        help='start over at the end, until SIGINT/SIGTERM')
+    parser.add_argument('--loops', type=_count, default=None, metavar='N',
+                        help='with or without --loop: stop after N passes over the bag')
     parser.add_argument('--topics', nargs='+', metavar='TOPIC',
                         help='replay only these topics (default: all)')
     parser.add_argument('--start-s', type=float, default=0.0,
@@ -122,18 +132,24 @@ def run(args: argparse.Namespace) -> int:
     """Replay the bag; returns the exit code."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
 
+    from gyro_ekf.cli.signals import StopRequest
     from gyro_ekf.errors import GyroEkfError
     from gyro_ekf.nodes.replayer import Replayer
 
+    # SIGINT/SIGTERM end the replay between two messages: the summary is still printed.
+    stop = StopRequest()
     source = BagSource(args.bag, args.topics, args.start_s, args.duration_s)
-    rclpy.init(args=['gyro-ekf-replay', *args.ros_args])
+    rclpy.init(args=['gyro-ekf-replay', *args.ros_args],
+               signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
         try:
             node = Replayer(source.topics, args.clock)
         except ValueError as err:
             raise GyroEkfError(f'{args.bag}: {err}') from None
+        node.stop = stop
         needs: dict[str, int] = {}
         for topic, count in args.wait_for:
             names = [t.name for t in source.topics if not t.latched] if topic is None else [
@@ -143,13 +159,19 @@ def run(args: argparse.Namespace) -> int:
                     raise GyroEkfError(f'--wait-for: topic {name!r} is not replayed')
                 needs[name] = max(needs.get(name, 0), count)
         short = node.wait_for_subscribers(needs, args.wait_timeout_s)
+        if stop:
+            log.info('stopped by %s before the replay began', stop.requested)
+            return 0
         if short:
             raise GyroEkfError(f'subscribers did not appear within {args.wait_timeout_s} s: '
                                + ', '.join(f'{k} has {v} of {needs[k]}'
                                            for k, v in short.items()))
-        report = node.play(source, args.rate, args.loop, args.clock_hz)
+        report = node.play(source, args.rate, args.loop or args.loops is not None,
+                           args.clock_hz, max_loops=args.loops)
         print(report.summary(), flush=True)
-        return 0 if report.acknowledged else 1
+        # A stop request is the normal end of --loop; then unacknowledged messages of a
+        # reader that was still busy are no failure.
+        return 0 if report.acknowledged or stop else 1
     except (KeyboardInterrupt, ExternalShutdownException):
         return 130
     finally:

@@ -109,25 +109,25 @@ def run(args: argparse.Namespace) -> int:
                           use_calibration=True if args.use_calibration else None)
     est = result.result.estimates
     summary = summarize(result, report)
-    outputs.write_estimates_csv(folder / outputs.ESTIMATES_CSV, est.stamp_s, est.state,
-                                est.covariance)
-    if not args.no_bag:
-        bag_path = folder / outputs.ESTIMATES_BAG
-        if bag_path.exists():
-            import shutil
-            shutil.rmtree(bag_path)
-        outputs.write_estimates_bag(bag_path, bag.start_time_ns, est.stamp_s, est.state,
-                                    est.covariance, result.speed_m_s, result.yaw_rate_rad_s,
-                                    storage=args.storage)
-    processed_s = time.perf_counter() - began
-    summary['timing'] = {'read_s': read_s, 'run_and_outputs_s': processed_s - read_s,
-                         'real_time_factor': summary['trip']['duration_s'] / processed_s
-                         if processed_s > 0 else None}
-    outputs.write_summary_json(folder / outputs.SUMMARY_JSON, summary)
-    if not args.no_plots:
-        from gyro_ekf.analysis.plots import write_plots
-        written = write_plots(result, folder)
-        log.info('wrote %d figures', len(written))
+    # Every product is built in a staging folder that replaces the output folder only when
+    # complete: a failure (disk full, read-only) leaves any previous output as it was.
+    with outputs.staged_output_dir(folder, force=args.force) as staging:
+        outputs.write_estimates_csv(staging / outputs.ESTIMATES_CSV, est.stamp_s, est.state,
+                                    est.covariance)
+        if not args.no_bag:
+            outputs.write_estimates_bag(staging / outputs.ESTIMATES_BAG, bag.start_time_ns,
+                                        est.stamp_s, est.state, est.covariance,
+                                        result.speed_m_s, result.yaw_rate_rad_s,
+                                        storage=args.storage)
+        processed_s = time.perf_counter() - began
+        summary['timing'] = {'read_s': read_s, 'run_and_outputs_s': processed_s - read_s,
+                             'real_time_factor': summary['trip']['duration_s'] / processed_s
+                             if processed_s > 0 else None}
+        outputs.write_summary_json(staging / outputs.SUMMARY_JSON, summary)
+        if not args.no_plots:
+            from gyro_ekf.analysis.plots import write_plots
+            written = write_plots(result, staging)
+            log.info('wrote %d figures', len(written))
     log.info('%s: %.1f s of trip in %.2f s (%.0fx real time, plots excluded)', trip.name,
              summary['trip']['duration_s'], processed_s,
              summary['timing']['real_time_factor'] or math.nan)

@@ -46,8 +46,18 @@ def run(args: argparse.Namespace) -> int:
     output: Path = args.output
     # io pulls in rosbags; import it only once there is something to write.
     if output.suffix == '.npz':
+        from gyro_ekf.io.errors import LogFormatError
+        from gyro_ekf.io.products import os_reason
         from gyro_ekf.io.trip_file import save_trip
-        written = save_trip(trip, output, force=args.force)
+
+        if output.is_symlink() or (output.exists() and not output.is_file()):
+            raise LogFormatError(f'{output}: exists and is not a trip file; --force replaces '
+                                 'only a file')
+        try:
+            written = save_trip(trip, output, force=args.force)
+        except OSError as err:
+            raise LogFormatError(f'{output}: cannot write the trip file: {os_reason(err)}'
+                                 ) from None
     else:
         from gyro_ekf.io.bag_writer import write_trip_bag
         written = write_trip_bag(trip, output, storage=args.storage, force=args.force)

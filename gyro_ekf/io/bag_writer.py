@@ -13,7 +13,9 @@ stamped at time zero (or at the first sample if a trip starts before zero).
 
 The bag is written into a hidden temporary sibling folder and renamed into place only when
 complete, together with its params sidecar (`gyro_ekf.io.sidecar`); a failure or interrupt
-removes the temporary files and leaves any previous output untouched.
+removes the temporary files and leaves any previous output untouched. With force, an existing
+output is replaced only when it is a bag folder holding nothing but a bag's own files
+(`claim_bag_target`); a read-only or full file system is one BagError naming the bag.
 """
 
 from __future__ import annotations
@@ -40,11 +42,12 @@ from gyro_ekf.core.types import Trip
 from gyro_ekf.io import messages as msgs
 from gyro_ekf.io.defaults import DEFAULT_EPOCH_NS, STORAGE_NAMES
 from gyro_ekf.io.errors import BagError
+from gyro_ekf.io.products import BAG_FILES, first_foreign, os_reason
 from gyro_ekf.io.sidecar import check_finite, params_of_trip, read_sidecar, sidecar_path
 from gyro_ekf.io.sidecar import to_yaml
 
-__all__ = ['DEFAULT_EPOCH_NS', 'STORAGES', 'ProgressCallback', 'TopicPlan', 'read_sidecar',
-           'sidecar_path', 'write_trip_bag']
+__all__ = ['DEFAULT_EPOCH_NS', 'STORAGES', 'ProgressCallback', 'TopicPlan', 'claim_bag_target',
+           'read_sidecar', 'sidecar_path', 'write_trip_bag']
 
 log = logging.getLogger(__name__)
 
@@ -213,24 +216,26 @@ def write_trip_bag(trip: Trip, path: Path | str, storage: str = 'mcap',
     if int(start_time_ns) <= 0:
         raise BagError(f'{path}: start time {start_time_ns} ns must be after the epoch '
                        '(0 reads as "unset" in ROS)')
-    params_path = sidecar_path(path)
-    existing = [p for p in (path, params_path) if p.exists() or p.is_symlink()]
-    if existing and not force:
-        raise BagError(f'{existing[0]}: exists already; use --force to replace it')
+    params_path = claim_bag_target(path, force)
     plans = plan_topics(trip, int(start_time_ns))
     params = params_of_trip(trip, int(start_time_ns))
     check_finite(params)
     total = sum(p.stamps_ns.size for p in plans)
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp',
+                                      dir=path.parent))
+    except OSError as err:
+        raise BagError(f'{path}: cannot write the bag: {os_reason(err)}') from None
     try:
         staged = aside / path.name
         _write(plans, staged, STORAGES[storage], total, progress, compress)
         staged_params = aside / params_path.name
         staged_params.write_text(to_yaml(params), encoding='utf-8')
-        _replace(staged, path, aside)
-        os.replace(staged_params, params_path)
+        _replace([(staged, path), (staged_params, params_path)], aside)
+    except OSError as err:
+        raise BagError(f'{path}: cannot write the bag: {os_reason(err)}') from None
     finally:
         shutil.rmtree(aside, ignore_errors=True)
     log.info('%s: %d messages on %d topics (%s)', path, total, len(plans), storage)
@@ -258,15 +263,70 @@ def _write(plans: list[TopicPlan], staged: Path, plugin: StoragePlugin, total: i
                 done += 1
                 if progress is not None and done % _PROGRESS_EVERY == 0:
                     progress(done, total)
-    except (WriterError, OSError) as err:
+    except WriterError as err:
         raise BagError(f'{staged.name}: cannot write the bag: {err}') from err
     if progress is not None:
         progress(total, total)
 
 
-def _replace(staged: Path, path: Path, aside: Path) -> None:
-    """Move the finished bag to `path`, moving any old output into `aside` first."""
-    if path.exists() or path.is_symlink():
-        old = aside / (path.name + '.old')
-        os.replace(path, old)
-    os.replace(staged, path)
+def claim_bag_target(path: Path, force: bool, sidecar: bool = True) -> Path:
+    """Check that a bag folder (and its params sidecar) may be written; return the sidecar.
+
+    sidecar=False: only the bag folder is written (`gyro-ekf record`), an existing sidecar
+    beside it is none of this writer's business.
+
+    With force, an existing bag folder is replaced only when it holds nothing but a bag's
+    own files (metadata.yaml, *.mcap, *.db3, ...): a user's notes or sub-folders in it are
+    never deleted.
+
+    Raises:
+        BagError: the folder or sidecar exists without force, is of the wrong kind, or
+            holds a file that is not part of a bag (named).
+    """
+    params_path = sidecar_path(path)
+    ours = (path, params_path) if sidecar else (path,)
+    existing = [p for p in ours if p.exists() or p.is_symlink()]
+    if existing and not force:
+        raise BagError(f'{existing[0]}: exists already; use --force to replace it')
+    if path.is_symlink() or (path.exists() and not path.is_dir()):
+        raise BagError(f'{path}: exists and is not a bag folder; --force replaces only a bag '
+                       'folder')
+    if sidecar and (params_path.is_symlink()
+                    or (params_path.exists() and not params_path.is_file())):
+        raise BagError(f'{params_path}: exists and is not a params file; --force replaces '
+                       'only a file')
+    if path.is_dir():
+        foreign = first_foreign(path, BAG_FILES)
+        if foreign is not None:
+            raise BagError(f'{foreign}: is not part of a bag; --force replaces only a bag '
+                           'folder (metadata.yaml, *.mcap, *.db3): move it away first')
+    return params_path
+
+
+def _replace(moves: list[tuple[Path, Path]], aside: Path) -> None:
+    """Rename each finished (staged, target) into place; old targets go into aside.
+
+    If a rename fails, the targets already replaced get their old versions back, so a
+    failure leaves the previous output as it was.
+    """
+    done: list[tuple[Path, Path | None]] = []
+    try:
+        for staged, target in moves:
+            old = None
+            if target.exists() or target.is_symlink():
+                old = aside / (target.name + '.old')
+                os.replace(target, old)
+            done.append((target, old))
+            os.replace(staged, target)
+    except OSError:
+        for target, old in reversed(done):
+            try:
+                if target.is_dir() and not target.is_symlink():
+                    shutil.rmtree(target)
+                elif target.exists() or target.is_symlink():
+                    target.unlink()
+                if old is not None:
+                    os.replace(old, target)
+            except OSError:
+                log.warning('%s: could not restore the previous version from %s', target, old)
+        raise

@@ -9,7 +9,8 @@ topics use reliable keep-all publishers: a reliable reader gets every message (a
 delays the replay rather than losing data), and best-effort readers still match.
 
 Timing jitter (publish time minus the scheduled time) is measured for every message and
-reported at the end.
+reported at the end, in constant memory (a histogram), so `--loop` can run for days.
+A stop request (SIGINT/SIGTERM, see cli/signals.py) ends the replay between two messages.
 """
 
 from __future__ import annotations
@@ -30,6 +31,14 @@ from rosgraph_msgs.msg import Clock
 from gyro_ekf import topics
 from gyro_ekf.nodes import qos
 from gyro_ekf.nodes.conversions import to_stamp
+
+_STOP_POLL_S = 0.05
+"""Longest sleep between two looks at a stop request, s."""
+_STOPPED_ACK_S = 2.0
+"""After a stop request, wait at most this long for readers to acknowledge, s."""
+_JITTER_BINS_PER_DECADE = 200
+_JITTER_DECADES = (-6, 3)
+"""Jitter histogram: 1 us to 1000 s in bins 1.2 % wide (the p95 is read to that)."""
 
 RawMessage = tuple[str, int, bytes]
 """(topic as recorded, stamp ns since the epoch, serialized CDR)."""
@@ -82,6 +91,7 @@ class ReplayReport:
         backpressure_waits: retries while a reliable reader was behind (each delays the
             replay by about 2 ms).
         acknowledged: every reliable reader acknowledged every message at the end.
+        stopped_by: the signal that stopped the replay early ('SIGINT', 'SIGTERM'), or None.
     """
 
     messages: int
@@ -93,6 +103,7 @@ class ReplayReport:
     jitter_max_ms: float
     backpressure_waits: int
     acknowledged: bool
+    stopped_by: str | None = None
 
     def summary(self) -> str:
         """One line for humans."""
@@ -101,7 +112,48 @@ class ReplayReport:
                 f'of bag in {self.wall_s:.1f} s, x{speed:.1f}); timing jitter mean '
                 f'{self.jitter_mean_ms:.2f} ms, p95 {self.jitter_p95_ms:.2f} ms, max '
                 f'{self.jitter_max_ms:.2f} ms; backpressure waits {self.backpressure_waits}; '
-                f'all acknowledged: {self.acknowledged}')
+                f'all acknowledged: {self.acknowledged}'
+                + (f' (stopped by {self.stopped_by})' if self.stopped_by else ''))
+
+
+class JitterStats:
+    """Mean, 95th percentile and maximum of jitter samples in constant memory."""
+
+    def __init__(self) -> None:
+        low, high = _JITTER_DECADES
+        self._bins = [0] * ((high - low) * _JITTER_BINS_PER_DECADE + 2)
+        self.count = 0
+        self.total_s = 0.0
+        self.max_s = 0.0
+
+    def add(self, value_s: float) -> None:
+        """Count one sample, s (negative counts as 0: published on time)."""
+        value_s = max(0.0, value_s)
+        self.count += 1
+        self.total_s += value_s
+        self.max_s = max(self.max_s, value_s)
+        self._bins[self._bin(value_s)] += 1
+
+    def _bin(self, value_s: float) -> int:
+        low, high = _JITTER_DECADES
+        if value_s < 10.0 ** low:
+            return 0
+        index = 1 + int((math.log10(value_s) - low) * _JITTER_BINS_PER_DECADE)
+        return min(index, len(self._bins) - 1)
+
+    def quantile(self, share: float) -> float:
+        """Return the sample at share of the count (upper edge of its bin, at most the max), s."""
+        if not self.count:
+            return 0.0
+        rank = min(self.count - 1, int(share * self.count))
+        seen = 0
+        for index, n in enumerate(self._bins):
+            seen += n
+            if seen > rank:
+                low = _JITTER_DECADES[0]
+                edge = 10.0 ** (low + index / _JITTER_BINS_PER_DECADE) if index else 0.0
+                return min(edge, self.max_s)
+        return self.max_s
 
 
 class Replayer(Node):
@@ -129,6 +181,10 @@ class Replayer(Node):
         self._clock_pub = self.create_publisher(Clock, topics.CLOCK, 10) if clock else None
         self.backpressure_timeout_s = 30.0
         self.backpressure_waits = 0
+        self.stop: Callable[[], bool] = lambda: False
+
+    def _running(self) -> bool:
+        return rclpy.ok() and not self.stop()
 
     def _publish(self, publisher: Any, data: bytes) -> None:
         """Publish, waiting while a reliable keep-all reader is behind (backpressure).
@@ -143,7 +199,7 @@ class Replayer(Node):
                 publisher.publish(data)
                 return
             except Exception:  # rclpy's RCLError: 'cannot publish data' (history full)
-                if not rclpy.ok() or time.monotonic() > deadline:
+                if not self._running() or time.monotonic() > deadline:
                     raise
                 self.backpressure_waits += 1
                 time.sleep(0.002)
@@ -163,13 +219,21 @@ class Replayer(Node):
             short = {name: self.publishers_by_topic[name].get_subscription_count()
                      for name in needs}
             short = {name: count for name, count in short.items() if count < needs[name]}
-            if not short or time.monotonic() > deadline or not rclpy.ok():
+            if not short or time.monotonic() > deadline or not self._running():
                 return short
             time.sleep(0.01)
 
+    def _sleep_until(self, target: float) -> None:
+        """Sleep until perf_counter() reaches target, in slices so a stop request is seen."""
+        while self._running():
+            delay = target - time.perf_counter()
+            if delay <= 0:
+                return
+            time.sleep(min(delay, _STOP_POLL_S))
+
     def play(self, messages: Callable[[], Iterator[RawMessage]], rate: float, loop: bool,
              clock_hz: float = 100.0, ack_timeout_s: float = 30.0,
-             latch_ack_timeout_s: float = 2.0) -> ReplayReport:
+             latch_ack_timeout_s: float = 2.0, max_loops: int | None = None) -> ReplayReport:
         """Publish every message at its stamp / rate (rate 0 = as fast as possible).
 
         Args:
@@ -177,64 +241,76 @@ class Replayer(Node):
             rate: speed-up factor (2 = twice as fast as recorded); 0 = no waiting.
             loop: start over at the end until interrupted.
             clock_hz: /clock messages per second of bag time (when clock is on).
-            ack_timeout_s: at the end, wait this long for reliable readers to acknowledge.
+            ack_timeout_s: at the end, wait this long for reliable readers to acknowledge
+                (at most _STOPPED_ACK_S after a stop request).
             latch_ack_timeout_s: after the first latched message, wait this long for its
                 acknowledgement so readers have it before the sensor stream starts.
+            max_loops: with loop, stop after this many passes (None = until stopped).
         """
-        jitter_s: list[float] = []
+        jitter = JitterStats()
         published = 0
         loops = 0
         bag_s = 0.0
         clock_period_ns = int(1e9 / clock_hz) if clock_hz > 0 else 0
         first_publish = last_publish = None
-        while rclpy.ok():
+        clock_message = Clock()
+        while self._running():
             loops += 1
+            if loop:
+                self.get_logger().info(f'pass {loops}'
+                                       + (f' of {max_loops}' if max_loops else ''))
             start_ns = None
             last_clock_ns = None
             wall_start = time.perf_counter()
             stamp = None
-            for name, stamp, data in messages():
-                if not rclpy.ok():
-                    break
-                if start_ns is None:
-                    start_ns = stamp
-                if rate > 0:
-                    target = wall_start + (stamp - start_ns) / 1e9 / rate
-                    delay = target - time.perf_counter()
-                    if delay > 0:
-                        time.sleep(delay)
-                if self._clock_pub is not None and (
-                        last_clock_ns is None or stamp - last_clock_ns >= clock_period_ns):
-                    self._clock_pub.publish(Clock(clock=to_stamp(stamp)))
-                    last_clock_ns = stamp
-                publisher = self.publishers_by_topic.get(name)
-                if publisher is None:
-                    continue
-                self._publish(publisher, data)
-                published += 1
-                now = time.perf_counter()
-                if rate > 0:
-                    jitter_s.append(now - target)
-                first_publish = first_publish or now
-                last_publish = now
-                if self.topics[name].latched and publisher.get_subscription_count():
-                    publisher.wait_for_all_acked(Duration(seconds=latch_ack_timeout_s))
+            source = messages()
+            try:
+                for name, stamp, data in source:
+                    if not self._running():
+                        break
+                    if start_ns is None:
+                        start_ns = stamp
+                    if rate > 0:
+                        target = wall_start + (stamp - start_ns) / 1e9 / rate
+                        self._sleep_until(target)
+                    if self._clock_pub is not None and (
+                            last_clock_ns is None or stamp - last_clock_ns >= clock_period_ns):
+                        clock_message.clock = to_stamp(stamp)
+                        self._clock_pub.publish(clock_message)
+                        last_clock_ns = stamp
+                    publisher = self.publishers_by_topic.get(name)
+                    if publisher is None:
+                        continue
+                    self._publish(publisher, data)
+                    published += 1
+                    now = time.perf_counter()
+                    if rate > 0:
+                        jitter.add(now - target)
+                    first_publish = first_publish or now
+                    last_publish = now
+                    if self.topics[name].latched and publisher.get_subscription_count():
+                        publisher.wait_for_all_acked(Duration(seconds=latch_ack_timeout_s))
+            finally:
+                close = getattr(source, 'close', None)
+                if close is not None:
+                    close()  # a generator's reader is closed now, not at garbage collection
             if start_ns is not None and stamp is not None:
                 bag_s += (stamp - start_ns) / 1e9
-            if not loop or start_ns is None:
+            if not loop or start_ns is None or (max_loops is not None and loops >= max_loops):
                 break
+        stopped = self.stop()
+        timeout = min(ack_timeout_s, _STOPPED_ACK_S) if stopped else ack_timeout_s
         acknowledged = all(
-            p.wait_for_all_acked(Duration(seconds=ack_timeout_s))
+            p.wait_for_all_acked(Duration(seconds=timeout))
             for p in self.publishers_by_topic.values()) if rclpy.ok() else False
-        jitter_s.sort()
-        count = len(jitter_s)
         return ReplayReport(
             messages=published,
             loops=loops,
             wall_s=(last_publish - first_publish) if first_publish else 0.0,
             bag_s=bag_s,
-            jitter_mean_ms=1e3 * sum(jitter_s) / count if count else 0.0,
-            jitter_p95_ms=1e3 * jitter_s[min(count - 1, int(0.95 * count))] if count else 0.0,
-            jitter_max_ms=1e3 * jitter_s[-1] if count else 0.0,
+            jitter_mean_ms=1e3 * jitter.total_s / jitter.count if jitter.count else 0.0,
+            jitter_p95_ms=1e3 * jitter.quantile(0.95),
+            jitter_max_ms=1e3 * jitter.max_s,
             backpressure_waits=self.backpressure_waits,
-            acknowledged=acknowledged)
+            acknowledged=acknowledged,
+            stopped_by=getattr(self.stop, 'requested', None) if stopped else None)

@@ -36,7 +36,9 @@ def test_csv_header_columns_and_units(tmp_path):
 
 def test_output_folder_is_not_overwritten_without_force(tmp_path):
     out = tmp_path / 'out'
-    outputs.prepare_output_dir(out)
+    assert outputs.prepare_output_dir(out) == out
+    assert not out.exists()                       # nothing is created before the outputs
+    out.mkdir()
     outputs.prepare_output_dir(out)              # empty: fine
     (out / 'summary.json').write_text('{}')
     with pytest.raises(OutputError, match='not empty; use --force'):

@@ -1,0 +1,67 @@
+"""The demo's own check of its result (`verdict`), as a pure function."""
+
+from __future__ import annotations
+
+import pytest
+
+from gyro_ekf.cli.demo import BIAS_LIMIT_DEG_S, POSITION_LIMIT_M, DemoFailed, verdict
+from gyro_ekf.errors import GyroEkfError
+
+GOOD = {'online_bias_deg_s': -0.9012, 'true_bias_deg_s': -0.9000,
+        'final_position_error_m': 0.004, 'ekf_resets': 0, 'has_ground_truth': True}
+
+
+def test_a_good_result_has_no_problem():
+    assert verdict(GOOD) == []
+    # At the limits themselves, still good.
+    edge = dict(GOOD, online_bias_deg_s=GOOD['true_bias_deg_s'] + BIAS_LIMIT_DEG_S / 2,
+                final_position_error_m=POSITION_LIMIT_M)
+    assert verdict(edge) == []
+
+
+def test_a_bias_far_from_the_truth_is_named():
+    problems = verdict(dict(GOOD, online_bias_deg_s=-0.870))
+    assert len(problems) == 1
+    assert 'online bias -0.8700 deg/s is 0.0300 deg/s from the true -0.9000' in problems[0]
+
+
+def test_a_large_final_position_error_is_named():
+    """The failure issue 13 saw: +16.142 m and exit 0."""
+    problems = verdict(dict(GOOD, final_position_error_m=16.142))
+    assert problems == ['final position error 16.142 m is above 0.05 m']
+
+
+def test_a_filter_reset_is_a_failure():
+    problems = verdict(dict(GOOD, ekf_resets=1))
+    assert len(problems) == 1 and 'reset its filter 1 time(s)' in problems[0]
+
+
+@pytest.mark.parametrize('missing,expected', [
+    ('online_bias_deg_s', 'published no bias'),
+    ('final_position_error_m', 'published no pose'),
+    ('ekf_resets', 'no diagnostics from ekf_node'),
+])
+def test_a_missing_output_is_a_failure(missing, expected):
+    problems = verdict(dict(GOOD, **{missing: None}))
+    assert len(problems) == 1 and expected in problems[0]
+
+
+def test_nan_values_fail():
+    problems = verdict(dict(GOOD, online_bias_deg_s=float('nan'),
+                            final_position_error_m=float('nan')))
+    assert len(problems) == 2
+
+
+def test_without_ground_truth_only_what_can_be_checked_is():
+    result = dict(GOOD, true_bias_deg_s=None, final_position_error_m=None,
+                  has_ground_truth=False)
+    assert verdict(result) == []
+    assert verdict(dict(result, ekf_resets=2)) != []
+
+
+def test_every_problem_is_listed_and_the_error_is_one_cli_line():
+    problems = verdict({'online_bias_deg_s': 0.5, 'true_bias_deg_s': 0.0,
+                        'final_position_error_m': 1.0, 'ekf_resets': 3,
+                        'has_ground_truth': True})
+    assert len(problems) == 3
+    assert issubclass(DemoFailed, GyroEkfError)
