@@ -71,6 +71,16 @@ def test_config_file_holds_the_core_defaults(node, config_name):
         assert values.get(field.name) == getattr(defaults, field.name), field.name
 
 
+@pytest.mark.parametrize('node', ['ekf_node', 'calibration_node'])
+def test_config_file_holds_the_input_limits_defaults(node):
+    import dataclasses
+
+    from gyro_ekf.core.config import InputLimits
+    values = yaml.safe_load(CONFIG.read_text())[node]['ros__parameters']
+    for field in dataclasses.fields(InputLimits):
+        assert values.get(f'limits.{field.name}') == field.default, field.name
+
+
 @pytest.mark.ros
 def test_bag_sidecar_reaches_the_ekf_node(ros_env, sim_bag):
     import rclpy
