@@ -206,12 +206,12 @@ def test_one_input_far_behind_the_others_is_dropped_as_late_without_a_reset(star
     ekf = start_ekf('behind')
     start = 1_700_000_600 * 10 ** 9
     ekf.send_pairs(start, 0, 100)
-    for i in range(100, 150):
-        ekf.send_imu(start + i * STEP_NS)
+    ekf.wait_for(_count('estimates', 99), 'the first samples')
     back = int(35.9e9)
-    for i in range(100, 150):
+    for i in range(100, 150):  # 50 in a row, while the IMU is still active
         ekf.send_odom(start + i * STEP_NS - back)
-    ekf.send_pairs(start, 150, 160)
+    ekf.wait_for(_count('dropped_late', 50), 'the late odometry dropped')
+    ekf.send_pairs(start, 100, 160)
     values = ekf.wait_for(_count('estimates', 160), 'the IMU samples processed')
     assert values['resets'] == '0'
     assert values['dropped_late'] == '50'
