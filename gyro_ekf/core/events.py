@@ -427,8 +427,10 @@ class StreamMerger:
                 and not self._passed(now, self._started, self._first_s)
                 and len(self._heap) <= self.max_events):
             return [], []
+        stale_s, newest_s = self.stale_after_s, self._newest_s
         watermark = min((newest for newest, seen in self._streams.values()
-                         if not self._passed(now, seen, newest)), default=math.inf)
+                         if now - seen <= stale_s or newest_s - newest <= stale_s),
+                        default=math.inf)  # not stale (see _passed), inline: per message
         return self._release(min(self._newest_s - self.window_s, watermark)), []
 
     def active_streams(self) -> set[str]:

@@ -37,6 +37,9 @@ from gyro_ekf.core.errors import CoreError
 Passed = tuple[str, float, Any]
 """A message passed on or dropped: (stream, stamp_s, payload)."""
 
+_NONE: list[Passed] = []
+"""Nothing dropped (shared: callers only read it)."""
+
 
 @dataclass(slots=True)
 class _Run:
@@ -92,6 +95,12 @@ class StampGate:
         if not math.isfinite(stamp_s):
             raise CoreError(f'{stream} stamp {stamp_s} is not finite')
         message = (stream, stamp_s, payload)
+        time_s = self.time_s
+        if time_s is not None and stamp_s <= time_s + self.max_jump_s and not self._runs:
+            # The common case, once per message at IMU rate: nothing held anywhere.
+            if stamp_s > time_s:
+                self.time_s = stamp_s
+            return [message], _NONE
         if self.time_s is not None and stamp_s <= self.time_s + self.max_jump_s:
             # The stream is back near the common time: its candidates that the time has
             # reached meanwhile pass, the others were outliers.

@@ -132,12 +132,20 @@ class EkfNode(Node):
         super().__init__('ekf_node', **kwargs)
         config = declare_config(self, EkfConfig)
         self._limits = limits = declare_config(self, InputLimits, prefix='limits.')
+        self._max_rate, self._max_speed = limits.max_yaw_rate_rad_s, limits.max_speed_m_s
         sidecar = declare_sidecar(self)
+        # Parameters enter the core too: a NaN mount or start pose is a configuration error.
         for topic, (frame, mount) in sidecar.lidars.items():
             problem = mount_problem(mount.x_m, mount.y_m, mount.yaw_rad, limits)
             if problem:
                 raise GyroEkfError(f'node {self.get_fully_qualified_name()}: parameter '
                                    f'lidar.{topic} ({frame}): {problem}')
+        x_m, y_m, yaw_rad = sidecar.initial_pose.tolist()
+        problem = coordinate_problem((x_m, y_m), limits) or (
+            None if math.isfinite(yaw_rad) else f'yaw {yaw_rad} is not finite')
+        if problem:
+            raise GyroEkfError(f'node {self.get_fully_qualified_name()}: parameter '
+                               f'initial_pose: {problem}')
         if declare(self, 'use_stated_noise', True,
                    'Replace the noise sigmas by the noise.* figures a bag states (its params '
                    'sidecar)'):
@@ -295,14 +303,19 @@ class EkfNode(Node):
     def _on_imu(self, message: Imu) -> None:
         self._received['imu'] += 1
         rate = float(message.angular_velocity.z)
-        if not self._refuse(rate_problem(rate, self._limits), 'imu yaw rate'):
-            self._push(message.header.stamp, EventKind.IMU, rate, 'imu', 'imu')
+        # The comparison is the fast path (NaN fails it too); the check says why.
+        if not -self._max_rate <= rate <= self._max_rate and self._refuse(
+                rate_problem(rate, self._limits), 'imu yaw rate'):
+            return
+        self._push(message.header.stamp, EventKind.IMU, rate, 'imu', 'imu')
 
     def _on_odom(self, message: Odometry) -> None:
         self._received['odom'] += 1
         speed = odometry_speed(message)
-        if not self._refuse(speed_problem(speed, self._limits), 'odom speed'):
-            self._push(message.header.stamp, EventKind.SPEED, speed, 'odom', 'odom')
+        if not -self._max_speed <= speed <= self._max_speed and self._refuse(
+                speed_problem(speed, self._limits), 'odom speed'):
+            return
+        self._push(message.header.stamp, EventKind.SPEED, speed, 'odom', 'odom')
 
     def _on_landmarks(self, message: PoseArray) -> None:
         self._received['landmarks'] += 1
@@ -366,6 +379,9 @@ class EkfNode(Node):
     def _offer(self, stream: str, stamp_s: float, payload: tuple) -> None:
         """Pass a message through the stamp gate into the merger (or the lagged path)."""
         passed, dropped = self._gate.offer(stream, stamp_s, payload)
+        if len(passed) == 1 and not dropped:  # the common case
+            self._merge(stream, stamp_s, payload)
+            return
         for _, dropped_s, (_, _, _, what) in dropped:
             common = self._gate.time_s
             self._drop('stamp_jump', f'{what} stamp {dropped_s:.3f} s is more than '

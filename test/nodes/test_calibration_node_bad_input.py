@@ -20,8 +20,8 @@ def _imu(stamp_ns: int, rates: tuple[float, float, float]):
     return message
 
 
-def test_bad_rates_and_a_first_stamp_far_ahead_leave_the_window_intact(ros_processes,
-                                                                     diagnostics_of):
+def test_bad_rates_and_a_first_stamp_far_ahead_leave_the_window_intact(
+        ros_processes, diagnostics_of):
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Vector3Stamped
     from sensor_msgs.msg import Imu

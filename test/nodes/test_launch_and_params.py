@@ -107,3 +107,25 @@ def test_bag_sidecar_reaches_the_ekf_node(ros_env, sim_bag):
             node.destroy_node()
     finally:
         context.try_shutdown()
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('args, match', [
+    (['-p', 'lidar.topics:=[scan]', '-p', 'lidar.scan.x_m:=.nan'], 'lidar.scan .*not finite'),
+    (['-p', 'lidar.topics:=[scan]', '-p', 'lidar.scan.y_m:=50.0'], 'lidar.scan .*exceeds'),
+    (['-p', 'initial_pose.x_m:=.inf'], 'initial_pose: .*not finite'),
+])
+def test_a_mount_or_start_pose_out_of_its_limits_is_a_configuration_error(ros_env, args,
+                                                                          match):
+    import rclpy
+
+    from gyro_ekf.errors import GyroEkfError
+    from gyro_ekf.nodes.ekf_node import EkfNode
+
+    context = rclpy.Context()
+    rclpy.init(context=context, args=['--ros-args', *args])
+    try:
+        with pytest.raises(GyroEkfError, match=match):
+            EkfNode(context=context)
+    finally:
+        context.try_shutdown()
