@@ -379,8 +379,8 @@ class EkfNode(Node):
     def _offer(self, stream: str, stamp_s: float, payload: tuple) -> None:
         """Pass a message through the stamp gate into the merger (or the lagged path)."""
         passed, dropped = self._gate.offer(stream, stamp_s, payload)
-        if len(passed) == 1 and not dropped:  # the common case
-            self._merge(stream, stamp_s, payload)
+        if len(passed) == 1 and not dropped:  # the common case: this message, at once
+            self._merge(*passed[0])
             return
         for _, dropped_s, (_, _, _, what) in dropped:
             common = self._gate.time_s
