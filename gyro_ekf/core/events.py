@@ -440,8 +440,10 @@ class StreamMerger:
                 if not self._passed(now, seen, newest)}
 
     def _passed(self, now: float, seen: float, newest_s: float) -> bool:
-        """Whether stale_after_s has passed since `seen` on the clock and since `newest_s`
-        in the stamps of the other streams."""
+        """Tell whether stale_after_s has passed on the clock and in the stamps.
+
+        On the clock since `seen`, and in the newest stamp of any stream since `newest_s`.
+        """
         return (now - seen > self.stale_after_s
                 and self._newest_s - newest_s > self.stale_after_s)
 

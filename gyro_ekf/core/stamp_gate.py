@@ -77,7 +77,7 @@ class StampGate:
 
     @property
     def held(self) -> int:
-        """Candidates held (far ahead, not yet confirmed)."""
+        """Count the candidates waiting: far ahead, not yet confirmed."""
         return sum(len(run.messages) for run in self._runs.values())
 
     def clear(self) -> None:

@@ -70,8 +70,10 @@ def finite(*values: float) -> bool:
 
 
 def drop_reason(problem: str, otherwise: str) -> str:
-    """The /diagnostics drop reason of a core.validation problem: `non_finite` for a NaN or
-    inf (every check says "not finite" then), else `otherwise`."""
+    """Name the /diagnostics drop reason of a core.validation problem.
+
+    `non_finite` for a NaN or inf (every check says "not finite" then), else `otherwise`.
+    """
     return 'non_finite' if 'not finite' in problem else otherwise
 
 
