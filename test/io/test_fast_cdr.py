@@ -342,7 +342,7 @@ def test_a_bag_the_chunk_reader_refuses_midway_is_read_by_rosbags(tmp_path, monk
     def refuse_after_a_batch(path, topics, consumer, batch_messages=65_536):
         def first_then_refuse(topic, batch):
             consumer(topic, batch)
-            raise mcap_chunks.UnsupportedMcap(f'{path}: refused for the test')
+            raise mcap_chunks.UnsupportedMcap(path, 'refused for the test')
         return stream(path, topics, first_then_refuse, batch_messages=20)
 
     monkeypatch.setattr(mcap_chunks, 'stream_topics', refuse_after_a_batch)

@@ -16,7 +16,8 @@ import zstandard
 
 from gyro_ekf.core.simulator import simulate_trip, SimulationConfig
 from gyro_ekf.io.bag_writer import write_trip_bag
-from gyro_ekf.io.mcap_chunks import MAGIC, read_topics, TopicMessages, UnsupportedMcap
+from gyro_ekf.io.mcap_chunks import (
+    CorruptMcap, MAGIC, McapError, read_topics, TopicMessages, UnsupportedMcap)
 
 SENSOR_TOPICS = ('/imu', '/odom', '/scan')
 IMU = 'sensor_msgs/msg/Imu'
@@ -80,22 +81,22 @@ def test_a_file_cut_in_a_chunk_is_refused(bags, tmp_path):
     length = struct.unpack_from('<Q', data, chunk + 1)[0]
     cut = tmp_path / 'cut.mcap'
     cut.write_bytes(data[:chunk + length // 2])
-    with pytest.raises(UnsupportedMcap, match='truncated'):
+    with pytest.raises(CorruptMcap, match='truncated'):
         read_topics(cut, SENSOR_TOPICS)
     # Even with the trailing magic put back, the chunk still runs past the end.
     cut.write_bytes(data[:chunk + length // 2] + MAGIC)
-    with pytest.raises(UnsupportedMcap, match='runs past the end'):
+    with pytest.raises(CorruptMcap, match='runs past the end'):
         read_topics(cut, SENSOR_TOPICS)
 
 
 def test_wrong_magic_is_refused(bags, tmp_path):
     wrong = tmp_path / 'wrong.mcap'
     wrong.write_bytes(b'\x89MCAP1\r\n' + bags[False].read_bytes()[8:])
-    with pytest.raises(UnsupportedMcap, match='magic'):
+    with pytest.raises(CorruptMcap, match='magic'):
         read_topics(wrong, SENSOR_TOPICS)
     empty = tmp_path / 'empty.mcap'
     empty.write_bytes(b'')
-    with pytest.raises(UnsupportedMcap, match='magic'):
+    with pytest.raises(CorruptMcap, match='magic'):
         read_topics(empty, SENSOR_TOPICS)
 
 
@@ -276,15 +277,17 @@ def swapped_channel() -> tuple[bytes, ...]:
 ])
 def test_corrupt_or_unsupported_content_is_refused(tmp_path, records, match):
     path = mcap_file(tmp_path / 'bad.mcap', *records)
-    with pytest.raises(UnsupportedMcap, match=match):
+    with pytest.raises(McapError, match=match) as raised:
         read_topics(path, ['/imu'])
+    unsupported = match in ("encoding 'json'", 'precede its Channel')
+    assert isinstance(raised.value, UnsupportedMcap if unsupported else CorruptMcap)
 
 
 def test_a_file_without_data_end_or_footer_is_refused(tmp_path):
     path = mcap_file(tmp_path / 'open.mcap', schema(1, IMU), channel(1, 1, '/imu'),
                      message(1, 1, cdr(0)), end=False)
     path.write_bytes(path.read_bytes() + MAGIC)
-    with pytest.raises(UnsupportedMcap, match='no DataEnd or Footer'):
+    with pytest.raises(CorruptMcap, match='no DataEnd or Footer'):
         read_topics(path, ['/imu'])
 
 
@@ -294,7 +297,7 @@ def test_a_chunk_whose_size_disagrees_with_its_header_is_refused(tmp_path):
     struct.pack_into('<Q', content, 16, 1000)   # uncompressed_size
     path = mcap_file(tmp_path / 'size.mcap', schema(1, IMU), channel(1, 1, '/imu'),
                      record(0x06, bytes(content)))
-    with pytest.raises(UnsupportedMcap, match='its header says 1000'):
+    with pytest.raises(CorruptMcap, match='its header says 1000'):
         read_topics(path, ['/imu'])
 
 
