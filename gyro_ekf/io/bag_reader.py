@@ -228,7 +228,7 @@ def iter_bag_messages(path: Path | str, topic_names: Iterable[str] | None = None
                                f'{sorted(present)})')
             connections = [c for c in connections if c.topic in wanted]
         span = _time_span(reader)
-        messages = reader.messages(connections=connections)
+        messages = reader.messages(connections, *_every_time(path))
         while True:
             with _reading(path):
                 item = next(messages, None)
@@ -304,6 +304,18 @@ def _time_span(reader: Reader) -> tuple[int, int] | None:
     if not reader.message_count:
         return None
     return int(reader.start_time), int(reader.end_time)
+
+
+def _every_time(path: Path) -> tuple[int, int]:
+    """start and stop for reader.messages that let every message through.
+
+    By default rosbags yields only the messages of an MCAP chunk inside the chunk's own time
+    range, so a damaged log time would silently drop its message; asked for every time, it
+    yields it and the stated time range refuses it. sqlite3 stores signed 64-bit stamps.
+    """
+    if _metadata(path).get('storage_identifier') == 'mcap':
+        return 0, 2**64
+    return 0, 2**63 - 1
 
 
 def _check_stamp(path: Path, topic: str, stamp: int, span: tuple[int, int] | None) -> None:
@@ -624,7 +636,7 @@ def _read_with_rosbags(path: Path, reader: Reader, sinks: dict[str, _Sink],
     """Fill the sinks, and singles with topic -> (stamp, last message), through rosbags."""
     wanted = [c for c in reader.connections
               if c.topic in sinks or c.topic in (MAP_TOPIC, INITIAL_POSE_TOPIC)]
-    for connection, stamp, data in reader.messages(connections=wanted):
+    for connection, stamp, data in reader.messages(wanted, *_every_time(path)):
         sink = sinks.get(connection.topic)
         if sink is not None:
             sink.add(stamp, data)

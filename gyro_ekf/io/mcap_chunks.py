@@ -232,12 +232,19 @@ class _Scan:
         return f'chunk at offset {self.chunk_at}, byte {pos} of its records'
 
     def corrupt(self, reason: str, pos: int | None = None) -> CorruptMcap:
-        return CorruptMcap(self.path, reason, '' if pos is None else self.where(pos),
-                           self.chunk_at if self.chunk_at is not None else pos)
+        """The error for damage at pos (None: the chunk being read, or the whole file)."""
+        return CorruptMcap(self.path, reason, *self.place(pos))
 
     def unsupported(self, reason: str, pos: int | None = None) -> UnsupportedMcap:
-        return UnsupportedMcap(self.path, reason, '' if pos is None else self.where(pos),
-                               self.chunk_at if self.chunk_at is not None else pos)
+        return UnsupportedMcap(self.path, reason, *self.place(pos))
+
+    def place(self, pos: int | None) -> tuple[str, int | None]:
+        """Describe pos, and the offset of the top-level record it lies in."""
+        if self.chunk_at is not None:
+            if pos is None:
+                return f'chunk at offset {self.chunk_at}', self.chunk_at
+            return self.where(pos), self.chunk_at
+        return ('', None) if pos is None else (self.where(pos), pos)
 
     # -- the ends of the file -----------------------------------------------------------
 
@@ -341,62 +348,64 @@ class _Scan:
 
     def chunk(self, buf: bytes | memoryview, at: int, end: int) -> None:
         """Read the Chunk record at offset `at` (ending at `end`) of the file."""
-        body = at + _RECORD_HEAD_SIZE
-        if body + _CHUNK_HEAD.size > end:
-            raise self.corrupt('Chunk record too short', at)
-        start_time, end_time, uncompressed_size, crc = _CHUNK_HEAD.unpack_from(buf, body)
-        compression, pos = self.string(buf, body + _CHUNK_HEAD.size, end)
-        if pos + 8 > end:
-            raise self.corrupt('a chunk\'s records length runs past the chunk', at)
-        size = _U64.unpack_from(buf, pos)[0]
-        start = pos + 8
-        if start + size > end:
-            raise self.corrupt('a chunk\'s records run past the chunk', at)
-        where = f'chunk at offset {at}'
-        if compression == '':
-            if size != uncompressed_size:
-                raise self.corrupt(f'an uncompressed chunk holds {size} bytes, its header '
-                                   f'says {uncompressed_size}', at)
-            records: bytes | memoryview = memoryview(buf)[start:start + size]
-        else:
-            limit = min(_MAX_CHUNK_BYTES, max(_MIN_ALLOWANCE, _MAX_RATIO * size))
-            if uncompressed_size > limit:
-                raise self.corrupt(f'the chunk declares {uncompressed_size} uncompressed '
-                                   f'bytes for {size} compressed (at most {limit} accepted)',
-                                   at)
-            data = memoryview(buf)[start:start + size]
-            if compression == 'zstd':
-                records = self.unzstd(data, uncompressed_size, at)
-            elif compression == 'lz4':
-                records = self.unlz4(data, uncompressed_size, at)
-            else:
-                raise self.unsupported(f'chunk compression {compression!r} is not supported',
-                                       at)
-            if len(records) != uncompressed_size:
-                raise self.corrupt(f'the chunk holds {len(records)} bytes, its header says '
-                                   f'{uncompressed_size}', at)
-        self.compressions.add(compression)
-        if crc and not self.data_crc:
-            self.crcs.check(records, crc, where, at)
         self.chunk_at = at
-        # (0, 0) is what the spec asks of a chunk without messages; some writers leave it
-        # so for every chunk, which then gives no range to check against.
-        self.chunk_times = (start_time, end_time) if start_time or end_time else None
         try:
+            records = self.chunk_records(buf, at, end)
             view = memoryview(records)
             self.records(view, 0, len(view), top_level=False)
         finally:
             self.chunk_at = None
             self.chunk_times = None
 
-    def unzstd(self, data: memoryview, expected: int, at: int) -> bytes:
+    def chunk_records(self, buf: bytes | memoryview, at: int, end: int) -> bytes | memoryview:
+        """Check a Chunk record's header, queue its CRC and return its records, decompressed."""
+        body = at + _RECORD_HEAD_SIZE
+        if body + _CHUNK_HEAD.size > end:
+            raise self.corrupt('Chunk record too short')
+        start_time, end_time, uncompressed_size, crc = _CHUNK_HEAD.unpack_from(buf, body)
+        compression, pos = self.string(buf, body + _CHUNK_HEAD.size, end)
+        if pos + 8 > end:
+            raise self.corrupt('a chunk\'s records length runs past the chunk')
+        size = _U64.unpack_from(buf, pos)[0]
+        start = pos + 8
+        if start + size > end:
+            raise self.corrupt('a chunk\'s records run past the chunk')
+        if compression == '':
+            if size != uncompressed_size:
+                raise self.corrupt(f'an uncompressed chunk holds {size} bytes, its header '
+                                   f'says {uncompressed_size}')
+            records: bytes | memoryview = memoryview(buf)[start:start + size]
+        else:
+            limit = min(_MAX_CHUNK_BYTES, max(_MIN_ALLOWANCE, _MAX_RATIO * size))
+            if uncompressed_size > limit:
+                raise self.corrupt(f'the chunk declares {uncompressed_size} uncompressed '
+                                   f'bytes for {size} compressed (at most {limit} accepted)')
+            data = memoryview(buf)[start:start + size]
+            if compression == 'zstd':
+                records = self.unzstd(data, uncompressed_size)
+            elif compression == 'lz4':
+                records = self.unlz4(data, uncompressed_size)
+            else:
+                raise self.unsupported(f'chunk compression {compression!r} is not supported')
+            if len(records) != uncompressed_size:
+                raise self.corrupt(f'the chunk holds {len(records)} bytes, its header says '
+                                   f'{uncompressed_size}')
+        self.compressions.add(compression)
+        if crc and not self.data_crc:
+            self.crcs.check(records, crc, f'chunk at offset {at}', at)
+        # (0, 0) is what the spec asks of a chunk without messages; some writers leave it
+        # so for every chunk, which then gives no range to check against.
+        self.chunk_times = (start_time, end_time) if start_time or end_time else None
+        return records
+
+    def unzstd(self, data: memoryview, expected: int) -> bytes:
         """Decompress a zstd chunk (one or more frames) into at most `expected` bytes."""
         if not data:
             return b''
         try:
             zstd = _zstd_module()
         except ImportError as error:
-            raise self.unsupported(f'zstd chunks need backports.zstd ({error})', at) from None
+            raise self.unsupported(f'zstd chunks need backports.zstd ({error})') from None
         parts: list[bytes] = []
         produced = 0
         rest: bytes | memoryview = data
@@ -409,32 +418,32 @@ class _Scan:
                 parts.append(part)
                 if produced > expected:
                     raise self.corrupt(f'the zstd data holds more than the {expected} bytes '
-                                       'the chunk declares', at)
+                                       'the chunk declares')
                 if not decompressor.eof:
-                    raise self.corrupt('the zstd data ends inside a frame', at)
+                    raise self.corrupt('the zstd data ends inside a frame')
                 rest = decompressor.unused_data
         except zstd.ZstdError as error:
-            raise self.corrupt(f'bad zstd chunk ({error})', at) from None
+            raise self.corrupt(f'bad zstd chunk ({error})') from None
         return parts[0] if len(parts) == 1 else b''.join(parts)
 
-    def unlz4(self, data: memoryview, expected: int, at: int) -> bytes:
+    def unlz4(self, data: memoryview, expected: int) -> bytes:
         """Decompress an lz4-frame chunk into at most `expected` bytes."""
         if not data:
             return b''
         try:
             import lz4.frame
         except ImportError as error:
-            raise self.unsupported(f'lz4 chunks need the lz4 package ({error})', at) from None
+            raise self.unsupported(f'lz4 chunks need the lz4 package ({error})') from None
         decompressor = lz4.frame.LZ4FrameDecompressor()
         try:
             records = decompressor.decompress(data, max_length=expected + 1)
         except RuntimeError as error:
-            raise self.corrupt(f'bad lz4 chunk ({error})', at) from None
+            raise self.corrupt(f'bad lz4 chunk ({error})') from None
         if len(records) > expected:
             raise self.corrupt(f'the lz4 data holds more than the {expected} bytes the chunk '
-                               'declares', at)
+                               'declares')
         if not decompressor.eof:
-            raise self.corrupt('the lz4 data ends inside a frame', at)
+            raise self.corrupt('the lz4 data ends inside a frame')
         return bytes(records)
 
     # -- the walk ---------------------------------------------------------------------

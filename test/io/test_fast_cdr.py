@@ -17,7 +17,7 @@ from gyro_ekf.io import bag_reader
 from gyro_ekf.io import messages as msgs
 from gyro_ekf.io.bag_reader import read_bag
 from gyro_ekf.io.bag_writer import write_trip_bag
-from gyro_ekf.io.batch_write import write_rows
+from gyro_ekf.io.batch_write import enable_chunk_crcs, write_rows
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.fast_cdr import CdrDecodeError, CdrTemplate, decode_columns, LAYOUTS
 
@@ -284,8 +284,9 @@ def _payloads(rng: np.random.Generator, m: int, sizes: list[int]) -> list[np.nda
     return [rng.integers(0, 256, (m, size), dtype=np.uint8) for size in sizes]
 
 
+@pytest.mark.parametrize('crcs', [False, True], ids=['plain', 'crcs'])
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
-def test_write_rows_is_byte_identical_to_writer_write(tmp_path, storage):
+def test_write_rows_is_byte_identical_to_writer_write(tmp_path, storage, crcs):
     # Sizes and counts that close chunks mid-row and carry a pending chunk across calls.
     rng = np.random.default_rng(7)
     sizes = [364, 724, 60]
@@ -295,6 +296,8 @@ def test_write_rows_is_byte_identical_to_writer_write(tmp_path, storage):
     for name, batched in (('one', False), ('batch', True)):
         (tmp_path / name).mkdir()
         with Writer(tmp_path / name / 'bag', version=9, storage_plugin=plugin) as writer:
+            if crcs:
+                assert enable_chunk_crcs(writer) == (storage == 'mcap')
             connections = [writer.add_connection(f'/t{j}', topics.VECTOR3_STAMPED_TYPE,
                                                  typestore=STORE) for j in range(len(sizes))]
             for stamps, payloads in blocks:
@@ -308,6 +311,10 @@ def test_write_rows_is_byte_identical_to_writer_write(tmp_path, storage):
     assert (one / 'metadata.yaml').read_text() == (batch / 'metadata.yaml').read_text()
     if storage == 'mcap':
         assert (one / 'bag.mcap').read_bytes() == (batch / 'bag.mcap').read_bytes()
+        data_end = (one / 'bag.mcap').read_bytes().rfind(b'\x0f\x04' + bytes(7))
+        assert data_end > 0
+        data_crc = (one / 'bag.mcap').read_bytes()[data_end + 9:data_end + 13]
+        assert (data_crc != bytes(4)) == crcs
     with Reader(one) as a, Reader(batch) as b:
         assert [(c.topic, t, bytes(d)) for c, t, d in a.messages()] == [
             (c.topic, t, bytes(d)) for c, t, d in b.messages()]
