@@ -13,6 +13,7 @@ written.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 import heapq
 import os
 from pathlib import Path
@@ -191,7 +192,7 @@ def _write(staged: Path, found: dict[str, mcap_chunks.TopicMessages],
                 connections.append(writer.add_connection(
                     topic, channel.msgtype, typestore=msgs.TYPESTORE,
                     offered_qos_profiles=get_qos(channel.metadata)))
-            streams = [((int(t), order, k) for k, t in enumerate(found[topic].log_time_ns))
+            streams = [_keyed(found[topic].log_time_ns.tolist(), order)
                        for order, topic in enumerate(topics)]
             count = 0
             for stamp, order, k in heapq.merge(*streams):
@@ -201,3 +202,8 @@ def _write(staged: Path, found: dict[str, mcap_chunks.TopicMessages],
         raise BagError(f'{staged.parent.parent}: cannot write the reindexed bag: {err}'
                        ) from None
     return count
+
+
+def _keyed(stamps: list[int], order: int) -> Iterator[tuple[int, int, int]]:
+    """(stamp, topic order, index) of a topic's messages, for heapq.merge."""
+    return ((stamp, order, k) for k, stamp in enumerate(stamps))
