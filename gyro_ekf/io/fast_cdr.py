@@ -132,7 +132,12 @@ def _align(offset: NDArray[np.int64], size: int) -> NDArray[np.int64]:
 
 
 def _read_u32(block: NDArray[np.uint8], column: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Read a little-endian uint32 per row at per-row byte columns (all in bounds)."""
+    """Read a little-endian uint32 per row at per-row byte columns (all in bounds).
+
+    Rows shorter than 4 bytes are all malformed (the caller marks them); they read 0.
+    """
+    if block.shape[1] < 4:
+        return np.zeros(block.shape[0], dtype=np.int64)
     picked = block[np.arange(block.shape[0])[:, None], column[:, None] + np.arange(4)]
     return np.ascontiguousarray(picked).view('<u4')[:, 0].astype(np.int64)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import struct
 from pathlib import Path
 from typing import Any
 
@@ -356,3 +357,63 @@ def test_a_bag_the_chunk_reader_refuses_midway_is_read_by_rosbags(tmp_path, monk
     bag = tmp_path / 'synthetic'
     write_trip_bag(make_trip(), bag)
     assert_fast_read_is_rosbags_read(bag)
+
+
+def _sample_payloads() -> dict[str, bytes]:
+    trip = make_trip()
+    return {
+        topics.IMU_TYPE: msgs.serialize(msgs.imu_message(10**18, np.ones(3), np.zeros(9),
+                                                         np.ones(3))),
+        topics.ODOMETRY_TYPE: msgs.serialize(msgs.speed_message(10**18, 1.0, np.zeros(36))),
+        topics.LASER_SCAN_TYPE: msgs.serialize(msgs.scan_message(10**18, trip.scans[0], 0)),
+    }
+
+
+_NUMERIC = {topics.IMU_TYPE: ('angular_velocity',), topics.ODOMETRY_TYPE: ('twist.twist.linear',),
+            topics.LASER_SCAN_TYPE: ('ranges', 'intensities', 'angle_min')}
+
+
+@pytest.mark.parametrize('msgtype', sorted(_NUMERIC))
+def test_every_truncation_of_a_payload_is_a_clean_error(msgtype):
+    data = _sample_payloads()[msgtype]
+    for length in range(len(data)):
+        with pytest.raises(CdrDecodeError) as raised:
+            decode_columns([data, data[:length]], msgtype, _NUMERIC[msgtype], STORE)
+        assert raised.value.index == 1
+
+
+def test_a_huge_sequence_length_is_a_clean_error():
+    data = bytearray(_sample_payloads()[topics.LASER_SCAN_TYPE])
+    scan = decode_columns([bytes(data)], topics.LASER_SCAN_TYPE, ('ranges',), STORE)
+    beams = scan.values['ranges'].shape[1]
+    ranges_at = bytes(data).find(struct.pack('<I', beams))
+    for count in (beams + 1, 2**31 - 1, 2**32 - 1):
+        data[ranges_at:ranges_at + 4] = struct.pack('<I', count)
+        with pytest.raises(CdrDecodeError):
+            decode_columns([bytes(data)], topics.LASER_SCAN_TYPE, ('ranges',), STORE)
+
+
+def test_mutated_payloads_decode_or_fail_cleanly():
+    # Seeded: cuts, bit flips, 0x7fffffff words and big-endian garbage (the rosbags path).
+    rng = np.random.default_rng(11)
+    outcomes = {'decoded': 0, 'refused': 0}
+    for msgtype, data in _sample_payloads().items():
+        for _ in range(150):
+            mutated = bytearray(data)
+            at = int(rng.integers(len(mutated)))
+            kind = int(rng.integers(4))
+            if kind == 0:
+                del mutated[at:]
+            elif kind == 1:
+                mutated[at] ^= 1 << int(rng.integers(8))
+            elif kind == 2:
+                mutated[at:at + 4] = b'\xff\xff\xff\x7f'
+            else:
+                mutated[0:2] = b'\x00\x00'
+                mutated[at] = int(rng.integers(256))
+            try:
+                decode_columns([data, bytes(mutated)], msgtype, _NUMERIC[msgtype], STORE)
+                outcomes['decoded'] += 1
+            except CdrDecodeError:
+                outcomes['refused'] += 1
+    assert outcomes['refused'] > 100 and outcomes['decoded'] > 100
