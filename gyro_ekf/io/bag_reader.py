@@ -218,7 +218,7 @@ def iter_bag_messages(path: Path | str, topic_names: Iterable[str] | None = None
     reader = _open(path)
     try:
         connections = reader.connections
-        _check_types(path, connections, read_sidecar(path))
+        _check_types(path, connections, None)
         if topic_names is not None:
             wanted = {topics.bag_topic(t) for t in topic_names}
             present = {c.topic for c in connections}
