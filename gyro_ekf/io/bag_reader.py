@@ -300,14 +300,14 @@ def _topics(path: Path, reader: Reader, params: BagParams | None
 
 
 def _time_span(reader: Reader) -> tuple[int, int] | None:
-    """The bag's stated [start, end) in ns (from the MCAP statistics or metadata), if any."""
+    """Return the bag's stated [start, end) in ns (MCAP statistics or metadata), if any."""
     if not reader.message_count:
         return None
     return int(reader.start_time), int(reader.end_time)
 
 
 def _every_time(path: Path) -> tuple[int, int]:
-    """start and stop for reader.messages that let every message through.
+    """Return the start and stop for reader.messages that let every message through.
 
     By default rosbags yields only the messages of an MCAP chunk inside the chunk's own time
     range, so a damaged log time would silently drop its message; asked for every time, it

@@ -232,7 +232,7 @@ class _Scan:
         return f'chunk at offset {self.chunk_at}, byte {pos} of its records'
 
     def corrupt(self, reason: str, pos: int | None = None) -> CorruptMcap:
-        """The error for damage at pos (None: the chunk being read, or the whole file)."""
+        """Return the error for damage at pos (None: the chunk being read, or the file)."""
         return CorruptMcap(self.path, reason, *self.place(pos))
 
     def unsupported(self, reason: str, pos: int | None = None) -> UnsupportedMcap:

@@ -95,8 +95,10 @@ def needs_reindex(path: Path | str) -> str | None:
 
 
 def _complete_end(mcap: Path, data: bytes) -> tuple[int, bool]:
-    """Offset where the complete top-level records of the data section end, and whether
-    the walk met DataEnd or Footer (the data section is whole)."""
+    """Return where the complete top-level records end, and whether DataEnd or Footer came.
+
+    Whether they came says the data section is whole.
+    """
     if data[:len(mcap_chunks.MAGIC)] != mcap_chunks.MAGIC:
         raise BagError(f'{mcap}: not an MCAP file (bad leading magic)')
     pos = len(mcap_chunks.MAGIC)
