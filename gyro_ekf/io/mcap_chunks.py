@@ -363,7 +363,10 @@ class _Scan:
         if body + _CHUNK_HEAD.size > end:
             raise self.corrupt('Chunk record too short')
         start_time, end_time, uncompressed_size, crc = _CHUNK_HEAD.unpack_from(buf, body)
-        compression, pos = self.string(buf, body + _CHUNK_HEAD.size, end)
+        try:
+            compression, pos = self.string(buf, body + _CHUNK_HEAD.size, end)
+        except CorruptMcap as error:
+            raise self.corrupt(f'its compression name: {error.reason}') from None
         if pos + 8 > end:
             raise self.corrupt('a chunk\'s records length runs past the chunk')
         size = _U64.unpack_from(buf, pos)[0]
