@@ -35,10 +35,10 @@ import yaml
 from rosbags.rosbag2 import Reader
 
 from gyro_ekf import topics
-from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.core.types import (
     GroundTruth, ImuSeries, LandmarkMap, LidarMount, NoiseFigures, ScanSeries, SpeedSeries,
     Trip)
+from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.io import fast_cdr, mcap_chunks, messages as msgs
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.sidecar import BagParams, read_sidecar, sidecar_path

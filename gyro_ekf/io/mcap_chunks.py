@@ -739,6 +739,7 @@ def _scan_file(scan: _Scan, finish: Callable[[], _T]) -> _T:
     # over them (triggered every few hundred allocations) would add about a third to the time.
     collecting = gc.isenabled()
     gc.disable()
+    offsets = [len(MAGIC)]
     try:
         # The trailing magic is left out so that no record may run into it.
         offsets = scan.walk(data, len(MAGIC), size - len(MAGIC), top_level=True)
@@ -748,12 +749,34 @@ def _scan_file(scan: _Scan, finish: Callable[[], _T]) -> _T:
     except Exception:
         mismatch = scan.crcs.failure(path)
         if mismatch is not None:
-            raise mismatch from None
+            raise _located(mismatch, data, offsets[-1]) from None
         raise
     finally:
         if collecting:
             gc.enable()
     mismatch = scan.crcs.failure(path)
     if mismatch is not None:
-        raise mismatch
+        raise _located(mismatch, data, offsets[-1])
     return result
+
+
+def _located(mismatch: CorruptMcap, data: memoryview, data_end: int) -> CorruptMcap:
+    """Name the damaged chunk behind a data-section CRC mismatch, where its own CRC can.
+
+    The data-section CRC spares checking each chunk; once it fails, the chunks' CRCs say
+    which one holds the damage.
+    """
+    if mismatch.offset != 0:
+        return mismatch
+    scan = _Scan(mismatch.path, ())
+    try:
+        offsets = scan.walk(data, len(MAGIC), data_end, top_level=False)
+        scan.records(data, len(MAGIC), data_end, top_level=True, offsets=offsets)
+    except McapError as error:
+        found = scan.crcs.failure(mismatch.path) or error
+    else:
+        found = scan.crcs.failure(mismatch.path)
+    if found is None:
+        return mismatch
+    return CorruptMcap(found.path, f'{found.reason}; the data-section CRC fails too',
+                       found.where, found.offset)

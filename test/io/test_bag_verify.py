@@ -110,8 +110,11 @@ def test_crcs_can_be_enabled_before_open_and_sqlite3_is_left_alone(tmp_path):
 def test_a_flipped_bit_in_an_imu_value_is_a_crc_error(crc_bag):
     trip = big_trip()
     mcap = mcap_of(crc_bag)
-    flip(mcap, imu_value_offset(mcap.read_bytes(), trip) + 7, bit=6)
-    with pytest.raises(BagError, match=r'crc\.mcap: data section .*CRC mismatch'):
+    value = imu_value_offset(mcap.read_bytes(), trip)
+    chunk = next(c for c in chunks(mcap.read_bytes()) if c.offset < value < c.end)
+    flip(mcap, value + 7, bit=6)
+    with pytest.raises(BagError, match=rf'crc\.mcap: chunk at offset {chunk.offset}: CRC '
+                                       'mismatch .*; the data-section CRC fails too'):
         read_bag(crc_bag)
 
 

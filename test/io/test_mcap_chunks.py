@@ -383,6 +383,12 @@ def test_crc_mismatches_name_the_place(tmp_path):
     data = bytearray(path.read_bytes())
     data[at + 60] ^= 1
     path.write_bytes(bytes(data))
+    with pytest.raises(CorruptMcap, match=f'chunk at offset {at}: CRC mismatch .*; the '
+                                          'data-section CRC fails too'):
+        read_topics(path, ['/imu'])
+    data[at + 60] ^= 1
+    data[at - 3] ^= 1       # in the Header record, which only the data-section CRC covers
+    path.write_bytes(bytes(data))
     with pytest.raises(CorruptMcap, match=r'data section \(bytes 0 to \d+\): CRC mismatch'):
         read_topics(path, ['/imu'])
     path = sealed_file(tmp_path / 'summary.mcap', good)
