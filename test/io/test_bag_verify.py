@@ -56,9 +56,16 @@ def crc_bag(tmp_path, crc_writer):
 
 
 @pytest.fixture
-def plain_bag(tmp_path):
-    """The same bag as rosbags writes it today: every CRC 0."""
-    return write_trip_bag(big_trip(), tmp_path / 'plain')
+def plain_bag(tmp_path, monkeypatch):
+    """The same bag as rosbags writes it: every CRC 0 (also once the writers add CRCs)."""
+    from gyro_ekf.io import batch_write
+
+    with monkeypatch.context() as patch:
+        patch.setattr(batch_write, '_add_crcs', lambda storage: False)
+        bag = write_trip_bag(big_trip(), tmp_path / 'plain')
+    chunk_crcs, data_crc, summary_crc = crcs(mcap_of(bag).read_bytes())
+    assert not any(chunk_crcs) and not data_crc and not summary_crc
+    return bag
 
 
 # -- the CRCs the project writes -------------------------------------------------------
