@@ -353,7 +353,7 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     from rosbags.rosbag2.errors import WriterError
 
     from gyro_ekf.io import messages as msgs
-    from gyro_ekf.io.batch_write import write_rows
+    from gyro_ekf.io.batch_write import enable_chunk_crcs, write_rows
 
     path = Path(path)
     if path.exists():
@@ -377,6 +377,7 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     staged = aside / path.name
     try:
         with Writer(staged, version=_BAG_VERSION, storage_plugin=plugins[storage]) as writer:
+            enable_chunk_crcs(writer)
             connections = [writer.add_connection(topics.bag_topic(topic), template.msgtype,
                                                  typestore=msgs.TYPESTORE)
                            for topic, template in encoder.templates()]

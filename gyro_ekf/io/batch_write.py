@@ -160,19 +160,27 @@ _DATA_END_SIZE = 9 + 4
 _MAGIC_SIZE = 8
 
 
-def enable_chunk_crcs(writer: Any) -> bool:
+def enable_chunk_crcs(writer: Any, sections: bool = True) -> bool:
     """Make the MCAP file of a rosbags Writer carry chunk, data-section and summary CRCs.
 
     Call it once, right after creating the Writer (before or after `open()`, before the
     first message). Sqlite3 bags have no CRCs; for them (and for a storage without the
     attributes of rosbags 0.11.9's McapWriter) nothing changes.
 
+    Args:
+        writer: the rosbags Writer.
+        sections: also the data-section and summary CRCs. A bag whose summary is written
+            and then overwritten while recording (`io.recording`) cannot have them (the
+            data-section CRC would cover a summary that is no longer there); its chunks
+            still carry their own CRCs, which the reader checks.
+
     Returns:
         True when the bag will carry CRCs.
     """
+    add = _add_crcs if sections else _add_chunk_crcs_only
     storage = getattr(writer, 'storage', None)
     if storage is not None:
-        return _add_crcs(storage)
+        return add(storage)
     if getattr(writer, 'storage_plugin', None) is None or (
             writer.storage_plugin.name.lower() != 'mcap'):
         return False
@@ -180,9 +188,30 @@ def enable_chunk_crcs(writer: Any) -> bool:
 
     def open_with_crcs() -> None:
         opened()
-        _add_crcs(writer.storage)
+        add(writer.storage)
     # An instance attribute: `with writer:` and writer.open() both call it.
     writer.open = open_with_crcs
+    return True
+
+
+def _add_chunk_crcs_only(storage: Any) -> bool:
+    if (type(storage).__name__ != 'McapWriter'
+            or not all(hasattr(storage, name) for name in ('bio', 'chunk', 'close_chunk'))):
+        return False
+    close_chunk = storage.close_chunk
+
+    def close_chunk_with_crc() -> None:
+        with storage.chunk.bio.getbuffer() as records:
+            crc = zlib.crc32(records)
+        stream = storage.bio
+        start = stream.tell()
+        close_chunk()
+        end = stream.tell()
+        stream.seek(start + _CHUNK_CRC_AT)
+        stream.write(struct.pack('<I', crc))
+        stream.seek(end)
+
+    storage.close_chunk = close_chunk_with_crc
     return True
 
 
