@@ -7,6 +7,8 @@ Latency, loss and CPU figures are for `make bench` (results/bench.json), not for
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -103,3 +105,18 @@ def test_observations_reach_the_filter_in_both_release_modes(ros_env):
         assert run['node']['associated'] > 0
     assert 'replayed_observations' not in strict['node']
     assert 'replayed_observations' in lagged['node']
+
+
+def test_the_bench_claims_a_domain_of_its_own_and_gives_it_back(monkeypatch):
+    from gyro_ekf.analysis.live_bench import ros_environment
+    from gyro_ekf.ros_env import try_claim
+
+    monkeypatch.setenv('ROS_DOMAIN_ID', '42')
+    with ros_environment() as env:
+        domain = int(env['ROS_DOMAIN_ID'])
+        assert domain != 42 and env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+        assert try_claim(domain) is None  # nobody else gets it meanwhile
+    again = try_claim(domain)
+    assert again is not None
+    again.release()
+    assert os.environ['ROS_DOMAIN_ID'] == '42'  # the caller's environment is restored
