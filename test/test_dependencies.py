@@ -5,7 +5,7 @@ installed distributions that provide them (importlib.metadata.packages_distribut
 PyPI modules must be named in setup.py's install_requires, and have a rosdep key in
 package.xml; ROS modules (rclpy, message packages) come from the 'ros' extra without a ROS
 install and are exec_depends in package.xml. A dependency reached only through another one
-(lz4 through rosbags, zstandard through mcap) does not count: it can go away with an update.
+(for example a module that rosbags happens to bring) does not count: it can go away with an update.
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from packaging.requirements import Requirement
-import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGE = REPO / 'gyro_ekf'
@@ -120,7 +119,7 @@ def test_every_third_party_import_is_a_declared_dependency():
     extras = {name: _names(reqs) for name, reqs in keywords['extras_require'].items()}
     ros = _closure(extras['ros'])
     providers = metadata.packages_distributions()
-    problems, known = [], []
+    problems = []
     for module, sites in sorted(third_party_imports().items()):
         where = ', '.join(site for site, _ in sites[:3])
         dists = {_normalized(d) for d in providers.get(module, [])}
@@ -135,16 +134,10 @@ def test_every_third_party_import_is_a_declared_dependency():
             if not all(lazy for _, lazy in sites):
                 problems.append(f'{module} ({where}): only in an optional extra, yet imported '
                                 'at module level')
-        elif module == 'zstandard' and all('mcap_chunks.py' in s for s, _ in sites):
-            known.append(f'{module} ({where}): declared nowhere')
         else:
             problems.append(f'{module} ({where}): provided by {sorted(dists)}, which '
                             'install_requires does not name')
     assert not problems, '\n'.join(problems)
-    if known:
-        pytest.xfail('io/mcap_chunks.py imports zstandard, which only the test extra brings '
-                     '(through mcap); its move to the declared backports.zstd is on branch '
-                     'h/bags: ' + '; '.join(known))
 
 
 def test_package_xml_declares_every_imported_dependency():
