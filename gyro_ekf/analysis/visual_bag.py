@@ -146,6 +146,91 @@ class _PathTemplate:
         return head.tobytes() + first.tobytes() + rest.tobytes()
 
 
+class _MarkersTemplate:
+    """CDR bytes of msgs.ekf_markers_message with k associations, patched many rows at once.
+
+    The layout is fixed once k is: rosbags serialises one probe message per k with
+    distinct probe numbers, and every place a probe's bytes occur is overwritten by that
+    row's value (x and y stand in both the ellipse and the arrow, a detection in both its
+    sphere and its line). The result is the bytes of the builder's own message.
+    """
+
+    _STAMP = 1_234_567_891 * NS_PER_S + 987_654_321
+    _X, _Y, _YAW = 1111.0625, 2222.1875, 0.3125
+    _COVARIANCE = np.array([[0.5, 0.125], [0.125, 0.25]])
+
+    def __init__(self) -> None:
+        self._cache: dict[int, tuple[NDArray[np.uint8], dict[str, list[int]]]] = {}
+
+    def _layout(self, k: int) -> tuple[NDArray[np.uint8], dict[str, list[int]]]:
+        if k in self._cache:
+            return self._cache[k]
+        detected = np.column_stack([3000.0625 + np.arange(k), 4000.0625 + np.arange(k)])
+        landmark = np.column_stack([5000.0625 + np.arange(k), 6000.0625 + np.arange(k)])
+        data = msgs.serialize(msgs.ekf_markers_message(
+            self._STAMP, np.array([self._X, self._Y, self._YAW]), self._COVARIANCE,
+            detected, landmark))
+        values, _ = self._values(np.array([self._STAMP]), np.array([[self._X, self._Y,
+                                                                     self._YAW]]),
+                                 self._COVARIANCE[None])
+        offsets: dict[str, list[int]] = {}
+        for name, column in values.items():
+            offsets[name] = _find_all(data, column[0].tobytes())
+        for i in range(k):
+            for name, value in (('dx', detected[i, 0]), ('dy', detected[i, 1]),
+                                ('lx', landmark[i, 0]), ('ly', landmark[i, 1])):
+                offsets[f'{name}{i}'] = _find_all(data, np.float64(value).tobytes())
+        expected = {'sec': 5, 'nanosec': 5, 'x': 2, 'y': 2}
+        if any(len(found) != expected.get(name, 2 if name[:2] in ('dx', 'dy') else 1)
+               for name, found in offsets.items()):
+            raise OutputError(f'{MARKER_ARRAY_TYPE}: unexpected CDR layout of rosbags')
+        self._cache[k] = (np.frombuffer(data, dtype=np.uint8), offsets)
+        return self._cache[k]
+
+    @staticmethod
+    def _values(stamps_ns: NDArray[np.int64], poses: FloatArray, covariance_xy: FloatArray
+                ) -> tuple[dict[str, NDArray[Any]], None]:
+        """Per row the numbers the builder writes, each an array of its wire dtype."""
+        sec, nanosec = _split_ns(stamps_ns)
+        ellipses = [msgs.covariance_ellipse(c) for c in covariance_xy]
+        major, minor, direction = (np.array(v, dtype=np.float64).reshape(-1)
+                                   for v in zip(*ellipses)) if ellipses else \
+            (np.zeros(0),) * 3
+        heading = _pose_columns(poses)
+        turned = _pose_columns(np.column_stack([poses[:, :2], direction]))
+        return {'sec': sec.astype('<i4'), 'nanosec': nanosec.astype('<u4'),
+                'x': heading[:, 0], 'y': heading[:, 1],
+                'qz': heading[:, 5], 'qw': heading[:, 6],
+                'ez': turned[:, 5], 'ew': turned[:, 6],
+                'major': major, 'minor': minor}, None
+
+    def encode(self, stamps_ns: NDArray[np.int64], poses: FloatArray,
+               covariance_xy: FloatArray, detected: FloatArray, landmark: FloatArray
+               ) -> NDArray[np.uint8]:
+        """Rows with k associations each: detected, landmark shape (n, k, 2); -> (n, size)."""
+        k = detected.shape[1]
+        template, offsets = self._layout(k)
+        rows = np.tile(template, (len(stamps_ns), 1))
+        values, _ = self._values(stamps_ns, poses, covariance_xy)
+        for i in range(k):
+            values.update({f'dx{i}': detected[:, i, 0], f'dy{i}': detected[:, i, 1],
+                           f'lx{i}': landmark[:, i, 0], f'ly{i}': landmark[:, i, 1]})
+        for name, column in values.items():
+            column = np.asarray(column)
+            width = column.dtype.itemsize
+            for offset in offsets[name]:
+                rows[:, offset:offset + width].view(column.dtype)[:, 0] = column
+        return rows
+
+
+def _find_all(data: bytes, pattern: bytes) -> list[int]:
+    found, start = [], data.find(pattern)
+    while start >= 0:
+        found.append(start)
+        start = data.find(pattern, start + 1)
+    return found
+
+
 def _first_of_each_period(stamp_s: FloatArray, period_s: float) -> NDArray[np.int64]:
     """Rows that open a new period of the stamps, and the last row; sorted."""
     stamp_s = np.asarray(stamp_s, dtype=np.float64)
@@ -251,22 +336,34 @@ class VisualTopics:
 
     def _markers(self) -> Iterator[SparseMessage]:
         rows = _first_of_each_period(self._relative_s(), MARKERS_PERIOD_S)
-        update_ns = landmark_xy = None
+        begin = np.zeros(len(rows), dtype=np.int64)
+        end = np.zeros(len(rows), dtype=np.int64)
+        landmark_xy = np.zeros((0, 2))
         if self.updates is not None and len(self.updates.stamp_s) and self.trip is not None \
                 and self.trip.landmarks is not None:
             update_ns = self._to_ns(self.updates.stamp_s)
             landmark_xy = np.asarray(self.trip.landmarks.xy_m)[self.updates.landmark]
-        previous = None
-        for row in rows.tolist():
-            stamp = int(self.stamps_ns[row])
-            detected = landmarks = None
-            if update_ns is not None:
-                # The last scan in (previous, stamp] that updated the filter.
-                end = int(np.searchsorted(update_ns, stamp, side='right'))
-                if end and (previous is None or update_ns[end - 1] > previous):
-                    begin = int(np.searchsorted(update_ns, update_ns[end - 1], side='left'))
-                    detected = self.updates.point_map_m[begin:end]
-                    landmarks = landmark_xy[begin:end]
-            previous = stamp
-            yield SparseMessage(stamp, EKF_MARKERS, msgs.serialize(msgs.ekf_markers_message(
-                stamp, self.state[row], self.covariance[row], detected, landmarks)))
+            stamps = self.stamps_ns[rows]
+            # The updates of the last scan in (previous marker, this marker] that had any.
+            end = np.searchsorted(update_ns, stamps, side='right')
+            last_ns = update_ns[np.maximum(end - 1, 0)]
+            previous = np.concatenate([[np.iinfo(np.int64).min], stamps[:-1]])
+            fresh = (end > 0) & (last_ns > previous)
+            begin = np.where(fresh, np.searchsorted(update_ns, last_ns, side='left'), end)
+            end = np.where(fresh, end, begin)
+        template = _MarkersTemplate()
+        counts = end - begin
+        for start in range(0, len(rows), 256):
+            part = slice(start, start + 256)
+            encoded: dict[int, Iterator[NDArray[np.uint8]]] = {}
+            for k in np.unique(counts[part]).tolist():
+                chosen = np.flatnonzero(counts[part] == k) + start
+                picks = begin[chosen, None] + np.arange(k)
+                encoded[k] = iter(template.encode(
+                    self.stamps_ns[rows[chosen]], self.state[rows[chosen], :3],
+                    self.covariance[rows[chosen], :2, :2],
+                    self.updates.point_map_m[picks] if k else np.zeros((len(chosen), 0, 2)),
+                    landmark_xy[picks] if k else np.zeros((len(chosen), 0, 2))))
+            for i in range(start, min(start + 256, len(rows))):
+                yield SparseMessage(int(self.stamps_ns[rows[i]]), EKF_MARKERS,
+                                    next(encoded[int(counts[i])]).tobytes())
