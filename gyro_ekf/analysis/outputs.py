@@ -357,8 +357,8 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     (z = yaw-rate bias, rad/s). Pose covariances are 6x6 row-major over (x, y, z, roll,
     pitch, yaw); z, roll and pitch are not estimated and carry 0. Plus the visual topics
     of analysis.visual_bag (/tf, /tf_static, ekf/path, ekf/markers, landmark_markers): the
-    latched ones first, then per block of rows the dense topics and, after them, the
-    block's sparse messages (log times exact; MCAP readers order by log time).
+    latched ones first, then per block of rows the per-estimate topics, the block's /tf
+    and its other visual messages (log times exact; MCAP readers order by log time).
 
     Args:
         path: the bag folder to create (must not exist).
@@ -412,10 +412,10 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
             connections = [writer.add_connection(topics.bag_topic(topic), template.msgtype,
                                                  typestore=msgs.TYPESTORE)
                            for topic, template in encoder.templates()]
-            connections.append(writer.add_connection(visual_bag.TF, visual_bag.TF_TYPE,
-                                                     typestore=msgs.TYPESTORE))
+            tf = writer.add_connection(visual_bag.TF, visual_bag.TF_TYPE,
+                                       typestore=msgs.TYPESTORE)
             sparse_connections = {
-                visual_bag.TF: connections[-1],
+                visual_bag.TF: tf,
                 **{topic: writer.add_connection(topics.bag_topic(topic), msgtype,
                                                 typestore=msgs.TYPESTORE)
                    for topic, msgtype in ((visual_bag.EKF_PATH, visual_bag.PATH_TYPE),
@@ -432,7 +432,9 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
                 block = slice(start, min(start + _BAG_BLOCK_ROWS, len(stamps_ns)))
                 write_rows(writer, connections, stamps_ns[block], encoder.encode(
                     stamps_ns[block], state[block], P[block], speed_m_s[block],
-                    yaw_rate_rad_s[block]) + [visual.dense_rows(block)])
+                    yaw_rate_rad_s[block]))
+                tf_stamps, tf_rows = visual.tf_rows(block)
+                write_rows(writer, [tf], tf_stamps, [tf_rows])
                 last = block.stop == len(stamps_ns)
                 for message in sparse.until(None if last else int(stamps_ns[block.stop])):
                     writer.write(sparse_connections[message.topic], message.stamp_ns,

@@ -2,10 +2,10 @@
 
 What the estimates bag holds so that Foxglove or RViz shows the run without setup:
 
-- `/tf` tf2_msgs/TFMessage: `map -> base_link` from every estimate (the rate of the IMU, as
-  robot_localization publishes TF with each estimate; about 100 bytes a message, under a
-  tenth of the bag), and `map -> base_link_truth` at each ground-truth sample where the trip
-  has one.
+- `/tf` tf2_msgs/TFMessage: `map -> base_link` from the estimate every TF_PERIOD_S (50 Hz:
+  smooth playback; every IMU step would add a quarter to the bag's messages for nothing a
+  viewer shows), and `map -> base_link_truth` at each ground-truth sample where the trip has
+  one.
 - `/tf_static` (transient local): `base_link -> imu_link` identity and `base_link -> <frame>`
   of each LiDAR's mount.
 - `ekf/path` nav_msgs/Path in `map`: a pose every PATH_SPACING_S, published every
@@ -18,9 +18,9 @@ What the estimates bag holds so that Foxglove or RViz shows the run without setu
   always empty here.
 - `landmark_markers` (transient local): one cylinder per landmark of the map.
 
-The dense /tf is encoded like the other per-estimate topics (one rosbags-serialised template,
-numbers patched per row); /tf and ekf/path have a fixed layout once the number of poses is
-known, so they are patched the same way. Markers are few and go through rosbags.
+Every message is encoded like the other per-estimate topics: one rosbags-serialised template
+per layout (per pose count for ekf/path, per association count for ekf/markers) whose
+numbers are patched per row, giving the bytes rosbags gives for each message.
 """
 
 from __future__ import annotations
@@ -55,6 +55,7 @@ PATH_LENGTH = 600
 PATH_SPACING_S = 0.2
 PATH_PERIOD_S = 1.0
 MARKERS_PERIOD_S = 0.5
+TF_PERIOD_S = 0.02
 
 _POSE_BYTES = 56
 """A geometry_msgs/Pose (or Transform): 7 float64, always 8-aligned, at a message's end."""
@@ -276,6 +277,7 @@ class VisualTopics:
         self.trip = trip
         self.updates = updates
         self.tf = _TfTemplate(topics.MAP_FRAME, topics.BASE_FRAME)
+        self._tf_rows = _first_of_each_period(self._relative_s(), TF_PERIOD_S)
 
     def latched(self) -> list[tuple[str, str, bytes]]:
         """(topic, type, CDR) of the transient-local messages, stamped start_time_ns."""
@@ -295,9 +297,15 @@ class VisualTopics:
                         msgs.serialize(msgs.landmark_markers_message(stamp, landmarks))))
         return out
 
-    def dense_rows(self, block: slice) -> NDArray[np.uint8]:
-        """/tf map -> base_link of the estimate rows of block, shape (m, size)."""
-        return self.tf.rows(self.stamps_ns[block], self.state[block, :3])
+    def tf_rows(self, block: slice) -> tuple[NDArray[np.int64], NDArray[np.uint8]]:
+        """/tf map -> base_link of the estimate rows of block that TF_PERIOD_S keeps.
+
+        Returns:
+            Their stamps, shape (m,) ns, and messages, shape (m, size).
+        """
+        chosen = self._tf_rows[(self._tf_rows >= block.start) & (self._tf_rows < block.stop)]
+        return self.stamps_ns[chosen], self.tf.rows(self.stamps_ns[chosen],
+                                                    self.state[chosen, :3])
 
     def sparse(self) -> Iterator[SparseMessage]:
         """The other messages in time order (truth /tf, ekf/path, ekf/markers)."""
