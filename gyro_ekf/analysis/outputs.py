@@ -348,7 +348,7 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
                         state: FloatArray, covariance: FloatArray, speed_m_s: FloatArray,
                         yaw_rate_rad_s: FloatArray, storage: str = 'mcap', *,
                         trip: Trip | None = None, updates: UpdateLog | None = None,
-                        path_length: int | None = None) -> Path:
+                        path_length: int | None = None, visual: bool = True) -> Path:
     """Write the EKF outputs as the live EKF node publishes them, one set per IMU step.
 
     Topics (frames per REP-105): `/ekf/pose` PoseWithCovarianceStamped in `map`;
@@ -372,6 +372,7 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
         updates: the run's applied landmark updates, or None.
         path_length: most poses an ekf/path message holds (>= 1); None:
             visual_bag.PATH_LENGTH.
+        visual: write the visual topics (False: only the three the live node publishes).
 
     Raises:
         OutputError: the bag folder exists or cannot be written, or path_length < 1.
@@ -400,8 +401,8 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     if len(stamps_ns) and (stamps_ns.min() < 0 or stamps_ns.max() // NS_PER_S > _INT32_MAX):
         raise OutputError(f'{path}: stamps outside builtin_interfaces/Time (int32 seconds)')
     encoder = _EstimateEncoder()
-    visual = VisualTopics(start_time_ns, stamps_ns, state, P, trip, updates,
-                          visual_bag.PATH_LENGTH if path_length is None else path_length)
+    shown = VisualTopics(start_time_ns, stamps_ns, state, P, trip, updates,
+                         visual_bag.PATH_LENGTH if path_length is None else path_length)
     try:
         aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
     except OSError as err:
@@ -412,28 +413,30 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
             connections = [writer.add_connection(topics.bag_topic(topic), template.msgtype,
                                                  typestore=msgs.TYPESTORE)
                            for topic, template in encoder.templates()]
-            tf = writer.add_connection(visual_bag.TF, visual_bag.TF_TYPE,
-                                       typestore=msgs.TYPESTORE)
-            sparse_connections = {
-                visual_bag.TF: tf,
-                **{topic: writer.add_connection(topics.bag_topic(topic), msgtype,
-                                                typestore=msgs.TYPESTORE)
-                   for topic, msgtype in ((visual_bag.EKF_PATH, visual_bag.PATH_TYPE),
-                                          (visual_bag.EKF_MARKERS,
-                                           visual_bag.MARKER_ARRAY_TYPE))}}
-            for topic, msgtype, data in visual.latched():
-                latched = writer.add_connection(topics.bag_topic(topic), msgtype,
-                                                typestore=msgs.TYPESTORE,
-                                                offered_qos_profiles=[LATCHED_QOS])
-                writer.write(latched, int(start_time_ns), data)
-            sparse = _Lookahead(visual.sparse())
+            if visual:
+                tf = writer.add_connection(visual_bag.TF, visual_bag.TF_TYPE,
+                                           typestore=msgs.TYPESTORE)
+                sparse_connections = {visual_bag.TF: tf, **{
+                    topic: writer.add_connection(topics.bag_topic(topic), msgtype,
+                                                 typestore=msgs.TYPESTORE)
+                    for topic, msgtype in ((visual_bag.EKF_PATH, visual_bag.PATH_TYPE),
+                                           (visual_bag.EKF_MARKERS,
+                                            visual_bag.MARKER_ARRAY_TYPE))}}
+                for topic, msgtype, data in shown.latched():
+                    latched = writer.add_connection(topics.bag_topic(topic), msgtype,
+                                                    typestore=msgs.TYPESTORE,
+                                                    offered_qos_profiles=[LATCHED_QOS])
+                    writer.write(latched, int(start_time_ns), data)
+                sparse = _Lookahead(shown.sparse())
             # In blocks, so an hour-long trip never holds all its messages at once.
             for start in range(0, len(stamps_ns), _BAG_BLOCK_ROWS):
                 block = slice(start, min(start + _BAG_BLOCK_ROWS, len(stamps_ns)))
                 write_rows(writer, connections, stamps_ns[block], encoder.encode(
                     stamps_ns[block], state[block], P[block], speed_m_s[block],
                     yaw_rate_rad_s[block]))
-                tf_stamps, tf_rows = visual.tf_rows(block)
+                if not visual:
+                    continue
+                tf_stamps, tf_rows = shown.tf_rows(block)
                 write_rows(writer, [tf], tf_stamps, [tf_rows])
                 last = block.stop == len(stamps_ns)
                 for message in sparse.until(None if last else int(stamps_ns[block.stop])):
