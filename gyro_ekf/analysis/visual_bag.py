@@ -254,7 +254,7 @@ class SparseMessage:
 class VisualTopics:
     """Builds the visual topics of an estimates bag from a run's rows and its trip.
 
-    Args:
+    Constructor args:
         start_time_ns: bag stamp of t = 0.
         stamps_ns: estimate stamps, shape (n,), ns since the epoch.
         state: shape (n, 4); covariance: shape (n, 4, 4).
@@ -269,6 +269,7 @@ class VisualTopics:
     def __init__(self, start_time_ns: int, stamps_ns: NDArray[np.int64], state: FloatArray,
                  covariance: FloatArray, trip: Trip | None = None, updates: Any = None,
                  path_length: int = PATH_LENGTH) -> None:
+        """Keep the rows; see the class for the arguments."""
         self.path_length = check_path_length(path_length)
         self.start_time_ns = int(start_time_ns)
         self.stamps_ns = stamps_ns
@@ -308,7 +309,7 @@ class VisualTopics:
                                                     self.state[chosen, :3])
 
     def sparse(self) -> Iterator[SparseMessage]:
-        """The other messages in time order (truth /tf, ekf/path, ekf/markers)."""
+        """Yield the other messages in time order (truth /tf, ekf/path, ekf/markers)."""
         streams = [self._truth(), self._path(), self._markers()]
         # Few streams, each in time order: a merge keeps the whole run out of memory.
         yield from heapq.merge(*streams, key=lambda m: m.stamp_ns)

@@ -378,8 +378,10 @@ def ekf_markers_message(stamp_ns: int, state: FloatArray, covariance: FloatArray
 
 def landmark_markers_message(stamp_ns: int, landmarks: LandmarkMap,
                              frame_id: str = topics.MAP_FRAME) -> Any:
-    """visualization_msgs/MarkerArray: one cylinder per landmark (namespace 'landmarks',
-    id = index in the map), standing on z = 0."""
+    """visualization_msgs/MarkerArray: one cylinder per landmark, standing on z = 0.
+
+    Namespace 'landmarks', id = the landmark's index in the map.
+    """
     return MarkerArray(markers=[
         marker(stamp_ns, frame_id, 'landmarks', i, MARKER_CYLINDER,
                pose=Pose(position=Point(x=x, y=y, z=LANDMARK_HEIGHT_M / 2.0),
