@@ -259,7 +259,7 @@ class _EstimateEncoder:
     (`fast_cdr.CdrTemplate`), which yields the bytes rosbags gives for that row's message.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, imu_frame: str = topics.IMU_FRAME) -> None:
         from gyro_ekf.io import messages as msgs
         from gyro_ekf.io.fast_cdr import CdrTemplate
 
@@ -278,7 +278,7 @@ class _EstimateEncoder:
             msgs.Odometry(header=map_header, child_frame_id=topics.BASE_FRAME, pose=pose,
                           twist=twist), topics.ODOMETRY_TYPE, store)
         self.bias = CdrTemplate(
-            Vector3Stamped(header=msgs.header(0, topics.IMU_FRAME),
+            Vector3Stamped(header=msgs.header(0, imu_frame),
                            vector=msgs.Vector3(x=0.0, y=0.0, z=0.0)),
             topics.VECTOR3_STAMPED_TYPE, store)
 
@@ -348,14 +348,16 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
                         state: FloatArray, covariance: FloatArray, speed_m_s: FloatArray,
                         yaw_rate_rad_s: FloatArray, storage: str = 'mcap', *,
                         trip: Trip | None = None, updates: UpdateLog | None = None,
-                        path_length: int | None = None, visual: bool = True) -> Path:
+                        path_length: int | None = None, visual: bool = True,
+                        imu_frame: str = topics.IMU_FRAME) -> Path:
     """Write the EKF outputs as the live EKF node publishes them, one set per IMU step.
 
     Topics (frames per REP-105): `/ekf/pose` PoseWithCovarianceStamped in `map`;
     `/ekf/odometry` Odometry `map` -> `base_link` with the pose covariance and the held
-    speed and bias-corrected yaw rate as twist; `/ekf/bias` Vector3Stamped in `imu_link`
-    (z = yaw-rate bias, rad/s). Pose covariances are 6x6 row-major over (x, y, z, roll,
-    pitch, yaw); z, roll and pitch are not estimated and carry 0. Plus the visual topics
+    speed and bias-corrected yaw rate as twist; `/ekf/bias` Vector3Stamped in the IMU's frame
+    (`imu_frame`: the input IMU's frame_id, `imu_link` by default; z = yaw-rate bias,
+    rad/s). Pose covariances are 6x6 row-major over (x, y, z, roll, pitch, yaw); z, roll
+    and pitch are not estimated and carry 0. Plus the visual topics
     of analysis.visual_bag (/tf, /tf_static, ekf/path, ekf/markers, landmark_markers): the
     latched ones first, then per block of rows the per-estimate topics, the block's /tf
     and its other visual messages (log times exact; MCAP readers order by log time).
@@ -373,6 +375,8 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
         path_length: most poses an ekf/path message holds (>= 1); None:
             visual_bag.PATH_LENGTH.
         visual: write the visual topics (False: only the three the live node publishes).
+        imu_frame: frame of /ekf/bias and of the IMU in /tf_static (identity on base_link);
+            '' means `imu_link`.
 
     Raises:
         OutputError: the bag folder exists or cannot be written, or path_length < 1.
@@ -400,9 +404,11 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     yaw_rate_rad_s = np.asarray(yaw_rate_rad_s, dtype=np.float64)
     if len(stamps_ns) and (stamps_ns.min() < 0 or stamps_ns.max() // NS_PER_S > _INT32_MAX):
         raise OutputError(f'{path}: stamps outside builtin_interfaces/Time (int32 seconds)')
-    encoder = _EstimateEncoder()
+    imu_frame = imu_frame or topics.IMU_FRAME
+    encoder = _EstimateEncoder(imu_frame)
     shown = VisualTopics(start_time_ns, stamps_ns, state, P, trip, updates,
-                         visual_bag.PATH_LENGTH if path_length is None else path_length)
+                         visual_bag.PATH_LENGTH if path_length is None else path_length,
+                         imu_frame)
     try:
         aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
     except OSError as err:

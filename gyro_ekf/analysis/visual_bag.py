@@ -6,7 +6,8 @@ What the estimates bag holds so that Foxglove or RViz shows the run without setu
   smooth playback; every IMU step would add a quarter to the bag's messages for nothing a
   viewer shows), and `map -> base_link_truth` at each ground-truth sample where the trip has
   one.
-- `/tf_static` (transient local): `base_link -> imu_link` identity and `base_link -> <frame>`
+- `/tf_static` (transient local): `base_link -> <IMU frame>` identity (the frame of
+  ekf/bias: the input IMU's frame_id, `imu_link` by default) and `base_link -> <frame>`
   of each LiDAR's mount.
 - `ekf/path` nav_msgs/Path in `map`: a pose every PATH_SPACING_S, published every
   PATH_PERIOD_S, the last `path_length` poses (PATH_LENGTH by default); the last message ends
@@ -261,6 +262,7 @@ class VisualTopics:
         trip: the run's inputs (LiDAR mounts, map, ground truth), or None.
         updates: the run's core.events.UpdateLog, or None.
         path_length: most poses in an ekf/path message (>= 1).
+        imu_frame: the IMU's frame (identity on base_link in /tf_static).
 
     Raises:
         OutputError: path_length is not >= 1.
@@ -268,7 +270,7 @@ class VisualTopics:
 
     def __init__(self, start_time_ns: int, stamps_ns: NDArray[np.int64], state: FloatArray,
                  covariance: FloatArray, trip: Trip | None = None, updates: Any = None,
-                 path_length: int = PATH_LENGTH) -> None:
+                 path_length: int = PATH_LENGTH, imu_frame: str = topics.IMU_FRAME) -> None:
         """Keep the rows; see the class for the arguments."""
         self.path_length = check_path_length(path_length)
         self.start_time_ns = int(start_time_ns)
@@ -276,6 +278,7 @@ class VisualTopics:
         self.state = state
         self.covariance = covariance
         self.trip = trip
+        self.imu_frame = imu_frame
         self.updates = updates
         self.tf = _TfTemplate(topics.MAP_FRAME, topics.BASE_FRAME)
         self._tf_rows = _first_of_each_period(self._relative_s(), TF_PERIOD_S)
@@ -283,7 +286,7 @@ class VisualTopics:
     def latched(self) -> list[tuple[str, str, bytes]]:
         """(topic, type, CDR) of the transient-local messages, stamped start_time_ns."""
         stamp = self.start_time_ns
-        mounts = [msgs.transform_stamped(stamp, topics.BASE_FRAME, topics.IMU_FRAME,
+        mounts = [msgs.transform_stamped(stamp, topics.BASE_FRAME, self.imu_frame,
                                          0.0, 0.0, 0.0)]
         landmarks = None
         if self.trip is not None:

@@ -57,6 +57,20 @@ def _path_length(text: str) -> int:
                                          ) from None
 
 
+def _imu_frame(bag: Path) -> str:
+    """frame_id of the bag's first IMU message ('' if it has none): ekf/bias is in it."""
+    from gyro_ekf import topics
+    from gyro_ekf.io.bag_reader import iter_bag_messages
+    from gyro_ekf.io.errors import BagError
+    messages = iter_bag_messages(bag, [topics.IMU])
+    try:
+        return str(next(messages).message.header.frame_id)
+    except (BagError, StopIteration):
+        return ''
+    finally:
+        messages.close()
+
+
 def _progress_bar(total: int, enabled: bool) -> Any:
     from tqdm import tqdm
     return tqdm(total=total, unit='msg', unit_scale=True, desc='run', leave=False,
@@ -133,7 +147,8 @@ def run(args: argparse.Namespace) -> int:
                                         result.speed_m_s, result.yaw_rate_rad_s,
                                         storage=args.storage, trip=trip,
                                         updates=result.result.updates,
-                                        path_length=args.path_length)
+                                        path_length=args.path_length,
+                                        imu_frame=_imu_frame(args.bag))
         processed_s = time.perf_counter() - began
         summary['timing'] = {'read_s': read_s, 'run_and_outputs_s': processed_s - read_s,
                              'real_time_factor': summary['trip']['duration_s'] / processed_s

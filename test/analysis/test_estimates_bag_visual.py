@@ -225,3 +225,31 @@ def test_marker_builder_ellipse_axes():
     major, minor, direction = msgs.covariance_ellipse(covariance)
     assert (major, minor) == pytest.approx((0.8, 0.2))
     assert math.remainder(direction - angle, math.pi) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_bias_is_in_the_input_imus_frame(run, tmp_path):
+    bag, _, found, _ = run
+    imu_frame = _source('/imu')[0].header.frame_id
+    with Reader(bag) as reader:
+        chosen = [c for c in reader.connections if c.topic == '/ekf/bias']
+        frames = {msgs.deserialize(d, c.msgtype).header.frame_id
+                  for c, _, d in reader.messages(chosen)}
+    assert frames == {imu_frame}
+    (_, _, static), = found['/tf_static']
+    assert imu_frame in {t.child_frame_id for t in static.transforms}
+    # Another IMU frame: ekf/bias and the identity mount follow it.
+    stamps = np.arange(3) * 0.005
+    written = outputs.write_estimates_bag(
+        tmp_path / 'estimates', 1_700_000_000_000_000_000, stamps, np.zeros((3, 4)),
+        np.tile(np.eye(4), (3, 1, 1)), np.zeros(3), np.zeros(3), imu_frame='gyro_board')
+    with Reader(written) as reader:
+        seen = {(c.topic, f) for c, _, d in reader.messages() if c.topic != '/ekf/markers'
+                for f in _frames(msgs.deserialize(d, c.msgtype))}
+    assert ('/ekf/bias', 'gyro_board') in seen and ('/tf_static', 'gyro_board') in seen
+    assert not any('imu_link' in f for _, f in seen)
+
+
+def _frames(message) -> list[str]:
+    if hasattr(message, 'transforms'):
+        return [t.child_frame_id for t in message.transforms]
+    return [message.header.frame_id]
