@@ -8,6 +8,7 @@ truth, and its params sidecar.
 from __future__ import annotations
 
 from collections import defaultdict
+import json
 import math
 from pathlib import Path
 import shutil
@@ -253,3 +254,21 @@ def _frames(message) -> list[str]:
     if hasattr(message, 'transforms'):
         return [t.child_frame_id for t in message.transforms]
     return [message.header.frame_id]
+
+
+def test_foxglove_layout_shows_only_topics_the_bag_has(run):
+    bag, _, _, _ = run
+    layout = json.loads((BAGS.parent / 'config' / 'foxglove_layout.json').read_text())
+    with Reader(bag) as reader:
+        present = {c.topic: c.msgcount for c in reader.connections}
+    panels = layout['configById']
+    shown = {topic for panel in panels.values() for topic in panel.get('topics', {})}
+    plotted = {path['value'].split('.')[0] for panel in panels.values()
+               for path in panel.get('paths', [])}
+    assert shown | plotted and all(present.get(t, 0) > 0 for t in shown | plotted), \
+        sorted((shown | plotted) - set(present))
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node['first']) + leaves(
+            node['second'])
+    assert sorted(leaves(layout['layout'])) == sorted(panels)
