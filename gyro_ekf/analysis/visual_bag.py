@@ -127,24 +127,30 @@ class _PathTemplate:
         if three[len(empty):] != two[len(empty):] + self.rest.tobytes() or len(self.rest) % 8:
             raise OutputError(f'{PATH_TYPE}: unexpected CDR layout of rosbags')
 
-    def encode(self, stamp_ns: int, stamps_ns: NDArray[np.int64], poses: FloatArray) -> bytes:
-        """One Path: its stamp, and per pose its stamp and (x m, y m, yaw rad)."""
-        k = len(stamps_ns)
+    def elements(self, stamps_ns: NDArray[np.int64], poses: FloatArray
+                 ) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+        """Every pose as a first element and as a later one, shapes (n, first), (n, rest).
+
+        Encoded once per run: each path message then only joins the rows it holds.
+        """
+        sec, nanosec = _split_ns(stamps_ns)
+        columns = _pose_columns(poses)
+        out = []
+        for template in (self.first, self.rest):
+            rows = np.tile(template, (len(sec), 1))
+            rows[:, 0:4].view('<i4')[:, 0] = sec
+            rows[:, 4:8].view('<u4')[:, 0] = nanosec
+            rows[:, -_POSE_BYTES:].view('<f8')[:] = columns
+            out.append(rows)
+        return out[0], out[1]
+
+    def encode(self, stamp_ns: int, first: NDArray[np.uint8], rest: NDArray[np.uint8]
+               ) -> bytes:
+        """Join one Path: its stamp, its first pose, the rest (rows of `elements`)."""
         head = self.head.copy()
         sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
         head[4:8].view('<i4')[0], head[8:12].view('<u4')[0] = sec, nanosec
-        head[-4:].view('<u4')[0] = k
-        if k == 0:
-            return head.tobytes()
-        sec, nanosec = _split_ns(stamps_ns)
-        columns = _pose_columns(poses)
-        first = self.first.copy()
-        first[0:4].view('<i4')[0], first[4:8].view('<u4')[0] = sec[0], nanosec[0]
-        first[-_POSE_BYTES:].view('<f8')[:] = columns[0]
-        rest = np.tile(self.rest, (k - 1, 1))
-        rest[:, 0:4].view('<i4')[:, 0] = sec[1:]
-        rest[:, 4:8].view('<u4')[:, 0] = nanosec[1:]
-        rest[:, -_POSE_BYTES:].view('<f8')[:] = columns[1:]
+        head[-4:].view('<u4')[0] = 1 + len(rest)
         return head.tobytes() + first.tobytes() + rest.tobytes()
 
 
@@ -194,10 +200,7 @@ class _MarkersTemplate:
                 ) -> tuple[dict[str, NDArray[Any]], None]:
         """Per row the numbers the builder writes, each an array of its wire dtype."""
         sec, nanosec = _split_ns(stamps_ns)
-        ellipses = [msgs.covariance_ellipse(c) for c in covariance_xy]
-        major, minor, direction = (np.array(v, dtype=np.float64).reshape(-1)
-                                   for v in zip(*ellipses)) if ellipses else \
-            (np.zeros(0),) * 3
+        major, minor, direction = msgs.covariance_ellipses(covariance_xy)
         heading = _pose_columns(poses)
         turned = _pose_columns(np.column_stack([poses[:, :2], direction]))
         return {'sec': sec.astype('<i4'), 'nanosec': nanosec.astype('<u4'),
@@ -340,11 +343,12 @@ class VisualTopics:
         published = _first_of_each_period(relative, PATH_PERIOD_S)
         kept = np.union1d(_first_of_each_period(relative, PATH_SPACING_S), published)
         template = _PathTemplate(topics.MAP_FRAME)
+        first, rest = template.elements(self.stamps_ns[kept], self.state[kept, :3])
         for row in published.tolist():
             end = int(np.searchsorted(kept, row, side='right'))
-            rows = kept[max(0, end - self.path_length):end]
+            begin = max(0, end - self.path_length)
             yield SparseMessage(int(self.stamps_ns[row]), EKF_PATH, template.encode(
-                int(self.stamps_ns[row]), self.stamps_ns[rows], self.state[rows, :3]))
+                int(self.stamps_ns[row]), first[begin], rest[begin + 1:end]))
 
     def _markers(self) -> Iterator[SparseMessage]:
         rows = _first_of_each_period(self._relative_s(), MARKERS_PERIOD_S)

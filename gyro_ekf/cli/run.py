@@ -58,17 +58,20 @@ def _path_length(text: str) -> int:
 
 
 def _imu_frame(bag: Path) -> str:
-    """frame_id of the bag's first IMU message ('' if it has none): ekf/bias is in it."""
+    """frame_id of the bag's first IMU message ('' if none is found): ekf/bias is in it."""
+    from rosbags.rosbag2 import Reader
+
     from gyro_ekf import topics
-    from gyro_ekf.io.bag_reader import iter_bag_messages
-    from gyro_ekf.io.errors import BagError
-    messages = iter_bag_messages(bag, [topics.IMU])
+    from gyro_ekf.io import messages as msgs
     try:
-        return str(next(messages).message.header.frame_id)
-    except (BagError, StopIteration):
-        return ''
-    finally:
-        messages.close()
+        with Reader(bag) as reader:
+            imu = [c for c in reader.connections if c.topic == topics.bag_topic(topics.IMU)]
+            # A short window: rosbags would otherwise open every chunk holding the topic.
+            for connection, _, data in reader.messages(imu, stop=reader.start_time + 10**9):
+                return str(msgs.deserialize(data, connection.msgtype).header.frame_id)
+    except Exception:  # noqa: BLE001 - the frame is a nicety; read_bag reported real errors
+        pass
+    return ''
 
 
 def _progress_bar(total: int, enabled: bool) -> Any:

@@ -320,18 +320,25 @@ def marker(stamp_ns: int, frame_id: str, ns: str, marker_id: int, kind: int, *,
         mesh_file=_MeshFile(filename='', data=_EMPTY_U8), mesh_use_embedded_materials=False)
 
 
-def covariance_ellipse(covariance_xy: FloatArray, sigmas: float = ELLIPSE_SIGMAS
-                       ) -> tuple[float, float, float]:
-    """Axes of the sigmas-sigma ellipse of a 2x2 covariance.
+def covariance_ellipses(covariance_xy: FloatArray, sigmas: float = ELLIPSE_SIGMAS
+                        ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Axes of the sigmas-sigma ellipses of 2x2 covariances, shape (n, 2, 2).
 
     Returns:
-        (full length along the major axis m, full length along the minor axis m, direction
-        of the major axis rad).
+        Per covariance, shape (n,) each: full length along the major axis m, along the
+        minor axis m, direction of the major axis rad.
     """
     values, vectors = np.linalg.eigh(np.asarray(covariance_xy, dtype=np.float64))
     # A covariance that rounding made slightly indefinite draws flat, not NaN.
-    minor, major = 2.0 * sigmas * np.sqrt(np.clip(values, 0.0, None))
-    return float(major), float(minor), math.atan2(vectors[1, 1], vectors[0, 1])
+    lengths = 2.0 * sigmas * np.sqrt(np.clip(values, 0.0, None))
+    return lengths[:, 1], lengths[:, 0], np.arctan2(vectors[:, 1, 1], vectors[:, 0, 1])
+
+
+def covariance_ellipse(covariance_xy: FloatArray, sigmas: float = ELLIPSE_SIGMAS
+                       ) -> tuple[float, float, float]:
+    """covariance_ellipses of one 2x2 covariance, as floats."""
+    major, minor, direction = covariance_ellipses(np.asarray(covariance_xy)[None], sigmas)
+    return float(major[0]), float(minor[0]), float(direction[0])
 
 
 def ekf_markers_message(stamp_ns: int, state: FloatArray, covariance: FloatArray,
