@@ -57,23 +57,6 @@ def _path_length(text: str) -> int:
                                          ) from None
 
 
-def _imu_frame(bag: Path) -> str:
-    """frame_id of the bag's first IMU message ('' if none is found): ekf/bias is in it."""
-    from rosbags.rosbag2 import Reader
-
-    from gyro_ekf import topics
-    from gyro_ekf.io import messages as msgs
-    try:
-        with Reader(bag) as reader:
-            imu = [c for c in reader.connections if c.topic == topics.bag_topic(topics.IMU)]
-            # A short window: rosbags would otherwise open every chunk holding the topic.
-            for connection, _, data in reader.messages(imu, stop=reader.start_time + 10**9):
-                return str(msgs.deserialize(data, connection.msgtype).header.frame_id)
-    except Exception:  # noqa: BLE001 - the frame is a nicety; read_bag reported real errors
-        pass
-    return ''
-
-
 def _progress_bar(total: int, enabled: bool) -> Any:
     from tqdm import tqdm
     return tqdm(total=total, unit='msg', unit_scale=True, desc='run', leave=False,
@@ -150,8 +133,7 @@ def run(args: argparse.Namespace) -> int:
                                         result.speed_m_s, result.yaw_rate_rad_s,
                                         storage=args.storage, trip=trip,
                                         updates=result.result.updates,
-                                        path_length=args.path_length,
-                                        imu_frame=_imu_frame(args.bag))
+                                        path_length=args.path_length)
         processed_s = time.perf_counter() - began
         summary['timing'] = {'read_s': read_s, 'run_and_outputs_s': processed_s - read_s,
                              'real_time_factor': summary['trip']['duration_s'] / processed_s

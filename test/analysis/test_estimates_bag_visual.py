@@ -228,7 +228,8 @@ def test_marker_builder_ellipse_axes():
     assert math.remainder(direction - angle, math.pi) == pytest.approx(0.0, abs=1e-12)
 
 
-def test_bias_is_in_the_input_imus_frame(run, tmp_path):
+def test_bias_is_in_the_imu_frame(run, tmp_path):
+    # gyro-ekf run: imu_link, the frame of every bag convert, simulate and make-bags write.
     bag, _, found, _ = run
     imu_frame = _source('/imu')[0].header.frame_id
     with Reader(bag) as reader:
