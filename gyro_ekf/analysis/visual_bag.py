@@ -2,9 +2,9 @@
 
 What the estimates bag holds so that Foxglove or RViz shows the run without setup:
 
-- `/tf` tf2_msgs/TFMessage: `map -> base_link` from the estimate every TF_PERIOD_S (50 Hz:
-  smooth playback; every IMU step would add a quarter to the bag's messages for nothing a
-  viewer shows), and `map -> base_link_truth` at each ground-truth sample where the trip has
+- `/tf` tf2_msgs/TFMessage: `map -> base_link` from the estimate every TF_PERIOD_S (25 Hz;
+  viewers interpolate TF, and every IMU step would add a quarter to the bag's messages,
+  and to the time of writing them, for nothing a viewer shows), and `map -> base_link_truth` at each ground-truth sample where the trip has
   one.
 - `/tf_static` (transient local): `base_link -> <IMU frame>` identity (the frame of
   ekf/bias: the input IMU's frame_id, `imu_link` by default) and `base_link -> <frame>`
@@ -56,7 +56,7 @@ PATH_LENGTH = 600
 PATH_SPACING_S = 0.2
 PATH_PERIOD_S = 1.0
 MARKERS_PERIOD_S = 0.5
-TF_PERIOD_S = 0.02
+TF_PERIOD_S = 0.04
 
 _POSE_BYTES = 56
 """A geometry_msgs/Pose (or Transform): 7 float64, always 8-aligned, at a message's end."""
