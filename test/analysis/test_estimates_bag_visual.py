@@ -273,3 +273,6 @@ def test_foxglove_layout_shows_only_topics_the_bag_has(run):
         return [node] if isinstance(node, str) else leaves(node['first']) + leaves(
             node['second'])
     assert sorted(leaves(layout['layout'])) == sorted(panels)
+    # Rounding can leave a covariance slightly indefinite: a flat ellipse, never NaN.
+    major, minor, _ = msgs.covariance_ellipse(np.array([[1e-6, 0.0], [0.0, -1e-18]]))
+    assert (major, minor) == (pytest.approx(4e-3), 0.0)
