@@ -148,3 +148,17 @@ def test_a_parameter_rclpy_refuses_is_one_line_and_exit_1(ros_env, param, match)
     assert re.search(match, result.stderr)
     assert 'Traceback' not in result.stderr + result.stdout
     assert [line for line in result.stderr.splitlines() if line.startswith('[FATAL]')]
+
+
+@pytest.mark.ros
+def test_the_parameters_doc_is_what_the_nodes_declare(ros_env):
+    import subprocess
+    import sys
+
+    # ros_env: the tool claims a domain of its own; the env keeps it on loopback anyway.
+    result = subprocess.run([sys.executable, str(REPO / 'tools' / 'parameters_doc.py')],
+                            env=ros_env, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert '| `path_length` | `600` |' in result.stdout
+    assert result.stdout == (REPO / 'docs' / 'parameters.md').read_text(), (
+        'docs/parameters.md is stale: run `make docs`')
