@@ -189,8 +189,15 @@ class GyroBiasEkf:
         p[3] = p[6] = p[8] = 0.0
         p[9] = float(sigma_rad_s) ** 2
 
-    def predict(self, speed_m_s: float, rate_rad_s: float, dt_s: float) -> None:
-        """Propagate over dt_s seconds with constant speed (m/s) and measured yaw rate (rad/s)."""
+    def predict(self, speed_m_s: float, rate_rad_s: float, dt_s: float,
+                speed_variance: float | None = None, rate_variance: float | None = None
+                ) -> None:
+        """Propagate over dt_s seconds with constant speed (m/s) and measured yaw rate (rad/s).
+
+        speed_variance ((m/s)^2) and rate_variance ((rad/s)^2), when given, replace the
+        configured sigma_v^2 and sigma_w^2 of Pu for this step (the inputs' own message
+        covariances).
+        """
         if dt_s <= 0.0:
             return
         # Plain floats: numpy scalars would spread into the state and slow every step.
@@ -215,7 +222,8 @@ class GyroBiasEkf:
         # ... then J P J^T = M J^T, plus Q = Ju Pu Ju^T + Q2 written out (speed noise lies
         # along the heading).
         t2 = dt_s * dt_s
-        qv = t2 * self._sigma_v2
+        qv = t2 * (self._sigma_v2 if speed_variance is None else speed_variance)
+        qw = t2 * (self._sigma_w2 if rate_variance is None else rate_variance)
         qp = dt_s * self._q_pos2
         self._p = [
             m00 + a * m02 + qv * c * c + qp,
@@ -225,7 +233,7 @@ class GyroBiasEkf:
             m11 + b * m12 + qv * s * s + qp,
             m12 + d * m13,
             m13,
-            m22 + d * m23 + t2 * self._sigma_w2,
+            m22 + d * m23 + qw,
             m23,
             p33 + t2 * self._q_b2,
         ]

@@ -84,8 +84,8 @@ from gyro_ekf.core.events import Estimate, EventDriver, EventKind, StreamMerger
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
 from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import LandmarkMap, LidarMount
-from gyro_ekf.core.validation import coordinate_problem, mount_problem, rate_problem, \
-    speed_problem
+from gyro_ekf.core.validation import coordinate_problem, message_variance, mount_problem, \
+    rate_problem, speed_problem
 from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.io import messages
 from gyro_ekf.nodes import qos, visuals
@@ -165,6 +165,11 @@ class EkfNode(Node):
             config = with_stated_noise(config, sidecar.noise)
         self.config = config
         self._sidecar = sidecar
+        self._use_message_covariance = declare(
+            self, 'use_message_covariance', True,
+            'A positive imu angular_velocity_covariance[8] or odom twist.covariance[0] '
+            'replaces the configured gyro or speed noise for that message (0 or -1: not '
+            'given; NaN, other negatives or beyond the limits.* range: ignored and counted)')
         self._use_calibration = declare(
             self, 'use_calibration', False,
             'Seed the bias state and its variance from gyro_bias (calibration_node)')
@@ -259,6 +264,7 @@ class EkfNode(Node):
         self.dropped = dict.fromkeys(DROP_REASONS, 0)
         self.resets = 0
         self.published = 0
+        self.covariances_ignored = 0
         self._estimates = 0
         self._late_streak = 0
         self._late_streams: set[str] = set()
@@ -352,7 +358,11 @@ class EkfNode(Node):
         if estimate is not None and self._imu_pub.get_subscription_count():
             self._imu_pub.publish(online_corrected_imu(
                 message, float(estimate.state[3]), float(estimate.covariance[3, 3])))
-        self._push(message.header.stamp, EventKind.IMU, rate, 'imu', 'imu')
+        variance = None
+        if self._use_message_covariance:
+            variance = self._variance(message.angular_velocity_covariance[8], self._max_rate,
+                                      'imu angular_velocity_covariance[8]')
+        self._push(message.header.stamp, EventKind.IMU, (rate, variance), 'imu', 'imu')
 
     def _on_odom(self, message: Odometry) -> None:
         self._received['odom'] += 1
@@ -364,7 +374,22 @@ class EkfNode(Node):
             pose = message.pose.pose
             self._odom_pose = (float(pose.position.x), float(pose.position.y),
                                quaternion_yaw(pose.orientation))
-        self._push(message.header.stamp, EventKind.SPEED, speed, 'odom', 'odom')
+        variance = None
+        if self._use_message_covariance:
+            variance = self._variance(message.twist.covariance[0], self._max_speed,
+                                      'odom twist.covariance[0]')
+        self._push(message.header.stamp, EventKind.SPEED, (speed, variance), 'odom', 'odom')
+
+    def _variance(self, value: float, limit: float, what: str) -> float | None:
+        """Return the message's own variance, or None (the configured noise); count a bad one."""
+        variance, bad = message_variance(float(value), limit)
+        if bad:
+            self.covariances_ignored += 1
+            self.get_logger().warn(f'{what} = {float(value)!r} is NaN, negative or beyond '
+                                   f'{limit:g}^2: the configured noise is used instead '
+                                   f'({self.covariances_ignored} so far)',
+                                   throttle_duration_sec=5.0)
+        return variance
 
     def _on_landmarks(self, message: PoseArray) -> None:
         self._received['landmarks'] += 1
@@ -473,13 +498,13 @@ class EkfNode(Node):
         for stamp_s, kind, (ns, value) in events:
             try:
                 if kind is EventKind.IMU:
-                    estimate = driver.on_imu(stamp_s, value)
+                    estimate = driver.on_imu(stamp_s, *value)
                     self._estimates += 1
                     self._last_estimate, self._last_ns = estimate, ns
                     if self._estimates % self._publish_every == 0:
                         self._publish(estimate, ns)
                 elif kind is EventKind.SPEED:
-                    driver.on_speed(stamp_s, value)
+                    driver.on_speed(stamp_s, *value)
                 else:
                     self._last_report = self.driver.on_detections(stamp_s, value[0],
                                                                   value[1])
@@ -640,6 +665,7 @@ class EkfNode(Node):
             'time_since_association_s': '' if since is None else f'{since:.3f}',
             'estimates': str(self._estimates), 'published': str(self.published),
             'buffered': str(len(self._buffer)), 'resets': str(self.resets),
+            'ignored_covariances': str(self.covariances_ignored),
             'held_far_ahead': str(self._gate.held), 'long_gaps': str(stats.long_gaps),
             **({} if self._lagged is None else {
                 'held_observations': str(self._lagged.held),
