@@ -202,7 +202,7 @@ def _lidar_mounts(values: dict[str, Any], source: str
 
 
 def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
-    """The trip with the params file's LiDAR mounts on the scans of the same topics.
+    """Return the trip with the params file's LiDAR mounts on the scans of the same topics.
 
     Each override is logged with the mount the bag states; a topic the trip has no scans
     of is logged and skipped (the file may serve several bags).

@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def params_yaml(estimates: list, reference: object) -> str:
-    """The mounts as ROS 2 params-file text, the reference LiDAR's as the bag states it."""
+    """Return the mounts as params-file text, the reference LiDAR's as the bag states it."""
     import yaml
 
     lidar: dict = {'topics': [reference.topic] + [e.topic for e in estimates]}

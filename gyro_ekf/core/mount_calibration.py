@@ -109,7 +109,7 @@ class _Detections:
 
 def _reference_pose(stamp_s: FloatArray, ref_stamp_s: FloatArray, ref_pose: FloatArray
                     ) -> FloatArray:
-    """Reference pose at stamp_s (inside the reference's span), linearly interpolated."""
+    """Interpolate the reference pose at stamp_s (inside the reference's span), linearly."""
     yaw = np.unwrap(ref_pose[:, 2])
     return np.column_stack([np.interp(stamp_s, ref_stamp_s, ref_pose[:, 0]),
                             np.interp(stamp_s, ref_stamp_s, ref_pose[:, 1]),
@@ -139,7 +139,7 @@ def _detections(scans: ScanSeries, ref_stamp_s: FloatArray, ref_pose: FloatArray
 
 
 def _to_map(found: _Detections, yaw: float, x: float, y: float) -> FloatArray:
-    """Detections in the map frame under mount (yaw, x, y), shape (n, 2)."""
+    """Put the detections in the map frame under mount (yaw, x, y), shape (n, 2)."""
     phi = found.pose[:, 2]
     c, s = np.cos(phi), np.sin(phi)
     ca, sa = math.cos(yaw), math.sin(yaw)

@@ -162,8 +162,11 @@ class SimulationConfig:
 
 
 def _offset(stated: LidarMount, yaw_rad: float, x_m: float, y_m: float) -> LidarMount:
-    """The stated mount moved by the given errors; the stated one itself when they are 0,
-    so a trip without mount errors computes exactly what it did before they existed."""
+    """Move the stated mount by the given errors.
+
+    The stated mount itself is returned when they are 0, so a trip without mount errors
+    computes exactly what it did before they existed.
+    """
     if yaw_rad == 0.0 and x_m == 0.0 and y_m == 0.0:
         return stated
     return LidarMount(stated.x_m + x_m, stated.y_m + y_m, stated.yaw_rad + yaw_rad)
@@ -398,8 +401,11 @@ def _scan_series(config: SimulationConfig, stated: LidarMount, true: LidarMount,
                  scan_t: FloatArray, scan_pose: FloatArray, landmarks: FloatArray,
                  seg_start: FloatArray, seg_vec: FloatArray, rng: np.random.Generator,
                  topic: str, frame_id: str) -> ScanSeries:
-    """Scans of one LiDAR, ray-cast from its true mount, block by block to bound memory on
-    long trips; the series states the nominal mount, as a log would."""
+    """Ray-cast one LiDAR's scans from its true mount.
+
+    Block by block to bound memory on long trips; the series states the nominal mount, as
+    a log would.
+    """
     c, s = np.cos(scan_pose[:, 2]), np.sin(scan_pose[:, 2])
     origins = np.column_stack([scan_pose[:, 0] + true.x_m * c - true.y_m * s,
                                scan_pose[:, 1] + true.x_m * s + true.y_m * c])
