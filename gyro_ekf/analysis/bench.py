@@ -270,7 +270,7 @@ def rss_growth(times_s: list[float], rss_mb: list[float], warm_up_s: float
 
 
 def _passes_begun(replay_log: Path) -> int:
-    """Passes the replay has begun, from its 'pass N' log lines."""
+    """Count the passes the replay has begun, from its 'pass N' log lines."""
     try:
         return replay_log.read_text(errors='replace').count(': pass ')
     except OSError:

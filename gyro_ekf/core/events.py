@@ -10,7 +10,11 @@ Events with equal stamps are ordered speed, observation, IMU, so the estimate em
 IMU sample includes every observation stamped at or before it.
 
 Time going backwards raises TimeWentBackwardsError; the caller decides to reset (a looped
-bag) or to drop the event. It is never silently accepted.
+bag) or to drop the event. It is never silently accepted. A gap is predicted in steps of at
+most `max_prediction_step_s`, but never in more than MAX_PREDICTION_STEPS steps: a stamp far
+ahead (a paused robot, a broken clock) costs bounded time, and is counted in
+`DriverStats.long_gaps` (the live node refuses such stamps before they get here unless the
+other inputs confirm them).
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ from gyro_ekf.core.association import (AssociationOutcome, AssociationResult, as
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.detection import PoleDetections, detect_poles_in_scans
 from gyro_ekf.core.ekf import GyroBiasEkf, unpack_rows
-from gyro_ekf.core.errors import TimeWentBackwardsError
+from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map, sensor_to_map
 from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount, ScanSeries, Trip
 
@@ -45,6 +49,10 @@ DETECTION_BLOCK = 512
 _NO_NIS = np.zeros(0)
 _NO_NIS.flags.writeable = False
 _OUTCOME_KEYS = {outcome: outcome.name.lower() for outcome in AssociationOutcome}
+
+MAX_PREDICTION_STEPS = 1000
+"""Most prediction steps for one gap (100 s at the default 0.1 s step): a longer gap is split
+into this many equal steps, so a stamp 1e6 s ahead costs what 100 s costs, not 52 s of CPU."""
 
 ROW_BLOCK = 4096
 """Estimates drive_trip holds as plain floats before copying them into its arrays."""
@@ -118,6 +126,8 @@ class DriverStats:
         nis_sum: sum of the NIS of all updates.
         last_association_s: stamp of the last applied update, or None.
         longest_gap_s: longest time between applied updates (from the first one).
+        long_gaps: gaps between events longer than MAX_PREDICTION_STEPS steps (predicted in
+            coarser steps).
     """
 
     imu: int = 0
@@ -131,6 +141,7 @@ class DriverStats:
     nis_sum: float = 0.0
     last_association_s: float | None = None
     longest_gap_s: float = 0.0
+    long_gaps: int = 0
 
     @property
     def mean_nis(self) -> float:
@@ -144,7 +155,7 @@ class DriverStats:
                 'updates': self.updates, 'recoveries': self.recoveries,
                 'mean_nis': self.mean_nis,
                 'last_association_s': self.last_association_s,
-                'longest_gap_s': self.longest_gap_s}
+                'longest_gap_s': self.longest_gap_s, 'long_gaps': self.long_gaps}
 
 
 class EventDriver:
@@ -210,6 +221,8 @@ class EventDriver:
         self.stats = dataclasses.replace(stats, outcomes=dict(stats.outcomes))
 
     def _advance(self, stamp_s: float, what: str) -> None:
+        if not math.isfinite(stamp_s):
+            raise CoreError(f'{what} stamp {stamp_s} is not finite')
         if self.stamp_s is None:
             self.stamp_s = stamp_s
             return
@@ -220,6 +233,11 @@ class EventDriver:
         # Before the first gyro sample the heading is held: the yaw rate is taken as the bias.
         rate = self.ekf.bias_rad_s if self.rate_rad_s is None else self.rate_rad_s
         step = self.config.max_prediction_step_s
+        if dt_s > step * MAX_PREDICTION_STEPS:
+            # Over a gap this long the held inputs are a guess anyway; fine steps would
+            # only cost time in proportion to the gap (hours for a stamp 4e8 s ahead).
+            step = dt_s / MAX_PREDICTION_STEPS
+            self.stats.long_gaps += 1
         while dt_s > step:
             self.ekf.predict(self.speed_m_s, rate, step)
             dt_s -= step
@@ -341,14 +359,19 @@ class StreamMerger:
     queue drains no faster than a 100 Hz odometry queue and the odometry stamps run ahead
     by more than any fixed window. So an event with stamp t is released once
     t <= newest stamp of any stream - window_s and t <= the newest stamp of every active
-    stream. A stream silent for ``stale_after_s`` of wall time (a stopped LiDAR) stops
-    holding the others back; ``max_events`` bounds what is held. An event older than one
-    already released is late: ``push`` returns it in ``late`` instead of releasing it out
-    of order. Ties release speed, observation, IMU, as iter_trip_events orders them, so a
-    live run feeds the EventDriver what an offline run does. At the start nothing is
-    released until every expected stream has spoken (or stale_after_s has passed): the
-    first messages of two topics reach a subscriber in either order, and releasing the
-    first would make the other late.
+    stream. A stream is stale (stops holding the others back: a stopped LiDAR) only when
+    both hold: nothing came from it for ``stale_after_s`` on ``clock``, and the other
+    streams' stamps have moved ``stale_after_s`` past its newest stamp. Either alone fails
+    on a busy machine: a process that was starved for a second wakes to find every stream
+    silent on the clock although their messages wait in the queues (their stamps are close),
+    and a queue that drains slower than it fills lags in stamps although its messages keep
+    coming. Neither depends on how fast the machine is. ``max_events`` bounds what is held.
+    An event older than one already released is late: ``push`` returns it in ``late``
+    instead of releasing it out of order. Ties release speed, observation, IMU, as
+    iter_trip_events orders them, so a live run feeds the EventDriver what an offline run
+    does. At the start nothing is released until every expected stream has spoken (or, by
+    the same two measures, stale_after_s has passed): the first messages of two topics
+    reach a subscriber in either order, and releasing the first would make the other late.
     """
 
     def __init__(self, window_s: float, max_events: int = 20_000, stale_after_s: float = 1.0,
@@ -359,9 +382,10 @@ class StreamMerger:
         Args:
             window_s: least stamp time an event waits behind the newest stamp, s.
             max_events: the oldest events are released beyond this many.
-            stale_after_s: a stream silent for this long (wall time, s) stops holding
-                events back.
-            clock: wall clock (monotonic seconds); replaceable in tests.
+            stale_after_s: a stream silent for this long on the clock, and this far
+                behind the other streams' stamps, stops holding events back, s.
+            clock: seconds on the node's clock (monotonic, or ROS time with sim time);
+                replaceable in tests.
             expected_streams: streams to wait for before the first release (at most
                 stale_after_s after the first event).
         """
@@ -370,6 +394,7 @@ class StreamMerger:
         self.stale_after_s = stale_after_s
         self.expected_streams = frozenset(expected_streams)
         self._started: float | None = None
+        self._first_s = math.inf
         self._clock = clock
         self._heap: list[tuple[float, int, int, Any]] = []
         self._arrival = itertools.count()
@@ -393,17 +418,34 @@ class StreamMerger:
         now = self._clock()
         if self._started is None:
             self._started = now
+        self._first_s = min(self._first_s, stamp_s)
         newest_of_stream = self._streams.get(stream, (-math.inf, now))[0]
         self._streams[stream] = (max(newest_of_stream, stamp_s), now)
         self._newest_s = max(self._newest_s, stamp_s)
         heapq.heappush(self._heap, (stamp_s, int(kind), next(self._arrival), payload))
         if (self._released_s == -math.inf and not self.expected_streams <= self._streams.keys()
-                and now - self._started <= self.stale_after_s
+                and not self._passed(now, self._started, self._first_s)
                 and len(self._heap) <= self.max_events):
             return [], []
+        stale_s, newest_s = self.stale_after_s, self._newest_s
         watermark = min((newest for newest, seen in self._streams.values()
-                         if now - seen <= self.stale_after_s), default=math.inf)
+                         if now - seen <= stale_s or newest_s - newest <= stale_s),
+                        default=math.inf)  # not stale (see _passed), inline: per message
         return self._release(min(self._newest_s - self.window_s, watermark)), []
+
+    def active_streams(self) -> set[str]:
+        """Streams seen since the last clear that are not stale."""
+        now = self._clock()
+        return {stream for stream, (newest, seen) in self._streams.items()
+                if not self._passed(now, seen, newest)}
+
+    def _passed(self, now: float, seen: float, newest_s: float) -> bool:
+        """Tell whether stale_after_s has passed on the clock and in the stamps.
+
+        On the clock since `seen`, and in the newest stamp of any stream since `newest_s`.
+        """
+        return (now - seen > self.stale_after_s
+                and self._newest_s - newest_s > self.stale_after_s)
 
     def flush(self) -> ReadyEvents:
         """Release everything held."""
@@ -414,6 +456,7 @@ class StreamMerger:
         self._heap.clear()
         self._streams.clear()
         self._started = None
+        self._first_s = math.inf
         self._newest_s = -math.inf
         self._released_s = -math.inf
 

@@ -8,6 +8,13 @@ subscriber still gets it), logs the bias in deg/s with the noise sigma per axis,
 then on republishes every IMU message on `imu/corrected` with the bias removed. A refused
 window is logged with the reason and a new window starts. `~/recalibrate` (std_srvs/Trigger)
 starts a new window on demand. Status goes to `/diagnostics` once per diagnostics_period_s.
+
+Bad input is dropped and counted per reason in /diagnostics: `zero_stamp`, `non_finite`,
+`out_of_range` (a rate or speed beyond the `limits.*` parameters, core.config.InputLimits)
+and, while collecting, `stamp_jump`: a stamp more than `limits.max_stamp_jump_s` ahead of the
+inputs is held until odom confirms it or `confirm_jump_after` IMU messages go on from it
+(core StampGate), so a lone message far ahead can neither end a window nor set where the
+next one starts.
 """
 
 from __future__ import annotations
@@ -24,12 +31,15 @@ from std_srvs.srv import Trigger
 
 from gyro_ekf import topics
 from gyro_ekf.core.calibration import StaticWindowCalibrator
-from gyro_ekf.core.config import CalibrationConfig
+from gyro_ekf.core.config import CalibrationConfig, InputLimits
 from gyro_ekf.core.errors import CalibrationError
+from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import BiasEstimate
+from gyro_ekf.core.validation import rate_problem, speed_problem
 from gyro_ekf.nodes import qos
-from gyro_ekf.nodes.conversions import (bias_message, corrected_imu, finite, imu_axes_known,
-                                        imu_rates, odometry_speed, stamp_ns, TimeOrigin)
+from gyro_ekf.nodes.conversions import (bias_message, corrected_imu, drop_reason,
+                                        imu_axes_known, imu_rates, odometry_speed, stamp_ns,
+                                        TimeOrigin)
 from gyro_ekf.nodes.params import declare, declare_config
 from gyro_ekf.nodes.runtime import run_node
 
@@ -49,6 +59,12 @@ class CalibrationNode(Node):
         """Declare parameters, create the calibrator, topics, service and timer."""
         super().__init__('calibration_node', **kwargs)
         self.config = declare_config(self, CalibrationConfig)
+        self._limits = declare_config(self, InputLimits, prefix='limits.')
+        confirm_after = declare(self, 'confirm_jump_after', 10,
+                                'Consecutive IMU messages, each within '
+                                'limits.max_stamp_jump_s of the last, that confirm a jump of '
+                                'the stamps ahead while odom is silent (odom at the new time '
+                                'confirms it at once)', '', 1, 100_000)
         use_odom = declare(self, 'use_odom', True,
                            'Subscribe odom and refuse a window in which the platform moves')
         lossless = declare(self, 'reliable_inputs', False,
@@ -58,8 +74,10 @@ class CalibrationNode(Node):
                          'Period of the /diagnostics status', 's', 0.01, 3600.0)
         self.calibrator = StaticWindowCalibrator(self.config)
         self.result: BiasEstimate | None = None
-        self.dropped = {'non_finite': 0, 'zero_stamp': 0}
+        self.dropped = {'non_finite': 0, 'out_of_range': 0, 'zero_stamp': 0,
+                        'stamp_jump': 0}
         self._origin = TimeOrigin()
+        self._gate = StampGate(self._limits.max_stamp_jump_s, confirm_after)
         self._window_from_s: float | None = None
         self._axes_known: tuple[bool, bool, bool] | None = None
         self._imu_count = 0
@@ -87,27 +105,31 @@ class CalibrationNode(Node):
             self._odom_sub = self.create_subscription(Odometry, topics.ODOM, self._on_odom,
                                                       self._odom_qos)
 
-    def _usable(self, ns: int, *values: float) -> bool:
+    def _usable(self, ns: int, problem: str | None) -> bool:
         if ns == 0:
-            self.dropped['zero_stamp'] += 1
-        elif not finite(*values):
-            self.dropped['non_finite'] += 1
+            self._drop('zero_stamp', 'a message with a zero stamp')
+        elif problem is not None:
+            self._drop(drop_reason(problem, 'out_of_range'), problem)
         else:
             return True
-        self.get_logger().warn(f'dropped a bad message (counts {self.dropped})',
-                               throttle_duration_sec=5.0)
         return False
+
+    def _drop(self, reason: str, why: str) -> None:
+        self.dropped[reason] += 1
+        self.get_logger().warn(f'dropped: {why} (counts {self.dropped})',
+                               throttle_duration_sec=5.0)
 
     def _on_odom(self, message: Odometry) -> None:
         ns = stamp_ns(message.header.stamp)
         speed = odometry_speed(message)
-        if self.calibrator.collecting and self._usable(ns, speed):
-            self.calibrator.add_speed(self._origin.seconds(ns), speed)
+        if self.calibrator.collecting and self._usable(ns, speed_problem(speed, self._limits)):
+            self._offer('odom', ns, speed)
 
     def _on_imu(self, message: Imu) -> None:
         ns = stamp_ns(message.header.stamp)
         rates = imu_rates(message)
-        if not self._usable(ns, *rates):
+        problem = next((p for p in (rate_problem(r, self._limits) for r in rates) if p), None)
+        if not self._usable(ns, problem):
             return
         self._imu_count += 1
         if self.result is not None:
@@ -116,7 +138,24 @@ class CalibrationNode(Node):
                 self._corrected_pub.publish(corrected_imu(message, self.result.bias_rad_s))
                 self._corrected_count += 1
             return
-        stamp_s = self._origin.seconds(ns)
+        self._offer('imu', ns, (rates, message))
+
+    def _offer(self, stream: str, ns: int, payload) -> None:
+        """Pass a sample through the stamp gate to the calibrator."""
+        passed, dropped = self._gate.offer(stream, self._origin.seconds(ns), payload)
+        for name, stamp_s, _ in dropped:
+            self._drop('stamp_jump', f'{name} stamp {stamp_s:.3f} s is more than '
+                       f'{self._gate.max_jump_s:g} s (limits.max_stamp_jump_s) ahead of the '
+                       'other samples and its input did not go on from it')
+        for name, stamp_s, value in passed:
+            if name == 'odom':
+                if self.calibrator.collecting:
+                    self.calibrator.add_speed(stamp_s, value)
+            elif self.result is None:
+                self._collect(stamp_s, *value)
+
+    def _collect(self, stamp_s: float, rates: tuple[float, float, float],
+                 message: Imu) -> None:
         if self._window_from_s is None:
             self._window_from_s = stamp_s + self.config.window_start_s
             self._axes_known = imu_axes_known(message)
@@ -160,6 +199,7 @@ class CalibrationNode(Node):
         self.calibrator.restart()
         self.result = None
         self._window_from_s = None
+        self._gate.clear()
         self._subscribe_odom()
         self.get_logger().info(f'{why}: collecting a new static window')
 

@@ -19,8 +19,11 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, LaserScan
 from std_msgs.msg import Header
 
+from gyro_ekf.core.config import InputLimits
 from gyro_ekf.core.events import Estimate
 from gyro_ekf.core.types import FloatArray
+from gyro_ekf.core.validation import (coordinate_problem, covariance_problem,
+                                      quaternion_problem, scan_geometry_problem)
 
 NS_PER_S = 1_000_000_000
 UNKNOWN_AXIS_VARIANCE = 1e6
@@ -64,6 +67,35 @@ class TimeOrigin:
 def finite(*values: float) -> bool:
     """Tell whether every value is a finite number."""
     return all(math.isfinite(v) for v in values)
+
+
+def drop_reason(problem: str, otherwise: str) -> str:
+    """Name the /diagnostics drop reason of a core.validation problem.
+
+    `non_finite` for a NaN or inf (every check says "not finite" then), else `otherwise`.
+    """
+    return 'non_finite' if 'not finite' in problem else otherwise
+
+
+def pose_problem(message: PoseWithCovarianceStamped, limits: InputLimits) -> str | None:
+    """Why an initial pose is refused (position, quaternion, 6x6 covariance), or None.
+
+    A zero quaternion would read as yaw 0 and a negative variance would make every later
+    detection "ambiguous", so both are refused, not repaired.
+    """
+    pose = message.pose.pose
+    q = pose.orientation
+    return (coordinate_problem((pose.position.x, pose.position.y), limits)
+            or quaternion_problem(q.x, q.y, q.z, q.w, limits)
+            or covariance_problem(np.asarray(message.pose.covariance,
+                                             dtype=np.float64).reshape(6, 6)))
+
+
+def scan_problem(message: LaserScan) -> str | None:
+    """Why a LaserScan's beam geometry is refused (core.validation's check), or None."""
+    return scan_geometry_problem(float(message.angle_min), float(message.angle_max),
+                                 float(message.angle_increment), len(message.ranges),
+                                 float(message.range_min), float(message.range_max))
 
 
 def imu_rates(message: Imu) -> tuple[float, float, float]:

@@ -22,11 +22,28 @@ with covariance; speed and bias-corrected yaw rate in the twist) and `ekf/bias`
 reports the bias and its sigma in deg/s, associated/rejected observations, mean NIS, input
 rates, time since the last associated landmark and the drop counts.
 
-Robustness: bad messages (NaN/inf values, zero stamps, stamps older than what the filter
-already processed, an empty map, an unknown LiDAR frame) are dropped and counted with a
-throttled warning; ROS time jumping back (a looped bag with /clock), or a run of messages
-far behind the filter (a looped bag without /clock), resets the filter with a warning.
-`~/reset` (std_srvs/Trigger) resets it on demand. The node never dies on input.
+Robustness: every value is checked where it enters, with core.validation and the
+`limits.*` parameters (core.config.InputLimits), and a bad message is dropped and counted per
+reason in /diagnostics with a throttled warning: `non_finite` (NaN/inf), `out_of_range` (a
+yaw rate, speed or coordinate beyond its limit), `bad_pose` (an initialpose whose quaternion
+is not of unit norm or whose covariance is not symmetric positive semi-definite),
+`zero_stamp`, `late` (older than what the filter already processed), `stamp_jump`, and
+`empty_map`, `unknown_frame`, `filter_error`.
+
+Time: a message stamped more than `limits.max_stamp_jump_s` ahead of the inputs' common time
+is held, not predicted through (core StampGate). It is taken, with the gap, when another
+input confirms the new time (every input paused and resumed together: a real gap), or after
+`confirm_jump_after` consecutive messages of its input, each close to the last, while no
+other input spoke; if its input goes on near the common time instead, it was an outlier and
+is dropped as `stamp_jump`. There is no common time until the first such confirmation, so
+a lone first message far from the others cannot wedge the node. Which input is silent
+(`stale_input_s`) is judged on the node clock (ROS time with use_sim_time) and in the stamps
+of the other inputs together, so a busy or starved machine does not make an input stale.
+The filter resets only for a reason it logs: ROS time jumping back (/clock going backwards,
+a looped bag with /clock), stamps that restart (`restart_after_late` messages in a row, from
+every active input, `loop_jump_s` behind the filter: a looped bag without /clock), or
+`~/reset` (std_srvs/Trigger). One input whose stamps fall behind only has its messages
+dropped as late. The node never dies on input.
 """
 
 from __future__ import annotations
@@ -49,23 +66,27 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from gyro_ekf import topics
-from gyro_ekf.core.config import EkfConfig, with_stated_noise
+from gyro_ekf.core.config import EkfConfig, InputLimits, with_stated_noise
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.events import Estimate, EventDriver, EventKind, StreamMerger
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
+from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import LandmarkMap, LidarMount
+from gyro_ekf.core.validation import coordinate_problem, mount_problem, rate_problem, \
+    speed_problem
 from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.nodes import qos
-from gyro_ekf.nodes.conversions import (EstimateMessages, finite, odometry_speed, points_of,
-                                        pose_and_covariance, stamp_ns, TimeOrigin)
+from gyro_ekf.nodes.conversions import (drop_reason, EstimateMessages, odometry_speed,
+                                        points_of, pose_and_covariance, pose_problem,
+                                        stamp_ns, TimeOrigin)
 from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar
 from gyro_ekf.nodes.runtime import run_node
 
-DROP_REASONS = ('non_finite', 'zero_stamp', 'late', 'empty_map', 'unknown_frame',
-                'filter_error')
+DROP_REASONS = ('non_finite', 'out_of_range', 'bad_pose', 'zero_stamp', 'late', 'stamp_jump',
+                'empty_map', 'unknown_frame', 'filter_error')
 
 
-def load_landmarks_file(path: str) -> LandmarkMap:
+def load_landmarks_file(path: str, limits: InputLimits = InputLimits()) -> LandmarkMap:
     """Read a landmark map: YAML `landmarks: [[x, y], ...]` or text with x y per line (m).
 
     Raises:
@@ -88,6 +109,10 @@ def load_landmarks_file(path: str) -> LandmarkMap:
     if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] == 0 or not np.all(np.isfinite(xy)):
         raise GyroEkfError(f'landmarks_file {file}: expected a non-empty list of finite (x, y) '
                            f'pairs, got shape {xy.shape}')
+    for row, point in enumerate(xy.tolist()):
+        problem = coordinate_problem(point, limits)
+        if problem:
+            raise GyroEkfError(f'landmarks_file {file}: landmark {row}: {problem}')
     return LandmarkMap(xy)
 
 
@@ -106,7 +131,21 @@ class EkfNode(Node):
         """Declare parameters, build the driver, create topics, services and timers."""
         super().__init__('ekf_node', **kwargs)
         config = declare_config(self, EkfConfig)
+        self._limits = limits = declare_config(self, InputLimits, prefix='limits.')
+        self._max_rate, self._max_speed = limits.max_yaw_rate_rad_s, limits.max_speed_m_s
         sidecar = declare_sidecar(self)
+        # Parameters enter the core too: a NaN mount or start pose is a configuration error.
+        for topic, (frame, mount) in sidecar.lidars.items():
+            problem = mount_problem(mount.x_m, mount.y_m, mount.yaw_rad, limits)
+            if problem:
+                raise GyroEkfError(f'node {self.get_fully_qualified_name()}: parameter '
+                                   f'lidar.{topic} ({frame}): {problem}')
+        x_m, y_m, yaw_rad = sidecar.initial_pose.tolist()
+        problem = coordinate_problem((x_m, y_m), limits) or (
+            None if math.isfinite(yaw_rad) else f'yaw {yaw_rad} is not finite')
+        if problem:
+            raise GyroEkfError(f'node {self.get_fully_qualified_name()}: parameter '
+                               f'initial_pose: {problem}')
         if declare(self, 'use_stated_noise', True,
                    'Replace the noise sigmas by the noise.* figures a bag states (its params '
                    'sidecar)'):
@@ -137,8 +176,14 @@ class EkfNode(Node):
                             'replayed into the filter (poses at IMU latency; each late scan '
                             'costs a replay of the inputs after it)', 's', 0.0, 5.0)
         stale_s = declare(self, 'stale_input_s', 1.0,
-                          'An input silent for this long (wall time) stops holding the others '
-                          'back', 's', 0.01, 3600.0)
+                          'An input silent for this long on the node clock (ROS time with '
+                          'use_sim_time), while the other inputs\' stamps move this far past '
+                          'its own, stops holding the others back', 's', 0.01, 3600.0)
+        confirm_after = declare(self, 'confirm_jump_after', 10,
+                                'Consecutive messages of one input, each within '
+                                'limits.max_stamp_jump_s of the last, that confirm a jump of '
+                                'its stamps ahead while no other input speaks (another input '
+                                'at the new time confirms it at once)', '', 1, 100_000)
         max_events = declare(self, 'max_buffered_events', 20_000,
                              'Most messages held in the reorder buffer', '', 1, 10_000_000)
         self._publish_every = declare(self, 'publish_every_n', 1,
@@ -151,8 +196,9 @@ class EkfNode(Node):
                                     'A message this far behind the filter counts towards a '
                                     'restart of the data (looped bag)', 's', 0.0, 1e6)
         self._restart_after = declare(self, 'restart_after_late', 20,
-                                      'Consecutive messages loop_jump_s behind the filter '
-                                      'that reset it (a looped bag without /clock)', '', 1,
+                                      'Consecutive messages loop_jump_s behind the filter, '
+                                      'from every active input, that reset it (stamps that '
+                                      'restart: a looped bag without /clock)', '', 1,
                                       1_000_000)
         self._idle_flush_s = declare(self, 'idle_flush_s', 0.5,
                                      'Wall time without input after which held messages are '
@@ -166,7 +212,7 @@ class EkfNode(Node):
         self._base_frame = declare(self, 'base_frame', topics.BASE_FRAME,
                                    'Child frame of ekf/odometry')
 
-        landmarks = load_landmarks_file(landmarks_file) if landmarks_file else None
+        landmarks = load_landmarks_file(landmarks_file, limits) if landmarks_file else None
         self.driver = EventDriver(self.config, landmarks=landmarks, pose=sidecar.initial_pose)
         self._initial_pose = sidecar.initial_pose
         # The first landmarks come later than the first IMU and odometry messages (the
@@ -175,8 +221,13 @@ class EkfNode(Node):
         expected = ['imu', 'odom']
         if history_s == 0.0:  # replayed observations do not pass the merger
             expected += [frame for frame, _ in sidecar.lidars.values()]
-        self._buffer = StreamMerger(window_s, max_events, stale_s,
+        # Silence is judged on the node clock: with use_sim_time that is /clock, which stops
+        # with the data (a paused replay is not a stale input); else the steady clock.
+        clock = (self._ros_seconds if self.get_parameter('use_sim_time').value
+                 else time.monotonic)
+        self._buffer = StreamMerger(window_s, max_events, stale_s, clock=clock,
                                     expected_streams=expected)
+        self._gate = StampGate(limits.max_stamp_jump_s, confirm_after)
         self._lagged = (LaggedObservations(self.driver, history_s, max_events,
                                            on_refused=self._observation_refused)
                         if history_s > 0.0 else None)
@@ -187,7 +238,10 @@ class EkfNode(Node):
         self.published = 0
         self._estimates = 0
         self._late_streak = 0
+        self._late_streams: set[str] = set()
         self._last_input = time.monotonic()
+        self._idle_ticks = 0
+        self._reported_drops = dict(self.dropped)
         self._received = dict.fromkeys(['imu', 'odom', 'landmarks'], 0)
         self._rate_base = (self.get_clock().now(), dict(self._received))
         self._rates_hz = dict.fromkeys(self._received, 0.0)
@@ -236,21 +290,32 @@ class EkfNode(Node):
         self.get_logger().warn(f'dropped: {why} (counts {self.dropped})',
                                throttle_duration_sec=5.0)
 
+    def _refuse(self, problem: str | None, what: str, otherwise: str = 'out_of_range') -> bool:
+        """Drop and count a message whose value has a problem; tell whether it did."""
+        if problem is None:
+            return False
+        self._drop(drop_reason(problem, otherwise), f'{what}: {problem}')
+        return True
+
+    def _ros_seconds(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
     def _on_imu(self, message: Imu) -> None:
         self._received['imu'] += 1
         rate = float(message.angular_velocity.z)
-        if finite(rate):
-            self._push(message.header.stamp, EventKind.IMU, rate, 'imu', 'imu')
-        else:
-            self._drop('non_finite', 'imu yaw rate is not finite')
+        # The comparison is the fast path (NaN fails it too); the check says why.
+        if not -self._max_rate <= rate <= self._max_rate and self._refuse(
+                rate_problem(rate, self._limits), 'imu yaw rate'):
+            return
+        self._push(message.header.stamp, EventKind.IMU, rate, 'imu', 'imu')
 
     def _on_odom(self, message: Odometry) -> None:
         self._received['odom'] += 1
         speed = odometry_speed(message)
-        if finite(speed):
-            self._push(message.header.stamp, EventKind.SPEED, speed, 'odom', 'odom')
-        else:
-            self._drop('non_finite', 'odom speed is not finite')
+        if not -self._max_speed <= speed <= self._max_speed and self._refuse(
+                speed_problem(speed, self._limits), 'odom speed'):
+            return
+        self._push(message.header.stamp, EventKind.SPEED, speed, 'odom', 'odom')
 
     def _on_landmarks(self, message: PoseArray) -> None:
         self._received['landmarks'] += 1
@@ -258,22 +323,15 @@ class EkfNode(Node):
         if mount is None:
             return
         points = points_of(message)
-        if not finite(*points.ravel().tolist()):
-            self._drop('non_finite', 'landmarks hold a non-finite point')
-            return
-        if self._lagged is not None:
-            self._observe_lagged(message.header.stamp, points, mount)
+        if self._refuse(coordinate_problem(points.ravel().tolist(), self._limits),
+                        'landmarks hold a bad point'):
             return
         self._push(message.header.stamp, EventKind.OBSERVATION, (points, mount), 'landmarks',
                    message.header.frame_id)
 
-    def _observe_lagged(self, stamp: Time, points: np.ndarray, mount: LidarMount) -> None:
+    def _observe_lagged(self, stamp_s: float, points: np.ndarray, mount: LidarMount) -> None:
         # Not an input that ends the idle wait: held scans wait for the speed and IMU
         # samples, and are flushed when those stop (end of data).
-        ns = self._stamp_ns(stamp, 'landmarks')
-        if ns is None:
-            return
-        stamp_s = self._origin.seconds(ns)
         try:
             fate = self._lagged.observation(stamp_s, points, mount)
         except CoreError as err:
@@ -310,24 +368,54 @@ class EkfNode(Node):
                        f'are {known}')
         return mount
 
-    def _push(self, stamp, kind: EventKind, value, what: str, stream: str) -> None:
-        self._last_input = time.monotonic()
+    def _push(self, stamp: Time, kind: EventKind, value, what: str, stream: str) -> None:
+        if kind is not EventKind.OBSERVATION or self._lagged is None:
+            self._last_input = time.monotonic()
         ns = self._stamp_ns(stamp, what)
         if ns is None:
             return
-        stamp_s = self._origin.seconds(ns)
+        self._offer(stream, self._origin.seconds(ns), (kind, ns, value, what))
+
+    def _offer(self, stream: str, stamp_s: float, payload: tuple) -> None:
+        """Pass a message through the stamp gate into the merger (or the lagged path)."""
+        passed, dropped = self._gate.offer(stream, stamp_s, payload)
+        if len(passed) == 1 and not dropped:  # the common case: this message, at once
+            self._merge(*passed[0])
+            return
+        for _, dropped_s, (_, _, _, what) in dropped:
+            common = self._gate.time_s
+            self._drop('stamp_jump', f'{what} stamp {dropped_s:.3f} s is more than '
+                       f'{self._gate.max_jump_s:g} s (limits.max_stamp_jump_s) ahead of the '
+                       'other inputs' + ('' if common is None else f' ({common:.3f} s)')
+                       + ' and its input did not go on from it')
+        for name, stamp_s, message in passed:
+            self._merge(name, stamp_s, message)
+
+    def _merge(self, stream: str, stamp_s: float, payload: tuple) -> None:
+        kind, ns, value, what = payload
+        if kind is EventKind.OBSERVATION and self._lagged is not None:
+            self._observe_lagged(stamp_s, *value)
+            return
         ready, late = self._buffer.push(stream, stamp_s, kind, (ns, value))
         if late:
-            behind_s = (self.driver.stamp_s or stamp_s) - stamp_s
-            self._late_streak = self._late_streak + 1 if behind_s > self._loop_jump_s else 0
-            if self._late_streak >= self._restart_after:
-                self.reset(f'{self._late_streak} messages in a row went back about '
-                           f'{behind_s:.1f} s (looped data?)')
-                ready, late = self._buffer.push(stream, stamp_s, kind, (ns, value))
+            behind_s = self._buffer.released_s - stamp_s  # finite: something was released
+            if behind_s > self._loop_jump_s:
+                self._late_streak += 1
+                self._late_streams.add(stream)
+            else:
+                self._late_streak, self._late_streams = 0, set()
+            # Stamps restart only when every input goes back: one input that lags (a
+            # starved queue, a clock behind) only loses its late messages.
+            active = self._buffer.active_streams()
+            if self._late_streak >= self._restart_after and self._late_streams >= active:
+                self.reset(f'stamps restarted: {self._late_streak} messages in a row from '
+                           f'every input ({", ".join(sorted(self._late_streams))}) went back '
+                           f'about {behind_s:.1f} s (looped data without /clock?)')
+                self._offer(stream, stamp_s, payload)
             else:
                 self._drop('late', f'{what} stamp {behind_s:.3f} s behind the filter')
-                return
-        self._late_streak = 0
+            return
+        self._late_streak, self._late_streams = 0, set()
         self._process(ready)
 
     def _process(self, events) -> None:
@@ -364,19 +452,17 @@ class EkfNode(Node):
         if points.shape[0] == 0:
             self._drop('empty_map', f'{topics.LANDMARK_MAP} has no landmarks; keeping the '
                        'current map')
-        elif not finite(*points.ravel().tolist()):
-            self._drop('non_finite', f'{topics.LANDMARK_MAP} holds a non-finite landmark')
-        else:
+        elif not self._refuse(coordinate_problem(points.ravel().tolist(), self._limits),
+                              f'{topics.LANDMARK_MAP} holds a bad landmark; keeping the '
+                              'current map'):
             self.driver.landmarks = LandmarkMap(points)
             self._forget_history()
             self.get_logger().info(f'landmark map: {points.shape[0]} landmarks')
 
     def _on_initial_pose(self, message: PoseWithCovarianceStamped) -> None:
-        try:
-            pose, covariance = pose_and_covariance(message)
-        except ValueError as err:
-            self._drop('non_finite', f'{topics.INITIAL_POSE}: {err}')
+        if self._refuse(pose_problem(message, self._limits), topics.INITIAL_POSE, 'bad_pose'):
             return
+        pose, covariance = pose_and_covariance(message)
         self.driver.ekf.set_pose(pose, covariance)
         self._forget_history()
         self.get_logger().info(f'pose set to {np.round(pose, 4).tolist()} '
@@ -384,8 +470,7 @@ class EkfNode(Node):
 
     def _on_bias(self, message: Vector3Stamped) -> None:
         bias = float(message.vector.z)
-        if not finite(bias):
-            self._drop('non_finite', f'{topics.GYRO_BIAS} is not finite')
+        if self._refuse(rate_problem(bias, self._limits), topics.GYRO_BIAS):
             return
         self._calibrated_bias = bias
         self.driver.ekf.set_bias(bias, self._calibration_sigma)
@@ -407,9 +492,10 @@ class EkfNode(Node):
         if self._calibrated_bias is not None:
             self.driver.ekf.set_bias(self._calibrated_bias, self._calibration_sigma)
         self._buffer.clear()
+        self._gate.clear()
         if self._lagged is not None:
             self._lagged.reset()
-        self._late_streak = 0
+        self._late_streak, self._late_streams = 0, set()
         self.resets += 1
         self.get_logger().warn(f'filter reset: {why}')
 
@@ -423,13 +509,19 @@ class EkfNode(Node):
     def _on_time_jump(self, jump: TimeJump) -> None:
         delta_s = jump.delta.nanoseconds / 1e9
         if delta_s < 0.0:
-            self.reset(f'ROS time jumped back {-delta_s:.3f} s (looped bag?)')
+            self.reset(f'ROS time jumped back {-delta_s:.3f} s (/clock went backwards: a '
+                       'looped bag?)')
 
     # Housekeeping -----------------------------------------------------------------------
 
     def _flush_when_idle(self) -> None:
         held = len(self._buffer) + (self._lagged.held if self._lagged is not None else 0)
-        if held and time.monotonic() - self._last_input > self._idle_flush_s:
+        idle = held and time.monotonic() - self._last_input > self._idle_flush_s
+        # Idle on two ticks in a row: a process that was starved finds its timer due and its
+        # queues full; the executor serves those queues before the next tick.
+        self._idle_ticks = self._idle_ticks + 1 if idle else 0
+        if self._idle_ticks >= 2:
+            self._idle_ticks = 0
             self._process(self._buffer.flush())
             if self._lagged is not None:
                 self._lagged.flush()
@@ -462,6 +554,7 @@ class EkfNode(Node):
             'time_since_association_s': '' if since is None else f'{since:.3f}',
             'estimates': str(self._estimates), 'published': str(self.published),
             'buffered': str(len(self._buffer)), 'resets': str(self.resets),
+            'held_far_ahead': str(self._gate.held), 'long_gaps': str(stats.long_gaps),
             **({} if self._lagged is None else {
                 'held_observations': str(self._lagged.held),
                 'replayed_observations': str(self._lagged.stats.replays),
@@ -471,7 +564,12 @@ class EkfNode(Node):
         }
         status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: gyro bias EKF',
                                   hardware_id=self.resolve_topic_name(topics.IMU))
-        if self._estimates == 0:
+        rising = sorted(k for k, v in self.dropped.items() if v > self._reported_drops[k])
+        self._reported_drops = dict(self.dropped)
+        if rising:
+            status.level = DiagnosticStatus.WARN
+            status.message = f'dropping input: {", ".join(rising)}'
+        elif self._estimates == 0:
             status.level, status.message = DiagnosticStatus.WARN, 'no IMU data processed yet'
         elif self.driver.landmarks is None:
             status.level, status.message = DiagnosticStatus.WARN, 'no landmark map'

@@ -5,6 +5,12 @@ Subscribes `scan` (sensor_msgs/LaserScan, sensor-data QoS) and publishes `landma
 core's detector finds, one pose per pole at (x, y, 0); a scan with no pole gives an empty
 PoseArray, so the filter still sees when the scan was taken. Run one node per LiDAR by
 remapping: `--ros-args -r scan:=scan2 -r __node:=landmark_detector_scan2`.
+
+A scan whose beam geometry is not one (angle_increment 0, angles not finite, a ranges count
+that disagrees with angle_min/max/increment, more than one turn, bad range limits:
+core.validation's scan check) would place poles at made-up bearings: it is dropped and
+counted as `dropped_bad_scan` in /diagnostics, as is a scan with a zero stamp
+(`dropped_zero_stamp`). Ranges themselves may be inf or NaN (REP-117: no return).
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ from gyro_ekf.core.config import DetectorConfig
 from gyro_ekf.core.detection import detect_poles
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.nodes import qos
-from gyro_ekf.nodes.conversions import points_message, scan_arrays, stamp_ns
+from gyro_ekf.nodes.conversions import points_message, scan_arrays, scan_problem, stamp_ns
 from gyro_ekf.nodes.params import declare, declare_config
 from gyro_ekf.nodes.runtime import run_node
 
@@ -58,6 +64,10 @@ class LandmarkDetectorNode(Node):
     def _on_scan(self, message: LaserScan) -> None:
         if stamp_ns(message.header.stamp) == 0:
             self._drop('zero_stamp', 'scan with a zero stamp')
+            return
+        problem = scan_problem(message)
+        if problem is not None:
+            self._drop('bad_scan', problem)
             return
         ranges, angles, intensities = scan_arrays(message)
         try:

@@ -203,12 +203,98 @@ def test_merger_waits_for_the_expected_streams_before_the_first_release():
     # odom's first message is older than imu's: without the wait it would be late.
     ready, late = buffer.push('odom', 0.99, EventKind.SPEED, 'odom0')
     assert late == [] and [p for _, _, p in ready] == ['odom0']   # imu1 waits for odom
-    # After a reset it waits again; a stream that never comes stops the wait when stale.
+    # After a reset it waits again; a stream that never comes stops the wait when stale:
+    # stale_after_s on the clock and in the stamps of the others.
     buffer.clear()
     assert buffer.push('imu', 2.0, EventKind.IMU, 'imu2') == ([], [])
     now[0] = 1.5
-    ready, _ = buffer.push('imu', 2.01, EventKind.IMU, 'imu3')
-    assert [p for _, _, p in ready] == ['imu2', 'imu3']
+    assert buffer.push('imu', 2.01, EventKind.IMU, 'imu3') == ([], [])  # stamps: 0.01 s
+    ready, _ = buffer.push('imu', 3.01, EventKind.IMU, 'imu4')
+    assert [p for _, _, p in ready] == ['imu2', 'imu3', 'imu4']
+
+
+def test_a_starved_process_does_not_find_its_streams_stale():
+    # The process slept 5 s on the clock; both queues still hold messages 10 ms apart.
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0],
+                          expected_streams=('imu', 'odom'))
+    late = []
+    for k in range(100):
+        if k == 50:
+            now[0] += 5.0
+        stamp = 0.01 * k
+        late += buffer.push('imu', stamp + 0.005, EventKind.IMU, k)[1]
+        late += buffer.push('odom', stamp, EventKind.SPEED, k)[1]
+    assert late == []
+    assert buffer.active_streams() == {'imu', 'odom'}
+
+
+def test_a_stream_whose_queue_lags_in_stamps_still_holds_the_others_back():
+    # The IMU keeps arriving, 2 s behind the odometry in stamps (a queue that drains
+    # slower than it fills): it is not stale, so no IMU sample becomes late.
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0],
+                          expected_streams=('imu', 'odom'))
+    late, released = [], []
+    for k in range(400):
+        now[0] += 0.01
+        ready, gone = buffer.push('odom', 2.0 + 0.01 * k, EventKind.SPEED, ('odom', k))
+        released += ready
+        late += gone
+        ready, gone = buffer.push('imu', 0.01 * k, EventKind.IMU, ('imu', k))
+        released += ready
+        late += gone
+    assert late == []
+    assert max(stamp for stamp, _, _ in released) <= 0.01 * 399
+
+
+def test_a_stopped_stream_goes_stale_on_the_clock_and_in_the_stamps():
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0])
+    buffer.push('scan', 0.0, EventKind.OBSERVATION, 'scan')
+    for k in range(300):
+        now[0] = 0.01 * k
+        buffer.push('imu', 0.01 * k, EventKind.IMU, k)
+    assert buffer.active_streams() == {'imu'}
+    assert len(buffer) < 5
+
+
+def test_a_gap_far_beyond_the_prediction_step_costs_bounded_steps():
+    from gyro_ekf.core.events import MAX_PREDICTION_STEPS
+
+    class CountingEkf:
+        def __init__(self, ekf):
+            self.ekf, self.calls = ekf, 0
+
+        def __getattr__(self, name):
+            return getattr(self.ekf, name)
+
+        def predict(self, *args):
+            self.calls += 1
+            return self.ekf.predict(*args)
+
+    driver = EventDriver(EkfConfig(max_prediction_step_s=0.1), pose=[0, 0, 0])
+    driver.ekf = counting = CountingEkf(driver.ekf)
+    driver.on_speed(0.0, 1.0)
+    driver.on_imu(0.0, 0.0)
+    estimate = driver.on_imu(4e8, 0.0)  # predicted 0.1 s at a time: 4e9 steps
+    assert counting.calls <= MAX_PREDICTION_STEPS + 1
+    assert np.isfinite(estimate.state).all() and np.isfinite(estimate.covariance).all()
+    assert estimate.state[0] == pytest.approx(4e8)
+    assert driver.stats.long_gaps == 1
+    # A gap within the bound is still split into max_prediction_step_s steps.
+    counting.calls = 0
+    driver.on_imu(4e8 + 1.0, 0.0)
+    assert 10 <= counting.calls <= 11 and driver.stats.long_gaps == 1
+
+
+def test_a_stamp_that_is_not_finite_is_refused():
+    from gyro_ekf.core.errors import CoreError
+    driver = EventDriver(EkfConfig(), pose=[0, 0, 0])
+    driver.on_imu(1.0, 0.0)
+    with pytest.raises(CoreError, match='imu stamp nan is not finite'):
+        driver.on_imu(math.nan, 0.0)
+    assert driver.stamp_s == 1.0
 
 
 def _frozen_scans(driver, truth, landmarks, mount, start_s, count, bearing_error_rad):

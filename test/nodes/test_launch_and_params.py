@@ -71,6 +71,16 @@ def test_config_file_holds_the_core_defaults(node, config_name):
         assert values.get(field.name) == getattr(defaults, field.name), field.name
 
 
+@pytest.mark.parametrize('node', ['ekf_node', 'calibration_node'])
+def test_config_file_holds_the_input_limits_defaults(node):
+    import dataclasses
+
+    from gyro_ekf.core.config import InputLimits
+    values = yaml.safe_load(CONFIG.read_text())[node]['ros__parameters']
+    for field in dataclasses.fields(InputLimits):
+        assert values.get(f'limits.{field.name}') == field.default, field.name
+
+
 @pytest.mark.ros
 def test_bag_sidecar_reaches_the_ekf_node(ros_env, sim_bag):
     import rclpy
@@ -95,5 +105,27 @@ def test_bag_sidecar_reaches_the_ekf_node(ros_env, sim_bag):
             assert node._origin.zero_ns == params.log_time_zero_ns
         finally:
             node.destroy_node()
+    finally:
+        context.try_shutdown()
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('args, match', [
+    (['-p', 'lidar.topics:=[scan]', '-p', 'lidar.scan.x_m:=.nan'], 'lidar.scan .*not finite'),
+    (['-p', 'lidar.topics:=[scan]', '-p', 'lidar.scan.y_m:=50.0'], 'lidar.scan .*exceeds'),
+    (['-p', 'initial_pose.x_m:=.inf'], 'initial_pose: .*not finite'),
+])
+def test_a_mount_or_start_pose_out_of_its_limits_is_a_configuration_error(ros_env, args,
+                                                                          match):
+    import rclpy
+
+    from gyro_ekf.errors import GyroEkfError
+    from gyro_ekf.nodes.ekf_node import EkfNode
+
+    context = rclpy.Context()
+    rclpy.init(context=context, args=['--ros-args', *args])
+    try:
+        with pytest.raises(GyroEkfError, match=match):
+            EkfNode(context=context)
     finally:
         context.try_shutdown()
