@@ -61,12 +61,23 @@ def test_the_yaw_error_is_found_within_0_2_deg(seed, yaw_error_deg, x_error_m, y
     assert found.detections >= 0.95 * found.detections_total
 
 
-def test_a_correct_mount_is_left_as_it_is():
-    trip = _trip(25, 0.0)
+@pytest.mark.parametrize('seed', [25, 41, 43])
+def test_a_correct_mount_is_left_as_it_is(seed):
+    # These trips start with an 8 s stop: counted scan by scan, its one view of the poles
+    # pulled the fit 0.04-0.05 deg off on seeds 41 and 43.
+    trip = _trip(seed, 0.0)
     (found,) = calibrate_mounts(trip, *_reference(trip))
-    assert abs(math.degrees(found.yaw_error_rad)) < 0.1
-    assert found.mount.x_m == pytest.approx(0.46, abs=0.01)
-    assert found.mount.y_m == pytest.approx(0.0, abs=0.01)
+    assert abs(math.degrees(found.yaw_error_rad)) < 0.02
+    assert found.mount.x_m == pytest.approx(0.46, abs=0.005)
+    assert found.mount.y_m == pytest.approx(0.0, abs=0.005)
+    assert not found.significant and found.proposed == found.stated
+
+
+def test_a_small_error_is_still_clearly_better_than_the_stated_mount():
+    trip = _trip(26, 0.3)
+    (found,) = calibrate_mounts(trip, *_reference(trip))
+    assert math.degrees(found.yaw_error_rad) == pytest.approx(0.3, abs=0.05)
+    assert found.significant and found.proposed == found.mount
 
 
 def test_no_map_no_second_lidar_and_no_scans_are_refused_with_the_topic():
