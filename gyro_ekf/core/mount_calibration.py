@@ -24,10 +24,10 @@ and its residual is p minus the nearest map pole. The fit:
 Sigmas are from the normal equations scaled by the weighted residual variance. Detections
 of successive scans share the reference trajectory's errors, so they are not independent:
 the sigmas are a lower bound, good for comparing mounts, not for a chi-square test. On
-the 2023 course log, whose mounts are exact, the fit lands 0.044 deg and 4 mm off them (the
+the 2023 course log, whose mounts are exact, the fit lands 0.048 deg and 4 mm off them (the
 reference path's own heading errors; against the true path it lands within 0.005 deg),
 ten times its sigma, and such a change costs the filter's consistency (NEES share 0.914 ->
-0.850). So a fit is only proposed in place of the stated mount when it lays the detections
+0.859). So a fit is only proposed in place of the stated mount when it lays the detections
 clearly closer to the poles (``min_improvement``); a mount off by 0.15 deg or more is.
 """
 
