@@ -20,7 +20,9 @@ prediction without it. Each IMU sample yields an estimate:
 with covariance; speed and bias-corrected yaw rate in the twist) and `ekf/bias`
 (Vector3Stamped, z = bias in rad/s), every `publish_every_n`-th sample. `/diagnostics`
 reports the bias and its sigma in deg/s, associated/rejected observations, mean NIS, input
-rates, time since the last associated landmark and the drop counts.
+rates, time since the last associated landmark, the drop counts and the LiDAR mounts in use
+(`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file from `gyro-ekf calibrate-mounts`
+given after the bag's overrides the bag's mounts).
 
 Robustness: every value is checked where it enters, with core.validation and the
 `limits.*` parameters (core.config.InputLimits), and a bad message is dropped and counted per
@@ -561,6 +563,12 @@ class EkfNode(Node):
                 'replayed_events': str(self._lagged.stats.replayed_events),
                 'refused_held_observations': str(self._lagged.stats.refused)}),
             **{f'dropped_{k}': str(v) for k, v in self.dropped.items()},
+            # The mounts in use (from the params files, e.g. calibrate-mounts' output).
+            **{f'mount_{topic}_{key}': value
+               for topic, (frame, mount) in self._sidecar.lidars.items()
+               for key, value in (('frame_id', frame), ('x_m', f'{mount.x_m:.4f}'),
+                                  ('y_m', f'{mount.y_m:.4f}'),
+                                  ('yaw_deg', f'{math.degrees(mount.yaw_rad):.3f}'))},
         }
         status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: gyro bias EKF',
                                   hardware_id=self.resolve_topic_name(topics.IMU))
