@@ -17,6 +17,7 @@ GYRO_BIAS = 'gyro_bias'
 EKF_POSE = 'ekf/pose'
 EKF_ODOMETRY = 'ekf/odometry'
 EKF_BIAS = 'ekf/bias'
+EKF_MOUNTS = 'ekf/mounts'
 DIAGNOSTICS = '/diagnostics'
 CLOCK = '/clock'
 

@@ -22,7 +22,8 @@ with covariance; speed and bias-corrected yaw rate in the twist) and `ekf/bias`
 reports the bias and its sigma in deg/s, associated/rejected observations, mean NIS, input
 rates, time since the last associated landmark, the drop counts and the LiDAR mounts in use
 (`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file from `gyro-ekf calibrate-mounts`
-given after the bag's overrides the bag's mounts).
+given after the bag's overrides the bag's mounts); `ekf/mounts` (PoseArray in `base_link`,
+latched) holds the same mounts, one pose per `lidar.topics` entry in that order.
 
 Robustness: every value is checked where it enters, with core.validation and the
 `limits.*` parameters (core.config.InputLimits), and a bad message is dropped and counted per
@@ -58,7 +59,7 @@ import numpy as np
 import yaml
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped, Vector3Stamped
+from geometry_msgs.msg import Point, Pose, PoseArray, PoseWithCovarianceStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType, JumpThreshold, TimeJump
 from rclpy.duration import Duration
@@ -80,7 +81,7 @@ from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.nodes import qos
 from gyro_ekf.nodes.conversions import (drop_reason, EstimateMessages, odometry_speed,
                                         points_of, pose_and_covariance, pose_problem,
-                                        stamp_ns, TimeOrigin)
+                                        stamp_ns, TimeOrigin, yaw_quaternion)
 from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar
 from gyro_ekf.nodes.runtime import run_node
 
@@ -258,6 +259,13 @@ class EkfNode(Node):
         self._bias_pub = self.create_publisher(Vector3Stamped, topics.EKF_BIAS, qos.OUTPUT)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
                                                       qos.OUTPUT)
+        # The LiDAR mounts in use, latched: one pose in base_link per lidar.topics entry.
+        self._mounts_pub = self.create_publisher(PoseArray, topics.EKF_MOUNTS, qos.LATCHED)
+        self._mounts_pub.publish(PoseArray(
+            header=Header(stamp=self.get_clock().now().to_msg(), frame_id=self._base_frame),
+            poses=[Pose(position=Point(x=float(mount.x_m), y=float(mount.y_m)),
+                        orientation=yaw_quaternion(mount.yaw_rad))
+                   for _, mount in sidecar.lidars.values()]))
         # Map, pose and bias first: the executor serves ready subscriptions in creation order.
         self.create_subscription(PoseArray, topics.LANDMARK_MAP, self._on_map, qos.LATCHED)
         self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE,

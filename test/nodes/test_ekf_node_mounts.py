@@ -1,4 +1,4 @@
-"""ekf_node takes the mounts of a calibrate-mounts params file and reports them."""
+"""ekf_node takes a calibrate-mounts params file's mounts and shows them (diagnostics, topic)."""
 
 from __future__ import annotations
 
@@ -13,9 +13,11 @@ pytestmark = pytest.mark.ros
 def test_the_calibrated_mounts_override_the_bags_and_appear_in_diagnostics(
         ros_processes, diagnostics_of, tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseArray
 
     from gyro_ekf.cli.main import main
     from gyro_ekf.nodes import qos
+    from gyro_ekf.nodes.conversions import quaternion_yaw
 
     bag = tmp_path / 'sim'
     assert main(['-q', 'simulate', '-o', str(bag), '--seed', '51', '--duration-s', '20',
@@ -27,6 +29,7 @@ def test_the_calibrated_mounts_override_the_bags_and_appear_in_diagnostics(
 
     processes, probe = ros_processes
     diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
+    latched = probe.subscribe(PoseArray, 'ekf/mounts', qos.LATCHED)
     # The later params file wins: the bag's sidecar states 180 deg for scan2.
     processes.node('ekf_node', '--params-file', f'{bag}.params.yaml', '--params-file',
                    str(mounts), '-p', 'diagnostics_period_s:=0.2', '-r',
@@ -41,3 +44,13 @@ def test_the_calibrated_mounts_override_the_bags_and_appear_in_diagnostics(
     assert float(values['mount_scan2_x_m']) == pytest.approx(written['x_m'], abs=1e-4)
     assert float(values['mount_scan2_y_m']) == pytest.approx(written['y_m'], abs=1e-4)
     assert (values['mount_scan_x_m'], values['mount_scan_yaw_deg']) == ('0.4600', '0.000')
+
+    probe.spin_until(lambda: len(latched) >= 1, 60, 'the latched ekf/mounts')
+    (message,) = latched
+    assert message.header.frame_id == 'base_link'
+    (front, rear) = message.poses
+    assert (front.position.x, front.position.y, quaternion_yaw(front.orientation)) == (
+        0.46, 0.0, 0.0)
+    assert (rear.position.x, rear.position.y) == (written['x_m'], written['y_m'])
+    assert math.remainder(quaternion_yaw(rear.orientation) - written['yaw_rad'],
+                          2 * math.pi) == pytest.approx(0.0, abs=1e-9)
