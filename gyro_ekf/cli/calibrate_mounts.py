@@ -103,6 +103,9 @@ def run(args: argparse.Namespace) -> int:
     if output is not None and (output.is_dir() or (output.exists() and not args.force)):
         raise OutputError(f'{output}: exists; --force replaces a file' if not output.is_dir()
                           else f'{output}: is a folder; give a params file name')
+    if output is not None and not output.parent.is_dir():
+        # Said before the reference run and the fit, not after them.
+        raise OutputError(f'{output}: cannot write: no such file or directory')
     bag = read_bag(args.bag, acceleration=False)
     source = str(args.bag)
     trip, report = validate_trip(bag.trip, Path(args.bag).name, skip_bad=args.skip_bad)

@@ -149,6 +149,12 @@ def test_an_existing_output_is_kept_without_force(tmp_path, capsys):
     assert 'exists' in capsys.readouterr().err
     assert params.read_text() == 'keep me\n'
     assert main(['-q', 'calibrate-mounts', str(bag), '-o', str(params), '--force']) == 0
+    capsys.readouterr()
+    nowhere = tmp_path / 'no' / 'such' / 'p.yaml'
+    assert main(['-q', 'calibrate-mounts', str(bag), '-o', str(nowhere)]) == 1
+    out, err = capsys.readouterr()
+    assert err.strip() == (f'gyro-ekf calibrate-mounts: error: {nowhere}: cannot write: no '
+                           'such file or directory') and out == ''
     assert read_params_file(params).lidars['scan2'][1].x_m == pytest.approx(0.46, abs=0.01)
 
 
