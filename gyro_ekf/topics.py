@@ -23,6 +23,7 @@ EKF_MARKERS = 'ekf/markers'
 LANDMARK_MARKERS = 'landmark_markers'
 TF = '/tf'
 TF_STATIC = '/tf_static'
+EKF_MOUNTS = 'ekf/mounts'
 DIAGNOSTICS = '/diagnostics'
 CLOCK = '/clock'
 

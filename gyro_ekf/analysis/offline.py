@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from gyro_ekf.analysis.params_file import PipelineParams
+from gyro_ekf.analysis.params_file import PipelineParams, with_lidar_mounts
 from gyro_ekf.core.calibration import estimate_gyro_bias
 from gyro_ekf.core.config import (STATED_NOISE_FIELDS, CalibrationConfig, EkfConfig,
                                   with_stated_noise)
@@ -168,6 +168,8 @@ def run_trip(trip: Trip, params: PipelineParams | None = None, use_stated_noise:
                                                          DEFAULT_USE_MESSAGE_COVARIANCE))
     if not use_message_covariance:
         trip = without_message_covariance(trip)
+    # LiDAR mounts of a params file (e.g. from calibrate-mounts) replace the bag's.
+    trip = with_lidar_mounts(trip, params)
     config, sources = effective_config(trip.noise, params, use_stated_noise)
     calibration, reason = calibrate(trip, params.calibration)
     driver = EventDriver(config, trip.landmarks, trip.initial_pose,

@@ -14,9 +14,14 @@ Sections of the pipeline's nodes (`/**`, `ekf_node`, `calibration_node`,
 `landmark_detector_node`) are read; sections of other nodes are skipped. Inside a read
 section, a name (after an optional `ekf.`, `calibration.` or `detector.` group prefix) that
 is a field of EkfConfig, CalibrationConfig or DetectorConfig sets that field; other names
-(the bag sidecar's `initial_pose.*`, `lidar.*`, node-level options) belong to someone else and
-are skipped. A value set in a node section overrides the same value under `/**`. Values
+(the bag sidecar's `initial_pose.*`, node-level options) belong to someone else and are
+skipped. A value set in a node section overrides the same value under `/**`. Values
 are checked by `core.config.make_config`, and every error names the file and parameter.
+
+LiDAR mounts are read in the EKF node's (and the bag sidecar's) layout, `lidar.topics` and
+`lidar.<topic>.{frame_id, x_m, y_m, yaw_rad}` (x, y and yaw required, frame_id optional);
+`gyro-ekf calibrate-mounts` writes them. `with_lidar_mounts` puts them on a trip's scans,
+overriding the mounts the bag states for those topics.
 """
 
 from __future__ import annotations
@@ -33,6 +38,8 @@ import yaml
 from gyro_ekf.analysis.errors import ParamsFileError
 from gyro_ekf.core.config import CalibrationConfig, DetectorConfig, EkfConfig, make_config
 from gyro_ekf.core.errors import CoreError
+from gyro_ekf.core.types import LidarMount, Trip
+from gyro_ekf.core.validation import mount_problem
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +67,7 @@ class PipelineParams:
         explicit: names of the fields the file set, per group ('ekf', 'calibration',
             'detector').
         options: node-level options the file set (see OPTIONS).
+        lidars: scan topic (no slash) -> (frame_id or None, mount) the file sets.
     """
 
     ekf: EkfConfig = field(default_factory=EkfConfig)
@@ -67,6 +75,7 @@ class PipelineParams:
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     explicit: dict[str, tuple[str, ...]] = field(default_factory=dict)
     options: dict[str, Any] = field(default_factory=dict)
+    lidars: dict[str, tuple[str | None, LidarMount]] = field(default_factory=dict)
 
 
 def _flatten(tree: dict[str, Any], prefix: str = '') -> dict[str, Any]:
@@ -115,6 +124,7 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
     sections = sorted(tree.items(), key=lambda item: 0 if item[0] in ('/**', '**') else 1)
     values: dict[str, dict[str, Any]] = {group: {} for group in _CONFIG_TYPES}
     options: dict[str, Any] = {}
+    lidar_values: dict[str, Any] = {}
     for node, body in sections:
         if not _is_pipeline_section(str(node)):
             log.debug('%s: skipping the section of node %r', source, node)
@@ -123,6 +133,9 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
             raise ParamsFileError(f"{source}: section {node!r} has no 'ros__parameters' "
                                   'mapping')
         for name, value in _flatten(body['ros__parameters']).items():
+            if name.startswith('lidar.'):
+                lidar_values[name[len('lidar.'):]] = value
+                continue
             group, _, short = name.rpartition('.')
             if short in OPTIONS and not group:
                 options[short] = value
@@ -153,7 +166,65 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
                                   f'got {options[name]!r}')
     return PipelineParams(
         ekf=built['ekf'], calibration=built['calibration'], detector=built['detector'],
-        explicit={group: tuple(sorted(v)) for group, v in values.items()}, options=options)
+        explicit={group: tuple(sorted(v)) for group, v in values.items()}, options=options,
+        lidars=_lidar_mounts(lidar_values, source))
+
+
+def _lidar_mounts(values: dict[str, Any], source: str
+                  ) -> dict[str, tuple[str | None, LidarMount]]:
+    """Mounts from the flattened `lidar.*` names (without the prefix); see the docstring."""
+    if not values:
+        return {}
+    topics = values.get('topics')
+    if not isinstance(topics, list) or not all(isinstance(t, str) and t for t in topics):
+        raise ParamsFileError(f"{source}: parameter 'lidar.topics' must be a list of scan "
+                              f'topics, got {topics!r}')
+    mounts: dict[str, tuple[str | None, LidarMount]] = {}
+    for topic in topics:
+        numbers = []
+        for key in ('x_m', 'y_m', 'yaw_rad'):
+            name = f'lidar.{topic}.{key}'
+            value = values.get(f'{topic}.{key}')
+            if value is None:
+                raise ParamsFileError(f"{source}: parameter '{name}' is missing")
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ParamsFileError(f"{source}: parameter '{name}' must be a number, got "
+                                      f'{value!r}')
+            _require_finite(source, name, float(value))
+            numbers.append(float(value))
+        problem = mount_problem(*numbers)
+        if problem:
+            raise ParamsFileError(f"{source}: parameter 'lidar.{topic}': {problem}")
+        frame = values.get(f'{topic}.frame_id')
+        if frame is not None and not isinstance(frame, str):
+            raise ParamsFileError(f"{source}: parameter 'lidar.{topic}.frame_id' must be a "
+                                  f'string, got {frame!r}')
+        mounts[topic] = (frame, LidarMount(*numbers))
+    return mounts
+
+
+def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
+    """Return the trip with the params file's LiDAR mounts on the scans of the same topics.
+
+    Each override is logged with the mount the bag states; a topic the trip has no scans
+    of is logged and skipped (the file may serve several bags).
+    """
+    if not params.lidars:
+        return trip
+    scans = []
+    for series in trip.scans:
+        frame, mount = params.lidars.get(series.topic, (None, series.mount))
+        if mount != series.mount:
+            log.info("%s: LiDAR '%s' mount from the params file (%g m, %g m, %g rad); the "
+                     'bag states (%g m, %g m, %g rad)', trip.name, series.topic, mount.x_m,
+                     mount.y_m, mount.yaw_rad, series.mount.x_m, series.mount.y_m,
+                     series.mount.yaw_rad)
+        scans.append(dataclasses.replace(series, mount=mount,
+                                         frame_id=frame or series.frame_id))
+    for topic in sorted(set(params.lidars) - {s.topic for s in trip.scans}):
+        log.warning("%s: the params file sets a mount for LiDAR '%s', which has no scans in "
+                    'this trip; ignored', trip.name, topic)
+    return dataclasses.replace(trip, scans=tuple(scans))
 
 
 def read_params_file(path: Path | str) -> PipelineParams:

@@ -13,8 +13,8 @@ import sys
 
 from gyro_ekf.errors import GyroEkfError
 
-COMMANDS = ('convert', 'info', 'simulate', 'calibrate', 'run', 'demo', 'replay', 'record',
-            'reindex', 'make_bags', 'bench')
+COMMANDS = ('convert', 'info', 'simulate', 'calibrate', 'calibrate_mounts', 'run', 'demo',
+            'replay', 'record', 'reindex', 'make_bags', 'bench')
 
 log = logging.getLogger('gyro_ekf')
 

@@ -131,6 +131,14 @@ def run(args: argparse.Namespace) -> int:
                           use_calibration=True if args.use_calibration else None)
     est = result.result.estimates
     summary = summarize(result, report)
+    # Stated (by the bag) against used (after a params file's mounts): a calibrated mount
+    # shows here.
+    summary['mounts'] = {used.topic: {
+        'stated': {'x_m': stated.mount.x_m, 'y_m': stated.mount.y_m,
+                   'yaw_deg': math.degrees(stated.mount.yaw_rad)},
+        'used': {'x_m': used.mount.x_m, 'y_m': used.mount.y_m,
+                 'yaw_deg': math.degrees(used.mount.yaw_rad)}}
+        for stated, used in zip(trip.scans, result.trip.scans)}
     # Every product is built in a staging folder that replaces the output folder only when
     # complete: a failure (disk full, read-only) leaves any previous output as it was.
     with outputs.staged_output_dir(folder, force=args.force) as staging:

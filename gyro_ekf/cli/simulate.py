@@ -8,6 +8,7 @@ import logging
 import math
 from pathlib import Path
 
+from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 
 HELP = 'simulate a course-like trip with ground truth and write it as a bag or .npz file'
@@ -33,6 +34,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='trip length, s')
     parser.add_argument('--static-s', type=float, default=defaults.static_s,
                         help='static window at the start (speed exactly 0), s')
+    parser.add_argument('--second-lidar', action='store_true',
+                        help='add a rear-facing second LiDAR on topic scan2, as in the 2023 logs')
+    for which, name in (('lidar', 'first'), ('lidar2', 'second')):
+        flag = which.replace('_', '-')
+        parser.add_argument(f'--{flag}-yaw-error-deg', type=float, default=0.0,
+                            help=f'true minus stated yaw of the {name} LiDAR, deg (the bag '
+                            'states the nominal mount)')
+        parser.add_argument(f'--{flag}-offset-m', type=float, nargs=2, default=(0.0, 0.0),
+                            metavar=('X', 'Y'),
+                            help=f'true minus stated x and y of the {name} LiDAR, m')
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                         help='bag storage plugin (ignored for .npz output)')
     parser.add_argument('--force', action='store_true', help='replace an existing output')
@@ -40,8 +51,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate and write the trip; returns the exit code."""
-    config = dataclasses.replace(SimulationConfig(), duration_s=args.duration_s,
-                                 static_s=args.static_s)
+    second = args.second_lidar
+    if not second and (args.lidar2_yaw_error_deg or any(args.lidar2_offset_m)):
+        raise CoreError('simulate: --lidar2-* mount errors need --second-lidar')
+    config = dataclasses.replace(
+        SimulationConfig(), duration_s=args.duration_s, static_s=args.static_s,
+        second_lidar=second,
+        lidar_yaw_error_rad=math.radians(args.lidar_yaw_error_deg),
+        lidar_x_error_m=args.lidar_offset_m[0], lidar_y_error_m=args.lidar_offset_m[1],
+        lidar2_yaw_error_rad=math.radians(args.lidar2_yaw_error_deg),
+        lidar2_x_error_m=args.lidar2_offset_m[0], lidar2_y_error_m=args.lidar2_offset_m[1])
     trip = simulate_trip(config, seed=args.seed)
     output: Path = args.output
     # io pulls in rosbags; import it only once there is something to write.
@@ -61,8 +80,14 @@ def run(args: argparse.Namespace) -> int:
     else:
         from gyro_ekf.io.bag_writer import write_trip_bag
         written = write_trip_bag(trip, output, storage=args.storage, force=args.force)
-    log.info('%s: %s, %.1f s (%.1f s static), %d scans, %d landmarks, z bias %.3f deg/s',
-             written, trip.name, trip.end_s, trip.static_duration_s,
-             len(trip.scans[0].stamp_s), len(trip.landmarks),
+    log.info('%s: %s, %.1f s (%.1f s static), %d scans x %d LiDARs, %d landmarks, '
+             'z bias %.3f deg/s', written, trip.name, trip.end_s, trip.static_duration_s,
+             len(trip.scans[0].stamp_s), len(trip.scans), len(trip.landmarks),
              math.degrees(trip.true_gyro_bias_rad_s[2]))
+    for (stated, true), scans in zip(config.lidar_mounts(), trip.scans):
+        if true != stated:
+            log.info('%s: true mount (%.4f m, %.4f m, %.3f deg), the bag states '
+                     '(%.4f m, %.4f m, %.3f deg)', scans.topic, true.x_m, true.y_m,
+                     math.degrees(true.yaw_rad), stated.x_m, stated.y_m,
+                     math.degrees(stated.yaw_rad))
     return 0

@@ -23,6 +23,17 @@ The platform stands still for ``static_s`` (speed exactly 0), then drives a figu
   ray-cast (vectorised over scans, beams and objects) against poles (circles, intensity
   1.0) and wall segments (intensity 0.0); per-beam Gaussian range noise; no return (+inf)
   beyond ``lidar_max_range_m``. A whole scan is taken at its stamp (no sweep motion).
+* **Second LiDAR** (``second_lidar``, off by default): like the 2023 course logs, a
+  second scanner (topic ``scan2``, frame ``laser2``) with the same beams, stated at
+  ``LidarMount(lidar2_x_m, lidar2_y_m, lidar2_yaw_rad)`` (default rear-facing at the first
+  LiDAR's origin), scanned at the same stamps with its own noise stream.
+* **Mount errors** (all 0 by default): the log states each LiDAR's nominal mount, while
+  the world is scanned from the true one, the nominal plus ``*_yaw_error_rad``,
+  ``*_x_error_m`` and ``*_y_error_m`` (``lidar_*`` for the first LiDAR, ``lidar2_*`` for the
+  second). They are given, not drawn, so a stress suite picks them from its own seeds.
+
+Every perturbation is off by default, and then the trip is bit-identical to one simulated
+before they existed (the extra LiDAR has a random stream of its own).
 
 ``Trip.noise`` states the gyro (z) and speed white-noise sigmas the simulator used and an
 exact map (landmark_m = 0). It states no range or bearing figure: the EKF's are the noise
@@ -46,6 +57,8 @@ from gyro_ekf.core.config import config_field as _param
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.types import (FloatArray, GroundTruth, ImuSeries, LandmarkMap, LidarMount,
                                  NoiseFigures, ScanSeries, SpeedSeries, Trip)
+# Plain strings, no ROS: the topic and frame names the 2023 logs' two LiDARs get.
+from gyro_ekf.topics import LASER2_FRAME, LASER_FRAME, SCAN, SCAN2
 
 GRAVITY_M_S2 = 9.80665
 POLE_INTENSITY = 1.0
@@ -117,6 +130,46 @@ class SimulationConfig:
     lidar_max_range_m: float = _param(30.0, 'm', 'No return (+inf) beyond this range.',
                                       1.0, 1000.0)
     range_noise_m: float = _param(0.015, 'm', 'Per-beam range noise sigma.', 0.0, 1.0)
+    lidar_yaw_error_rad: float = _param(
+        0.0, 'rad', 'True minus stated yaw of the first LiDAR.', -math.pi, math.pi)
+    lidar_x_error_m: float = _param(0.0, 'm', 'True minus stated x of the first LiDAR.',
+                                    -1.0, 1.0)
+    lidar_y_error_m: float = _param(0.0, 'm', 'True minus stated y of the first LiDAR.',
+                                    -1.0, 1.0)
+    second_lidar: bool = _param(False, '', 'Simulate a second LiDAR (topic scan2).')
+    lidar2_x_m: float = _param(0.46, 'm', 'Stated forward offset of the second LiDAR.',
+                               -5.0, 5.0)
+    lidar2_y_m: float = _param(0.0, 'm', 'Stated leftward offset of the second LiDAR.',
+                               -5.0, 5.0)
+    lidar2_yaw_rad: float = _param(math.pi, 'rad', 'Stated yaw of the second LiDAR '
+                                   '(pi = rear-facing).', -math.pi, math.pi)
+    lidar2_yaw_error_rad: float = _param(
+        0.0, 'rad', 'True minus stated yaw of the second LiDAR.', -math.pi, math.pi)
+    lidar2_x_error_m: float = _param(0.0, 'm', 'True minus stated x of the second LiDAR.',
+                                     -1.0, 1.0)
+    lidar2_y_error_m: float = _param(0.0, 'm', 'True minus stated y of the second LiDAR.',
+                                     -1.0, 1.0)
+
+    def lidar_mounts(self) -> tuple[tuple[LidarMount, LidarMount], ...]:
+        """(stated, true) mount of every simulated LiDAR, the first LiDAR first."""
+        mounts = [(LidarMount(self.lidar_x_m, self.lidar_y_m, self.lidar_yaw_rad),
+                   self.lidar_yaw_error_rad, self.lidar_x_error_m, self.lidar_y_error_m)]
+        if self.second_lidar:
+            mounts.append((LidarMount(self.lidar2_x_m, self.lidar2_y_m, self.lidar2_yaw_rad),
+                           self.lidar2_yaw_error_rad, self.lidar2_x_error_m,
+                           self.lidar2_y_error_m))
+        return tuple((stated, _offset(stated, yaw, x, y)) for stated, yaw, x, y in mounts)
+
+
+def _offset(stated: LidarMount, yaw_rad: float, x_m: float, y_m: float) -> LidarMount:
+    """Move the stated mount by the given errors.
+
+    The stated mount itself is returned when they are 0, so a trip without mount errors
+    computes exactly what it did before they existed.
+    """
+    if yaw_rad == 0.0 and x_m == 0.0 and y_m == 0.0:
+        return stated
+    return LidarMount(stated.x_m + x_m, stated.y_m + y_m, stated.yaw_rad + yaw_rad)
 
 
 def _check(config: SimulationConfig) -> None:
@@ -344,6 +397,39 @@ def _ray_cast(origins: FloatArray, headings: FloatArray, angles: FloatArray,
     return np.where(is_pole, r_pole, r_wall), is_pole
 
 
+def _scan_series(config: SimulationConfig, stated: LidarMount, true: LidarMount,
+                 scan_t: FloatArray, scan_pose: FloatArray, landmarks: FloatArray,
+                 seg_start: FloatArray, seg_vec: FloatArray, rng: np.random.Generator,
+                 topic: str, frame_id: str) -> ScanSeries:
+    """Ray-cast one LiDAR's scans from its true mount.
+
+    Block by block to bound memory on long trips; the series states the nominal mount, as
+    a log would.
+    """
+    c, s = np.cos(scan_pose[:, 2]), np.sin(scan_pose[:, 2])
+    origins = np.column_stack([scan_pose[:, 0] + true.x_m * c - true.y_m * s,
+                               scan_pose[:, 1] + true.x_m * s + true.y_m * c])
+    headings = scan_pose[:, 2] + true.yaw_rad
+    angles = config.lidar_angle_min_rad + config.lidar_increment_rad * np.arange(
+        config.lidar_beams)
+    ranges = np.empty((scan_t.size, config.lidar_beams), dtype=np.float32)
+    intensities = np.empty_like(ranges)
+    for first in range(0, scan_t.size, _SCAN_BLOCK):
+        block = slice(first, first + _SCAN_BLOCK)
+        r, is_pole = _ray_cast(origins[block], headings[block], angles, landmarks,
+                               config.pole_radius_m, seg_start, seg_vec)
+        r = r + config.range_noise_m * rng.standard_normal(r.shape)
+        r[~(r <= config.lidar_max_range_m)] = np.inf
+        ranges[block] = r
+        intensities[block] = np.where(is_pole & np.isfinite(r), POLE_INTENSITY,
+                                      WALL_INTENSITY)
+    return ScanSeries(
+        stamp_s=scan_t, ranges_m=ranges, intensities=intensities,
+        angle_min_rad=config.lidar_angle_min_rad,
+        angle_increment_rad=config.lidar_increment_rad, range_min_m=0.0,
+        range_max_m=config.lidar_max_range_m, mount=stated, topic=topic, frame_id=frame_id)
+
+
 def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip:
     """Simulate one trip; the same config and seed give the same trip, bit for bit.
 
@@ -365,8 +451,10 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
     if config is None:
         config = SimulationConfig()
     _check(config)
-    scene_rng, speed_rng, gyro_rng, accel_rng, odo_rng, lidar_rng = (
-        np.random.default_rng(child) for child in np.random.SeedSequence(seed).spawn(6))
+    # The second LiDAR's stream is a seventh child: the first six are what they always were.
+    scene_rng, speed_rng, gyro_rng, accel_rng, odo_rng, *lidar_rngs = (
+        np.random.default_rng(child) for child in np.random.SeedSequence(seed).spawn(
+            7 if config.second_lidar else 6))
 
     path = _make_path(config, scene_rng)
     poles_path = _place_poles(config, path, scene_rng)
@@ -410,40 +498,21 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
     truth_t = _sample_times(config.duration_s, config.truth_rate_hz)
     truth_pose = path.pose(arc(truth_t))
 
-    # LiDAR, ray-cast block by block to bound memory on long trips.
-    mount = LidarMount(config.lidar_x_m, config.lidar_y_m, config.lidar_yaw_rad)
     scan_t = _sample_times(config.duration_s, config.lidar_rate_hz)
     scan_pose = path.pose(arc(scan_t))
-    c, s = np.cos(scan_pose[:, 2]), np.sin(scan_pose[:, 2])
-    origins = np.column_stack([scan_pose[:, 0] + mount.x_m * c - mount.y_m * s,
-                               scan_pose[:, 1] + mount.x_m * s + mount.y_m * c])
-    headings = scan_pose[:, 2] + mount.yaw_rad
-    angles = config.lidar_angle_min_rad + config.lidar_increment_rad * np.arange(
-        config.lidar_beams)
     seg_start, seg_vec = _segments(walls)
-    ranges = np.empty((scan_t.size, config.lidar_beams), dtype=np.float32)
-    intensities = np.empty_like(ranges)
-    for first in range(0, scan_t.size, _SCAN_BLOCK):
-        block = slice(first, first + _SCAN_BLOCK)
-        r, is_pole = _ray_cast(origins[block], headings[block], angles, landmarks,
-                               config.pole_radius_m, seg_start, seg_vec)
-        r = r + config.range_noise_m * lidar_rng.standard_normal(r.shape)
-        r[~(r <= config.lidar_max_range_m)] = np.inf
-        ranges[block] = r
-        intensities[block] = np.where(is_pole & np.isfinite(r), POLE_INTENSITY,
-                                      WALL_INTENSITY)
-
-    scans = ScanSeries(
-        stamp_s=scan_t, ranges_m=ranges, intensities=intensities,
-        angle_min_rad=config.lidar_angle_min_rad,
-        angle_increment_rad=config.lidar_increment_rad, range_min_m=0.0,
-        range_max_m=config.lidar_max_range_m, mount=mount)
+    names = ((SCAN, LASER_FRAME), (SCAN2, LASER2_FRAME))
+    scans = tuple(
+        _scan_series(config, stated, true, scan_t, scan_pose, landmarks, seg_start, seg_vec,
+                     rng, topic, frame_id)
+        for (stated, true), rng, (topic, frame_id) in zip(config.lidar_mounts(), lidar_rngs,
+                                                          names))
     return Trip(
         name=f'sim_seed{seed}',
         imu=ImuSeries(stamp_s=imu_t, angular_velocity_rad_s=gyro,
                       linear_acceleration_m_s2=accel),
         speed=SpeedSeries(stamp_s=odo_t, speed_m_s=speed),
-        scans=(scans,),
+        scans=scans,
         landmarks=LandmarkMap(landmarks),
         initial_pose=truth_pose[0].copy(),
         ground_truth=GroundTruth(stamp_s=truth_t, pose=truth_pose),

@@ -28,7 +28,10 @@ to their landmark and its other detections, 2 Hz), latched `landmark_markers` (t
 and with `publish_tf` TF `map -> base_link` (or `map -> odom_frame`, robot_localization's
 rule) where the install has tf2_msgs. `/diagnostics`
 reports the bias and its sigma in deg/s, associated/rejected observations, mean NIS, input
-rates, time since the last associated landmark and the drop counts.
+rates, time since the last associated landmark, the drop counts and the LiDAR mounts in use
+(`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file from `gyro-ekf calibrate-mounts`
+given after the bag's overrides the bag's mounts); `ekf/mounts` (PoseArray in `base_link`,
+latched) holds the same mounts, one pose per `lidar.topics` entry in that order.
 
 Robustness: every value is checked where it enters, with core.validation and the
 `limits.*` parameters (core.config.InputLimits), and a bad message is dropped and counted per
@@ -64,7 +67,7 @@ import numpy as np
 import yaml
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped, Vector3Stamped
+from geometry_msgs.msg import Point, Pose, PoseArray, PoseWithCovarianceStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMessage
 from rclpy.clock import Clock, ClockType, JumpThreshold, TimeJump
@@ -91,7 +94,8 @@ from gyro_ekf.io import messages
 from gyro_ekf.nodes import qos, visuals
 from gyro_ekf.nodes.conversions import (drop_reason, EstimateMessages, odometry_speed,
                                         online_corrected_imu, points_of, pose_and_covariance,
-                                        pose_problem, quaternion_yaw, stamp_ns, TimeOrigin)
+                                        pose_problem, quaternion_yaw, stamp_ns, TimeOrigin,
+                                        yaw_quaternion)
 from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar
 from gyro_ekf.nodes.runtime import run_node
 
@@ -297,6 +301,13 @@ class EkfNode(Node):
         self._tf_pub = self._tf_publisher() if publish_tf else None
         if landmarks is not None:
             self._publish_landmark_markers(landmarks)
+        # The LiDAR mounts in use, latched: one pose in base_link per lidar.topics entry.
+        self._mounts_pub = self.create_publisher(PoseArray, topics.EKF_MOUNTS, qos.LATCHED)
+        self._mounts_pub.publish(PoseArray(
+            header=Header(stamp=self.get_clock().now().to_msg(), frame_id=self._base_frame),
+            poses=[Pose(position=Point(x=float(mount.x_m), y=float(mount.y_m)),
+                        orientation=yaw_quaternion(mount.yaw_rad))
+                   for _, mount in sidecar.lidars.values()]))
         # Map, pose and bias first: the executor serves ready subscriptions in creation order.
         self.create_subscription(PoseArray, topics.LANDMARK_MAP, self._on_map, qos.LATCHED)
         self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE,
@@ -673,6 +684,12 @@ class EkfNode(Node):
                 'replayed_events': str(self._lagged.stats.replayed_events),
                 'refused_held_observations': str(self._lagged.stats.refused)}),
             **{f'dropped_{k}': str(v) for k, v in self.dropped.items()},
+            # The mounts in use (from the params files, e.g. calibrate-mounts' output).
+            **{f'mount_{topic}_{key}': value
+               for topic, (frame, mount) in self._sidecar.lidars.items()
+               for key, value in (('frame_id', frame), ('x_m', f'{mount.x_m:.4f}'),
+                                  ('y_m', f'{mount.y_m:.4f}'),
+                                  ('yaw_deg', f'{math.degrees(mount.yaw_rad):.3f}'))},
         }
         status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: gyro bias EKF',
                                   hardware_id=self.resolve_topic_name(topics.IMU))

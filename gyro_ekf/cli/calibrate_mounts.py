@@ -1,0 +1,152 @@
+"""`gyro-ekf calibrate-mounts BAG [-o PARAMS.yaml]`: LiDAR mounts from the data and the map.
+
+The first LiDAR is the reference: the offline pipeline runs on it alone (the bag's other
+LiDARs left out) and its estimated path is the reference trajectory against which every
+other LiDAR's detections are fitted to the map (`core.mount_calibration`). Prints each
+mount (degrees, metres) with its sigma and residual; with -o writes a params file in the
+bag sidecar's `lidar.*` layout that `gyro-ekf run --params-file` and the EKF node take. A
+LiDAR whose fit is not clearly better than its stated mount (`--min-improvement`) keeps the
+stated mount in the file: fits of exact mounts land a few hundredths of a degree off, and
+that costs the filter more than it gains.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import math
+from pathlib import Path
+
+from gyro_ekf.cli.convert import add_skip_bad_argument, warn_dropped
+
+HELP = ('estimate the mounts of every LiDAR but the first against the map and write them '
+        'as a params file')
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add this command's arguments."""
+    parser.add_argument('bag', type=Path, help='input bag folder (from convert or simulate)')
+    parser.add_argument('-o', '--output', type=Path, default=None,
+                        help='params YAML to write the mounts to (lidar.* parameters)')
+    parser.add_argument('--force', action='store_true', help='replace an existing output')
+    parser.add_argument('--min-improvement', type=_share, default=0.1, metavar='SHARE',
+                        help='write a LiDAR\'s fitted mount only when the stated mount\'s RMS '
+                        'residual exceeds the fit\'s by more than this share; 0 writes every '
+                        'fit')
+    add_skip_bad_argument(parser)
+
+
+def _share(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 <= value <= 10.0:
+        raise argparse.ArgumentTypeError(f'{text!r}: must be a number from 0 to 10')
+    return value
+
+
+def params_yaml(estimates: list, reference: object) -> str:
+    """Return the mounts as params-file text, the reference LiDAR's as the bag states it."""
+    import yaml
+
+    lidar: dict = {'topics': [reference.topic] + [e.topic for e in estimates]}
+    lidar[reference.topic] = {'frame_id': reference.frame_id,
+                              'x_m': float(reference.mount.x_m),
+                              'y_m': float(reference.mount.y_m),
+                              'yaw_rad': float(reference.mount.yaw_rad)}
+    for e in estimates:
+        mount = e.proposed
+        lidar[e.topic] = {'frame_id': e.frame_id, 'x_m': float(mount.x_m),
+                          'y_m': float(mount.y_m), 'yaw_rad': float(mount.yaw_rad)}
+    header = ('# gyro_ekf LiDAR mounts (SI) from calibrate-mounts; the first LiDAR is the '
+              'reference.\n# Give it to `gyro-ekf run --params-file` or a node\'s '
+              '--ros-args --params-file.\n')
+    return header + yaml.safe_dump({'/**': {'ros__parameters': {'lidar': lidar}}},
+                                   sort_keys=False, default_flow_style=False)
+
+
+def _table(estimates: list, reference: object) -> str:
+    rows = [('topic', 'yaw (deg)', 'x (m)', 'y (m)', 'stated yaw/x/y', 'residual (m)',
+             'detections', 'written')]
+    rows.append((reference.topic, f'{math.degrees(reference.mount.yaw_rad):.3f}',
+                 f'{reference.mount.x_m:.4f}', f'{reference.mount.y_m:.4f}', 'reference', '',
+                 '', 'stated'))
+    for e in estimates:
+        sy, sx, sxy = e.sigma
+        xy = ((f'{e.mount.x_m:.4f} +- {sx:.4f}', f'{e.mount.y_m:.4f} +- {sxy:.4f}')
+              if e.offset_observable else (f'{e.mount.x_m:.4f} (stated)',
+                                           f'{e.mount.y_m:.4f} (stated)'))
+        rows.append((e.topic, f'{math.degrees(e.mount.yaw_rad):.3f} +- {math.degrees(sy):.3f}',
+                     *xy, f'{math.degrees(e.stated.yaw_rad):.3f} / {e.stated.x_m:.4f} / '
+                     f'{e.stated.y_m:.4f}',
+                     f'{e.rms_residual_m:.4f} (stated {e.rms_residual_stated_m:.4f})',
+                     f'{e.detections}/{e.detections_total}',
+                     'fit' if e.significant else 'stated (fit not clearly better)'))
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    return '\n'.join('  '.join(f'{cell:<{w}}' for cell, w in zip(row, widths)).rstrip()
+                     for row in rows)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the command; returns the exit code."""
+    from gyro_ekf.analysis.errors import OutputError
+    from gyro_ekf.analysis.outputs import staged_file
+    from gyro_ekf.core.mount_calibration import MountSettings
+    from gyro_ekf.core.validation import validate_trip
+    from gyro_ekf.io.bag_reader import read_bag
+
+    output: Path | None = args.output
+    if output is not None and (output.is_dir() or (output.exists() and not args.force)):
+        raise OutputError(f'{output}: exists; --force replaces a file' if not output.is_dir()
+                          else f'{output}: is a folder; give a params file name')
+    if output is not None and not output.parent.is_dir():
+        # Said before the reference run and the fit, not after them.
+        raise OutputError(f'{output}: cannot write: no such file or directory')
+    bag = read_bag(args.bag, acceleration=False)
+    source = str(args.bag)
+    trip, report = validate_trip(bag.trip, Path(args.bag).name, skip_bad=args.skip_bad)
+    warn_dropped(report)
+    found = estimate_mounts(trip, source, MountSettings(min_improvement=args.min_improvement))
+    reference = trip.scans[0]
+    print(_table(found, reference))
+    if output is not None:
+        with staged_file(output) as staging:
+            staging.write_text(params_yaml(found, reference), encoding='utf-8')
+        log.info('%s: wrote the mounts of %d LiDARs', output, len(found) + 1)
+    return 0
+
+
+def estimate_mounts(trip: object, source: str, settings: object = None) -> list:
+    """Estimate every LiDAR's mount but the first's, along the first LiDAR's own path.
+
+    Raises:
+        BagError: no map, no second LiDAR, or a LiDAR whose mount cannot be estimated.
+    """
+    from gyro_ekf.analysis.offline import run_trip
+    from gyro_ekf.core.errors import CoreError
+    from gyro_ekf.core.mount_calibration import calibrate_mounts
+    from gyro_ekf.io.errors import BagError
+
+    if not len(trip.landmarks):
+        raise BagError(f'{source}: no landmark map (/landmark_map): a mount is calibrated '
+                       'against the map')
+    if len(trip.scans) < 2:
+        topics = ', '.join(repr(s.topic) for s in trip.scans) or 'none'
+        raise BagError(f'{source}: no LiDAR to calibrate: the first LiDAR is the reference '
+                       f'and the bag has no other scan topic (scan topics: {topics})')
+    reference = trip.scans[0]
+    # The reference path: the whole offline pipeline on the first LiDAR alone.
+    ref = run_trip(dataclasses.replace(trip, scans=(reference,)))
+    estimates = ref.result.estimates
+    stats = ref.result.stats
+    log.info("%s: reference path from LiDAR '%s' alone (%d of %d detections associated)",
+             source, reference.topic, stats.updates, stats.detections)
+    try:
+        return calibrate_mounts(trip, estimates.stamp_s, estimates.state[:, :3],
+                                settings=settings, source=source)
+    except CoreError as err:
+        raise BagError(str(err)) from None
