@@ -171,10 +171,46 @@ def _walk(block: NDArray[np.uint8], layout: Sequence[Field]
         keys.append(count)
         offset = offset + 4 + (count if field.kind == 'string' else 4 * count)
         bad |= offset + _HEADER_BYTES > length
+        if field.kind == 'string':
+            bad |= _bad_strings(block, column + 4, count, bad)
     spare = length - _HEADER_BYTES - offset
     bad |= (spare < 0) | (spare > _MAX_TRAILING_BYTES)
     key = np.stack(keys, axis=1) if keys else np.zeros((m, 0), dtype=np.int64)
     return columns, key, bad
+
+
+def _bad_strings(block: NDArray[np.uint8], start: NDArray[np.int64], size: NDArray[np.int64],
+                 bad: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Rows whose string (size bytes at start, NUL included) rosbags would refuse.
+
+    A CDR string has at least its NUL, ends in it, and is UTF-8; rosbags raises on anything
+    else, so such a row goes to rosbags, whose error names the offset. Strings of a topic
+    are nearly always one and the same (a frame id): each distinct one is decoded once.
+    """
+    out = np.zeros(block.shape[0], dtype=np.bool_)
+    good = np.flatnonzero(~bad)
+    if not good.size:
+        return out
+    out[good] = size[good] < 1
+    good = good[size[good] >= 1]
+    if not good.size:
+        return out
+    pairs = np.stack([start[good], size[good]], axis=1)
+    distinct = pairs[:1] if (pairs == pairs[0]).all() else np.unique(pairs, axis=0)
+    for begin, length in distinct.tolist():
+        rows = good[(pairs[:, 0] == begin) & (pairs[:, 1] == length)]
+        text = block[rows, begin:begin + length]
+        out[rows] |= text[:, -1] != 0
+        body = text[:, :-1]
+        wide = (body >= 0x80).any(axis=1)
+        if not wide.any():
+            continue  # ASCII is UTF-8
+        for value in np.unique(body[wide], axis=0):
+            try:
+                value.tobytes().decode('utf-8')
+            except UnicodeDecodeError:
+                out[rows[(body == value).all(axis=1)]] = True
+    return out
 
 
 def _canonical(data: bytes | memoryview, msgtype: str, typestore: Any) -> bytes:
