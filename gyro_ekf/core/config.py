@@ -171,7 +171,7 @@ class InputLimits:
     max_mount_offset_m: float = config_field(
         10.0, 'm', 'Largest plausible distance of a LiDAR mount from base_link.', 0.01, 1e3)
     max_angle_rad: float = config_field(
-        1e3, 'rad', 'Largest plausible |angle| a file states (an initial yaw, a LiDAR mount '
+        1e3, 'rad', 'Largest plausible |angle| a file states (an initial, mount or ground-truth '
         'yaw); angles wrap, so a larger one is damage (1e308 rad has no precision left).',
         10.0, 1e6)
     max_duration_s: float = config_field(

@@ -488,7 +488,7 @@ def validate_trip(trip: Trip, source: str, limits: InputLimits = LIMITS,
         pose = np.asarray(truth.pose, dtype=np.float64)
         for column, name, limit, unit in ((0, 'x', limits.max_coordinate_m, 'm'),
                                           (1, 'y', limits.max_coordinate_m, 'm'),
-                                          (2, 'yaw', math.inf, 'rad')):
+                                          (2, 'yaw', limits.max_angle_rad, 'rad')):
             stream.values(f'ground_truth.pose.{name}', pose[:, column], limit, unit)
         stream.time()
         keep = stream.finish()
