@@ -146,9 +146,10 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
             built[group] = make_config(kind, values[group], source=source)
         except CoreError as err:
             raise ParamsFileError(str(err)) from None
-    if 'use_stated_noise' in options and not isinstance(options['use_stated_noise'], bool):
-        raise ParamsFileError(f"{source}: parameter 'use_stated_noise' must be true or false, "
-                              f"got {options['use_stated_noise']!r}")
+    for name in ('use_stated_noise', 'use_calibration'):
+        if name in options and not isinstance(options[name], bool):
+            raise ParamsFileError(f"{source}: parameter '{name}' must be true or false, "
+                                  f'got {options[name]!r}')
     return PipelineParams(
         ekf=built['ekf'], calibration=built['calibration'], detector=built['detector'],
         explicit={group: tuple(sorted(v)) for group, v in values.items()}, options=options)
