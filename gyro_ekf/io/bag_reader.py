@@ -200,11 +200,16 @@ def bag_summary(path: Path | str) -> BagSummary:
         raise BagError(f'{path / "metadata.yaml"}: missing or invalid entry {err}') from None
 
 
+_YAML_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
+"""libyaml's safe loader where PyYAML has it: the same documents, about 9x faster (a bag's
+metadata.yaml is read two or three times per read)."""
+
+
 def _metadata(path: Path) -> dict[str, Any]:
     """Read the rosbag2_bagfile_information mapping of a bag folder's metadata.yaml."""
     meta_path = path / 'metadata.yaml'
     try:
-        document = yaml.safe_load(meta_path.read_text(encoding='utf-8'))
+        document = yaml.load(meta_path.read_text(encoding='utf-8'), Loader=_YAML_LOADER)
         return dict(document['rosbag2_bagfile_information'])
     except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as err:
         raise BagError(f'{meta_path}: cannot read the bag metadata: {err}') from None
