@@ -168,7 +168,35 @@ def _open(path: Path) -> Reader:
         reader.close()
         raise BagError(f"{path / 'metadata.yaml'}: relative_file_paths {problem} "
                        f'({files!r})')
+    try:
+        _check_storage_connections(path, reader)
+    except BagError:
+        reader.close()
+        raise
     return reader
+
+
+def _check_storage_connections(path: Path, reader: Reader) -> None:
+    """Refuse a topic of metadata.yaml that its storage files describe otherwise.
+
+    rosbags yields a topic's messages only from storage connections equal to the metadata's
+    (topic, type, serialization and QoS, type hash); one damaged byte in the type an MCAP
+    summary states would drop every message of the topic without a word.
+    """
+    storages = getattr(reader.storage, 'storages', None)
+    if not storages:
+        return
+    stored = [c for storage in storages for c in storage.connections]
+    for wanted in reader.connections:
+        if any(c.topic == wanted.topic and c.msgtype == wanted.msgtype and c.ext == wanted.ext
+               and (not c.digest or not wanted.digest or c.digest == wanted.digest)
+               for c in stored):
+            continue
+        other = next((c for c in stored if c.topic == wanted.topic), None)
+        detail = ('no connection' if other is None else f'type {other.msgtype!r}'
+                  if other.msgtype != wanted.msgtype else 'another serialization, QoS or type hash')
+        raise BagError(f"{path}: topic '{wanted.topic}' has {detail} in its storage file, "
+                       f"but {wanted.msgtype} in metadata.yaml; rosbags would drop its messages")
 
 
 def bag_summary(path: Path | str) -> BagSummary:

@@ -260,6 +260,21 @@ def test_a_scan_topic_typed_imu_is_refused_naming_the_topic(tmp_path):
             read_bag(bag, fast=fast)
 
 
+
+@pytest.mark.parametrize('fast', [True, False])
+def test_a_type_damaged_in_the_mcap_summary_is_refused(plain_bag, fast):
+    # Found by `make fuzz`: rosbags matches the summary's channels against metadata.yaml and
+    # silently dropped every message of a topic whose schema name there had one bad byte.
+    mcap = mcap_of(plain_bag)
+    data = mcap.read_bytes()
+    at = data.rfind(topics.IMU_TYPE.encode())
+    assert at > data.find(topics.IMU_TYPE.encode()) > 0    # the summary's copy, not the data's
+    put(mcap, at + len(topics.IMU_TYPE) - 1, b'x')
+    with pytest.raises(BagError, match="plain: topic '/imu' has type 'sensor_msgs/msg/Imx' in "
+                                       'its storage file, but sensor_msgs/msg/Imu in '
+                                       'metadata.yaml; rosbags would drop its messages'):
+        read_bag(plain_bag, fast=fast)
+
 def test_a_lidar_topic_named_by_the_sidecar_must_be_a_laser_scan(tmp_path):
     trip = big_trip()
     bag = write_trip_bag(trip, tmp_path / 'renamed')

@@ -153,3 +153,15 @@ def test_a_ground_truth_yaw_of_1e300_is_refused(tmp_path):
     with pytest.raises(InvalidInputError, match=re.escape(
             'ground_truth.pose.yaw[5]: |1e+300| rad exceeds the limit 1000 rad')):
         load_log([tmp_path])
+
+
+@pytest.mark.parametrize('dtype', [np.uint8, np.uint32])
+def test_2023_scan_words_of_another_width_are_a_format_error(tmp_path, dtype):
+    # Found by `make fuzz`: uint8 words made `words & 0x3FFF` an OverflowError.
+    def change(data):
+        data['scans'] = data['scans'].astype(dtype)
+    write_2023(tmp_path / 'DataUsr_006k.mat', change=change)
+    with pytest.raises(LogFormatError, match=re.escape(
+            f"DataUsr_006k.mat: field 'data.scans' has type {np.dtype(dtype)}, expected uint16 "
+            'words')):
+        load_course_log([tmp_path])
