@@ -160,7 +160,7 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
             built[group] = make_config(kind, values[group], source=source)
         except CoreError as err:
             raise ParamsFileError(str(err)) from None
-    for name in ('use_stated_noise', 'use_message_covariance'):
+    for name in ('use_stated_noise', 'use_message_covariance', 'use_calibration'):
         if name in options and not isinstance(options[name], bool):
             raise ParamsFileError(f"{source}: parameter '{name}' must be true or false, "
                                   f'got {options[name]!r}')

@@ -170,6 +170,12 @@ class InputLimits:
         1.0, 1e9)
     max_mount_offset_m: float = config_field(
         10.0, 'm', 'Largest plausible distance of a LiDAR mount from base_link.', 0.01, 1e3)
+    max_angle_rad: float = config_field(
+        1e3, 'rad', 'Largest plausible |angle| a file states (an initial, mount or ground-truth '
+        'yaw); angles wrap, so a larger one is damage (1e308 rad has no precision left).',
+        10.0, 1e6)
+    max_duration_s: float = config_field(
+        1e6, 's', 'Largest plausible duration a file states (its static start).', 1.0, 1e9)
     quaternion_norm_tolerance: float = config_field(
         0.01, '1', 'A quaternion whose norm differs from 1 by more than this is refused.',
         1e-9, 0.5)

@@ -162,6 +162,30 @@ def mount_problem(x_m: float, y_m: float, yaw_rad: float,
     if math.hypot(x_m, y_m) > limits.max_mount_offset_m:
         return (f'mount offset {math.hypot(x_m, y_m):.6g} m exceeds the limit '
                 f'{limits.max_mount_offset_m:g} m')
+    return angle_problem(yaw_rad, limits)
+
+
+def angle_problem(angle_rad: float, limits: InputLimits = LIMITS) -> str | None:
+    """Why a stated angle (rad; an initial or mount yaw) is refused, or None."""
+    return value_problem(angle_rad, limits.max_angle_rad, 'rad')
+
+
+def initial_pose_problem(x_m: float, y_m: float, yaw_rad: float,
+                         limits: InputLimits = LIMITS) -> str | None:
+    """Why an initial pose (m, m, rad in map) is refused, or None."""
+    problem = coordinate_problem((x_m, y_m), limits)
+    if problem:
+        return problem
+    problem = angle_problem(yaw_rad, limits)
+    return None if problem is None else f'yaw {problem}'
+
+
+def duration_problem(duration_s: float, limits: InputLimits = LIMITS) -> str | None:
+    """Why a stated duration (s, e.g. a static start) is refused, or None."""
+    if not math.isfinite(duration_s) or duration_s < 0.0:
+        return f'{duration_s} is not a finite non-negative duration'
+    if duration_s > limits.max_duration_s:
+        return f'{duration_s:.6g} s exceeds the limit {limits.max_duration_s:g} s'
     return None
 
 
@@ -431,8 +455,7 @@ def _check_fixed(trip: Trip, source: str, limits: InputLimits) -> None:
     pose = np.asarray(trip.initial_pose, dtype=np.float64)
     if pose.shape != (3,):
         _refuse(source, 'initial_pose', None, f'has shape {pose.shape}, expected (3,)')
-    _refuse(source, 'initial_pose', None, coordinate_problem(pose[:2], limits) or (
-        None if math.isfinite(pose[2]) else f'yaw {pose[2]} is not finite'))
+    _refuse(source, 'initial_pose', None, initial_pose_problem(*pose.tolist(), limits))
     for key in ('gyro_rad_s', 'speed_m_s', 'range_m', 'bearing_rad', 'landmark_m'):
         value = getattr(trip.noise, key)
         if value is not None and not (math.isfinite(value) and value >= 0.0):
@@ -445,9 +468,8 @@ def _check_fixed(trip: Trip, source: str, limits: InputLimits) -> None:
             i = int(np.argmax(bad))
             _refuse(source, 'true_gyro_bias_rad_s', i,
                     rate_problem(float(bias[i]), limits))
-    if not (math.isfinite(trip.static_duration_s) and trip.static_duration_s >= 0.0):
-        _refuse(source, 'static_duration_s', None,
-                f'{trip.static_duration_s} is not a finite non-negative duration')
+    _refuse(source, 'static_duration_s', None,
+            duration_problem(float(trip.static_duration_s), limits))
     if trip.walls is not None and np.isinf(trip.walls).any():
         # NaN rows separate the polylines; an infinite vertex is damage.
         _refuse(source, 'walls', int(np.argmax(np.isinf(trip.walls).any(axis=1))),
@@ -502,6 +524,11 @@ def validate_trip(trip: Trip, source: str, limits: InputLimits = LIMITS,
     _check_fixed(trip, source, limits)
 
     imu = _check_imu(trip.imu, _Stream('imu', trip.imu.stamp_s, source, limits, report), limits)
+    if not len(imu.stamp_s):
+        # The gyro drives the filter: without a sample there is nothing to estimate.
+        dropped = report.samples_dropped.get('imu', 0)
+        _refuse(source, 'imu', None, 'no samples' + (f' left ({dropped} dropped as bad)'
+                                                     if dropped else ''))
 
     stream = _Stream('speed', trip.speed.stamp_s, source, limits, report)
     stream.values('speed.speed_m_s', trip.speed.speed_m_s, limits.max_speed_m_s, 'm/s')
@@ -524,7 +551,7 @@ def validate_trip(trip: Trip, source: str, limits: InputLimits = LIMITS,
         pose = np.asarray(truth.pose, dtype=np.float64)
         for column, name, limit, unit in ((0, 'x', limits.max_coordinate_m, 'm'),
                                           (1, 'y', limits.max_coordinate_m, 'm'),
-                                          (2, 'yaw', math.inf, 'rad')):
+                                          (2, 'yaw', limits.max_angle_rad, 'rad')):
             stream.values(f'ground_truth.pose.{name}', pose[:, column], limit, unit)
         stream.time()
         keep = stream.finish()

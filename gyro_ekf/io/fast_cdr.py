@@ -171,10 +171,61 @@ def _walk(block: NDArray[np.uint8], layout: Sequence[Field]
         keys.append(count)
         offset = offset + 4 + (count if field.kind == 'string' else 4 * count)
         bad |= offset + _HEADER_BYTES > length
+        if field.kind == 'string':
+            bad |= _bad_strings(block, column + 4, count, bad)
     spare = length - _HEADER_BYTES - offset
     bad |= (spare < 0) | (spare > _MAX_TRAILING_BYTES)
     key = np.stack(keys, axis=1) if keys else np.zeros((m, 0), dtype=np.int64)
     return columns, key, bad
+
+
+def _bad_strings(block: NDArray[np.uint8], start: NDArray[np.int64], size: NDArray[np.int64],
+                 bad: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Rows whose string (size bytes at start, NUL included) rosbags would refuse.
+
+    A CDR string has at least its NUL, ends in it, and is UTF-8; rosbags raises on anything
+    else, so such a row goes to rosbags, whose error names the offset. The strings of a
+    topic are nearly always one and the same (a frame id) at one place: that case costs a
+    few slices; otherwise each distinct place and then each distinct non-ASCII string is
+    looked at once.
+    """
+    m = block.shape[0]
+    out = np.zeros(m, dtype=np.bool_)
+    if not m:
+        return out
+    begin, length = int(start[0]), int(size[0])
+    if length >= 1 and not bad.any() and (start == begin).all() and (size == length).all():
+        text = block[:, begin:begin + length]
+        out |= text[:, -1] != 0
+        if (text[:, :-1] >= 0x80).any():
+            _check_utf8(text, np.arange(m), out)
+        return out
+    good = np.flatnonzero(~bad)
+    out[good] = size[good] < 1
+    good = good[size[good] >= 1]
+    if not good.size:
+        return out
+    pairs = np.stack([start[good], size[good]], axis=1)
+    for begin, length in np.unique(pairs, axis=0).tolist():
+        rows = good[(pairs[:, 0] == begin) & (pairs[:, 1] == length)]
+        text = block[rows, begin:begin + length]
+        out[rows] |= text[:, -1] != 0
+        _check_utf8(text, rows, out)
+    return out
+
+
+def _check_utf8(text: NDArray[np.uint8], rows: NDArray[np.int64], out: NDArray[np.bool_]
+                ) -> None:
+    """Mark in out the rows whose string (text row, NUL last) is not UTF-8."""
+    body = text[:, :-1]
+    wide = (body >= 0x80).any(axis=1)
+    if not wide.any():
+        return  # ASCII is UTF-8
+    for value in np.unique(body[wide], axis=0):
+        try:
+            value.tobytes().decode('utf-8')
+        except UnicodeDecodeError:
+            out[rows[(body == value).all(axis=1)]] = True
 
 
 def _canonical(data: bytes | memoryview, msgtype: str, typestore: Any) -> bytes:

@@ -211,9 +211,10 @@ class _Scan:
         self.table = np.full(1 << 16, _UNKNOWN, dtype=np.int32)
         self.times: list[list[NDArray[np.uint64]]] = [[] for _ in self.topics]
         self.payloads: list[list[bytes | memoryview]] = [[] for _ in self.topics]
-        # Ids that messages used before their Channel record appeared (invalid per the spec):
-        # if such a channel turns out to be wanted, messages were missed, so refuse the file.
-        self.orphans: set[int] = set()
+        # Ids that messages used before their Channel record appeared (invalid per the spec),
+        # with the first such message's place: if such a channel turns out to be wanted,
+        # messages were missed, so refuse the file; if none ever appears, the id is damage.
+        self.orphans: dict[int, tuple[str, int | None]] = {}
         self.last_time = [-1] * len(self.topics)
         self.mapped: mmap.mmap | None = None
         self.crcs = _Crcs()
@@ -224,6 +225,19 @@ class _Scan:
         # The chunk being read: its file offset and [start, end] log-time range.
         self.chunk_at: int | None = None
         self.chunk_times: tuple[int, int] | None = None
+
+    def check_orphans(self) -> None:
+        """Refuse messages of a channel no Channel record in the data section defines.
+
+        Such a message cannot be told apart from damage (a flipped bit in its channel id,
+        or in the id of its Channel record): dropping it would lose, say, every /odom
+        message without a word.
+        """
+        undefined = sorted(set(self.orphans) - set(self.channels))
+        if undefined:
+            where, offset = self.orphans[undefined[0]]
+            raise CorruptMcap(self.path, f'a message refers to channel {undefined[0]}, which no '
+                                         'Channel record defines', where, offset)
 
     def where(self, pos: int) -> str:
         """Describe position pos of the buffer being read."""
@@ -550,7 +564,8 @@ class _Scan:
         indexes = self.table[channel_ids]
         unknown = indexes == _UNKNOWN
         if np.any(unknown):
-            self.orphans.update(channel_ids[unknown].tolist())
+            for k in np.flatnonzero(unknown).tolist():
+                self.orphans.setdefault(int(channel_ids[k]), self.place(int(starts[k])))
         for index in np.unique(indexes[indexes >= 0]).tolist():
             mine = indexes == index
             at = starts[mine]
@@ -745,6 +760,7 @@ def _scan_file(scan: _Scan, finish: Callable[[], _T]) -> _T:
         offsets = scan.walk(data, len(MAGIC), size - len(MAGIC), top_level=True)
         scan.check_ends(data, offsets[-1], size)
         scan.records(data, len(MAGIC), offsets[-1], top_level=True, offsets=offsets)
+        scan.check_orphans()
         result = finish()
     except Exception:
         mismatch = scan.crcs.failure(path)

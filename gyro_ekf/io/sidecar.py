@@ -35,7 +35,7 @@ import numpy as np
 import yaml
 
 from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures, Trip
-from gyro_ekf.core.validation import coordinate_problem, mount_problem
+from gyro_ekf.core.validation import duration_problem, initial_pose_problem, mount_problem
 from gyro_ekf.io.errors import BagError
 
 SUFFIX = '.params.yaml'
@@ -160,8 +160,7 @@ def parse_yaml(text: str, path: Path) -> BagParams:
             for k in ('x_m', 'y_m', 'yaw_rad')]
     # YAML spells NaN and inf (.nan, .inf); a NaN mount would leave every detection
     # unassociated with no error, so the values are checked here where they enter.
-    problem = coordinate_problem(pose[:2]) or (None if math.isfinite(pose[2]) else
-                                               f'yaw_rad {pose[2]} is not finite')
+    problem = initial_pose_problem(*pose)
     if problem:
         raise BagError(f"{path.name}: parameter 'initial_pose': {problem}")
     for topic, (_, mount) in lidars.items():
@@ -170,9 +169,9 @@ def parse_yaml(text: str, path: Path) -> BagParams:
             raise BagError(f"{path.name}: parameter 'lidar.{topic}': {problem} "
                            f'({mount.x_m}, {mount.y_m}, {mount.yaw_rad})')
     static_s = float(_get(tree, 'trip.static_duration_s', number, path))
-    if not (math.isfinite(static_s) and static_s >= 0.0):
-        raise BagError(f"{path.name}: parameter 'trip.static_duration_s' must be a "
-                       f'non-negative number, got {static_s}')
+    problem = duration_problem(static_s)
+    if problem:
+        raise BagError(f"{path.name}: parameter 'trip.static_duration_s': {problem}")
     for key in NOISE_KEYS:
         if key in noise:
             value = _get(tree, f'noise.{key}', number, path)

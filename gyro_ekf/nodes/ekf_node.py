@@ -87,8 +87,8 @@ from gyro_ekf.core.events import Estimate, EventDriver, EventKind, StreamMerger
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
 from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import LandmarkMap, LidarMount
-from gyro_ekf.core.validation import coordinate_problem, message_variance, mount_problem, \
-    rate_problem, speed_problem
+from gyro_ekf.core.validation import coordinate_problem, initial_pose_problem, message_variance, \
+    mount_problem, rate_problem, speed_problem
 from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.io import messages
 from gyro_ekf.nodes import qos, visuals
@@ -158,8 +158,7 @@ class EkfNode(Node):
                 raise GyroEkfError(f'node {self.get_fully_qualified_name()}: parameter '
                                    f'lidar.{topic} ({frame}): {problem}')
         x_m, y_m, yaw_rad = sidecar.initial_pose.tolist()
-        problem = coordinate_problem((x_m, y_m), limits) or (
-            None if math.isfinite(yaw_rad) else f'yaw {yaw_rad} is not finite')
+        problem = initial_pose_problem(x_m, y_m, yaw_rad, limits)
         if problem:
             raise GyroEkfError(f'node {self.get_fully_qualified_name()}: parameter '
                                f'initial_pose: {problem}')

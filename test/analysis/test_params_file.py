@@ -90,3 +90,14 @@ def test_non_finite_values_are_refused_naming_file_and_key(tmp_path, line, messa
         read_params_file(path)
     assert str(caught.value).startswith(f'{path}: parameter ')
     assert message in str(caught.value)
+
+
+@pytest.mark.parametrize('name', ['use_stated_noise', 'use_calibration'])
+@pytest.mark.parametrize('value', ['-1.0', '1', 'yes please', '[]'])
+def test_a_switch_that_is_not_true_or_false_is_refused(name, value):
+    # Found by `make fuzz`: `use_calibration: -1.0` was taken (and read as true).
+    with pytest.raises(ParamsFileError,
+                       match=f"p.yaml: parameter '{name}' must be true or false, got"):
+        read_params_text(f'/**:\n  ros__parameters:\n    {name}: {value}\n', 'p.yaml')
+    assert read_params_text(f'/**:\n  ros__parameters:\n    {name}: true\n').options == {
+        name: True}

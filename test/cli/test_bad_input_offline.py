@@ -239,6 +239,22 @@ def test_run_refuses_a_nan_initial_pose_in_the_sidecar(tmp_path, capsys, sim_tri
            "bag.params.yaml: parameter 'initial_pose': nan is not finite")
 
 
+@pytest.mark.parametrize('section, key, value, match', [
+    ('initial_pose', 'yaw_rad', '1.0e+308',
+     "parameter 'initial_pose': yaw |1e+308| rad exceeds the limit 1000 rad"),
+    ('lidar', 'yaw_rad', '1.0e+30', "parameter 'lidar.scan': |1e+30| rad exceeds the limit"),
+    ('trip', 'static_duration_s', '1.0e+308',
+     "parameter 'trip.static_duration_s': 1e+308 s exceeds the limit 1e+06 s"),
+])
+def test_run_refuses_a_finite_but_implausible_angle_or_duration_in_the_sidecar(
+        tmp_path, capsys, sim_trip, section, key, value, match):
+    # Found by `make fuzz`: finite, so they passed, and run exited 0 with them.
+    bag = _bag_of(sim_trip, tmp_path)
+    _set_in_sidecar(bag, section, key, value)
+    _fails(capsys, ['run', str(bag), '-o', str(tmp_path / 'out')], 'bag.params.yaml', match)
+    assert not (tmp_path / 'out').exists()
+
+
 def test_run_refuses_a_nan_in_the_params_file(tmp_path, capsys, sim_trip):
     bag = _bag_of(sim_trip, tmp_path)
     params = tmp_path / 'filter.yaml'

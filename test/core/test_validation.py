@@ -150,6 +150,14 @@ def test_scan_geometry_and_mount_are_always_refused(change, match):
      'x: initial_pose: nan is not finite'),
     (lambda t: dict(initial_pose=np.array([0.0, 0.0, np.inf])),
      'x: initial_pose: yaw inf is not finite'),
+    (lambda t: dict(initial_pose=np.array([0.0, 0.0, 1e308])),
+     'x: initial_pose: yaw |1e+308| rad exceeds the limit 1000 rad'),
+    (lambda t: dict(static_duration_s=1e308),
+     'x: static_duration_s: 1e+308 s exceeds the limit 1e+06 s'),
+    (lambda t: dict(static_duration_s=-1.0),
+     'x: static_duration_s: -1.0 is not a finite non-negative duration'),
+    (lambda t: dict(scans=(dataclasses.replace(t.scans[0], mount=LidarMount(0.4, 0.0, 1e30)),)),
+     'x: lidar.scan.mount: |1e+30| rad exceeds the limit 1000 rad'),
     (lambda t: dict(noise=NoiseFigures(gyro_rad_s=np.inf)), 'x: noise.gyro_rad_s: inf is not'),
     (lambda t: dict(noise=NoiseFigures(range_m=-0.1)), 'x: noise.range_m: -0.1 is not'),
     (lambda t: dict(true_gyro_bias_rad_s=np.array([0.0, np.nan, 0.0])),
@@ -259,3 +267,16 @@ def test_calibration_refuses_non_finite_samples_instead_of_a_nan_bias():
     speeds[400] = np.nan
     with pytest.raises(CalibrationError, match='platform moved: speed nan'):
         estimate_gyro_bias(stamps, rates, CalibrationConfig(), stamps, speeds)
+
+
+def test_a_trip_without_imu_samples_is_refused():
+    # The gyro drives the filter; `run` once crashed in its summary on an empty bag.
+    trip = _trip()
+    empty = _with_imu(trip, rates=np.zeros((0, 3)), stamps=np.zeros(0))
+    with pytest.raises(InvalidInputError, match=re.escape('x: imu: no samples')):
+        validate_trip(empty, 'x')
+    rates = trip.imu.angular_velocity_rad_s.copy()
+    rates[:, 2] = np.nan
+    with pytest.raises(InvalidInputError,
+                       match=re.escape('x: imu: no samples left (2000 dropped as bad)')):
+        validate_trip(_with_imu(trip, rates), 'x', skip_bad=True)

@@ -176,6 +176,49 @@ def test_a_count_of_10_to_the_12_in_the_metadata_is_only_a_hint(plain_bag):
     assert_trips_equal(read_bag(plain_bag, fast=False).trip, want)
 
 
+
+def _edit_metadata(bag, change) -> None:
+    meta_path = bag / 'metadata.yaml'
+    meta = yaml.safe_load(meta_path.read_text())
+    change(meta['rosbag2_bagfile_information'])
+    meta_path.write_text(yaml.safe_dump(meta))
+
+
+@pytest.mark.parametrize('count', [None, 'many', float('inf'), -3])
+def test_a_topic_count_that_is_no_count_is_only_a_hint(plain_bag, count):
+    want = read_bag(plain_bag).trip
+
+    def change(info):
+        for entry in info['topics_with_message_count']:
+            entry['message_count'] = count
+    _edit_metadata(plain_bag, change)
+    assert_trips_equal(read_bag(plain_bag).trip, want)
+    assert_trips_equal(read_bag(plain_bag, fast=False).trip, want)
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+@pytest.mark.parametrize('fast', [True, False])
+def test_messages_in_a_bag_stating_none_are_refused(tmp_path, storage, fast):
+    # rosbags gives such a bag no start time: stamps would count from 1970 (1.7e9 s).
+    bag = write_trip_bag(make_trip(), tmp_path / 'bag', storage=storage)
+    _edit_metadata(bag, lambda info: info.update(message_count=0))
+    with pytest.raises(BagError, match=r"metadata.yaml: message_count states no messages, "
+                                       r"but topic '/\w+' has a message at \d+ ns"):
+        read_bag(bag, fast=fast)
+    with pytest.raises(BagError, match='states no messages'):
+        list(iter_bag_messages(bag))
+
+
+@pytest.mark.parametrize('files, reason', [([], 'lists no storage file'),
+                                           (['plain.mcap', 'plain.mcap'],
+                                            'lists a storage file twice')])
+def test_metadata_listing_no_file_or_one_twice_is_refused(plain_bag, files, reason):
+    # rosbags reads the first as an empty bag and the second as every message twice.
+    _edit_metadata(plain_bag, lambda info: info.update(relative_file_paths=files))
+    for fast in (True, False):
+        with pytest.raises(BagError, match=f'metadata.yaml: relative_file_paths {reason}'):
+            read_bag(plain_bag, fast=fast)
+
 def statistics_counts_at(data: bytes) -> list[int]:
     """Offsets of the per-channel message counts in the Statistics record."""
     stats = next(r for r in top_records(data) if r.opcode == 0x0B)
@@ -216,6 +259,21 @@ def test_a_scan_topic_typed_imu_is_refused_naming_the_topic(tmp_path):
                                            'expected sensor_msgs/msg/LaserScan'):
             read_bag(bag, fast=fast)
 
+
+
+@pytest.mark.parametrize('fast', [True, False])
+def test_a_type_damaged_in_the_mcap_summary_is_refused(plain_bag, fast):
+    # Found by `make fuzz`: rosbags matches the summary's channels against metadata.yaml and
+    # silently dropped every message of a topic whose schema name there had one bad byte.
+    mcap = mcap_of(plain_bag)
+    data = mcap.read_bytes()
+    at = data.rfind(topics.IMU_TYPE.encode())
+    assert at > data.find(topics.IMU_TYPE.encode()) > 0    # the summary's copy, not the data's
+    put(mcap, at + len(topics.IMU_TYPE) - 1, b'x')
+    with pytest.raises(BagError, match="plain: topic '/imu' has type 'sensor_msgs/msg/Imx' in "
+                                       'its storage file, but sensor_msgs/msg/Imu in '
+                                       'metadata.yaml; rosbags would drop its messages'):
+        read_bag(plain_bag, fast=fast)
 
 def test_a_lidar_topic_named_by_the_sidecar_must_be_a_laser_scan(tmp_path):
     trip = big_trip()

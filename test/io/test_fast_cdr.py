@@ -417,3 +417,26 @@ def test_mutated_payloads_decode_or_fail_cleanly():
             except CdrDecodeError:
                 outcomes['refused'] += 1
     assert outcomes['refused'] > 100 and outcomes['decoded'] > 100
+
+
+def test_a_string_rosbags_refuses_is_refused_in_a_batch():
+    # A frame id without its NUL, with a length of 0, or not UTF-8: rosbags raises
+    # SerdeError; the fast walk must not read past it (it once returned the numbers).
+    rng = np.random.default_rng(12)
+    good = _serialize(_imu_object('imu_link', rng))
+    start = 4 + 8 + 4  # header, stamp, length word: 'imu_link\0' begins here
+    assert good[start:start + 9] == b'imu_link\x00'
+    no_nul = bytearray(good)
+    no_nul[start + 8] = ord('x')
+    not_utf8 = bytearray(good)
+    not_utf8[start + 1] = 0x8d
+    empty = bytearray(good)
+    empty[start - 4:start] = struct.pack('<I', 0)
+    for data, reason in ((no_nul, 'Missing string terminator at offset 20'),
+                         (not_utf8, "can't decode byte 0x8d"), (empty, 'Invalid string length 0')):
+        with pytest.raises(CdrDecodeError, match=reason) as raised:
+            decode_columns([good, bytes(data), good], topics.IMU_TYPE, ['angular_velocity'],
+                           STORE)
+        assert raised.value.index == 1
+    utf8 = _serialize(_imu_object('imu_\u00e9', rng))
+    assert_columns_match([good, utf8, utf8], topics.IMU_TYPE)

@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
 import scipy.io
 from synthetic_logs import (
     POLE_LOG_DEG, POLE_RANGE_CM, SIM_POLE_DEG, T0_COUNTS, write_2016, write_2021, write_2022,
-    write_2023, write_map)
+    write_2023, write_map, _sim_poses)
 
+from gyro_ekf.core.errors import InvalidInputError
+from gyro_ekf.io.errors import LogFormatError
 from gyro_ekf.io.matlab import detect_course_log, load_course_log
 from gyro_ekf.io.sources import load_log
 
@@ -113,3 +116,52 @@ def test_2023_sim_two_lidars(tmp_path):
     assert second.intensities[0, beam] == 3.0
     assert trip.noise.gyro_rad_s is None and trip.true_gyro_bias_rad_s is None
     assert len(trip.landmarks) == 3
+
+
+@pytest.mark.parametrize('fov', [[math.nan, 75.0, 0.5], [-75.0, math.inf, 0.5],
+                                 [-75.0, 75.0, -math.inf]])
+def test_2023_a_field_of_view_that_is_not_finite_is_a_format_error(tmp_path, fov):
+    # Found by `make fuzz`: the beam count was int(nan) (ValueError) or int(inf).
+    def change(data):
+        data['LidarsCfg']['Lidar2'] = dict(data['LidarsCfg']['Lidar2'], FoV=np.array(fov))
+    write_2023(tmp_path / 'DataUsr_006k.mat', change=change)
+    with pytest.raises(LogFormatError, match=r"DataUsr_006k.mat: field "
+                                             r"'data.LidarsCfg.Lidar2.FoV' = .* is not finite"):
+        load_course_log([tmp_path])
+
+
+@pytest.mark.parametrize('value, shown', [(math.inf, 'inf'), (math.nan, 'nan'), (2.5, '2.5')])
+def test_2021_an_event_index_that_is_not_a_whole_number_is_a_format_error(tmp_path, value,
+                                                                          shown):
+    # Found by `make fuzz` (inf: OverflowError); 2.5 was truncated to scan 2 silently.
+    def change(variables):
+        z = variables['A']['Z'].astype(np.float64)
+        z[2, 3] = value  # event 4 is the first scan
+        variables['A']['Z'] = z
+    path = write_2021(tmp_path / 'log', change=change)
+    with pytest.raises(LogFormatError, match=re.escape(
+            f"Measurements_AAS01.mat: field 'A.Z(3,:)' holds {shown} at event 4, not an index")):
+        load_course_log([path])
+
+
+def test_a_ground_truth_yaw_of_1e300_is_refused(tmp_path):
+    def change(data):
+        poses = _sim_poses(8).astype(np.float64)
+        poses[2, 5] = 1e300
+        data['verify'] = {'poseL': poses}
+    write_2023(tmp_path / 'DataUsr_006k.mat', change=change)
+    with pytest.raises(InvalidInputError, match=re.escape(
+            'ground_truth.pose.yaw[5]: |1e+300| rad exceeds the limit 1000 rad')):
+        load_log([tmp_path])
+
+
+@pytest.mark.parametrize('dtype', [np.uint8, np.uint32])
+def test_2023_scan_words_of_another_width_are_a_format_error(tmp_path, dtype):
+    # Found by `make fuzz`: uint8 words made `words & 0x3FFF` an OverflowError.
+    def change(data):
+        data['scans'] = data['scans'].astype(dtype)
+    write_2023(tmp_path / 'DataUsr_006k.mat', change=change)
+    with pytest.raises(LogFormatError, match=re.escape(
+            f"DataUsr_006k.mat: field 'data.scans' has type {np.dtype(dtype)}, expected uint16 "
+            'words')):
+        load_course_log([tmp_path])

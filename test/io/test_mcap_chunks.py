@@ -275,6 +275,10 @@ def swapped_channel() -> tuple[bytes, ...]:
     ((record(0x04, struct.pack('<HH', 1, 1) + b'\x01'),), 'string length runs past'),
     ((record(0x04, struct.pack('<HHI', 1, 1, 100) + b'/imu'),), 'string runs past'),
     ((schema(1, IMU), channel(1, 1, '/imu'), message(1, 1 << 63, cdr(0))), 'beyond int64'),
+    # Found by `make fuzz`: a bit flip in /odom's Channel record id (4 -> 16132) in a zstd
+    # chunk without CRC left every /odom message orphaned, dropped without a word.
+    ((schema(1, IMU), chunk(channel(16132, 1, '/imu') + message(4, 1, cdr(0)), 'zstd')),
+     'a message refers to channel 4, which no Channel record defines'),
 ])
 def test_corrupt_or_unsupported_content_is_refused(tmp_path, records, match):
     path = mcap_file(tmp_path / 'bad.mcap', *records)

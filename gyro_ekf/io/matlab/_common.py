@@ -206,6 +206,25 @@ def stamps_s(counts: NDArray[Any], zero: int) -> NDArray[np.float64]:
     return (counts.astype(np.int64) - np.int64(zero)) / float(COUNTS_PER_S)
 
 
+def check_whole(path: Path, dotted: str, values: NDArray[Any]) -> NDArray[np.float64]:
+    """Refuse event indices or kinds that are not whole numbers; return them as float64.
+
+    A float field can hold NaN, inf or 2.5, which integer conversion turns into an error
+    or, worse, into another index.
+
+    Raises:
+        LogFormatError: names the field, the value and the event.
+    """
+    numbers = np.asarray(values, dtype=np.float64)
+    with np.errstate(invalid='ignore'):
+        whole = np.isfinite(numbers) & (numbers == np.round(numbers))
+    if not whole.all():
+        i = int(np.argmin(whole))
+        raise LogFormatError(f"{path.name}: field '{dotted}' holds {numbers[i]} at event "
+                             f'{i + 1}, not an index')
+    return numbers
+
+
 def check_indices(path: Path, dotted: str, indices: NDArray[Any], target: str,
                   size: int) -> NDArray[np.int64]:
     """Validate 1-based MATLAB indices into a field with `size` columns.
@@ -214,16 +233,16 @@ def check_indices(path: Path, dotted: str, indices: NDArray[Any], target: str,
         The indices, 0-based, int64.
 
     Raises:
-        LogFormatError: an index is out of range.
+        LogFormatError: an index is not a whole number (NaN, inf, 2.5) or is out of range.
     """
-    zero_based = indices.astype(np.int64) - 1
-    bad = (zero_based < 0) | (zero_based >= size)
+    numbers = check_whole(path, dotted, indices)
+    bad = (numbers < 1) | (numbers > size)
     if bad.any():
         i = int(np.argmax(bad))
         raise LogFormatError(
             f"{path.name}: field '{dotted}' holds index {int(indices[i])} at event {i + 1}, "
             f"but '{target}' has {size} columns")
-    return zero_based
+    return indices.astype(np.int64) - 1
 
 
 def decode_ranges(range_cm: NDArray[Any], no_return: NDArray[np.bool_]) -> NDArray[np.float32]:

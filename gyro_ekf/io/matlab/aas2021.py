@@ -66,7 +66,7 @@ def read(path: Path, landmarks: LandmarkMap, strict_time: bool = True) -> Trip:
         raise LogFormatError(f"{path.name}: field 'A.t' holds no events")
 
     zero = int(times[0])
-    is_scan = events[2] > 0
+    is_scan = mat.check_whole(path, 'A.Z(3,:)', events[2]) > 0
     scan_columns = mat.check_indices(path, 'A.Z(3,:)', events[2][is_scan], 'A.scans',
                                      words.shape[1])
     ranges, intensities = project2016.decode_sick_scans(path, 'A.scans',

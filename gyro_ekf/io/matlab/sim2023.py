@@ -44,8 +44,15 @@ def _scan(path: Path, variables: dict, columns: np.ndarray, stamp_s: np.ndarray,
     config = f'data.LidarsCfg.{lidar}'
     first_deg, last_deg, step_deg = (float(v) for v in mat.array(
         variables, f'{config}.FoV', path, (3,), 'iuf'))
+    if not all(math.isfinite(v) for v in (first_deg, last_deg, step_deg)):
+        raise LogFormatError(f"{path.name}: field '{config}.FoV' = "
+                             f'[{first_deg}, {last_deg}, {step_deg}] deg is not finite')
     beams = round((last_deg - first_deg) / step_deg) + 1 if step_deg > 0 else 0
     words = mat.array(variables, scan_field, path, (None, None), 'u')
+    if words.dtype != np.uint16:
+        # Range and intensity share each 16-bit word: another width is not this format.
+        raise LogFormatError(
+            f"{path.name}: field '{scan_field}' has type {words.dtype}, expected uint16 words")
     if beams != words.shape[0]:
         raise LogFormatError(
             f"{path.name}: field '{scan_field}' has {words.shape[0]} beams per scan but "
