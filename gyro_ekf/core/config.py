@@ -97,6 +97,28 @@ class EkfConfig:
         1.0 * DEG, 'rad/s', 'Turning faster than this (gyro minus bias) the platform is not '
         'standing still, whatever its speed (a turn on the spot brings other beams onto '
         'the poles).', 0.0, 10.0)
+    # Sensor health (core/health.py). A LiDAR that disagrees with the map while another
+    # LiDAR vouches for the pose is excluded until a window of re-checks agrees again. The
+    # shared logs' worst 5 s windows: share >= 0.85, |bearing mean| <= 0.2 deg, NIS mean
+    # <= 6 (see README); a LiDAR mounted 6 deg off: share 0, bearing 6 deg.
+    health_window_s: float = config_field(
+        5.0, 's', 'Sensor health: sliding window of each LiDAR\'s scans the consistency '
+        'figures are taken over.', 0.1, 1e4)
+    health_min_detections: int = config_field(
+        20, '1', 'Sensor health: fewest detections (and, for the bearing and NIS rules, '
+        'matches) in the window before a LiDAR is judged.', 1, 1_000_000)
+    health_min_association_share: float = config_field(
+        0.5, '1', 'Sensor health: a LiDAR associating less than this share of its detections '
+        'while another LiDAR associates well disagrees with the map.', 0.0, 1.0)
+    health_good_association_share: float = config_field(
+        0.8, '1', 'Sensor health: share at which a LiDAR associates well (vouches for the '
+        'pose, or is readmitted after its re-checks).', 0.0, 1.0)
+    health_bearing_bias_sigmas: float = config_field(
+        10.0, '1', 'Sensor health: a LiDAR whose mean bearing innovation over the window is '
+        'beyond this many bearing noise sigmas disagrees (a yaw mount error).', 0.1, 1e6)
+    health_max_nis_mean: float = config_field(
+        10.0, '1', 'Sensor health: a LiDAR whose mean NIS (2 dof, expected 2) over the window '
+        'is above this disagrees.', 0.1, 1e9)
 
 
 @dataclass(frozen=True, slots=True)

@@ -39,6 +39,7 @@ from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.detection import PoleDetections, detect_poles_in_scans
 from gyro_ekf.core.ekf import GyroBiasEkf, unpack_rows
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
+from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map, sensor_to_map
 from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount, ScanSeries, Trip
 
@@ -128,6 +129,7 @@ class DriverStats:
         longest_gap_s: longest time between applied updates (from the first one).
         long_gaps: gaps between events longer than MAX_PREDICTION_STEPS steps (predicted in
             coarser steps).
+        excluded: detections of excluded LiDARs (re-checked, not applied; in no outcome).
     """
 
     imu: int = 0
@@ -142,6 +144,7 @@ class DriverStats:
     last_association_s: float | None = None
     longest_gap_s: float = 0.0
     long_gaps: int = 0
+    excluded: int = 0
 
     @property
     def mean_nis(self) -> float:
@@ -155,7 +158,8 @@ class DriverStats:
                 'updates': self.updates, 'recoveries': self.recoveries,
                 'mean_nis': self.mean_nis,
                 'last_association_s': self.last_association_s,
-                'longest_gap_s': self.longest_gap_s, 'long_gaps': self.long_gaps}
+                'longest_gap_s': self.longest_gap_s, 'long_gaps': self.long_gaps,
+                'excluded': self.excluded}
 
 
 class EventDriver:
@@ -168,6 +172,9 @@ class EventDriver:
         rate_rad_s: held measured yaw rate (bias included), rad/s, or None before the first.
         landmarks: the map used for association, or None.
         stats: running counts.
+        health: per-LiDAR consistency figures; excludes a LiDAR that disagrees
+            (core/health.py).
+        last_transition: the last exclusion or readmission on_detections caused, or None.
     """
 
     def __init__(self, config: EkfConfig | None = None, landmarks: LandmarkMap | None = None,
@@ -179,6 +186,8 @@ class EventDriver:
         self.ekf = GyroBiasEkf(self.config, pose, bias_rad_s)
         self.landmarks = landmarks
         self.stats = DriverStats()
+        self.health = HealthMonitor(self.config)
+        self.last_transition: Transition | None = None
         self.stamp_s: float | None = None
         self.speed_m_s = 0.0
         self.rate_rad_s: float | None = None
@@ -200,6 +209,7 @@ class EventDriver:
         """Start over (a looped bag, a ~/reset call): new filter, held inputs and counts."""
         self.ekf.reset(pose, bias_rad_s)
         self.stats = DriverStats()
+        self.health = HealthMonitor(self.config)
         self.stamp_s = None
         self.speed_m_s = 0.0
         self.rate_rad_s = None
@@ -210,13 +220,14 @@ class EventDriver:
         """Return everything ``restore`` needs to put the driver back as it is now."""
         stats = dataclasses.replace(self.stats, outcomes=dict(self.stats.outcomes))
         return (self.ekf.save(), stats, self.stamp_s, self.speed_m_s, self.rate_rad_s,
-                self._first_scan_s, dict(self._rest_updates))
+                self._first_scan_s, dict(self._rest_updates), self.health.save())
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
         (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self._first_scan_s,
-         rest_updates) = saved
+         rest_updates, health) = saved
         self._rest_updates = dict(rest_updates)
+        self.health.restore(health)
         self.ekf.restore(ekf)
         self.stats = dataclasses.replace(stats, outcomes=dict(stats.outcomes))
 
@@ -273,14 +284,19 @@ class EventDriver:
                         speed_m_s=self.speed_m_s, yaw_rate_rad_s=rate)
 
     def on_detections(self, stamp_s: float, points_sensor_m: FloatArray,
-                      mount: LidarMount) -> ObservationReport:
+                      mount: LidarMount, sensor: str | None = None) -> ObservationReport:
         """Predict to stamp_s, associate the detected poles with the map, update.
+
+        A LiDAR the health monitor has excluded is associated but not applied (its report
+        has no NIS); ``last_transition`` tells when this scan excluded or readmitted one.
 
         Args:
             stamp_s: scan stamp, s.
             points_sensor_m: pole centres in the sensor frame, shape (k, 2), m.
-            mount: pose of the sensor on the platform.
+            mount: pose of the sensor on the platform (its health is kept per mount).
+            sensor: its name in health reports (topic or frame) on first use.
         """
+        self.last_transition = None
         self._advance(stamp_s, 'observation')
         self.stats.scans += 1
         if self._first_scan_s is None:
@@ -303,7 +319,10 @@ class EventDriver:
         else:
             result = associate(z, prior, P, self.ekf.R, self.landmarks.xy_m,
                                mount, self.config.gate_probability, self.ekf.landmark_var_m2)
+        if self.health.excluded(mount):
+            return self._recheck(stamp_s, points, z, prior, mount, result, sensor)
         nis = []
+        bearing_sum = 0.0
         outcomes = self.stats.outcomes
         landmark_xy = self._landmark_xy
         # Standing still, the same beams hit the same pole scan after scan, so its error
@@ -323,14 +342,35 @@ class EventDriver:
                 nis.append(self.ekf.update(z[match.detection_index],
                                            landmark_xy[match.landmark_index], mount,
                                            float(scale)))
+                bearing_sum += self.ekf.y[1]
+        nis_sum = float(sum(nis))
+        self.last_transition = self.health.record(mount, stamp_s, points.shape[0], len(nis),
+                                                  nis_sum, float(bearing_sum), sensor)
         if nis:
             self.stats.updates += len(nis)
-            self.stats.nis_sum += float(sum(nis))
+            self.stats.nis_sum += nis_sum
             if self.stats.last_association_s is not None:
                 self.stats.longest_gap_s = max(self.stats.longest_gap_s,
                                                stamp_s - self.stats.last_association_s)
             self.stats.last_association_s = stamp_s
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
+
+    def _recheck(self, stamp_s: float, points: FloatArray, z: list, prior: FloatArray,
+                 mount: LidarMount, result: AssociationResult, sensor: str | None
+                 ) -> ObservationReport:
+        """Judge an excluded LiDAR's scan against the map at the current pose; apply nothing."""
+        self.stats.excluded += points.shape[0]
+        matched, nis_sum, bearing_sum = 0, 0.0, 0.0
+        for match in result.associations:
+            if match.outcome is AssociationOutcome.MATCHED:
+                y, _, _ = self.ekf.innovation(z[match.detection_index],
+                                              self.landmarks.xy_m[match.landmark_index], mount)
+                matched += 1
+                nis_sum += match.mahalanobis_sq
+                bearing_sum += float(y[1])
+        self.last_transition = self.health.record(mount, stamp_s, points.shape[0], matched,
+                                                  nis_sum, bearing_sum, sensor)
+        return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
 
     def _still(self) -> bool:
         """Whether the platform is known to stand still (speed and turn rate near zero)."""
@@ -537,11 +577,13 @@ class TripRun:
         updates: the applied landmark updates (compact: a long trip keeps no per-scan
             objects).
         stats: final counts.
+        health: the per-LiDAR health figures, exclusions and readmissions.
     """
 
     estimates: Estimates
     updates: UpdateLog
     stats: DriverStats
+    health: HealthMonitor | None = None
 
 
 def drive_trip(trip: Trip, driver: EventDriver,
@@ -601,7 +643,7 @@ def drive_trip(trip: Trip, driver: EventDriver,
                     driver.detector_config)
                 detected[series] = (begin, found)
             report = driver.on_detections(stamp_s, found[index - begin].points_sensor_m,
-                                          scan.mount)
+                                          scan.mount, scan.topic)
             if report.nis.size:
                 pairs = report.association.matched_pairs().tolist()
                 update_stamp.extend([stamp_s] * len(pairs))
@@ -626,4 +668,5 @@ def drive_trip(trip: Trip, driver: EventDriver,
         point_map_m=np.column_stack([np.frombuffer(update_x, dtype=np.float64),
                                      np.frombuffer(update_y, dtype=np.float64)]),
         nis=np.frombuffer(update_nis, dtype=np.float64))
-    return TripRun(Estimates(stamps, states, covariances), updates, driver.stats)
+    return TripRun(Estimates(stamps, states, covariances), updates, driver.stats,
+                   driver.health)
