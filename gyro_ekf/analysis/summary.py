@@ -10,6 +10,9 @@ Definitions (see `metrics` for the band and the interpolation):
   matched, and the longest time without any applied landmark update, counted from the first
   to the last estimate (so a trip that starts with no pole in view counts that stretch).
 - *NIS*: of every applied update (2 dof): mean and share inside the two-sided 95 % band.
+- *Health*: per LiDAR its association share, NIS mean and mean bearing innovation, and
+  when it was excluded (`core/health.py`); the verdict ok / degraded / failed with one
+  sentence per reason (thresholds in `core/health.py`).
 - *Input*: what the validation boundary dropped (with --skip-bad): samples per stream,
   counts per field and reason with the first index, and how often a stream's time went back.
 - *Ground truth* (only when the trip has it): position RMSE and max error, heading RMSE
@@ -28,6 +31,7 @@ import numpy as np
 
 from gyro_ekf.analysis import metrics
 from gyro_ekf.analysis.offline import OfflineRun
+from gyro_ekf.core import health
 from gyro_ekf.core.types import BIAS, FloatArray
 from gyro_ekf.core.validation import InputReport
 
@@ -114,10 +118,39 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'dof': 2, 'band': nis_band, 'share_in_band': metrics.share_inside(nis, *nis_band)}
 
     summary['input'] = None if input_report is None else input_report.to_dict()
+    summary['health'] = _health(run, summary, start, end)
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)
     return summary
+
+
+def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
+            ) -> dict[str, Any]:
+    """The verdict with its reasons, and the per-LiDAR figures."""
+    stamps = association_stamps(run)
+    if stamps.size:
+        # The stretch before the first update is judged on its own (2023 starts 10 s
+        # with no pole in view); after it, every gap and the stretch to the end count.
+        start_gap = float(stamps[0]) - start
+        longest = float(np.max(np.diff(np.append(stamps, end)), initial=0.0))
+    else:
+        start_gap, longest = end - start, 0.0
+    monitor = run.result.health
+    sensors = [] if monitor is None else monitor.report()
+    section = summary['input']
+    dropped = {} if section is None else {f'{stream} samples': int(n) for stream, n
+                                          in section['samples_dropped'].items()}
+    stats = run.result.stats
+    figures = health.RunFigures(
+        detections=int(stats.detections), matched=int(stats.outcomes.get('matched', 0)),
+        updates=int(stats.updates), nis_mean=summary['nis']['mean'],
+        longest_gap_s=longest, start_gap_s=start_gap, sensors=sensors, dropped=dropped,
+        final_bias_rad_s=summary['online_bias']['final_rad_s'])
+    return {**health.verdict(figures), 'lidars': sensors,
+            'transitions': [] if monitor is None else [
+                {'stamp_s': t.stamp_s, 'lidar': t.sensor, 'change': t.change,
+                 'reason': t.reason} for t in monitor.transitions]}
 
 
 def _truth_summary(run: OfflineRun, last_half: np.ndarray) -> dict[str, Any]:
