@@ -143,7 +143,8 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
                                           in section['samples_dropped'].items()}
     stats = run.result.stats
     figures = health.RunFigures(
-        detections=int(stats.detections), matched=int(stats.outcomes.get('matched', 0)),
+        # Excluded LiDARs' detections have their own reason, not the share's.
+        detections=int(stats.detections - stats.excluded), matched=int(stats.outcomes.get('matched', 0)),
         updates=int(stats.updates), nis_mean=summary['nis']['mean'],
         longest_gap_s=longest, start_gap_s=start_gap, sensors=sensors, dropped=dropped,
         final_bias_rad_s=summary['online_bias']['final_rad_s'])

@@ -13,8 +13,8 @@ another LiDAR, admitted and agreeing, associates at least ``health_good_associat
 A disagreeing LiDAR is *excluded* only while such another LiDAR vouches for the map and the
 pose: with one LiDAR (or when all disagree) nothing tells which one is wrong, so it is only
 flagged. An excluded LiDAR's scans are still associated under the current pose, but not
-applied; it is readmitted when a full window of those re-checks agrees (share at least the
-good share, bearing and NIS within their limits). On good data no rule fires, so the
+applied; it is readmitted when, at least a window after its exclusion, the re-checks in
+its window agree (share at least the good share, bearing and NIS within their limits). On good data no rule fires, so the
 filter's numbers are exactly those without the monitor.
 
 ``verdict`` turns a run's figures (offline: summary.json; live: the EKF node) into
@@ -313,7 +313,8 @@ class RunFigures:
     """What the verdict looks at (offline from summary.json's numbers, live from the node).
 
     Attributes:
-        detections: poles detected.
+        detections: poles detected by LiDARs while admitted (excluded ones have their
+            own reason).
         matched: detections MATCHED (applied).
         updates: landmark updates applied.
         nis_mean: mean NIS of the updates (nan without).
