@@ -125,6 +125,7 @@ class DriverStats:
         updates: landmark updates applied.
         recoveries: scans associated by map distance after a gap (see EkfConfig).
         nis_sum: sum of the NIS of all updates.
+        first_association_s: stamp of the first applied update, or None.
         last_association_s: stamp of the last applied update, or None.
         longest_gap_s: longest time between applied updates (from the first one).
         long_gaps: gaps between events longer than MAX_PREDICTION_STEPS steps (predicted in
@@ -141,6 +142,7 @@ class DriverStats:
     updates: int = 0
     recoveries: int = 0
     nis_sum: float = 0.0
+    first_association_s: float | None = None
     last_association_s: float | None = None
     longest_gap_s: float = 0.0
     long_gaps: int = 0
@@ -157,6 +159,7 @@ class DriverStats:
                 'detections': self.detections, 'outcomes': dict(self.outcomes),
                 'updates': self.updates, 'recoveries': self.recoveries,
                 'mean_nis': self.mean_nis,
+                'first_association_s': self.first_association_s,
                 'last_association_s': self.last_association_s,
                 'longest_gap_s': self.longest_gap_s, 'long_gaps': self.long_gaps,
                 'excluded': self.excluded}
@@ -175,6 +178,7 @@ class EventDriver:
         health: per-LiDAR consistency figures; excludes a LiDAR that disagrees
             (core/health.py).
         last_transition: the last exclusion or readmission on_detections caused, or None.
+        sensor_names: display name per mount for health reports (kept across resets).
     """
 
     def __init__(self, config: EkfConfig | None = None, landmarks: LandmarkMap | None = None,
@@ -188,6 +192,7 @@ class EventDriver:
         self.stats = DriverStats()
         self.health = HealthMonitor(self.config)
         self.last_transition: Transition | None = None
+        self.sensor_names: dict[LidarMount, str] = {}
         self.stamp_s: float | None = None
         self.speed_m_s = 0.0
         self.rate_rad_s: float | None = None
@@ -294,9 +299,12 @@ class EventDriver:
             stamp_s: scan stamp, s.
             points_sensor_m: pole centres in the sensor frame, shape (k, 2), m.
             mount: pose of the sensor on the platform (its health is kept per mount).
-            sensor: its name in health reports (topic or frame) on first use.
+            sensor: its name in health reports (topic or frame) on first use; by default
+                sensor_names[mount].
         """
         self.last_transition = None
+        if sensor is None:
+            sensor = self.sensor_names.get(mount)
         self._advance(stamp_s, 'observation')
         self.stats.scans += 1
         if self._first_scan_s is None:
@@ -352,6 +360,8 @@ class EventDriver:
             if self.stats.last_association_s is not None:
                 self.stats.longest_gap_s = max(self.stats.longest_gap_s,
                                                stamp_s - self.stats.last_association_s)
+            else:
+                self.stats.first_association_s = stamp_s
             self.stats.last_association_s = stamp_s
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
 
