@@ -127,7 +127,7 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
 
 def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
             ) -> dict[str, Any]:
-    """The verdict with its reasons, and the per-LiDAR figures."""
+    """Return the verdict with its reasons, and the per-LiDAR figures."""
     stamps = association_stamps(run)
     if stamps.size:
         # The stretch before the first update is judged on its own (2023 starts 10 s
@@ -144,7 +144,8 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
     stats = run.result.stats
     figures = health.RunFigures(
         # Excluded LiDARs' detections have their own reason, not the share's.
-        detections=int(stats.detections - stats.excluded), matched=int(stats.outcomes.get('matched', 0)),
+        detections=int(stats.detections - stats.excluded),
+        matched=int(stats.outcomes.get('matched', 0)),
         updates=int(stats.updates), nis_mean=summary['nis']['mean'],
         longest_gap_s=longest, start_gap_s=start_gap, sensors=sensors, dropped=dropped,
         final_bias_rad_s=summary['online_bias']['final_rad_s'])

@@ -14,8 +14,8 @@ A disagreeing LiDAR is *excluded* only while such another LiDAR vouches for the 
 pose: with one LiDAR (or when all disagree) nothing tells which one is wrong, so it is only
 flagged. An excluded LiDAR's scans are still associated under the current pose, but not
 applied; it is readmitted when, at least a window after its exclusion, the re-checks in
-its window agree (share at least the good share, bearing and NIS within their limits). On good data no rule fires, so the
-filter's numbers are exactly those without the monitor.
+its window agree (share at least the good share, bearing and NIS within their limits).
+On good data no rule fires, so the filter's numbers are exactly those without the monitor.
 
 ``verdict`` turns a run's figures (offline: summary.json; live: the EKF node) into
 ok / degraded / failed with one sentence per reason, each with its figure and threshold.
@@ -85,7 +85,7 @@ class SensorHealth:
     excluded_detections: int = 0
 
     def copy(self) -> 'SensorHealth':
-        """Return an independent copy (for the driver's save/restore)."""
+        """Return an independent copy of these figures (for the driver's save/restore)."""
         clone = SensorHealth(**{name: getattr(self, name) for name in self.__slots__})
         clone.window = deque(self.window)
         return clone
@@ -96,7 +96,7 @@ class SensorHealth:
         return self.excluded_since is not None
 
     def share(self) -> float:
-        """MATCHED share of the detections in the window (nan when none)."""
+        """Return the MATCHED share of the detections in the window (nan when none)."""
         return self.w_matched / self.w_detected if self.w_detected else math.nan
 
     def nis_mean(self) -> float:
@@ -169,7 +169,7 @@ class HealthMonitor:
         self.transitions = deque(transitions, maxlen=MAX_TRANSITIONS)
 
     def sensor(self, key: Hashable, name: str | None = None) -> SensorHealth:
-        """The figures of a LiDAR, created on first use (named after its key by default)."""
+        """Return the figures of a LiDAR, created on first use (named after its key by default)."""
         health = self.sensors.get(key)
         if health is None:
             health = self.sensors[key] = SensorHealth(name or str(key))

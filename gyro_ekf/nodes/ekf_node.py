@@ -558,7 +558,7 @@ class EkfNode(Node):
                                    f'{change.stamp_s:.3f} s: {change.reason}')
 
     def _verdict(self, since: float | None) -> dict:
-        """The health verdict since the start or the last reset, as summary.json gives it.
+        """Return the health verdict since the start or the last reset, as summary.json has it.
 
         The figures are summary.json's (analysis/summary.py), counted from the first IMU
         sample to the last processed event instead of from the first to the last estimate.

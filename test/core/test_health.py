@@ -60,7 +60,8 @@ def test_a_lidar_six_degrees_off_is_excluded_and_the_pose_stays_right(broken):
     # Degraded, not failed: the pose is right, but a sensor was left out (and the front
     # LiDAR's dropout, with the rear one excluded, leaves 10 s without an update).
     assert section['verdict'] == 'degraded', section['reasons']
-    assert any(reason.startswith('LiDAR scan2 excluded 1 time(s), 59.') for reason in section['reasons'])
+    assert any(reason.startswith('LiDAR scan2 excluded 1 time(s), 59.')
+               for reason in section['reasons'])
 
 
 def test_without_exclusion_the_same_trip_is_dragged_away_and_fails():
