@@ -29,6 +29,9 @@ setup(
         'rosbags==0.11.9',
         # The bundled bags are zstd-compressed; pinning the codec keeps `make bags` bit-exact.
         'backports.zstd==1.8.0; python_version < "3.14"',
+        # lz4-compressed MCAP chunks (io/mcap_chunks.py); rosbags brings it today, but an
+        # import of ours is declared by us.
+        'lz4>=4',
         'matplotlib>=3.6',
         'tqdm>=4.60',
     ],

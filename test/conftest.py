@@ -2,21 +2,23 @@
 
 from __future__ import annotations
 
-import itertools
 import os
 from pathlib import Path
 
 import pytest
 
+from gyro_ekf.ros_env import claim_domain, ros_env_values
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 SHARED_DATA = REPO_ROOT.parent / 'shared' / 'data' / 'mtrn4010'
 
-# Loopback-only discovery for everything this test process starts, before any rclpy import.
+# Loopback-only discovery in a domain of this session alone for anything this test process
+# starts without a fixture, before any rclpy import (not 42: `make demo` and a concurrent
+# `make test` use that). The claim lasts until this process exits.
+_SESSION_DOMAIN = claim_domain()
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ.setdefault('ROS_DOMAIN_ID', '42')
+os.environ['ROS_DOMAIN_ID'] = str(_SESSION_DOMAIN.domain_id)
 os.environ.setdefault('MPLBACKEND', 'Agg')
-
-_domain_ids = itertools.count(100 + (os.getpid() % 50) * 2)
 
 
 def _shared(relative: str) -> Path:
@@ -42,18 +44,13 @@ def shared_data():
 def ros_env(tmp_path, monkeypatch):
     """Environment for a test that starts rclpy nodes: loopback, own domain, own log dir.
 
-    Returns the environment dict to hand to subprocesses; it is also applied to this
-    process (before rclpy.init) through monkeypatch.
+    The domain is claimed for this test alone (gyro_ekf.ros_env: no other test or run on
+    this machine uses it meanwhile). Returns the environment dict to hand to subprocesses;
+    it is also applied to this process (before rclpy.init) through monkeypatch.
     """
-    domain_id = str(next(_domain_ids) % 200)
     log_dir = tmp_path / 'ros_log'
     log_dir.mkdir()
-    values = {
-        'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-        'ROS_DOMAIN_ID': domain_id,
-        'ROS_LOG_DIR': str(log_dir),
-        'PYTHONUNBUFFERED': '1',
-    }
-    for key, value in values.items():
-        monkeypatch.setenv(key, value)
-    return dict(os.environ)
+    with claim_domain() as lease:
+        for key, value in ros_env_values(lease.domain_id, log_dir).items():
+            monkeypatch.setenv(key, value)
+        yield dict(os.environ)

@@ -27,8 +27,9 @@ CPU: utime + stime of the child from /proc/<pid>/stat over the measured phase (f
 measured send to the end of the drain), per step (one imu + one odom) and per input message.
 
 Every rclpy process here runs with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, an explicit
-ROS_DOMAIN_ID (50-89 by PID unless given; the tests use 100-232, the Makefile 42) and
-ROS_LOG_DIR in a temporary directory, set by this module whatever the caller's environment.
+ROS_DOMAIN_ID (unless given, one claimed through gyro_ekf.ros_env, so no concurrent test or
+benchmark on this machine shares it) and ROS_LOG_DIR in a temporary directory, set by this
+module whatever the caller's environment.
 """
 
 from __future__ import annotations
@@ -50,11 +51,11 @@ from typing import Any
 
 import numpy as np
 
+from gyro_ekf.ros_env import claim_domain, ros_env_values
+
 log = logging.getLogger(__name__)
 
 REPO = Path(__file__).resolve().parents[2]
-DOMAIN_BASE = 50
-DOMAIN_SPAN = 40
 LANDMARKS_XY_M = ((5.0, 0.0), (0.0, 5.0), (-5.0, 0.0), (0.0, -5.0), (7.0, 7.0))
 STAMP_ZERO_NS = 1_800_000_000 * 1_000_000_000
 _CLOCK = time.perf_counter
@@ -100,37 +101,36 @@ class LiveCase:
         return ', '.join(parts)
 
 
-def default_domain_id() -> int:
-    """Return a ROS domain id of this benchmark: 50-89, offset by the process id."""
-    return DOMAIN_BASE + os.getpid() % DOMAIN_SPAN
-
-
 @contextlib.contextmanager
 def ros_environment(domain_id: int | None = None) -> Iterator[dict[str, str]]:
     """Set loopback discovery, a domain id and a temporary log dir for this process.
 
-    Yields the environment for child processes. The previous values of this process's
+    Yields the environment for child processes. Without domain_id a free domain is claimed
+    (gyro_ekf.ros_env) for the life of the context. The previous values of this process's
     variables are restored and the temporary directory removed on exit.
     """
-    domain = default_domain_id() if domain_id is None else int(domain_id)
-    work = Path(tempfile.mkdtemp(prefix='gyro_ekf_live_'))
-    values = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_DOMAIN_ID': str(domain),
-              'ROS_LOG_DIR': str(work / 'ros_log'), 'PYTHONUNBUFFERED': '1'}
-    saved = {key: os.environ.get(key) for key in values}
-    os.environ.update(values)
-    env = dict(os.environ)
-    env['PYTHONPATH'] = os.pathsep.join(
-        [str(REPO), env.get('PYTHONPATH', '')]).rstrip(os.pathsep)
-    env['GYRO_EKF_LIVE_WORK'] = str(work)
-    try:
+    with contextlib.ExitStack() as stack:
+        if domain_id is None:
+            domain_id = stack.enter_context(claim_domain()).domain_id
+        work = Path(tempfile.mkdtemp(prefix='gyro_ekf_live_'))
+        stack.callback(shutil.rmtree, work, ignore_errors=True)
+        values = ros_env_values(int(domain_id), work / 'ros_log')
+        saved = {key: os.environ.get(key) for key in values}
+        stack.callback(_restore, saved)
+        os.environ.update(values)
+        env = dict(os.environ)
+        env['PYTHONPATH'] = os.pathsep.join(
+            [str(REPO), env.get('PYTHONPATH', '')]).rstrip(os.pathsep)
+        env['GYRO_EKF_LIVE_WORK'] = str(work)
         yield env
-    finally:
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
-        shutil.rmtree(work, ignore_errors=True)
+
+
+def _restore(saved: dict[str, str | None]) -> None:
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
 
 
 def cpu_seconds(pid: int) -> float:
@@ -567,7 +567,7 @@ def live_suite(cases: tuple[LiveCase, ...] = DEFAULT_CASES, domain_id: int | Non
 
     Args:
         cases: what to measure.
-        domain_id: ROS domain; None picks one from 50-89 by process id.
+        domain_id: ROS domain; None claims a free one (gyro_ekf.ros_env).
 
     Returns:
         {'measured': True when every case was, 'domain_id', 'runs': [per-case results]}.

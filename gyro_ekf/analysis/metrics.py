@@ -7,7 +7,6 @@ Conventions:
   100-200 Hz) are interpolated to them, not the sparse truth (about 6 Hz in the course's
   simulated logs) to the estimates, which would leave ~1 deg heading artefacts in 50 deg/s
   turns. Yaw is unwrapped before interpolating, so a crossing of +-pi goes the short way.
-  (`interpolate_pose` does the other direction, for truth that is dense.)
 - NEES of the pose, ``e^T P^-1 e`` with e = [x, y, yaw] error and P the pose block of the
   covariance, is chi-square with 3 degrees of freedom for a consistent filter; NIS of one
   range/bearing update, ``y^T S^-1 y``, is chi-square with 2.
@@ -90,33 +89,6 @@ def share_inside(values: FloatArray, low: float, high: float) -> float:
     if values.size == 0:
         return math.nan
     return float(np.mean((values >= low) & (values <= high)))
-
-
-def interpolate_pose(stamp_s: FloatArray, truth_stamp_s: FloatArray, truth_pose: FloatArray
-                     ) -> tuple[FloatArray, BoolArray]:
-    """Interpolate true poses linearly to the given stamps.
-
-    Args:
-        stamp_s: where the truth is wanted, shape (n,), s.
-        truth_stamp_s: stamps of the truth, shape (g,), s, increasing.
-        truth_pose: x m, y m, yaw rad, shape (g, 3).
-
-    Returns:
-        poses (n, 3) with yaw wrapped (nan outside the truth's span) and the mask (n,) of
-        stamps inside it.
-    """
-    stamps = np.asarray(stamp_s, dtype=np.float64)
-    truth_t = np.asarray(truth_stamp_s, dtype=np.float64)
-    truth = np.asarray(truth_pose, dtype=np.float64).reshape(-1, 3)
-    out = np.full((stamps.size, 3), np.nan)
-    if truth_t.size == 0:
-        return out, np.zeros(stamps.size, dtype=bool)
-    inside = (stamps >= truth_t[0]) & (stamps <= truth_t[-1])
-    t = stamps[inside]
-    out[inside, 0] = np.interp(t, truth_t, truth[:, 0])
-    out[inside, 1] = np.interp(t, truth_t, truth[:, 1])
-    out[inside, 2] = wrap_angle(np.interp(t, truth_t, np.unwrap(truth[:, 2])))
-    return out, inside
 
 
 def pose_errors(estimated_pose: FloatArray, true_pose: FloatArray) -> FloatArray:

@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 import shutil
 import tempfile
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
@@ -26,6 +26,10 @@ from gyro_ekf import topics
 from gyro_ekf.analysis.errors import OutputError
 from gyro_ekf.core.types import FloatArray
 from gyro_ekf.io.defaults import NS_PER_S
+
+if TYPE_CHECKING:
+    from gyro_ekf.core.events import UpdateLog
+    from gyro_ekf.core.types import Trip
 
 log = logging.getLogger(__name__)
 
@@ -255,7 +259,7 @@ class _EstimateEncoder:
     (`fast_cdr.CdrTemplate`), which yields the bytes rosbags gives for that row's message.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, imu_frame: str = topics.IMU_FRAME) -> None:
         from gyro_ekf.io import messages as msgs
         from gyro_ekf.io.fast_cdr import CdrTemplate
 
@@ -274,7 +278,7 @@ class _EstimateEncoder:
             msgs.Odometry(header=map_header, child_frame_id=topics.BASE_FRAME, pose=pose,
                           twist=twist), topics.ODOMETRY_TYPE, store)
         self.bias = CdrTemplate(
-            Vector3Stamped(header=msgs.header(0, topics.IMU_FRAME),
+            Vector3Stamped(header=msgs.header(0, imu_frame),
                            vector=msgs.Vector3(x=0.0, y=0.0, z=0.0)),
             topics.VECTOR3_STAMPED_TYPE, store)
 
@@ -321,6 +325,20 @@ class _EstimateEncoder:
         return out
 
 
+class _Lookahead:
+    """Hands out the messages of a time-ordered iterator a stamp range at a time."""
+
+    def __init__(self, messages: Iterator[Any]) -> None:
+        self._messages = messages
+        self._next = next(messages, None)
+
+    def until(self, stop_ns: int | None) -> Iterator[Any]:
+        """Yield the messages stamped before stop_ns (all that are left when None)."""
+        while self._next is not None and (stop_ns is None or self._next.stamp_ns < stop_ns):
+            yield self._next
+            self._next = next(self._messages, None)
+
+
 def _pose(msgs: Any, x_m: float, y_m: float, yaw_rad: float) -> Any:
     return msgs.Pose(position=msgs.Point(x=x_m, y=y_m, z=0.0),
                      orientation=msgs.yaw_quaternion(yaw_rad))
@@ -328,14 +346,21 @@ def _pose(msgs: Any, x_m: float, y_m: float, yaw_rad: float) -> Any:
 
 def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArray,
                         state: FloatArray, covariance: FloatArray, speed_m_s: FloatArray,
-                        yaw_rate_rad_s: FloatArray, storage: str = 'mcap') -> Path:
+                        yaw_rate_rad_s: FloatArray, storage: str = 'mcap', *,
+                        trip: Trip | None = None, updates: UpdateLog | None = None,
+                        path_length: int | None = None, visual: bool = True,
+                        imu_frame: str = topics.IMU_FRAME) -> Path:
     """Write the EKF outputs as the live EKF node publishes them, one set per IMU step.
 
     Topics (frames per REP-105): `/ekf/pose` PoseWithCovarianceStamped in `map`;
     `/ekf/odometry` Odometry `map` -> `base_link` with the pose covariance and the held
-    speed and bias-corrected yaw rate as twist; `/ekf/bias` Vector3Stamped in `imu_link`
-    (z = yaw-rate bias, rad/s). Pose covariances are 6x6 row-major over (x, y, z, roll,
-    pitch, yaw); z, roll and pitch are not estimated and carry 0.
+    speed and bias-corrected yaw rate as twist; `/ekf/bias` Vector3Stamped in the IMU's frame
+    (`imu_frame`: the input IMU's frame_id, `imu_link` by default; z = yaw-rate bias,
+    rad/s). Pose covariances are 6x6 row-major over (x, y, z, roll, pitch, yaw); z, roll
+    and pitch are not estimated and carry 0. Plus the visual topics
+    of analysis.visual_bag (/tf, /tf_static, ekf/path, ekf/markers, landmark_markers): the
+    latched ones first, then per block of rows the per-estimate topics, the block's /tf
+    and its other visual messages (log times exact; MCAP readers order by log time).
 
     Args:
         path: the bag folder to create (must not exist).
@@ -345,15 +370,25 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
         speed_m_s: held speed per row, shape (n,), m/s.
         yaw_rate_rad_s: bias-corrected yaw rate per row, shape (n,), rad/s.
         storage: 'mcap' or 'sqlite3'.
+        trip: the run's inputs (LiDAR mounts, map, ground truth), or None.
+        updates: the run's applied landmark updates, or None.
+        path_length: most poses an ekf/path message holds (>= 1); None:
+            visual_bag.PATH_LENGTH.
+        visual: write the visual topics (False: only the three the live node publishes).
+        imu_frame: frame of /ekf/bias and of the IMU in /tf_static (identity on base_link);
+            '' means `imu_link`.
 
     Raises:
-        OutputError: the bag folder exists or cannot be written.
+        OutputError: the bag folder exists or cannot be written, or path_length < 1.
     """
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.rosbag2.errors import WriterError
 
+    from gyro_ekf.analysis import visual_bag
+    from gyro_ekf.analysis.visual_bag import VisualTopics
     from gyro_ekf.io import messages as msgs
-    from gyro_ekf.io.batch_write import write_rows
+    from gyro_ekf.io.bag_writer import LATCHED_QOS
+    from gyro_ekf.io.batch_write import enable_chunk_crcs, write_rows
 
     path = Path(path)
     if path.exists():
@@ -369,7 +404,11 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     yaw_rate_rad_s = np.asarray(yaw_rate_rad_s, dtype=np.float64)
     if len(stamps_ns) and (stamps_ns.min() < 0 or stamps_ns.max() // NS_PER_S > _INT32_MAX):
         raise OutputError(f'{path}: stamps outside builtin_interfaces/Time (int32 seconds)')
-    encoder = _EstimateEncoder()
+    imu_frame = imu_frame or topics.IMU_FRAME
+    encoder = _EstimateEncoder(imu_frame)
+    shown = VisualTopics(start_time_ns, stamps_ns, state, P, trip, updates,
+                         visual_bag.PATH_LENGTH if path_length is None else path_length,
+                         imu_frame)
     try:
         aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
     except OSError as err:
@@ -377,15 +416,39 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     staged = aside / path.name
     try:
         with Writer(staged, version=_BAG_VERSION, storage_plugin=plugins[storage]) as writer:
+            enable_chunk_crcs(writer)
             connections = [writer.add_connection(topics.bag_topic(topic), template.msgtype,
                                                  typestore=msgs.TYPESTORE)
                            for topic, template in encoder.templates()]
+            if visual:
+                tf = writer.add_connection(visual_bag.TF, visual_bag.TF_TYPE,
+                                           typestore=msgs.TYPESTORE)
+                sparse_connections = {visual_bag.TF: tf, **{
+                    topic: writer.add_connection(topics.bag_topic(topic), msgtype,
+                                                 typestore=msgs.TYPESTORE)
+                    for topic, msgtype in ((visual_bag.EKF_PATH, visual_bag.PATH_TYPE),
+                                           (visual_bag.EKF_MARKERS,
+                                            visual_bag.MARKER_ARRAY_TYPE))}}
+                for topic, msgtype, data in shown.latched():
+                    latched = writer.add_connection(topics.bag_topic(topic), msgtype,
+                                                    typestore=msgs.TYPESTORE,
+                                                    offered_qos_profiles=[LATCHED_QOS])
+                    writer.write(latched, int(start_time_ns), data)
+                sparse = _Lookahead(shown.sparse())
             # In blocks, so an hour-long trip never holds all its messages at once.
             for start in range(0, len(stamps_ns), _BAG_BLOCK_ROWS):
                 block = slice(start, min(start + _BAG_BLOCK_ROWS, len(stamps_ns)))
                 write_rows(writer, connections, stamps_ns[block], encoder.encode(
                     stamps_ns[block], state[block], P[block], speed_m_s[block],
                     yaw_rate_rad_s[block]))
+                if not visual:
+                    continue
+                tf_stamps, tf_rows = shown.tf_rows(block)
+                write_rows(writer, [tf], tf_stamps, [tf_rows])
+                last = block.stop == len(stamps_ns)
+                for message in sparse.until(None if last else int(stamps_ns[block.stop])):
+                    writer.write(sparse_connections[message.topic], message.stamp_ns,
+                                 message.data)
         os.replace(staged, path)
     except WriterError as err:
         raise OutputError(f'{path}: cannot write the estimates bag: {err}') from None

@@ -166,4 +166,7 @@ def read_params_file(path: Path | str) -> PipelineParams:
         text = path.read_text(encoding='utf-8')
     except OSError as err:
         raise ParamsFileError(f'{path}: cannot read the params file: {err.strerror}') from None
+    except UnicodeDecodeError as err:
+        raise ParamsFileError(f'{path}: not UTF-8 text (byte {err.start}): not a params '
+                              'file') from None
     return read_params_text(text, source=str(path))

@@ -48,6 +48,11 @@ def format_summary(summary: BagSummary) -> str:
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
     from gyro_ekf.io.bag_reader import bag_summary
+    from gyro_ekf.io.errors import BagError
+    from gyro_ekf.io.reindex import needs_reindex
 
+    reason = needs_reindex(args.bag)
+    if reason is not None:
+        raise BagError(f'{args.bag}: {reason}; run `gyro-ekf reindex {args.bag}`')
     print(format_summary(bag_summary(args.bag)))
     return 0

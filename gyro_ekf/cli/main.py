@@ -14,7 +14,7 @@ import sys
 from gyro_ekf.errors import GyroEkfError
 
 COMMANDS = ('convert', 'info', 'simulate', 'calibrate', 'run', 'demo', 'replay', 'record',
-            'make_bags', 'bench')
+            'reindex', 'make_bags', 'bench')
 
 log = logging.getLogger('gyro_ekf')
 

@@ -47,7 +47,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--strict', action='store_true',
                         help='exit 3 unless the health verdict is ok (outputs are still '
                         'written)')
+    parser.add_argument('--path-length', type=_path_length, default=None, metavar='POSES',
+                        help='most poses per ekf/path message of the estimates bag (>= 1; '
+                        'default 600, a pose every 0.2 s)')
     add_skip_bad_argument(parser)
+
+
+def _path_length(text: str) -> int:
+    from gyro_ekf.analysis.errors import OutputError
+    from gyro_ekf.analysis.visual_bag import check_path_length
+    try:
+        return check_path_length(int(text))
+    except (ValueError, OutputError):
+        raise argparse.ArgumentTypeError(f'{text!r}: must be a whole number of poses >= 1'
+                                         ) from None
 
 
 def _progress_bar(total: int, enabled: bool) -> Any:
@@ -127,7 +140,9 @@ def run(args: argparse.Namespace) -> int:
             outputs.write_estimates_bag(staging / outputs.ESTIMATES_BAG, bag.start_time_ns,
                                         est.stamp_s, est.state, est.covariance,
                                         result.speed_m_s, result.yaw_rate_rad_s,
-                                        storage=args.storage)
+                                        storage=args.storage, trip=trip,
+                                        updates=result.result.updates,
+                                        path_length=args.path_length)
         processed_s = time.perf_counter() - began
         summary['timing'] = {'read_s': read_s, 'run_and_outputs_s': processed_s - read_s,
                              'real_time_factor': summary['trip']['duration_s'] / processed_s

@@ -1,4 +1,4 @@
-"""The one place angles are wrapped and converted."""
+"""The one place angles are wrapped; degrees appear only at human-facing edges."""
 
 from __future__ import annotations
 
@@ -15,13 +15,3 @@ def wrap_angle(angle_rad):
 def wrap_scalar(angle_rad: float) -> float:
     """Wrap one angle, rad, into [-pi, pi) without numpy overhead."""
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def deg_to_rad(value_deg):
-    """Degrees to radians; only the human-facing edges use degrees."""
-    return np.deg2rad(value_deg)
-
-
-def rad_to_deg(value_rad):
-    """Radians to degrees, for printing and plots."""
-    return np.rad2deg(value_rad)

@@ -10,11 +10,20 @@ chunk reader, several times faster), of any other bag, or one that reader refuse
 rosbags' Reader, and decodes the sensor topics in batches with numpy (`fast_cdr`), which
 gives the values rosbags' deserialisation gives (`read_bag(fast=False)` is that reference
 path); `iter_bag_messages` yields rosbags message objects one by one.
+
+Bags are verified, never silently wrong: `mcap_chunks` checks the MCAP file's CRCs, bounds
+and chunk time ranges (a damaged file is a final BagError; only a file it cannot handle, e.g.
+an unknown chunk compression, goes to rosbags, with the reason logged); each known topic must
+have the type the reader expects for it (`EXPECTED_TYPES`, plus the sidecar's LiDAR topics);
+every stamp must lie in the bag's stated time range; message counts from the metadata or
+the MCAP statistics are only hints (arrays grow as messages come); and whatever rosbags
+raises on damaged bytes becomes a BagError naming the bag.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 import logging
 import math
@@ -24,19 +33,18 @@ from typing import Any, NamedTuple
 import numpy as np
 import yaml
 from rosbags.rosbag2 import Reader
-from rosbags.rosbag2.errors import ReaderError
-from rosbags.serde import SerdeError
 
 from gyro_ekf import topics
 from gyro_ekf.core.types import (
     GroundTruth, ImuSeries, LandmarkMap, LidarMount, NoiseFigures, ScanSeries, SpeedSeries,
     Trip)
+from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.io import fast_cdr, mcap_chunks, messages as msgs
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.sidecar import BagParams, read_sidecar, sidecar_path
 
-__all__ = ['BagMessage', 'BagSummary', 'BagTrip', 'TopicSummary', 'bag_summary',
-           'iter_bag_messages', 'read_bag', 'read_trip_bag']
+__all__ = ['BagMessage', 'BagSummary', 'BagTrip', 'EXPECTED_TYPES', 'TopicSummary',
+           'bag_summary', 'iter_bag_messages', 'read_bag', 'read_trip_bag']
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +53,20 @@ ODOM_TOPIC = topics.bag_topic(topics.ODOM)
 MAP_TOPIC = topics.bag_topic(topics.LANDMARK_MAP)
 INITIAL_POSE_TOPIC = topics.bag_topic(topics.INITIAL_POSE)
 GROUND_TRUTH_TOPIC = topics.bag_topic(topics.GROUND_TRUTH)
+
+EXPECTED_TYPES = {
+    IMU_TOPIC: topics.IMU_TYPE,
+    ODOM_TOPIC: topics.ODOMETRY_TYPE,
+    topics.bag_topic(topics.SCAN): topics.LASER_SCAN_TYPE,
+    topics.bag_topic(topics.SCAN2): topics.LASER_SCAN_TYPE,
+    GROUND_TRUTH_TOPIC: topics.ODOMETRY_TYPE,
+    MAP_TOPIC: topics.POSE_ARRAY_TYPE,
+    INITIAL_POSE_TOPIC: topics.POSE_WITH_COVARIANCE_STAMPED_TYPE,
+}
+"""Topic -> the only type the reader accepts on it (the sidecar's LiDAR topics: LaserScan)."""
+
+_MIN_MESSAGE_BYTES = 35
+"""Bytes a stored message takes at least (an MCAP Message record head and a CDR header)."""
 
 
 class BagMessage(NamedTuple):
@@ -101,16 +123,43 @@ class BagTrip:
     params: BagParams | None
 
 
+@contextmanager
+def _reading(path: Path) -> Iterator[None]:
+    """Turn whatever reading a bag's bytes raises into a BagError naming the bag.
+
+    rosbags parses bytes it cannot trust: a damaged bag makes it raise nearly anything
+    (ReaderError, struct.error, ZstdError, OverflowError, MemoryError, KeyError, ...).
+    """
+    try:
+        yield
+    except GyroEkfError:
+        raise
+    except mcap_chunks.McapError as err:
+        raise BagError(str(err)) from None
+    except Exception as err:
+        reason = str(err) or type(err).__name__
+        raise BagError(f'{path}: cannot read the bag ({type(err).__name__}): {reason}'
+                       f'{_reindex_hint(path)}') from None
+
+
+def _reindex_hint(path: Path) -> str:
+    from gyro_ekf.io.reindex import needs_reindex
+
+    reason = needs_reindex(path)
+    return '' if reason is None else f'; {reason}: run `gyro-ekf reindex {path}`'
+
+
 def _open(path: Path) -> Reader:
     if not path.exists():
         raise BagError(f'{path}: no such bag')
     if path.is_dir() and not (path / 'metadata.yaml').exists():
+        if any(path.glob('*.mcap')):
+            raise BagError(f'{path}: no metadata.yaml (was its recorder killed?); run '
+                           f'`gyro-ekf reindex {path}`')
         raise BagError(f'{path}: not a rosbag2 folder (no metadata.yaml)')
-    try:
+    with _reading(path):
         reader = Reader(path)
         reader.open()
-    except (ReaderError, OSError, KeyError, ValueError) as err:
-        raise BagError(f'{path}: cannot read the bag: {err}') from None
     return reader
 
 
@@ -169,6 +218,7 @@ def iter_bag_messages(path: Path | str, topic_names: Iterable[str] | None = None
     reader = _open(path)
     try:
         connections = reader.connections
+        _check_types(path, connections, None)
         if topic_names is not None:
             wanted = {topics.bag_topic(t) for t in topic_names}
             present = {c.topic for c in connections}
@@ -177,15 +227,17 @@ def iter_bag_messages(path: Path | str, topic_names: Iterable[str] | None = None
                 raise BagError(f"{path}: no topic '{missing[0]}' (the bag has "
                                f'{sorted(present)})')
             connections = [c for c in connections if c.topic in wanted]
-        for connection, stamp, data in reader.messages(connections=connections):
-            try:
-                message = msgs.deserialize(data, connection.msgtype)
-            except (SerdeError, ValueError, KeyError, IndexError) as err:
-                raise BagError(f"{path}: topic '{connection.topic}': message at {stamp} ns "
-                               f'does not decode as {connection.msgtype}: {err}') from None
+        span = _time_span(reader)
+        messages = reader.messages(connections, *_every_time(path))
+        while True:
+            with _reading(path):
+                item = next(messages, None)
+            if item is None:
+                break
+            connection, stamp, data = item
+            _check_stamp(path, connection.topic, stamp, span)
+            message = _deserialize(path, connection.topic, connection.msgtype, stamp, data)
             yield BagMessage(connection.topic, connection.msgtype, stamp, message)
-    except ReaderError as err:
-        raise BagError(f'{path}: cannot read the bag: {err}') from None
     finally:
         reader.close()
 
@@ -206,47 +258,129 @@ class _ScanData(NamedTuple):
     frame_id: str
 
 
-def _deserialize(path: Path, topic: str, msgtype: str, stamp: int, data: bytes) -> Any:
+def _deserialize(path: Path, topic: str, msgtype: str, stamp: int,
+                 data: bytes | memoryview) -> Any:
     try:
         return msgs.deserialize(data, msgtype)
-    except (SerdeError, ValueError, KeyError, IndexError) as err:
+    except fast_cdr.DECODE_FAILURES as err:
         raise BagError(f"{path}: topic '{topic}': message at {stamp} ns does not decode as "
                        f'{msgtype}: {err}') from None
 
 
-def _topics(path: Path, reader: Reader) -> tuple[dict[str, Any], dict[str, int]]:
-    """Return connections and message counts by topic; check /imu and /odom are there."""
-    by_topic = {c.topic: c for c in reader.connections}
+def _check_types(path: Path, connections: Iterable[Any], params: BagParams | None) -> None:
+    """Refuse a bag where a topic the reader knows has another type than it expects."""
+    expected = dict(EXPECTED_TYPES)
+    if params is not None:
+        expected.update({topics.bag_topic(name): topics.LASER_SCAN_TYPE
+                         for name in params.lidars})
+    for connection in connections:
+        wanted = expected.get(connection.topic)
+        if wanted is not None and connection.msgtype != wanted:
+            raise BagError(f"{path}: topic '{connection.topic}' has type "
+                           f'{connection.msgtype}, expected {wanted}')
+
+
+def _topics(path: Path, reader: Reader, params: BagParams | None
+            ) -> tuple[dict[str, Any], dict[str, int]]:
+    """Return connections and message-count hints by topic; check names and types."""
+    _check_types(path, reader.connections, params)
+    by_topic: dict[str, Any] = {}
     counts: dict[str, int] = {}
     for connection in reader.connections:
-        counts[connection.topic] = counts.get(connection.topic, 0) + connection.msgcount
-    for needed, msgtype in ((IMU_TOPIC, topics.IMU_TYPE), (ODOM_TOPIC, topics.ODOMETRY_TYPE)):
+        known = by_topic.setdefault(connection.topic, connection)
+        if known.msgtype != connection.msgtype:
+            raise BagError(f"{path}: topic '{connection.topic}' has connections of two types, "
+                           f'{known.msgtype} and {connection.msgtype}')
+        counts[connection.topic] = counts.get(connection.topic, 0) + max(
+            0, int(connection.msgcount))
+    for needed in (IMU_TOPIC, ODOM_TOPIC):
         if needed not in by_topic:
             raise BagError(f"{path}: no topic '{needed}' (the bag has {sorted(by_topic)})")
-        if by_topic[needed].msgtype != msgtype:
-            raise BagError(f"{path}: topic '{needed}' has type {by_topic[needed].msgtype}, "
-                           f'expected {msgtype}')
     return by_topic, counts
 
 
+def _time_span(reader: Reader) -> tuple[int, int] | None:
+    """Return the bag's stated [start, end) in ns (MCAP statistics or metadata), if any."""
+    if not reader.message_count:
+        return None
+    return int(reader.start_time), int(reader.end_time)
+
+
+def _every_time(path: Path) -> tuple[int, int]:
+    """Return the start and stop for reader.messages that let every message through.
+
+    By default rosbags yields only the messages of an MCAP chunk inside the chunk's own time
+    range, so a damaged log time would silently drop its message; asked for every time, it
+    yields it and the stated time range refuses it. sqlite3 stores signed 64-bit stamps.
+    """
+    if _metadata(path).get('storage_identifier') == 'mcap':
+        return 0, 2**64
+    return 0, 2**63 - 1
+
+
+def _check_stamp(path: Path, topic: str, stamp: int, span: tuple[int, int] | None) -> None:
+    if span is not None and not span[0] <= stamp < span[1]:
+        raise BagError(f"{path}: topic '{topic}': message at {stamp} ns lies outside the "
+                       f'time range the bag states, [{span[0]}, {span[1]}) ns')
+
+
+def _check_stamps(path: Path, topic: str, stamps: np.ndarray,
+                  span: tuple[int, int] | None) -> None:
+    """Refuse stamps outside the bag's stated time range (a damaged time or statistics)."""
+    if span is None or not stamps.size:
+        return
+    outside = (stamps < span[0]) | (stamps >= span[1])
+    if outside.any():
+        _check_stamp(path, topic, int(stamps[int(np.argmax(outside))]), span)
+
+
+def _bag_bytes(path: Path) -> int:
+    try:
+        return sum(f.stat().st_size for f in path.iterdir() if f.is_file())
+    except OSError:
+        return 0
+
+
+def _capacity(hint: int, bag_bytes: int, message_bytes: int = 0) -> int:
+    """Rows to allocate for a topic: its count hint, bounded by what the files can hold.
+
+    A compressed bag can hold more messages than the bound; the arrays then grow.
+    """
+    return max(0, min(int(hint), 1024 + bag_bytes // (_MIN_MESSAGE_BYTES + message_bytes)))
+
+
+def _grown(array: np.ndarray, used: int, needed: int) -> np.ndarray:
+    """Array with room for `needed` rows, keeping its first `used` rows."""
+    if needed <= array.shape[0]:
+        return array
+    bigger = np.zeros((max(needed, 2 * array.shape[0]),) + array.shape[1:], dtype=array.dtype)
+    bigger[:used] = array[:used]
+    return bigger
+
+
 class _Sink:
-    """Raw messages of one topic, decoded in batches into preallocated arrays.
+    """Raw messages of one topic, decoded in batches into arrays that grow as needed.
 
     Attributes:
-        stamps: bag stamps, shape (count,), ns; the first n are filled.
+        stamps: bag stamps, ns; the first n are filled.
         n: messages decoded so far.
         first: the first message, deserialised by rosbags (for per-topic constants).
     """
 
     msgtype = ''
     fields: tuple[str, ...] = ()
+    grows: tuple[str, ...] = ('stamps',)
+    """Attributes holding one row per message."""
 
-    def __init__(self, path: Path, topic: str, count: int) -> None:
+    def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
+        """Allocate for `hint` messages (a count the bag states), as far as the files allow."""
         self.path = path
         self.topic = topic
-        self.count = count
+        self.hint = hint
+        self.bag_bytes = bag_bytes
+        self.count = _capacity(hint, bag_bytes)
         self.n = 0
-        self.stamps = np.zeros(count, dtype=np.int64)
+        self.stamps = np.zeros(self.count, dtype=np.int64)
         self.first: Any = None
         self._datas: list[bytes] = []
         self._stamps: list[int] = []
@@ -276,15 +410,16 @@ class _Sink:
         if self.first is None:
             self.first = _deserialize(self.path, self.topic, self.msgtype, stamps[0], datas[0])
         k = len(datas)
-        if self.n + k > self.count:
-            raise BagError(f"{self.path}: topic '{self.topic}' has more messages than its "
-                           'metadata counts')
         try:
             columns = fast_cdr.decode_columns(datas, self.msgtype, self.fields, msgs.TYPESTORE)
         except fast_cdr.CdrDecodeError as err:
             where = '' if err.index is None else f' at {stamps[err.index]} ns'
             raise BagError(f"{self.path}: topic '{self.topic}': message{where} does not "
                            f'decode as {self.msgtype}: {err.reason}') from None
+        for name in self.grows:
+            array = getattr(self, name)
+            if array is not None and array.shape[0] < self.n + k:
+                setattr(self, name, _grown(array, self.n, self.n + k))
         self.stamps[self.n:self.n + k] = stamps
         self.store(columns, slice(self.n, self.n + k))
         self.n += k
@@ -296,13 +431,15 @@ class _Sink:
 
 class _ImuSink(_Sink):
     msgtype = topics.IMU_TYPE
+    grows = ('stamps', 'rates', 'accel')
 
-    def __init__(self, path: Path, topic: str, count: int, acceleration: bool) -> None:
-        super().__init__(path, topic, count)
+    def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int,
+                 acceleration: bool) -> None:
+        super().__init__(path, topic, hint, bag_bytes)
         self.fields = ('angular_velocity', 'linear_acceleration') if acceleration else (
             'angular_velocity',)
-        self.rates = np.zeros((count, 3))
-        self.accel = np.zeros((count, 3)) if acceleration else None
+        self.rates = np.zeros((self.count, 3))
+        self.accel = np.zeros((self.count, 3)) if acceleration else None
 
     def store(self, columns: fast_cdr.Columns, rows: slice) -> None:
         self.rates[rows] = columns.values['angular_velocity']
@@ -313,10 +450,11 @@ class _ImuSink(_Sink):
 class _OdomSink(_Sink):
     msgtype = topics.ODOMETRY_TYPE
     fields = ('twist.twist.linear',)
+    grows = ('stamps', 'speeds')
 
-    def __init__(self, path: Path, topic: str, count: int) -> None:
-        super().__init__(path, topic, count)
-        self.speeds = np.zeros(count)
+    def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
+        super().__init__(path, topic, hint, bag_bytes)
+        self.speeds = np.zeros(self.count)
 
     def store(self, columns: fast_cdr.Columns, rows: slice) -> None:
         self.speeds[rows] = columns.values['twist.twist.linear'][:, 0]
@@ -325,10 +463,11 @@ class _OdomSink(_Sink):
 class _TruthSink(_Sink):
     msgtype = topics.ODOMETRY_TYPE
     fields = ('pose.pose.position', 'pose.pose.orientation')
+    grows = ('stamps', 'poses')
 
-    def __init__(self, path: Path, topic: str, count: int) -> None:
-        super().__init__(path, topic, count)
-        self.poses = np.zeros((count, 3))
+    def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
+        super().__init__(path, topic, hint, bag_bytes)
+        self.poses = np.zeros((self.count, 3))
 
     def store(self, columns: fast_cdr.Columns, rows: slice) -> None:
         position = columns.values['pose.pose.position']
@@ -369,9 +508,10 @@ class _ScanSink(_ScanArrays, _Sink):
     msgtype = topics.LASER_SCAN_TYPE
     fields = ('angle_min', 'angle_increment', 'range_min', 'range_max', 'ranges',
               'intensities')
+    grows = ('stamps', 'ranges', 'intensities')
 
-    def __init__(self, path: Path, topic: str, count: int) -> None:
-        super().__init__(path, topic, count)
+    def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
+        super().__init__(path, topic, hint, bag_bytes)
         self.ranges: np.ndarray | None = None
         self.intensities: np.ndarray | None = None
 
@@ -379,9 +519,11 @@ class _ScanSink(_ScanArrays, _Sink):
         first = self.first
         beams = len(first.ranges)
         if self.ranges is None:
-            self.ranges = np.empty((self.count, beams), dtype=np.float32)
+            # A scan stores 4 bytes per beam at least: that bounds the rows too.
+            count = max(rows.stop, _capacity(self.hint, self.bag_bytes, 4 * beams))
+            self.ranges = np.empty((count, beams), dtype=np.float32)
             if len(first.intensities):
-                self.intensities = np.empty((self.count, beams), dtype=np.float32)
+                self.intensities = np.empty((count, beams), dtype=np.float32)
         values = columns.values
         same = (columns.counts['ranges'] == beams)
         for name, value in (('angle_min', first.angle_min),
@@ -426,38 +568,43 @@ def read_bag(path: Path | str, fast: bool = True, acceleration: bool = True) -> 
     reader = _open(path)
     try:
         params = read_sidecar(path)
-        by_topic, counts = _topics(path, reader)
+        by_topic, counts = _topics(path, reader, params)
         start = reader.start_time if reader.message_count else 0
+        span = _time_span(reader)
         scan_topics = [t for t, c in by_topic.items() if c.msgtype == topics.LASER_SCAN_TYPE]
         mcap_file = _single_mcap_file(path)
+        size = _bag_bytes(path)
         while True:
-            imu = _ImuSink(path, IMU_TOPIC, counts[IMU_TOPIC], acceleration)
-            odom = _OdomSink(path, ODOM_TOPIC, counts[ODOM_TOPIC])
-            scans = {t: _ScanSink(path, t, counts[t]) for t in scan_topics}
+            imu = _ImuSink(path, IMU_TOPIC, counts[IMU_TOPIC], size, acceleration)
+            odom = _OdomSink(path, ODOM_TOPIC, counts[ODOM_TOPIC], size)
+            scans = {t: _ScanSink(path, t, counts[t], size) for t in scan_topics}
             sinks: dict[str, _Sink] = {IMU_TOPIC: imu, ODOM_TOPIC: odom, **scans}
             truth = None
             if GROUND_TRUTH_TOPIC in by_topic:
-                truth = _TruthSink(path, GROUND_TRUTH_TOPIC, counts[GROUND_TRUTH_TOPIC])
+                truth = _TruthSink(path, GROUND_TRUTH_TOPIC, counts[GROUND_TRUTH_TOPIC], size)
                 sinks[GROUND_TRUTH_TOPIC] = truth
             singles: dict[str, Any] = {}
             if mcap_file is None:
-                _read_with_rosbags(path, reader, sinks, singles)
+                with _reading(path):
+                    _read_with_rosbags(path, reader, sinks, singles)
                 break
             try:
                 _read_mcap_fast(path, mcap_file, by_topic, sinks, singles)
                 break
             except mcap_chunks.UnsupportedMcap as err:
-                # rosbags reads what the fast reader refuses (and names real damage itself).
+                # rosbags reads what the fast reader cannot handle; damage (CorruptMcap) is
+                # final and never gets here.
                 log.info('%s; reading it with rosbags instead', err)
                 mcap_file = None
         for sink in sinks.values():
             sink.flush()
-    except ReaderError as err:
-        raise BagError(f'{path}: cannot read the bag: {err}') from None
+            _check_stamps(path, sink.topic, sink.stamps[:sink.n], span)
+        for topic, (stamp, _) in singles.items():
+            _check_stamp(path, topic, stamp, span)
     finally:
         reader.close()
-    landmark_message = singles.get(MAP_TOPIC)
-    pose_message = singles.get(INITIAL_POSE_TOPIC)
+    landmark_message = singles[MAP_TOPIC][1] if MAP_TOPIC in singles else None
+    pose_message = singles[INITIAL_POSE_TOPIC][1] if INITIAL_POSE_TOPIC in singles else None
     imu_first = imu.first
     return _bag_trip(
         path, params, int(start),
@@ -485,35 +632,48 @@ def _single_mcap_file(path: Path) -> Path | None:
 
 
 def _read_with_rosbags(path: Path, reader: Reader, sinks: dict[str, _Sink],
-                       singles: dict[str, Any]) -> None:
+                       singles: dict[str, tuple[int, Any]]) -> None:
+    """Fill the sinks, and singles with topic -> (stamp, last message), through rosbags."""
     wanted = [c for c in reader.connections
               if c.topic in sinks or c.topic in (MAP_TOPIC, INITIAL_POSE_TOPIC)]
-    for connection, stamp, data in reader.messages(connections=wanted):
+    for connection, stamp, data in reader.messages(wanted, *_every_time(path)):
         sink = sinks.get(connection.topic)
         if sink is not None:
             sink.add(stamp, data)
         else:
-            singles[connection.topic] = _deserialize(path, connection.topic,
-                                                     connection.msgtype, stamp, data)
+            singles[connection.topic] = (stamp, _deserialize(
+                path, connection.topic, connection.msgtype, stamp, data))
 
 
 def _read_mcap_fast(path: Path, mcap_file: Path, by_topic: dict[str, Any],
-                    sinks: dict[str, _Sink], singles: dict[str, Any]) -> None:
-    """Read the sink topics with mcap_chunks: the same bytes, a few times faster."""
+                    sinks: dict[str, _Sink], singles: dict[str, tuple[int, Any]]) -> None:
+    """Read the sink topics with mcap_chunks: the same bytes, a few times faster, verified.
+
+    Raises:
+        BagError: the file is damaged (CRC, bounds, times), or its channels disagree with
+            the types rosbags read from its summary.
+        UnsupportedMcap: mcap_chunks cannot handle the file; read it with rosbags.
+    """
     def consume(topic: str, batch: mcap_chunks.TopicMessages) -> None:
         sink = sinks.get(topic)
         if sink is not None:
             sink.add_many(batch.log_time_ns, batch.payloads)
         elif len(batch.payloads):
-            singles[topic] = _deserialize(path, topic, by_topic[topic].msgtype,
-                                          int(batch.log_time_ns[-1]),
-                                          bytes(batch.payloads[-1]))
+            stamp = int(batch.log_time_ns[-1])
+            singles[topic] = (stamp, _deserialize(path, topic, by_topic[topic].msgtype, stamp,
+                                                  bytes(batch.payloads[-1])))
 
     wanted = [t for t in by_topic if t in sinks or t in (MAP_TOPIC, INITIAL_POSE_TOPIC)]
     try:
-        mcap_chunks.stream_topics(mcap_file, wanted, consume)
+        msgtypes = mcap_chunks.stream_topics(mcap_file, wanted, consume)
     except OSError as err:
         raise BagError(f'{path}: cannot read the bag: {err}') from None
+    except mcap_chunks.CorruptMcap as err:
+        raise BagError(str(err)) from None
+    for topic, msgtype in msgtypes.items():
+        if msgtype != by_topic[topic].msgtype:
+            raise BagError(f"{mcap_file}: topic '{topic}' has type {msgtype} in the data "
+                           f'section and {by_topic[topic].msgtype} in the summary')
 
 
 def _has_accel(imu_message: Any) -> bool:
@@ -570,71 +730,70 @@ def _read_bag_rosbags(path: Path, acceleration: bool = True) -> BagTrip:
     reader = _open(path)
     try:
         params = read_sidecar(path)
-        by_topic, counts = _topics(path, reader)
+        by_topic, _ = _topics(path, reader, params)
         start = reader.start_time if reader.message_count else 0
     finally:
         reader.close()
     scan_topics = [t for t, c in by_topic.items() if c.msgtype == topics.LASER_SCAN_TYPE]
     wanted = [IMU_TOPIC, ODOM_TOPIC, *scan_topics] + [
         t for t in (MAP_TOPIC, INITIAL_POSE_TOPIC, GROUND_TRUTH_TOPIC) if t in by_topic]
-    n_imu = counts[IMU_TOPIC]
-    imu_ns = np.zeros(n_imu, dtype=np.int64)
-    rates = np.zeros((n_imu, 3))
-    accel = np.zeros((n_imu, 3))
+    # Lists, not arrays sized by the bag's counts: those are only hints.
+    imu_ns: list[int] = []
+    rates: list[tuple[float, float, float]] = []
+    accel: list[tuple[float, float, float]] = []
     has_accel = False
     axes_known: tuple[bool, bool, bool] = (True, True, True)
-    n_odom = counts[ODOM_TOPIC]
-    odom_ns = np.zeros(n_odom, dtype=np.int64)
-    speeds = np.zeros(n_odom)
-    n_truth = counts.get(GROUND_TRUTH_TOPIC, 0)
-    truth_ns = np.zeros(n_truth, dtype=np.int64)
-    truth = np.zeros((n_truth, 3))
-    scans = {t: _ScanCollector(path, t, counts[t]) for t in scan_topics}
+    odom_ns: list[int] = []
+    speeds: list[float] = []
+    truth_ns: list[int] = []
+    truth: list[tuple[float, float, float]] = []
+    scans = {t: _ScanCollector(path, t) for t in scan_topics}
     landmarks = None
     initial_pose = None
-    i_imu = i_odom = i_truth = 0
     for topic, _, stamp, message in iter_bag_messages(path, wanted):
         if topic == IMU_TOPIC:
-            if i_imu == 0:
+            if not imu_ns:
                 axes_known = msgs.axes_known_of(message.angular_velocity_covariance)
                 has_accel = _has_accel(message)
             w, a = message.angular_velocity, message.linear_acceleration
-            imu_ns[i_imu] = stamp
-            rates[i_imu] = (w.x, w.y, w.z)
-            accel[i_imu] = (a.x, a.y, a.z)
-            i_imu += 1
+            imu_ns.append(stamp)
+            rates.append((w.x, w.y, w.z))
+            accel.append((a.x, a.y, a.z))
         elif topic == ODOM_TOPIC:
-            odom_ns[i_odom] = stamp
-            speeds[i_odom] = message.twist.twist.linear.x
-            i_odom += 1
+            odom_ns.append(stamp)
+            speeds.append(message.twist.twist.linear.x)
         elif topic in scans:
             scans[topic].add(stamp, message)
         elif topic == GROUND_TRUTH_TOPIC:
-            truth_ns[i_truth] = stamp
-            truth[i_truth] = msgs.pose_of(message.pose.pose)
-            i_truth += 1
+            truth_ns.append(stamp)
+            truth.append(msgs.pose_of(message.pose.pose))
         elif topic == MAP_TOPIC:
             landmarks = msgs.landmarks_of(message)
         elif topic == INITIAL_POSE_TOPIC:
             initial_pose = np.array(msgs.pose_of(message.pose.pose))
+
+    def rows(values: list[Any], width: int) -> np.ndarray:
+        return np.array(values, dtype=np.float64).reshape(len(values), width)
+
     return _bag_trip(
-        path, params, int(start), imu_ns=imu_ns[:i_imu], rates=rates[:i_imu],
-        accel=accel[:i_imu] if has_accel and acceleration else None, axes_known=axes_known,
-        odom_ns=odom_ns[:i_odom], speeds=speeds[:i_odom],
+        path, params, int(start), imu_ns=np.array(imu_ns, dtype=np.int64),
+        rates=rows(rates, 3), accel=rows(accel, 3) if has_accel and acceleration else None,
+        axes_known=axes_known, odom_ns=np.array(odom_ns, dtype=np.int64),
+        speeds=np.array(speeds, dtype=np.float64),
         scans=[d for d in (scans[t].data() for t in scan_topics) if d is not None],
-        truth=(truth_ns[:i_truth], truth[:i_truth]) if n_truth else None,
+        truth=((np.array(truth_ns, dtype=np.int64), rows(truth, 3))
+               if GROUND_TRUTH_TOPIC in by_topic else None),
         landmarks=landmarks, initial_pose=initial_pose)
 
 
 class _ScanCollector(_ScanArrays):
-    """Preallocated arrays of one LaserScan topic, filled message by message."""
+    """Arrays of one LaserScan topic, filled message by message (growing as needed)."""
 
-    def __init__(self, path: Path, topic: str, count: int) -> None:
+    def __init__(self, path: Path, topic: str) -> None:
         self.path = path
         self.topic = topic
-        self.count = count
         self.n = 0
-        self.stamps = np.zeros(count, dtype=np.int64)
+        self.stamps = np.zeros(0, dtype=np.int64)
         self.ranges: np.ndarray | None = None
         self.intensities: np.ndarray | None = None
         self.first: Any = None
@@ -643,9 +802,9 @@ class _ScanCollector(_ScanArrays):
         beams = len(message.ranges)
         if self.first is None:
             self.first = message
-            self.ranges = np.empty((self.count, beams), dtype=np.float32)
+            self.ranges = np.empty((0, beams), dtype=np.float32)
             if len(message.intensities):
-                self.intensities = np.empty((self.count, beams), dtype=np.float32)
+                self.intensities = np.empty((0, beams), dtype=np.float32)
         first = self.first
         assert self.ranges is not None
         geometry = (message.angle_min, message.angle_increment, message.range_min,
@@ -654,15 +813,16 @@ class _ScanCollector(_ScanArrays):
                 first.angle_min, first.angle_increment, first.range_min, first.range_max):
             raise BagError(f"{self.path}: topic '{self.topic}': scan {self.n + 1} changes the "
                            'beam count or geometry; expected one fixed LiDAR per topic')
-        if self.n >= self.count:
-            raise BagError(f"{self.path}: topic '{self.topic}' has more messages than its "
-                           'metadata counts')
+        if self.intensities is not None and len(message.intensities) != beams:
+            raise BagError(f"{self.path}: topic '{self.topic}': scan {self.n + 1} has "
+                           f'{len(message.intensities)} intensities for {beams} beams')
+        needed = self.n + 1
+        self.stamps = _grown(self.stamps, self.n, needed)
+        self.ranges = _grown(self.ranges, self.n, needed)
         self.stamps[self.n] = stamp
         self.ranges[self.n] = message.ranges
         if self.intensities is not None:
-            if len(message.intensities) != beams:
-                raise BagError(f"{self.path}: topic '{self.topic}': scan {self.n + 1} has "
-                               f'{len(message.intensities)} intensities for {beams} beams')
+            self.intensities = _grown(self.intensities, self.n, needed)
             self.intensities[self.n] = message.intensities
         self.n += 1
 

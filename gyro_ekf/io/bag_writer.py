@@ -41,6 +41,7 @@ from gyro_ekf import topics
 from gyro_ekf.core.types import Trip
 from gyro_ekf.io import messages as msgs
 from gyro_ekf.io.defaults import DEFAULT_EPOCH_NS, STORAGE_NAMES
+from gyro_ekf.io.batch_write import enable_chunk_crcs
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.products import BAG_FILES, first_foreign, os_reason
 from gyro_ekf.io.sidecar import check_finite, params_of_trip, read_sidecar, sidecar_path
@@ -246,6 +247,7 @@ def _write(plans: list[TopicPlan], staged: Path, plugin: StoragePlugin, total: i
            progress: ProgressCallback | None, compress: bool = False) -> None:
     try:
         writer = Writer(staged, version=BAG_VERSION, storage_plugin=plugin)
+        enable_chunk_crcs(writer)
         if compress:
             # mcap compresses whole chunks (what `ros2 bag record` does); sqlite3 cannot.
             mode = (CompressionMode.STORAGE if plugin is StoragePlugin.MCAP

@@ -8,19 +8,29 @@ writes would close them, so the file is byte for byte the one `Writer.write` pro
 (the tests compare them). This reaches into rosbags' McapWriter (pinned: rosbags 0.11.9);
 for any other storage, compression per message, or a McapWriter without the expected
 attributes, it falls back to calling `Writer.write` per message.
+
+rosbags' McapWriter leaves every CRC of the file at 0 ("not given"), so a flipped byte goes
+unnoticed by any reader. `enable_chunk_crcs` makes a Writer's MCAP file carry them all: each
+chunk's uncompressed CRC, the data-section CRC in DataEnd and the summary CRC in the Footer
+(as the MCAP specification defines them). It wraps the storage's file object, so every byte
+goes to disk once, already with its CRC, and the file is otherwise byte for byte what
+rosbags writes.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
+import struct
 from typing import Any
+import zlib
 
 import numpy as np
 from numpy.typing import NDArray
 from rosbags.rosbag2.enums import CompressionMode
 from rosbags.rosbag2.errors import WriterError
 
-__all__ = ['write_rows']
+__all__ = ['enable_chunk_crcs', 'write_rows']
 
 _CHUNK_LIMIT = 2**20
 """McapWriter closes its pending chunk once it holds more than this many bytes."""
@@ -139,3 +149,174 @@ def _append(writer: Any, connections: Sequence[Any], data: memoryview,
         storage.channel_stats[connection.id] += len(entries)
         writer.counts[connection.id] += len(entries)
     chunk.bio.write(data[int(starts[done]):int(ends[last])])
+
+
+# -- CRCs -------------------------------------------------------------------------------
+
+_CHUNK_CRC_AT = 9 + 24
+"""Offset of uncompressed_crc in a Chunk record: opcode, length, start, end, size."""
+_FOOTER_SIZE = 9 + 20
+_DATA_END_SIZE = 9 + 4
+_MAGIC_SIZE = 8
+
+
+def enable_chunk_crcs(writer: Any, sections: bool = True) -> bool:
+    """Make the MCAP file of a rosbags Writer carry chunk, data-section and summary CRCs.
+
+    Call it once, right after creating the Writer (before or after `open()`, before the
+    first message). Sqlite3 bags have no CRCs; for them (and for a storage without the
+    attributes of rosbags 0.11.9's McapWriter) nothing changes.
+
+    Args:
+        writer: the rosbags Writer.
+        sections: also the data-section and summary CRCs. A bag whose summary is written
+            and then overwritten while recording (`io.recording`) cannot have them (the
+            data-section CRC would cover a summary that is no longer there); its chunks
+            still carry their own CRCs, which the reader checks.
+
+    Returns:
+        True when the bag will carry CRCs.
+    """
+    add = _add_crcs if sections else _add_chunk_crcs_only
+    storage = getattr(writer, 'storage', None)
+    if storage is not None:
+        return add(storage)
+    if getattr(writer, 'storage_plugin', None) is None or (
+            writer.storage_plugin.name.lower() != 'mcap'):
+        return False
+    opened = writer.open
+
+    def open_with_crcs() -> None:
+        opened()
+        add(writer.storage)
+    # An instance attribute: `with writer:` and writer.open() both call it.
+    writer.open = open_with_crcs
+    return True
+
+
+def _add_chunk_crcs_only(storage: Any) -> bool:
+    if (type(storage).__name__ != 'McapWriter'
+            or not all(hasattr(storage, name) for name in ('bio', 'chunk', 'close_chunk'))):
+        return False
+    close_chunk = storage.close_chunk
+
+    def close_chunk_with_crc() -> None:
+        with storage.chunk.bio.getbuffer() as records:
+            crc = zlib.crc32(records)
+        stream = storage.bio
+        start = stream.tell()
+        close_chunk()
+        end = stream.tell()
+        stream.seek(start + _CHUNK_CRC_AT)
+        stream.write(struct.pack('<I', crc))
+        stream.seek(end)
+
+    storage.close_chunk = close_chunk_with_crc
+    return True
+
+
+def _add_crcs(storage: Any) -> bool:
+    if (type(storage).__name__ != 'McapWriter'
+            or not all(hasattr(storage, name) for name in ('bio', 'chunk', 'close_chunk',
+                                                           'close', 'path'))):
+        return False
+    if isinstance(storage.bio, _CrcFile):
+        return True
+    storage.bio = _CrcFile(storage.bio, Path(storage.path))
+    close_chunk, close = storage.close_chunk, storage.close
+
+    def close_chunk_with_crc() -> None:
+        with storage.chunk.bio.getbuffer() as records:
+            crc = zlib.crc32(records)
+        storage.bio.patch(storage.bio.tell() + _CHUNK_CRC_AT, struct.pack('<I', crc))
+        close_chunk()
+
+    def close_with_crcs(version: int, metadata: str) -> None:
+        # DataEnd and the Footer come last; hold them back to fill in their CRCs.
+        storage.bio.hold()
+        close(version, metadata)
+
+    storage.close_chunk = close_chunk_with_crc
+    storage.close = close_with_crcs
+    return True
+
+
+class _CrcFile:
+    """The McapWriter's file: keeps the running CRC of every byte and patches CRC fields.
+
+    Bytes written go straight to the file, with any patch for their offsets applied, except
+    after hold(): the tail (last chunk, summary, Footer) is then kept until close(), which
+    fills in the data-section CRC (of every byte before DataEnd, leading magic included) and
+    the summary CRC (from the summary's start up to the Footer's own CRC field).
+    """
+
+    def __init__(self, raw: Any, path: Path) -> None:
+        raw.flush()
+        self.raw = raw
+        self.offset = raw.tell()
+        with open(path, 'rb') as written:
+            self.crc = zlib.crc32(written.read(self.offset))
+        self.patches: list[tuple[int, bytes]] = []
+        self.held: list[bytes] | None = None
+        self.held_at = 0
+
+    def tell(self) -> int:
+        return self.offset
+
+    def patch(self, offset: int, value: bytes) -> None:
+        """Write value at offset instead of what will be written there."""
+        self.patches.append((offset, value))
+
+    def hold(self) -> None:
+        self.held = []
+        self.held_at = self.offset
+
+    def write(self, data: Any) -> int:
+        view = memoryview(data).cast('B')
+        size = len(view)
+        if self.patches:
+            view = self._patched(view)
+        if self.held is not None:
+            self.held.append(bytes(view))
+        else:
+            self.crc = zlib.crc32(view, self.crc)
+            self.raw.write(view)
+        self.offset += size
+        return size
+
+    def _patched(self, view: memoryview) -> memoryview:
+        begin, end = self.offset, self.offset + len(view)
+        out: bytearray | None = None
+        for at, value in self.patches:
+            low, high = max(at, begin), min(at + len(value), end)
+            if low < high:
+                if out is None:
+                    out = bytearray(view)
+                out[low - begin:high - begin] = value[low - at:high - at]
+        self.patches = [(at, value) for at, value in self.patches if at + len(value) > end]
+        return view if out is None else memoryview(out)
+
+    def close(self) -> None:
+        if self.held is not None:
+            tail = bytearray(b''.join(self.held))
+            self.held = None
+            self._seal(tail)
+            self.raw.write(tail)
+        self.raw.close()
+
+    def _seal(self, tail: bytearray) -> None:
+        """Fill in the DataEnd and Footer CRCs of the held tail (left as is if not found)."""
+        footer = len(tail) - _MAGIC_SIZE - _FOOTER_SIZE
+        if footer < 0 or tail[footer] != 0x02:
+            return
+        summary_start = struct.unpack_from('<Q', tail, footer + 9)[0]
+        data_end = summary_start - _DATA_END_SIZE - self.held_at
+        if data_end < 0 or tail[data_end] != 0x0F or struct.unpack_from(
+                '<Q', tail, data_end + 1)[0] != 4:
+            return
+        struct.pack_into('<I', tail, data_end + 9, zlib.crc32(tail[:data_end], self.crc))
+        summary = summary_start - self.held_at
+        struct.pack_into('<I', tail, footer + 25, zlib.crc32(tail[summary:footer + 25]))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.raw, name)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
+import struct
 from typing import Any
 
 import numpy as np
@@ -33,12 +34,19 @@ from rosbags.serde import SerdeError
 
 from gyro_ekf import topics
 
-__all__ = ['CdrDecodeError', 'CdrTemplate', 'Columns', 'Field', 'LAYOUTS', 'decode_columns']
+__all__ = ['CdrDecodeError', 'CdrTemplate', 'Columns', 'DECODE_FAILURES', 'Field', 'LAYOUTS',
+           'decode_columns']
 
 _HEADER_BYTES = 4
 _LITTLE_ENDIAN = b'\x00\x01'
 _MAX_TRAILING_BYTES = 3
 """Padding rosbags accepts after the last field (rmw implementations pad to 4 bytes)."""
+
+DECODE_FAILURES: tuple[type[Exception], ...] = (
+    SerdeError, ValueError, LookupError, struct.error, OverflowError, MemoryError, TypeError,
+    AttributeError, AssertionError)
+"""What rosbags' deserialisation raises on malformed bytes (each read is bounded by them,
+so a MemoryError means a length it tried to trust)."""
 
 _PRIMITIVES = {'f8': np.dtype('<f8'), 'f4': np.dtype('<f4'), 'i4': np.dtype('<i4'),
                'u4': np.dtype('<u4')}
@@ -124,7 +132,12 @@ def _align(offset: NDArray[np.int64], size: int) -> NDArray[np.int64]:
 
 
 def _read_u32(block: NDArray[np.uint8], column: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Read a little-endian uint32 per row at per-row byte columns (all in bounds)."""
+    """Read a little-endian uint32 per row at per-row byte columns (all in bounds).
+
+    Rows shorter than 4 bytes are all malformed (the caller marks them); they read 0.
+    """
+    if block.shape[1] < 4:
+        return np.zeros(block.shape[0], dtype=np.int64)
     picked = block[np.arange(block.shape[0])[:, None], column[:, None] + np.arange(4)]
     return np.ascontiguousarray(picked).view('<u4')[:, 0].astype(np.int64)
 
@@ -306,8 +319,8 @@ def _rosbags_bytes(data: bytes | memoryview, msgtype: str, typestore: Any, index
                    ) -> bytes:
     try:
         return _canonical(data, msgtype, typestore)
-    except (SerdeError, ValueError, KeyError, IndexError) as err:
-        raise CdrDecodeError(str(err), index) from None
+    except DECODE_FAILURES as err:
+        raise CdrDecodeError(str(err) or type(err).__name__, index) from None
 
 
 class CdrTemplate:

@@ -1,4 +1,4 @@
-"""Read the raw messages of chosen topics from an MCAP file, fast.
+"""Read the raw messages of chosen topics from an MCAP file, fast, and verify them.
 
 A minimal reader written from the MCAP specification (https://mcap.dev/spec), for the one
 thing `bag_reader` needs: per topic, the log times and the raw CDR payloads in log-time
@@ -7,13 +7,26 @@ none), a tight Python loop only follows the record lengths, and numpy then picks
 channel id and log time of every record at once, so a message costs a few hundred
 nanoseconds where rosbags' Reader spends several microseconds.
 
-Anything it does not handle, or a file that is not intact (bad magic, a record running past
-its end, an unknown chunk compression, no DataEnd/Footer or trailing magic), raises
-`UnsupportedMcap` instead of returning partial data; the caller then falls back to rosbags,
-which reports the problem in its own words if the file really is broken.
+Nothing it returns is silently wrong. Every length is bounded by the bytes present before
+anything is sliced or allocated (a chunk's declared uncompressed size also by a sane ratio
+and an absolute cap, and checked after decompression); the data section must end with a
+DataEnd record exactly where the Footer puts the next section; every message log time must
+lie in its chunk's [start, end] range; and the CRCs the file carries are checked: the
+data-section CRC of DataEnd, the summary CRC of the Footer and, where no data-section CRC
+covers them, the chunks' uncompressed CRCs. CRCs are computed on a worker thread (zlib
+releases the GIL) while the walk goes on, and checked before the scan returns.
 
-The summary section (indexes, statistics) is not read: the data section alone says which
-messages exist, and reading it is what costs anyway. CRCs are not checked.
+Two kinds of refusal:
+- `CorruptMcap`: the file is damaged (a CRC mismatch, a length running past its end, a
+  truncated file, a log time outside its chunk). Final: reading it another way would only
+  give other numbers.
+- `UnsupportedMcap`: the file uses something this reader does not handle (an unknown chunk
+  compression, a codec that is not installed, chunks out of log-time order when streaming);
+  the caller falls back to rosbags.
+Both name the file, where in it (byte offset) and why.
+
+The summary section (indexes, statistics) is not read, only its CRC: the data section alone
+says which messages exist, and reading it is what costs anyway.
 
 The file is memory-mapped and the payloads are memoryviews into the map (or into a
 decompressed chunk), so nothing is copied; the map lives as long as any payload does. As
@@ -23,17 +36,20 @@ with any mmap, the file must not be truncated while its payloads are in use.
 from __future__ import annotations
 
 from collections.abc import Callable, Collection
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 import gc
 import mmap
 from pathlib import Path
 import struct
-from typing import Any
+from typing import Any, TypeVar
+import zlib
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ['MAGIC', 'TopicMessages', 'UnsupportedMcap', 'read_topics', 'stream_topics']
+__all__ = ['ChannelInfo', 'CorruptMcap', 'MAGIC', 'McapError', 'TopicMessages',
+           'UnsupportedMcap', 'read_records', 'read_topics', 'stream_topics']
 
 MAGIC = b'\x89MCAP0\r\n'
 """Leading and trailing magic of an MCAP (major version 0) file."""
@@ -47,18 +63,54 @@ _U32 = struct.Struct('<I')
 _U64 = struct.Struct('<Q')
 _CHUNK_HEAD = struct.Struct('<QQQI')
 _CHANNEL_HEAD = struct.Struct('<HH')
+_FOOTER_BODY = struct.Struct('<QQI')
+_FOOTER_SIZE = _RECORD_HEAD_SIZE + _FOOTER_BODY.size
+# The summary CRC covers the Footer up to (not including) its own CRC field.
+_FOOTER_CRC_AT = _RECORD_HEAD_SIZE + 16
 # A Message's content: channel_id u16, sequence u32, log_time u64, publish_time u64, data.
 _CHANNEL_ID_AT = _RECORD_HEAD_SIZE
 _LOG_TIME_AT = _RECORD_HEAD_SIZE + 6
 _DATA_AT = _RECORD_HEAD_SIZE + 22
+
+_MAX_CHUNK_BYTES = 1 << 30
+"""Largest uncompressed chunk accepted (writers close chunks at about 1 MiB)."""
+_MAX_RATIO = 4096
+_MIN_ALLOWANCE = 1 << 24
+"""A compressed chunk may declare up to max(_MIN_ALLOWANCE, _MAX_RATIO x its size) bytes."""
+
+_T = TypeVar('_T')
 
 # Values of the channel table besides topic indexes (>= 0).
 _UNKNOWN = -2
 _UNWANTED = -1
 
 
-class UnsupportedMcap(Exception):
+class McapError(Exception):
+    """A file this reader refuses.
+
+    Attributes:
+        path: the file.
+        where: the place in it, e.g. 'chunk at offset 1234' ('' for the whole file).
+        reason: what is wrong.
+        offset: file offset of the top-level record at fault, when one is.
+    """
+
+    def __init__(self, path: Path, reason: str, where: str = '',
+                 offset: int | None = None) -> None:
+        """Name the file, the place and the reason."""
+        super().__init__(f'{path}: {where}: {reason}' if where else f'{path}: {reason}')
+        self.path = path
+        self.where = where
+        self.reason = reason
+        self.offset = offset
+
+
+class UnsupportedMcap(McapError):
     """The file uses something this reader does not handle; the caller falls back to rosbags."""
+
+
+class CorruptMcap(McapError):
+    """The file is damaged (CRC, bounds, truncation, times); no other reader should be tried."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,19 +129,74 @@ class TopicMessages:
     payloads: list[bytes | memoryview]
 
 
+@dataclass(frozen=True, slots=True)
+class ChannelInfo:
+    """A topic's channel as the file declares it (what `reindex` needs to write it again).
+
+    Attributes:
+        msgtype: its schema name.
+        metadata: the channel's metadata map, serialised as in the file (without its length).
+        compressions: the chunk compressions of the file ('' for none).
+    """
+
+    msgtype: str
+    metadata: bytes
+    compressions: frozenset[str] = frozenset()
+
+
 @dataclass(slots=True)
 class _Channel:
     topic: str
     schema_id: int
+    metadata: bytes = b''
+
+
+class _Crcs:
+    """CRC32s computed on one worker thread while the walk goes on; checked at the end."""
+
+    def __init__(self) -> None:
+        self.pool: ThreadPoolExecutor | None = None
+        self.pending: list[tuple[Future[int], int, str, int]] = []
+
+    def check(self, data: bytes | memoryview, expected: int, where: str, offset: int) -> None:
+        if self.pool is None:
+            self.pool = ThreadPoolExecutor(1, thread_name_prefix='mcap-crc')
+        self.pending.append((self.pool.submit(zlib.crc32, data), expected, where, offset))
+
+    def failure(self, path: Path) -> CorruptMcap | None:
+        """Wait for every CRC; return the error of the first mismatch, or None."""
+        try:
+            for future, expected, where, offset in self.pending:
+                computed = future.result()
+                if computed != expected:
+                    return CorruptMcap(path, f'CRC mismatch (stored {expected:#010x}, '
+                                       f'computed {computed:#010x})', where, offset)
+            return None
+        finally:
+            self.pending = []
+            if self.pool is not None:
+                self.pool.shutdown(wait=True)
+                self.pool = None
+
+
+def _zstd_module() -> Any:
+    try:
+        from compression import zstd  # type: ignore[import-not-found]  # Python 3.14+
+    except ImportError:
+        from backports import zstd  # type: ignore[import-not-found,no-redef]
+    return zstd
 
 
 class _Scan:
     """One pass over a file: its schemas, channels and the wanted topics' messages."""
 
-    def __init__(self, path: Path, topics: Collection[str],
+    def __init__(self, path: Path, topics: Collection[str] | None,
                  consumer: Callable[[str, TopicMessages], None] | None = None,
                  batch_messages: int = 0) -> None:
         self.path = path
+        # None: every topic, as its Channel record comes.
+        self.every_topic = topics is None
+        topics = () if topics is None else topics
         # With a consumer, messages are handed over every batch_messages (after a chunk), so
         # a long bag never holds all its payloads at once.
         self.consumer = consumer
@@ -107,108 +214,240 @@ class _Scan:
         # Ids that messages used before their Channel record appeared (invalid per the spec):
         # if such a channel turns out to be wanted, messages were missed, so refuse the file.
         self.orphans: set[int] = set()
-        self.zstd: Any = None
         self.last_time = [-1] * len(self.topics)
         self.mapped: mmap.mmap | None = None
+        self.crcs = _Crcs()
+        self.compressions: set[str] = set()
+        # True once a data-section CRC covers every byte of the chunks (then their own
+        # CRCs add nothing).
+        self.data_crc = False
+        # The chunk being read: its file offset and [start, end] log-time range.
+        self.chunk_at: int | None = None
+        self.chunk_times: tuple[int, int] | None = None
 
-    def fail(self, what: str) -> UnsupportedMcap:
-        return UnsupportedMcap(f'{self.path}: {what}')
+    def where(self, pos: int) -> str:
+        """Describe position pos of the buffer being read."""
+        if self.chunk_at is None:
+            return f'offset {pos}'
+        return f'chunk at offset {self.chunk_at}, byte {pos} of its records'
+
+    def corrupt(self, reason: str, pos: int | None = None) -> CorruptMcap:
+        """Return the error for damage at pos (None: the chunk being read, or the file)."""
+        return CorruptMcap(self.path, reason, *self.place(pos))
+
+    def unsupported(self, reason: str, pos: int | None = None) -> UnsupportedMcap:
+        return UnsupportedMcap(self.path, reason, *self.place(pos))
+
+    def place(self, pos: int | None) -> tuple[str, int | None]:
+        """Describe pos, and the offset of the top-level record it lies in."""
+        if self.chunk_at is not None:
+            if pos is None:
+                return f'chunk at offset {self.chunk_at}', self.chunk_at
+            return self.where(pos), self.chunk_at
+        return ('', None) if pos is None else (self.where(pos), pos)
+
+    # -- the ends of the file -----------------------------------------------------------
+
+    def check_ends(self, buf: memoryview, data_end: int, size: int) -> None:
+        """Check DataEnd and Footer agree on where the data section ends; queue their CRCs.
+
+        data_end is where the top-level walk stopped (a DataEnd or Footer record).
+        """
+        footer = size - len(MAGIC) - _FOOTER_SIZE
+        if footer < len(MAGIC) or _RECORD.unpack_from(buf, footer) != (
+                _FOOTER, _FOOTER_BODY.size):
+            raise CorruptMcap(self.path, 'no Footer record before the trailing magic',
+                              f'offset {max(footer, 0)}')
+        summary_start, summary_offset_start, summary_crc = _FOOTER_BODY.unpack_from(
+            buf, footer + _RECORD_HEAD_SIZE)
+        if summary_start > footer or summary_offset_start > footer:
+            raise CorruptMcap(self.path, f'the Footer puts the summary at {summary_start} '
+                              f'and its offsets at {summary_offset_start}, past the Footer',
+                              f'offset {footer}')
+        opcode, length = _RECORD.unpack_from(buf, data_end)
+        if opcode == _FOOTER:
+            if data_end != footer:
+                raise CorruptMcap(self.path, 'a Footer record inside the data section',
+                                  f'offset {data_end}')
+        else:
+            after = data_end + _RECORD_HEAD_SIZE + length
+            if length < 4:
+                raise CorruptMcap(self.path, 'DataEnd record too short', f'offset {data_end}')
+            following = summary_start or summary_offset_start or footer
+            if after != following:
+                raise CorruptMcap(self.path, f'the data section ends at {after} but the '
+                                  f'Footer puts the next section at {following}',
+                                  f'offset {data_end}')
+            data_crc = _U32.unpack_from(buf, data_end + _RECORD_HEAD_SIZE)[0]
+            if data_crc:
+                self.data_crc = True
+                self.crcs.check(buf[:data_end], data_crc,
+                                f'data section (bytes 0 to {data_end})', 0)
+        if summary_crc:
+            begin = summary_start or footer
+            self.crcs.check(buf[begin:footer + _FOOTER_CRC_AT], summary_crc,
+                            f'summary section at offset {begin}', begin)
 
     # -- records other than messages ---------------------------------------------------
 
     def string(self, buf: bytes | memoryview, pos: int, end: int) -> tuple[str, int]:
         if pos + 4 > end:
-            raise self.fail('a string length runs past its record')
+            raise self.corrupt('a string length runs past its record', pos)
         size = _U32.unpack_from(buf, pos)[0]
         start = pos + 4
         if start + size > end:
-            raise self.fail('a string runs past its record')
+            raise self.corrupt('a string runs past its record', pos)
         try:
             return str(buf[start:start + size], 'utf-8'), start + size
         except UnicodeDecodeError as error:
-            raise self.fail(f'a string is not UTF-8 ({error})') from None
+            raise self.corrupt(f'a string is not UTF-8 ({error})', start) from None
 
     def schema(self, buf: bytes | memoryview, body: int, end: int) -> None:
         if body + 2 > end:
-            raise self.fail('Schema record too short')
+            raise self.corrupt('Schema record too short', body - _RECORD_HEAD_SIZE)
         schema_id = _U16.unpack_from(buf, body)[0]
         name, _ = self.string(buf, body + 2, end)
         if self.schemas.setdefault(schema_id, name) != name:
-            raise self.fail(f'schema {schema_id} ({self.schemas[schema_id]}) redefined as {name}')
+            raise self.corrupt(f'schema {schema_id} ({self.schemas[schema_id]}) redefined as '
+                               f'{name}', body - _RECORD_HEAD_SIZE)
 
     def channel(self, buf: bytes | memoryview, body: int, end: int) -> None:
+        at = body - _RECORD_HEAD_SIZE
         if body + 4 > end:
-            raise self.fail('Channel record too short')
+            raise self.corrupt('Channel record too short', at)
         channel_id, schema_id = _CHANNEL_HEAD.unpack_from(buf, body)
         topic, pos = self.string(buf, body + 4, end)
-        encoding, _ = self.string(buf, pos, end)
+        encoding, pos = self.string(buf, pos, end)
         known = self.channels.get(channel_id)
         if known is not None:
             # Writers may repeat a Channel record (e.g. in every chunk); only a change is wrong.
             if known.topic != topic or known.schema_id != schema_id:
-                raise self.fail(f'channel {channel_id} ({known.topic}) redefined as {topic}')
+                raise self.corrupt(f'channel {channel_id} ({known.topic}) redefined as {topic}',
+                                   at)
             return
         self.channels[channel_id] = _Channel(topic, schema_id)
+        if self.every_topic:
+            self.channels[channel_id].metadata = bytes(buf[pos + 4:end])
+            if topic not in self.topic_index:
+                self.topic_index[topic] = len(self.topics)
+                self.topics.append(topic)
+                self.times.append([])
+                self.payloads.append([])
+                self.last_time.append(-1)
         index = self.topic_index.get(topic)
         if index is None:
             self.table[channel_id] = _UNWANTED
             return
         if channel_id in self.orphans:
-            raise self.fail(f'messages of channel {channel_id} ({topic}) precede its Channel '
-                            'record')
+            raise self.unsupported(f'messages of channel {channel_id} ({topic}) precede its '
+                                   'Channel record', at)
         if encoding != 'cdr':
-            raise self.fail(f'topic {topic} has message encoding {encoding!r}, not cdr')
+            raise self.unsupported(f'topic {topic} has message encoding {encoding!r}, not cdr',
+                                   at)
         self.table[channel_id] = index
 
-    def chunk(self, buf: bytes | memoryview, body: int, end: int) -> None:
+    def chunk(self, buf: bytes | memoryview, at: int, end: int) -> None:
+        """Read the Chunk record at offset `at` (ending at `end`) of the file."""
+        self.chunk_at = at
+        try:
+            records = self.chunk_records(buf, at, end)
+            view = memoryview(records)
+            self.records(view, 0, len(view), top_level=False)
+        finally:
+            self.chunk_at = None
+            self.chunk_times = None
+
+    def chunk_records(self, buf: bytes | memoryview, at: int, end: int) -> bytes | memoryview:
+        """Check a Chunk record's header, queue its CRC and return its records, decompressed."""
+        body = at + _RECORD_HEAD_SIZE
         if body + _CHUNK_HEAD.size > end:
-            raise self.fail('Chunk record too short')
-        uncompressed_size = _CHUNK_HEAD.unpack_from(buf, body)[2]
-        compression, pos = self.string(buf, body + _CHUNK_HEAD.size, end)
+            raise self.corrupt('Chunk record too short')
+        start_time, end_time, uncompressed_size, crc = _CHUNK_HEAD.unpack_from(buf, body)
+        try:
+            compression, pos = self.string(buf, body + _CHUNK_HEAD.size, end)
+        except CorruptMcap as error:
+            raise self.corrupt(f'its compression name: {error.reason}') from None
         if pos + 8 > end:
-            raise self.fail('a chunk\'s records length runs past the chunk')
+            raise self.corrupt('a chunk\'s records length runs past the chunk')
         size = _U64.unpack_from(buf, pos)[0]
         start = pos + 8
         if start + size > end:
-            raise self.fail('a chunk\'s records run past the chunk')
+            raise self.corrupt('a chunk\'s records run past the chunk')
         if compression == '':
             if size != uncompressed_size:
-                raise self.fail(f'an uncompressed chunk holds {size} bytes, its header says '
-                                f'{uncompressed_size}')
-            self.records(buf, start, start + size, top_level=False)
-            return
-        data = memoryview(buf)[start:start + size]
-        if compression == 'zstd':
-            records = self.unzstd(data, uncompressed_size)
-        elif compression == 'lz4':
-            records = self.unlz4(data)
+                raise self.corrupt(f'an uncompressed chunk holds {size} bytes, its header '
+                                   f'says {uncompressed_size}')
+            records: bytes | memoryview = memoryview(buf)[start:start + size]
         else:
-            raise self.fail(f'chunk compression {compression!r} is not supported')
-        if len(records) != uncompressed_size:
-            raise self.fail(f'a chunk holds {len(records)} bytes, its header says '
-                            f'{uncompressed_size}')
-        self.records(memoryview(records), 0, len(records), top_level=False)
+            limit = min(_MAX_CHUNK_BYTES, max(_MIN_ALLOWANCE, _MAX_RATIO * size))
+            if uncompressed_size > limit:
+                raise self.corrupt(f'the chunk declares {uncompressed_size} uncompressed '
+                                   f'bytes for {size} compressed (at most {limit} accepted)')
+            data = memoryview(buf)[start:start + size]
+            if compression == 'zstd':
+                records = self.unzstd(data, uncompressed_size)
+            elif compression == 'lz4':
+                records = self.unlz4(data, uncompressed_size)
+            else:
+                raise self.unsupported(f'chunk compression {compression!r} is not supported')
+            if len(records) != uncompressed_size:
+                raise self.corrupt(f'the chunk holds {len(records)} bytes, its header says '
+                                   f'{uncompressed_size}')
+        self.compressions.add(compression)
+        if crc and not self.data_crc:
+            self.crcs.check(records, crc, f'chunk at offset {at}', at)
+        # (0, 0) is what the spec asks of a chunk without messages; some writers leave it
+        # so for every chunk, which then gives no range to check against.
+        self.chunk_times = (start_time, end_time) if start_time or end_time else None
+        return records
 
-    def unzstd(self, data: memoryview, uncompressed_size: int) -> bytes:
-        import zstandard
+    def unzstd(self, data: memoryview, expected: int) -> bytes:
+        """Decompress a zstd chunk (one or more frames) into at most `expected` bytes."""
         if not data:
             return b''
-        if self.zstd is None:
-            self.zstd = zstandard.ZstdDecompressor()
         try:
-            # max_output_size bounds frames that do not state their content size.
-            return self.zstd.decompress(data, max_output_size=uncompressed_size)
-        except zstandard.ZstdError as error:
-            raise self.fail(f'bad zstd chunk ({error})') from None
+            zstd = _zstd_module()
+        except ImportError as error:
+            raise self.unsupported(f'zstd chunks need backports.zstd ({error})') from None
+        parts: list[bytes] = []
+        produced = 0
+        rest: bytes | memoryview = data
+        try:
+            while rest:
+                decompressor = zstd.ZstdDecompressor()
+                # One byte more than may come: a chunk larger than declared is then seen.
+                part = decompressor.decompress(rest, max_length=expected - produced + 1)
+                produced += len(part)
+                parts.append(part)
+                if produced > expected:
+                    raise self.corrupt(f'the zstd data holds more than the {expected} bytes '
+                                       'the chunk declares')
+                if not decompressor.eof:
+                    raise self.corrupt('the zstd data ends inside a frame')
+                rest = decompressor.unused_data
+        except zstd.ZstdError as error:
+            raise self.corrupt(f'bad zstd chunk ({error})') from None
+        return parts[0] if len(parts) == 1 else b''.join(parts)
 
-    def unlz4(self, data: memoryview) -> bytes:
-        import lz4.frame
+    def unlz4(self, data: memoryview, expected: int) -> bytes:
+        """Decompress an lz4-frame chunk into at most `expected` bytes."""
         if not data:
             return b''
         try:
-            return lz4.frame.decompress(data)
+            import lz4.frame
+        except ImportError as error:
+            raise self.unsupported(f'lz4 chunks need the lz4 package ({error})') from None
+        decompressor = lz4.frame.LZ4FrameDecompressor()
+        try:
+            records = decompressor.decompress(data, max_length=expected + 1)
         except RuntimeError as error:
-            raise self.fail(f'bad lz4 chunk ({error})') from None
+            raise self.corrupt(f'bad lz4 chunk ({error})') from None
+        if len(records) > expected:
+            raise self.corrupt(f'the lz4 data holds more than the {expected} bytes the chunk '
+                               'declares')
+        if not decompressor.eof:
+            raise self.corrupt('the lz4 data ends inside a frame')
+        return bytes(records)
 
     # -- the walk ---------------------------------------------------------------------
 
@@ -234,23 +473,31 @@ class _Scan:
                     pos += _RECORD_HEAD_SIZE + length
                 else:
                     if pos == end:
-                        raise self.fail('no DataEnd or Footer record: the file is incomplete')
+                        raise self.corrupt('no DataEnd or Footer record: the file is '
+                                           'incomplete', pos)
             else:
                 while pos < end:
                     append(pos)
                     pos += _RECORD_HEAD_SIZE + length_at(buf, pos + 1)[0]
         except struct.error:
-            raise self.fail('a record header runs past the end of its '
-                            + ('file' if top_level else 'chunk')) from None
-        if pos > end:
-            raise self.fail('a record (opcode {:#04x}) runs past the end of its {}'.format(
-                buf[offsets[-1]], 'file' if top_level else 'chunk'))
+            raise self.corrupt('a record header runs past the end of its '
+                               + ('file' if top_level else 'chunk'), pos) from None
+        if pos > end or (top_level and pos + _RECORD_HEAD_SIZE > end):
+            last = offsets[-1] if offsets else pos
+            raise self.corrupt('a record (opcode {:#04x}) runs past the end of its {}'.format(
+                buf[last], 'file' if top_level else 'chunk'), last)
         offsets.append(pos)
         return offsets
 
-    def records(self, buf: bytes | memoryview, begin: int, end: int, top_level: bool) -> None:
-        """Take in the records of buf[begin:end] in file order: messages in batches."""
-        bounds = np.array(self.walk(buf, begin, end, top_level), dtype=np.int64)
+    def records(self, buf: bytes | memoryview, begin: int, end: int, top_level: bool,
+                offsets: list[int] | None = None) -> None:
+        """Take in the records of buf[begin:end] in file order: messages in batches.
+
+        offsets: from walk(buf, begin, end, top_level), if already known.
+        """
+        if offsets is None:
+            offsets = self.walk(buf, begin, end, top_level)
+        bounds = np.array(offsets, dtype=np.int64)
         starts, ends = bounds[:-1], bounds[1:]
         octets = np.frombuffer(buf, dtype=np.uint8)
         opcodes = octets[starts]
@@ -261,11 +508,12 @@ class _Scan:
         for i in np.flatnonzero(opcodes != _MESSAGE).tolist():
             if i > first:
                 self.messages(buf, octets, words, starts[first:i], ends[first:i])
-            opcode, body, end = int(opcodes[i]), int(starts[i]) + _RECORD_HEAD_SIZE, int(ends[i])
+            opcode, at, end = int(opcodes[i]), int(starts[i]), int(ends[i])
+            body = at + _RECORD_HEAD_SIZE
             if opcode == _CHUNK:
                 if not top_level:
-                    raise self.fail('a chunk inside a chunk')
-                self.chunk(buf, body, end)
+                    raise self.corrupt('a chunk inside a chunk', at)
+                self.chunk(buf, at, end)
                 if self.consumer is not None and self.pending >= self.batch_messages:
                     self.emit()
                     self.release(end)
@@ -283,8 +531,20 @@ class _Scan:
                  words: NDArray[np.uint8], starts: NDArray[np.int64],
                  ends: NDArray[np.int64]) -> None:
         """Take in a run of Message records (record offsets `starts`, ends `ends`)."""
-        if np.any(ends - starts < _DATA_AT):
-            raise self.fail('a Message record is too short')
+        short = ends - starts < _DATA_AT
+        if np.any(short):
+            raise self.corrupt('a Message record is too short',
+                               int(starts[int(np.argmax(short))]))
+        if self.chunk_times is not None:
+            # A message outside its chunk's time range is damage (one flipped bit in a log
+            # time would otherwise become a gap of years).
+            low, high = self.chunk_times
+            times = words[starts + _LOG_TIME_AT].view('<u8').ravel()
+            outside = (times < low) | (times > high)
+            if np.any(outside):
+                k = int(np.argmax(outside))
+                raise self.corrupt(f'message log time {int(times[k])} ns lies outside its '
+                                   f'chunk\'s range [{low}, {high}]', int(starts[k]))
         channel_ids = (octets[starts + _CHANNEL_ID_AT].astype(np.int32)
                        | (octets[starts + _CHANNEL_ID_AT + 1].astype(np.int32) << 8))
         indexes = self.table[channel_ids]
@@ -304,14 +564,15 @@ class _Scan:
 
     def emit(self) -> None:
         """Hand every held message to the consumer, topic by topic, and forget it."""
+        assert self.consumer is not None
         msgtypes = self.msgtypes()
         for topic, index in self.topic_index.items():
             if not self.times[index]:
                 continue
             batch = self.ordered(topic, msgtypes[topic])
             if batch.log_time_ns[0] < self.last_time[index]:
-                raise self.fail(f'messages of {topic} are not in log-time order across '
-                                'chunks')
+                raise self.unsupported(f'messages of {topic} are not in log-time order across '
+                                       'chunks')
             self.last_time[index] = int(batch.log_time_ns[-1])
             self.times[index] = []
             self.payloads[index] = []
@@ -335,11 +596,11 @@ class _Scan:
                 continue
             name = self.schemas.get(channel.schema_id)
             if name is None:
-                raise self.fail(f'channel {channel_id} ({channel.topic}) has no known schema '
-                                f'(schema id {channel.schema_id})')
+                raise self.corrupt(f'channel {channel_id} ({channel.topic}) has no known '
+                                   f'schema (schema id {channel.schema_id})')
             if msgtypes.setdefault(channel.topic, name) != name:
-                raise self.fail(f'topic {channel.topic} has channels of two types, '
-                                f'{msgtypes[channel.topic]} and {name}')
+                raise self.corrupt(f'topic {channel.topic} has channels of two types, '
+                                   f'{msgtypes[channel.topic]} and {name}')
         return msgtypes
 
     def result(self) -> dict[str, TopicMessages]:
@@ -351,7 +612,7 @@ class _Scan:
         parts = self.times[index]
         times = np.concatenate(parts) if parts else np.zeros(0, dtype=np.uint64)
         if times.size and times.max() > np.iinfo(np.int64).max:
-            raise self.fail(f'topic {topic} has a log time beyond int64')
+            raise self.corrupt(f'topic {topic} has a log time beyond int64')
         times = times.astype(np.int64)
         payloads = self.payloads[index]
         if times.size > 1 and not np.all(np.diff(times) >= 0):
@@ -359,6 +620,41 @@ class _Scan:
             times = times[order]
             payloads = [payloads[i] for i in order.tolist()]
         return TopicMessages(msgtype, times, payloads)
+
+
+def read_records(path: Path | str, data: bytes | memoryview, end: int
+                 ) -> tuple[dict[str, TopicMessages], dict[str, ChannelInfo]]:
+    """Read every message of the records in data[len(MAGIC):end], e.g. of a file cut short.
+
+    The records must be complete (the caller cuts before a partial one); no DataEnd or
+    Footer is needed, chunk CRCs are checked.
+
+    Returns:
+        topic -> its messages, and topic -> its channel, for every topic with a channel.
+
+    Raises:
+        CorruptMcap, UnsupportedMcap: as read_topics; `offset` says which record is at fault.
+    """
+    scan = _Scan(Path(path), None)
+    view = memoryview(data)
+    try:
+        offsets = scan.walk(view, len(MAGIC), end, top_level=False)
+        scan.records(view, len(MAGIC), end, top_level=True, offsets=offsets)
+        result = scan.result()
+    except Exception:
+        mismatch = scan.crcs.failure(scan.path)
+        if mismatch is not None:
+            raise mismatch from None
+        raise
+    mismatch = scan.crcs.failure(scan.path)
+    if mismatch is not None:
+        raise mismatch
+    msgtypes = scan.msgtypes()
+    channels = {}
+    for channel in scan.channels.values():
+        channels.setdefault(channel.topic, ChannelInfo(msgtypes[channel.topic], channel.metadata,
+                                                       frozenset(scan.compressions)))
+    return result, channels
 
 
 def _map(path: Path) -> tuple[memoryview, mmap.mmap | None]:
@@ -378,7 +674,7 @@ def _map(path: Path) -> tuple[memoryview, mmap.mmap | None]:
 
 
 def read_topics(path: Path | str, topics: Collection[str]) -> dict[str, TopicMessages]:
-    """Read the log times and raw payloads of some topics of an MCAP file.
+    """Read and verify the log times and raw payloads of some topics of an MCAP file.
 
     Args:
         path: the .mcap file.
@@ -390,14 +686,14 @@ def read_topics(path: Path | str, topics: Collection[str]) -> dict[str, TopicMes
         channel are absent. Messages of one topic on several channels are merged.
 
     Raises:
-        UnsupportedMcap: bad magic, an unsupported chunk compression, a truncated or corrupt
-            record, no DataEnd/Footer, a wanted topic not in CDR or without a schema, or
-            channels of two types on one topic.
+        CorruptMcap: bad magic, a CRC mismatch, a truncated or corrupt record, a length past
+            the bytes present, no DataEnd/Footer, a log time outside its chunk, a wanted topic
+            without a schema or with channels of two types.
+        UnsupportedMcap: an unsupported chunk compression or codec, a wanted topic not in CDR.
         OSError: the file cannot be read.
     """
     scan = _Scan(Path(path), topics)
-    _scan_file(scan)
-    return scan.result()
+    return _scan_file(scan, scan.result)
 
 
 def stream_topics(path: Path | str, topics: Collection[str],
@@ -409,37 +705,78 @@ def stream_topics(path: Path | str, topics: Collection[str],
     batch_messages have been read (at a chunk boundary), so memory stays bounded on long
     bags. Batches of one topic come in ascending log time; a file whose chunks are not in
     that order raises UnsupportedMcap (batches already handed over stay with the consumer,
-    who should start over with another reader). Batches handed over during the scan reach
-    the consumer while the garbage collector is paused (see read_topics); keep it short.
+    who should start over with another reader). The file's CRCs are only known good when
+    this returns: on any error, batches already handed over must be thrown away. Batches
+    handed over during the scan reach the consumer while the garbage collector is paused;
+    keep it short.
 
     Returns:
         topic -> message type, for every wanted topic with a channel in the file.
 
     Raises:
-        UnsupportedMcap: as read_topics, or chunks out of log-time order.
+        CorruptMcap, UnsupportedMcap: as read_topics, or chunks out of log-time order; an
+            error raised by the consumer is replaced by a CorruptMcap when a CRC fails.
         OSError: the file cannot be read.
     """
     scan = _Scan(Path(path), topics, consumer, batch_messages)
-    _scan_file(scan)
-    scan.emit()
+    _scan_file(scan, scan.emit)
     return scan.msgtypes()
 
 
-def _scan_file(scan: _Scan) -> None:
+def _scan_file(scan: _Scan, finish: Callable[[], _T]) -> _T:
+    """Walk the whole file, return finish() once the CRCs are checked.
+
+    A CRC mismatch wins over any other error: damage explains whatever else went wrong.
+    """
     path = scan.path
     data, scan.mapped = _map(path)
     size = len(data)
     if size < 2 * len(MAGIC) or data[:len(MAGIC)] != MAGIC:
-        raise scan.fail('not an MCAP file (bad leading magic)')
+        raise scan.corrupt('not an MCAP file (bad leading magic)')
     if data[size - len(MAGIC):] != MAGIC:
-        raise scan.fail('no trailing magic: the file is truncated or incomplete')
+        raise scan.corrupt('no trailing magic: the file is truncated or incomplete')
     # A payload is one new object per message, never part of a cycle; the collector's passes
     # over them (triggered every few hundred allocations) would add about a third to the time.
     collecting = gc.isenabled()
     gc.disable()
+    offsets = [len(MAGIC)]
     try:
         # The trailing magic is left out so that no record may run into it.
-        scan.records(data, len(MAGIC), size - len(MAGIC), top_level=True)
+        offsets = scan.walk(data, len(MAGIC), size - len(MAGIC), top_level=True)
+        scan.check_ends(data, offsets[-1], size)
+        scan.records(data, len(MAGIC), offsets[-1], top_level=True, offsets=offsets)
+        result = finish()
+    except Exception:
+        mismatch = scan.crcs.failure(path)
+        if mismatch is not None:
+            raise _located(mismatch, data, offsets[-1]) from None
+        raise
     finally:
         if collecting:
             gc.enable()
+    mismatch = scan.crcs.failure(path)
+    if mismatch is not None:
+        raise _located(mismatch, data, offsets[-1])
+    return result
+
+
+def _located(mismatch: CorruptMcap, data: memoryview, data_end: int) -> CorruptMcap:
+    """Name the damaged chunk behind a data-section CRC mismatch, where its own CRC can.
+
+    The data-section CRC spares checking each chunk; once it fails, the chunks' CRCs say
+    which one holds the damage.
+    """
+    if mismatch.offset != 0:
+        return mismatch
+    scan = _Scan(mismatch.path, ())
+    try:
+        offsets = scan.walk(data, len(MAGIC), data_end, top_level=False)
+        scan.records(data, len(MAGIC), data_end, top_level=True, offsets=offsets)
+    except McapError as error:
+        found = scan.crcs.failure(mismatch.path) or error
+    else:
+        found = scan.crcs.failure(mismatch.path)
+    if found is None:
+        return mismatch
+    return CorruptMcap(found.path, f'{found.reason}; the data-section CRC fails too',
+                       found.where, found.offset)

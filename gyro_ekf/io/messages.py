@@ -234,3 +234,165 @@ def initial_pose_message(stamp_ns: int, pose: FloatArray) -> Any:
     return PoseWithCovarianceStamped(
         header=header(stamp_ns, topics.MAP_FRAME),
         pose=PoseWithCovariance(pose=_pose(pose[0], pose[1], pose[2]), covariance=_ZERO_6x6))
+
+
+# Visual topics (TF, path, markers): what an estimates bag and the EKF node show in
+# Foxglove or RViz. Types come from the Jazzy typestore: tf2_msgs does not install from PyPI.
+TransformStamped = _T['geometry_msgs/msg/TransformStamped']
+Transform = _T['geometry_msgs/msg/Transform']
+TFMessage = _T['tf2_msgs/msg/TFMessage']
+PoseStamped = _T['geometry_msgs/msg/PoseStamped']
+Path = _T['nav_msgs/msg/Path']
+Marker = _T['visualization_msgs/msg/Marker']
+MarkerArray = _T['visualization_msgs/msg/MarkerArray']
+ColorRGBA = _T['std_msgs/msg/ColorRGBA']
+Duration = _T['builtin_interfaces/msg/Duration']
+_CompressedImage = _T['sensor_msgs/msg/CompressedImage']
+_MeshFile = _T['visualization_msgs/msg/MeshFile']
+_EMPTY_U8 = np.zeros(0, dtype=np.uint8)
+
+# visualization_msgs/Marker type and action constants.
+MARKER_ARROW = 0
+MARKER_CYLINDER = 3
+MARKER_LINE_LIST = 5
+MARKER_SPHERE_LIST = 7
+MARKER_ADD = 0
+
+ELLIPSE_SIGMAS = 2.0
+"""The covariance ellipse of ekf/markers bounds +-2 sigma (about 86 % of a 2-D Gaussian)."""
+ELLIPSE_THICKNESS_M = 0.01
+LANDMARK_DIAMETER_M = 0.1
+LANDMARK_HEIGHT_M = 1.0
+
+COLOR_ESTIMATE = (0.1, 0.4, 1.0, 1.0)
+COLOR_ELLIPSE = (0.1, 0.4, 1.0, 0.35)
+COLOR_ASSOCIATED = (0.1, 0.8, 0.2, 1.0)
+COLOR_REJECTED = (1.0, 0.2, 0.1, 1.0)
+COLOR_LANDMARK = (1.0, 0.75, 0.0, 1.0)
+
+
+def transform_stamped(stamp_ns: int, parent: str, child: str, x_m: float, y_m: float,
+                      yaw_rad: float) -> Any:
+    """geometry_msgs/TransformStamped of a planar pose: child's pose in parent."""
+    return TransformStamped(
+        header=header(stamp_ns, parent), child_frame_id=child,
+        transform=Transform(translation=Vector3(x=float(x_m), y=float(y_m), z=0.0),
+                            rotation=yaw_quaternion(float(yaw_rad))))
+
+
+def tf_message(transforms: list[Any]) -> Any:
+    """tf2_msgs/TFMessage holding the given TransformStamped (for /tf or /tf_static)."""
+    return TFMessage(transforms=list(transforms))
+
+
+def path_message(stamp_ns: int, stamps_ns: Any, poses: FloatArray, frame_id: str) -> Any:
+    """nav_msgs/Path of planar poses (x m, y m, yaw rad per row) stamped stamps_ns."""
+    return Path(header=header(stamp_ns, frame_id), poses=[
+        PoseStamped(header=header(int(t), frame_id), pose=_pose(*row))
+        for t, row in zip(stamps_ns, np.asarray(poses, dtype=np.float64).reshape(-1, 3))])
+
+
+def _color(rgba: tuple[float, float, float, float]) -> Any:
+    return ColorRGBA(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+
+
+def marker(stamp_ns: int, frame_id: str, ns: str, marker_id: int, kind: int, *,
+           pose: Any = None, scale: tuple[float, float, float] = (1.0, 1.0, 1.0),
+           color: tuple[float, float, float, float] = COLOR_ESTIMATE,
+           points: FloatArray | None = None) -> Any:
+    """visualization_msgs/Marker (action ADD, no lifetime limit) with Jazzy's empty extras.
+
+    Args:
+        points: shape (k, 2) or (k, 3), m, for list and strip kinds (z = 0 when 2-D).
+    """
+    xyz = np.zeros((0, 3)) if points is None else np.asarray(points, dtype=np.float64)
+    if xyz.shape[1] == 2:
+        xyz = np.column_stack([xyz, np.zeros(len(xyz))])
+    return Marker(
+        header=header(stamp_ns, frame_id), ns=ns, id=int(marker_id), type=int(kind),
+        action=MARKER_ADD, pose=_IDENTITY_POSE if pose is None else pose,
+        scale=Vector3(x=float(scale[0]), y=float(scale[1]), z=float(scale[2])),
+        color=_color(color), lifetime=Duration(sec=0, nanosec=0), frame_locked=False,
+        points=[Point(x=x, y=y, z=z) for x, y, z in xyz.tolist()], colors=[],
+        texture_resource='',
+        texture=_CompressedImage(header=header(0, ''), format='', data=_EMPTY_U8),
+        uv_coordinates=[], text='', mesh_resource='',
+        mesh_file=_MeshFile(filename='', data=_EMPTY_U8), mesh_use_embedded_materials=False)
+
+
+def covariance_ellipses(covariance_xy: FloatArray, sigmas: float = ELLIPSE_SIGMAS
+                        ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Axes of the sigmas-sigma ellipses of 2x2 covariances, shape (n, 2, 2).
+
+    Returns:
+        Per covariance, shape (n,) each: full length along the major axis m, along the
+        minor axis m, direction of the major axis rad.
+    """
+    values, vectors = np.linalg.eigh(np.asarray(covariance_xy, dtype=np.float64))
+    # A covariance that rounding made slightly indefinite draws flat, not NaN.
+    lengths = 2.0 * sigmas * np.sqrt(np.clip(values, 0.0, None))
+    return lengths[:, 1], lengths[:, 0], np.arctan2(vectors[:, 1, 1], vectors[:, 0, 1])
+
+
+def covariance_ellipse(covariance_xy: FloatArray, sigmas: float = ELLIPSE_SIGMAS
+                       ) -> tuple[float, float, float]:
+    """covariance_ellipses of one 2x2 covariance, as floats."""
+    major, minor, direction = covariance_ellipses(np.asarray(covariance_xy)[None], sigmas)
+    return float(major[0]), float(minor[0]), float(direction[0])
+
+
+def ekf_markers_message(stamp_ns: int, state: FloatArray, covariance: FloatArray,
+                        associated_xy: FloatArray | None = None,
+                        landmark_xy: FloatArray | None = None,
+                        rejected_xy: FloatArray | None = None,
+                        frame_id: str = topics.MAP_FRAME) -> Any:
+    """visualization_msgs/MarkerArray of one estimate: ellipse, heading, last scan.
+
+    Markers (namespace, id): ('ellipse', 0) the position's ELLIPSE_SIGMAS ellipse;
+    drawn as a flat cylinder (a filled ellipse in any viewer, no outline points to send);
+    ('heading', 0) an arrow along the yaw; ('associated', 0) the associated detections and
+    ('association', 0) a line from each to its landmark; ('rejected', 0) the detections
+    not associated. Every id is sent every time (empty lists included), so a viewer
+    replaces the previous scan's markers.
+
+    Args:
+        state: shape (4,) or (3,): x m, y m, yaw rad[, bias].
+        covariance: shape (>=2, >=2); only the x, y block is used.
+        associated_xy, landmark_xy: shape (k, 2), m, row i detected and its landmark.
+        rejected_xy: shape (r, 2), m.
+    """
+    x, y, yaw = (float(v) for v in np.asarray(state)[:3])
+    major, minor, direction = covariance_ellipse(np.asarray(covariance)[:2, :2])
+    none = np.zeros((0, 2))
+    detected = none if associated_xy is None else np.asarray(associated_xy).reshape(-1, 2)
+    landmark = none if landmark_xy is None else np.asarray(landmark_xy).reshape(-1, 2)
+    lines = np.empty((2 * len(detected), 2))
+    lines[0::2], lines[1::2] = detected, landmark
+    rejected = none if rejected_xy is None else np.asarray(rejected_xy).reshape(-1, 2)
+    return MarkerArray(markers=[
+        marker(stamp_ns, frame_id, 'ellipse', 0, MARKER_CYLINDER,
+               pose=_pose(x, y, direction), scale=(major, minor, ELLIPSE_THICKNESS_M),
+               color=COLOR_ELLIPSE),
+        marker(stamp_ns, frame_id, 'heading', 0, MARKER_ARROW, pose=_pose(x, y, yaw),
+               scale=(0.6, 0.08, 0.08), color=COLOR_ESTIMATE),
+        marker(stamp_ns, frame_id, 'associated', 0, MARKER_SPHERE_LIST,
+               scale=(0.12, 0.12, 0.12), color=COLOR_ASSOCIATED, points=detected),
+        marker(stamp_ns, frame_id, 'association', 0, MARKER_LINE_LIST,
+               scale=(0.02, 0.0, 0.0), color=COLOR_ASSOCIATED, points=lines),
+        marker(stamp_ns, frame_id, 'rejected', 0, MARKER_SPHERE_LIST,
+               scale=(0.12, 0.12, 0.12), color=COLOR_REJECTED, points=rejected)])
+
+
+def landmark_markers_message(stamp_ns: int, landmarks: LandmarkMap,
+                             frame_id: str = topics.MAP_FRAME) -> Any:
+    """visualization_msgs/MarkerArray: one cylinder per landmark, standing on z = 0.
+
+    Namespace 'landmarks', id = the landmark's index in the map.
+    """
+    return MarkerArray(markers=[
+        marker(stamp_ns, frame_id, 'landmarks', i, MARKER_CYLINDER,
+               pose=Pose(position=Point(x=x, y=y, z=LANDMARK_HEIGHT_M / 2.0),
+                         orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)),
+               scale=(LANDMARK_DIAMETER_M, LANDMARK_DIAMETER_M, LANDMARK_HEIGHT_M),
+               color=COLOR_LANDMARK)
+        for i, (x, y) in enumerate(np.asarray(landmarks.xy_m, dtype=np.float64).tolist())])

@@ -17,6 +17,7 @@ from pathlib import Path
 import time
 from typing import Any
 
+from gyro_ekf.io.batch_write import enable_chunk_crcs
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.products import os_reason
 
@@ -76,6 +77,7 @@ class RecordingBag:
         self.storage_file = self.path / f'{self.path.name}.{suffix}'
         try:
             self._writer = Writer(self.path, version=9, storage_plugin=plugin)
+            enable_chunk_crcs(self._writer, sections=False)
         except WriterError as err:
             raise BagError(f'{self.path}: cannot record: {err}') from None
         self._connections: dict[str, Any] = {}

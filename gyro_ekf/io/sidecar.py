@@ -149,8 +149,12 @@ def parse_yaml(text: str, path: Path) -> BagParams:
         raise BagError(f"{path.name}: parameter 'noise' must be a mapping")
     bias = None
     if 'true_gyro_bias_rad_s' in tree:
-        bias = np.array(_get(tree, 'true_gyro_bias_rad_s', list, path), dtype=np.float64)
-        if bias.shape != (3,) or not np.all(np.isfinite(bias)):
+        values = _get(tree, 'true_gyro_bias_rad_s', list, path)
+        if len(values) != 3 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                       for v in values):
+            raise BagError(f"{path.name}: parameter 'true_gyro_bias_rad_s' must be 3 numbers")
+        bias = np.array(values, dtype=np.float64)
+        if not np.all(np.isfinite(bias)):
             raise BagError(f"{path.name}: parameter 'true_gyro_bias_rad_s' must be 3 numbers")
     pose = [float(_get(tree, f'initial_pose.{k}', number, path))
             for k in ('x_m', 'y_m', 'yaw_rad')]
@@ -199,6 +203,8 @@ def read_sidecar(bag_path: Path | str) -> BagParams | None:
         text = path.read_text(encoding='utf-8')
     except OSError as err:
         raise BagError(f'{path}: cannot read: {err}') from None
+    except UnicodeDecodeError as err:
+        raise BagError(f'{path}: not UTF-8 text (byte {err.start}): not a params file') from None
     return parse_yaml(text, path)
 
 

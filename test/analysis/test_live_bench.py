@@ -1,6 +1,13 @@
-"""The live benchmark, briefly: ekf_node in a child process answers most IMU messages."""
+"""The live benchmark's plumbing: ekf_node in a child process, poses matched to the steps sent.
+
+Only what holds on a machine of any speed is asserted here: how sends complete steps, that
+poses come back and are matched to the steps by stamp, and that the accounting adds up.
+Latency, loss and CPU figures are for `make bench` (results/bench.json), not for tests.
+"""
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 import pytest
@@ -23,34 +30,93 @@ def test_completion_follows_the_release_rule():
     assert windowed.tolist() == [6, 8, 10, -1, -1, -1]
 
 
-def test_a_short_live_run_matches_most_poses(ros_env):
+def test_observations_in_stamp_order_hold_each_step_until_the_next_scan():
+    from gyro_ekf.analysis.live_bench import completion_indices
+
+    period = 10_000_000
+    # Observations at steps 0 and 3, sent before that step's odom and imu (as the bench does).
+    streams, stamps = [], []
+    for step in range(6):
+        if step % 3 == 0:
+            streams.append('landmarks')
+            stamps.append(step * period)
+        streams += ['odom', 'imu']
+        stamps += [step * period] * 2
+    stamps = np.array(stamps)
+    targets = np.arange(6) * period
+    # Held in stamp order: the first message releases step 0 (no other stream seen yet);
+    # steps 1 and 2 wait for the scan of step 3 (index 7), step 3 for its imu (index 9),
+    # steps 4 and 5 for a scan never sent (the node's idle flush lets them out).
+    held = completion_indices(streams, stamps, 0.0, 0, targets)
+    assert held.tolist() == [0, 7, 7, 9, -1, -1]
+    # Replayed when late, observations are left out of the release: each imu completes its
+    # own step, as in the case without observations.
+    kept = [i for i, stream in enumerate(streams) if stream != 'landmarks']
+    replayed = completion_indices([streams[i] for i in kept], stamps[kept], 0.0, 0, targets)
+    assert [kept[i] for i in replayed.tolist()] == [1, 4, 6, 9, 11, 13]
+
+
+def _check_measured(run):
+    """What must hold of a measured run however loaded the machine is."""
+    assert run['measured'], run.get('error', '') + run.get('node_log_tail', '')
+    # The warm-up only ends once poses come back, so the measured phase matches some of its
+    # own steps by stamp.
+    assert run['poses_received'] > 0
+    # A pose cannot leave the node before its IMU message was sent.
+    if run['poses_received'] > run['poses_released_by_idle_flush']:
+        assert run['latency_ms']['p50'] > 0.0
+    # CPU is read from /proc in clock ticks.
+    ticks = run['node_cpu_s'] / run['cpu_clock_tick_s']
+    assert ticks >= 0 and ticks == pytest.approx(round(ticks), abs=1e-6)
+    # The node's own counters came back through /diagnostics.
+    assert run['node']['estimates'] > 0
+
+
+def test_a_short_live_run_matches_poses_to_the_steps_sent(ros_env):
     from gyro_ekf.analysis.live_bench import LiveCase, live_suite
 
     results = live_suite((LiveCase(200.0, 1.0, warmup_s=0.5),),
                          domain_id=int(ros_env['ROS_DOMAIN_ID']))
+    assert results['domain_id'] == int(ros_env['ROS_DOMAIN_ID'])
     run = results['runs'][0]
     assert results['measured'], run.get('error', '') + run.get('node_log_tail', '')
-    assert run['steps'] == 200
-    assert run['poses_received'] >= 0.8 * run['steps']
-    assert run['latency_ms']['p50'] is not None
-    assert run['latency_ms']['p50'] <= run['latency_ms']['max']
-    assert run['node_cpu_s'] >= 0.0
-    assert run['node']['estimates'] > 0
+    assert run['steps'] == 200 and run['messages_sent'] == 400
+    _check_measured(run)
+    # The node publishes one pose per step; a second pose of a stamp would come from another
+    # run sending the same stamps in the same domain.
+    assert run['duplicate_poses'] == 0
 
 
-def test_replayed_observations_do_not_hold_the_poses_back(ros_env):
+def test_observations_reach_the_filter_in_both_release_modes(ros_env):
     from gyro_ekf.analysis.live_bench import LiveCase, live_suite
 
-    cases = (LiveCase(200.0, 2.0, landmarks_hz=10.0, warmup_s=0.5),
-             LiveCase(200.0, 2.0, landmarks_hz=10.0, warmup_s=0.5,
+    # How long poses wait in either mode is a `make bench` figure (the two landmark cases).
+    cases = (LiveCase(200.0, 1.0, landmarks_hz=10.0, warmup_s=0.5),
+             LiveCase(200.0, 1.0, landmarks_hz=10.0, warmup_s=0.5,
                       late_observation_history_s=0.5))
     results = live_suite(cases, domain_id=int(ros_env['ROS_DOMAIN_ID']))
-    strict, lagged = results['runs']
     assert results['measured'], [r.get('error', '') + r.get('node_log_tail', '')
                                  for r in results['runs']]
-    # Both associate the observations; in stamp order each pose waits for the next scan
-    # (0-100 ms at 10 Hz), replayed it leaves with its own IMU message.
-    assert strict['node']['associated'] > 0 and lagged['node']['associated'] > 0
-    assert strict['latency_ms']['p50'] > 20.0
-    assert lagged['latency_ms']['p50'] < strict['latency_ms']['p50'] / 2.0
-    assert lagged['poses_received'] >= 0.8 * lagged['steps']
+    strict, lagged = results['runs']
+    for run in (strict, lagged):
+        assert run['messages_sent'] == 2 * 200 + 10
+        _check_measured(run)
+        # The poles lie where the map has them, seen from the known initial pose.
+        assert run['node']['associated'] > 0
+    assert 'replayed_observations' not in strict['node']
+    assert 'replayed_observations' in lagged['node']
+
+
+def test_the_bench_claims_a_domain_of_its_own_and_gives_it_back(monkeypatch):
+    from gyro_ekf.analysis.live_bench import ros_environment
+    from gyro_ekf.ros_env import try_claim
+
+    monkeypatch.setenv('ROS_DOMAIN_ID', '42')
+    with ros_environment() as env:
+        domain = int(env['ROS_DOMAIN_ID'])
+        assert domain != 42 and env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+        assert try_claim(domain) is None  # nobody else gets it meanwhile
+    again = try_claim(domain)
+    assert again is not None
+    again.release()
+    assert os.environ['ROS_DOMAIN_ID'] == '42'  # the caller's environment is restored

@@ -63,15 +63,6 @@ def test_nees_of_a_singular_covariance_uses_the_pseudo_inverse():
     assert math.isinf(nees[1])
 
 
-def test_yaw_is_interpolated_the_short_way_across_pi():
-    pose, inside = metrics.interpolate_pose(
-        np.array([-1.0, 0.5, 2.0]), np.array([0.0, 1.0]),
-        np.array([[0.0, 0.0, math.pi - 0.1], [1.0, 2.0, -math.pi + 0.1]]))
-    assert inside.tolist() == [False, True, False]
-    assert pose[1, :2] == pytest.approx([0.5, 1.0])
-    assert abs(metrics.pose_errors(pose[1:2], np.array([[0.5, 1.0, math.pi]]))[0, 2]) < 1e-12
-
-
 def test_estimates_are_interpolated_to_truth_stamps_and_exact_on_shared_stamps():
     stamps = np.array([0.0, 0.1, 0.1, 0.2])
     state = np.array([[0.0, 0.0, math.pi - 0.05, 0.0], [1.0, 0.0, math.pi - 0.01, 0.0],

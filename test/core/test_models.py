@@ -90,21 +90,40 @@ def test_observation_is_the_reports_h_and_H_with_course_conventions():
         np.testing.assert_allclose(models.observation_jacobian(state, [xa, ya]), report_H)
 
 
-def test_jacobians_and_Q_equal_the_report_with_its_numbers():
-    # Report: Pu = diag(0.3^2, (1.7 pi/180)^2), Q2 = diag((0.03T)^2, (0.03T)^2, 0,
-    # (q_b T)^2) with the bias walk read as 1 deg/s per 10 minutes.
+def test_jacobians_equal_the_report_with_its_numbers():
+    # Report: J and Ju of the kinematic model, with Pu = diag(0.3^2, (1.7 pi/180)^2).
     T, v, phi = 0.005, 0.7, 0.4
-    q_b = (math.pi / 180) / 600
     J = np.array([[1, 0, -T * v * math.sin(phi), 0], [0, 1, T * v * math.cos(phi), 0],
                   [0, 0, 1, -T], [0, 0, 0, 1]])
     Ju = np.array([[T * math.cos(phi), 0], [T * math.sin(phi), 0], [0, T], [0, 0]])
-    Pu = np.diag([0.3 ** 2, (1.7 * math.pi / 180) ** 2])
-    Q = Ju @ Pu @ Ju.T + np.diag([0.03 ** 2 * T, 0.03 ** 2 * T, 0, (q_b * T) ** 2])
     state = np.array([1.0, 2.0, phi, 0.01])
     np.testing.assert_allclose(models.process_jacobian(state, v, T), J)
     np.testing.assert_allclose(models.input_jacobian(state, T), Ju)
-    np.testing.assert_allclose(models.process_noise(state, T, 0.3, 1.7 * math.pi / 180, 0.03,
-                                                    q_b), Q, rtol=1e-12, atol=0)
+    assert EkfConfig().initial_bias_sigma_rad_s == pytest.approx(2 * math.pi / 180)
+
+
+def test_Q2_departs_from_the_report_as_a_random_walk_per_root_second():
+    # The report writes Q2 = diag((0.03 T)^2, (0.03 T)^2, 0, (q_b T)^2): a position noise
+    # of 0.03 m per step, so its size depends on the step length T. The project reads the
+    # 0.03 as a random walk in m/sqrt(s) instead, variance 0.03^2 T per step, so the
+    # filter's uncertainty after one second is the same at 200 Hz and at 1 kHz. The bias
+    # term keeps the report's form, with q_b read as 1 deg/s per 10 minutes.
+    T, v, phi = 0.005, 0.7, 0.4
+    q_b = (math.pi / 180) / 600
+    state = np.array([1.0, 2.0, phi, 0.01])
+    Ju = models.input_jacobian(state, T)
+    Pu = np.diag([0.3 ** 2, (1.7 * math.pi / 180) ** 2])
+    report_Q2 = np.diag([(0.03 * T) ** 2, (0.03 * T) ** 2, 0, (q_b * T) ** 2])
+    project_Q2 = np.diag([0.03 ** 2 * T, 0.03 ** 2 * T, 0, (q_b * T) ** 2])
+    Q = models.process_noise(state, T, 0.3, 1.7 * math.pi / 180, 0.03, q_b)
+    np.testing.assert_allclose(Q, Ju @ Pu @ Ju.T + project_Q2, rtol=1e-12, atol=0)
+    # The departure is real: the report's position term is T times smaller.
+    assert not np.allclose(Q, Ju @ Pu @ Ju.T + report_Q2, rtol=1e-6, atol=0)
+    # Summed over one second of steps the project's position variance is 0.03^2 whatever T.
+    for step_s in (0.001, 0.005, 0.02):
+        per_step = models.process_noise(state, step_s, 0.3, 0.0, 0.03, q_b)
+        position_var = per_step[0, 0] - (step_s * math.cos(phi) * 0.3) ** 2
+        assert position_var / step_s == pytest.approx(0.03 ** 2)
     # The filter's written-out Q is the same: from P = 0 one step gives P = Q.
     config = EkfConfig(speed_noise_m_s=0.3, gyro_noise_rad_s=1.7 * math.pi / 180,
                        position_random_walk_m_sqrt_s=0.03, bias_random_walk_rad_s2=q_b,
@@ -113,7 +132,6 @@ def test_jacobians_and_Q_equal_the_report_with_its_numbers():
     ekf.predict(v, 0.2, T)
     np.testing.assert_allclose(ekf.P, Q, rtol=1e-12, atol=1e-30)
     assert config.bias_random_walk_rad_s2 == pytest.approx(q_b)
-    assert EkfConfig().initial_bias_sigma_rad_s == pytest.approx(2 * math.pi / 180)
 
 
 def test_sensor_frame_round_trip():

@@ -105,3 +105,25 @@ def test_an_existing_folder_is_refused(tmp_path):
     (tmp_path / 'rec').mkdir()
     with pytest.raises(BagError, match='exists already'):
         RecordingBag(tmp_path / 'rec')
+
+
+def test_recorded_chunks_carry_crcs_and_a_flipped_byte_is_refused(tmp_path):
+    """The recording's chunks carry CRCs (its summary is rewritten at every checkpoint, so
+    the data-section CRC stays 0, i.e. absent); a flipped byte in a chunk is an error."""
+    from mcap_layout import chunk_records_at, chunks, crcs
+    bag = RecordingBag(tmp_path / 'rec', 'mcap', flush_s=3600.0)
+    for i in range(9000):
+        bag.write('/v', TYPE, T0 + i, _message(i), SENSOR_QOS)
+        if i % 2500 == 0:
+            bag.checkpoint()
+    bag.close()
+    data = bag.storage_file.read_bytes()
+    chunk_crcs, data_crc, _ = crcs(data)
+    assert len(chunk_crcs) >= 4 and all(chunk_crcs)
+    assert data_crc == 0
+    assert _values(tmp_path / 'rec') == [float(i) for i in range(9000)]
+    damaged = bytearray(data)
+    damaged[chunk_records_at(data, chunks(data)[1]) + 40] ^= 0x10
+    bag.storage_file.write_bytes(bytes(damaged))
+    with pytest.raises(BagError):
+        _values(tmp_path / 'rec')

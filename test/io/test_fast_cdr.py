@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import struct
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +18,7 @@ from gyro_ekf.io import bag_reader
 from gyro_ekf.io import messages as msgs
 from gyro_ekf.io.bag_reader import read_bag
 from gyro_ekf.io.bag_writer import write_trip_bag
-from gyro_ekf.io.batch_write import write_rows
+from gyro_ekf.io.batch_write import enable_chunk_crcs, write_rows
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.fast_cdr import CdrDecodeError, CdrTemplate, decode_columns, LAYOUTS
 
@@ -284,8 +285,9 @@ def _payloads(rng: np.random.Generator, m: int, sizes: list[int]) -> list[np.nda
     return [rng.integers(0, 256, (m, size), dtype=np.uint8) for size in sizes]
 
 
+@pytest.mark.parametrize('crcs', [False, True], ids=['plain', 'crcs'])
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
-def test_write_rows_is_byte_identical_to_writer_write(tmp_path, storage):
+def test_write_rows_is_byte_identical_to_writer_write(tmp_path, storage, crcs):
     # Sizes and counts that close chunks mid-row and carry a pending chunk across calls.
     rng = np.random.default_rng(7)
     sizes = [364, 724, 60]
@@ -295,6 +297,8 @@ def test_write_rows_is_byte_identical_to_writer_write(tmp_path, storage):
     for name, batched in (('one', False), ('batch', True)):
         (tmp_path / name).mkdir()
         with Writer(tmp_path / name / 'bag', version=9, storage_plugin=plugin) as writer:
+            if crcs:
+                assert enable_chunk_crcs(writer) == (storage == 'mcap')
             connections = [writer.add_connection(f'/t{j}', topics.VECTOR3_STAMPED_TYPE,
                                                  typestore=STORE) for j in range(len(sizes))]
             for stamps, payloads in blocks:
@@ -308,6 +312,10 @@ def test_write_rows_is_byte_identical_to_writer_write(tmp_path, storage):
     assert (one / 'metadata.yaml').read_text() == (batch / 'metadata.yaml').read_text()
     if storage == 'mcap':
         assert (one / 'bag.mcap').read_bytes() == (batch / 'bag.mcap').read_bytes()
+        data_end = (one / 'bag.mcap').read_bytes().rfind(b'\x0f\x04' + bytes(7))
+        assert data_end > 0
+        data_crc = (one / 'bag.mcap').read_bytes()[data_end + 9:data_end + 13]
+        assert (data_crc != bytes(4)) == crcs
     with Reader(one) as a, Reader(batch) as b:
         assert [(c.topic, t, bytes(d)) for c, t, d in a.messages()] == [
             (c.topic, t, bytes(d)) for c, t, d in b.messages()]
@@ -342,10 +350,70 @@ def test_a_bag_the_chunk_reader_refuses_midway_is_read_by_rosbags(tmp_path, monk
     def refuse_after_a_batch(path, topics, consumer, batch_messages=65_536):
         def first_then_refuse(topic, batch):
             consumer(topic, batch)
-            raise mcap_chunks.UnsupportedMcap(f'{path}: refused for the test')
+            raise mcap_chunks.UnsupportedMcap(path, 'refused for the test')
         return stream(path, topics, first_then_refuse, batch_messages=20)
 
     monkeypatch.setattr(mcap_chunks, 'stream_topics', refuse_after_a_batch)
     bag = tmp_path / 'synthetic'
     write_trip_bag(make_trip(), bag)
     assert_fast_read_is_rosbags_read(bag)
+
+
+def _sample_payloads() -> dict[str, bytes]:
+    trip = make_trip()
+    return {
+        topics.IMU_TYPE: msgs.serialize(msgs.imu_message(10**18, np.ones(3), np.zeros(9),
+                                                         np.ones(3))),
+        topics.ODOMETRY_TYPE: msgs.serialize(msgs.speed_message(10**18, 1.0, np.zeros(36))),
+        topics.LASER_SCAN_TYPE: msgs.serialize(msgs.scan_message(10**18, trip.scans[0], 0)),
+    }
+
+
+_NUMERIC = {topics.IMU_TYPE: ('angular_velocity',), topics.ODOMETRY_TYPE: ('twist.twist.linear',),
+            topics.LASER_SCAN_TYPE: ('ranges', 'intensities', 'angle_min')}
+
+
+@pytest.mark.parametrize('msgtype', sorted(_NUMERIC))
+def test_every_truncation_of_a_payload_is_a_clean_error(msgtype):
+    data = _sample_payloads()[msgtype]
+    for length in range(len(data)):
+        with pytest.raises(CdrDecodeError) as raised:
+            decode_columns([data, data[:length]], msgtype, _NUMERIC[msgtype], STORE)
+        assert raised.value.index == 1
+
+
+def test_a_huge_sequence_length_is_a_clean_error():
+    data = bytearray(_sample_payloads()[topics.LASER_SCAN_TYPE])
+    scan = decode_columns([bytes(data)], topics.LASER_SCAN_TYPE, ('ranges',), STORE)
+    beams = scan.values['ranges'].shape[1]
+    ranges_at = bytes(data).find(struct.pack('<I', beams))
+    for count in (beams + 1, 2**31 - 1, 2**32 - 1):
+        data[ranges_at:ranges_at + 4] = struct.pack('<I', count)
+        with pytest.raises(CdrDecodeError):
+            decode_columns([bytes(data)], topics.LASER_SCAN_TYPE, ('ranges',), STORE)
+
+
+def test_mutated_payloads_decode_or_fail_cleanly():
+    # Seeded: cuts, bit flips, 0x7fffffff words and big-endian garbage (the rosbags path).
+    rng = np.random.default_rng(11)
+    outcomes = {'decoded': 0, 'refused': 0}
+    for msgtype, data in _sample_payloads().items():
+        for _ in range(150):
+            mutated = bytearray(data)
+            at = int(rng.integers(len(mutated)))
+            kind = int(rng.integers(4))
+            if kind == 0:
+                del mutated[at:]
+            elif kind == 1:
+                mutated[at] ^= 1 << int(rng.integers(8))
+            elif kind == 2:
+                mutated[at:at + 4] = b'\xff\xff\xff\x7f'
+            else:
+                mutated[0:2] = b'\x00\x00'
+                mutated[at] = int(rng.integers(256))
+            try:
+                decode_columns([data, bytes(mutated)], msgtype, _NUMERIC[msgtype], STORE)
+                outcomes['decoded'] += 1
+            except CdrDecodeError:
+                outcomes['refused'] += 1
+    assert outcomes['refused'] > 100 and outcomes['decoded'] > 100

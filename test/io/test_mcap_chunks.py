@@ -6,6 +6,7 @@ import gc
 import mmap
 from pathlib import Path
 import struct
+import zlib
 
 import lz4.frame
 from mcap.reader import make_reader
@@ -16,7 +17,8 @@ import zstandard
 
 from gyro_ekf.core.simulator import simulate_trip, SimulationConfig
 from gyro_ekf.io.bag_writer import write_trip_bag
-from gyro_ekf.io.mcap_chunks import MAGIC, read_topics, TopicMessages, UnsupportedMcap
+from gyro_ekf.io.mcap_chunks import (
+    CorruptMcap, MAGIC, McapError, read_topics, TopicMessages, UnsupportedMcap)
 
 SENSOR_TOPICS = ('/imu', '/odom', '/scan')
 IMU = 'sensor_msgs/msg/Imu'
@@ -80,22 +82,22 @@ def test_a_file_cut_in_a_chunk_is_refused(bags, tmp_path):
     length = struct.unpack_from('<Q', data, chunk + 1)[0]
     cut = tmp_path / 'cut.mcap'
     cut.write_bytes(data[:chunk + length // 2])
-    with pytest.raises(UnsupportedMcap, match='truncated'):
+    with pytest.raises(CorruptMcap, match='truncated'):
         read_topics(cut, SENSOR_TOPICS)
     # Even with the trailing magic put back, the chunk still runs past the end.
     cut.write_bytes(data[:chunk + length // 2] + MAGIC)
-    with pytest.raises(UnsupportedMcap, match='runs past the end'):
+    with pytest.raises(CorruptMcap, match='runs past the end'):
         read_topics(cut, SENSOR_TOPICS)
 
 
 def test_wrong_magic_is_refused(bags, tmp_path):
     wrong = tmp_path / 'wrong.mcap'
     wrong.write_bytes(b'\x89MCAP1\r\n' + bags[False].read_bytes()[8:])
-    with pytest.raises(UnsupportedMcap, match='magic'):
+    with pytest.raises(CorruptMcap, match='magic'):
         read_topics(wrong, SENSOR_TOPICS)
     empty = tmp_path / 'empty.mcap'
     empty.write_bytes(b'')
-    with pytest.raises(UnsupportedMcap, match='magic'):
+    with pytest.raises(CorruptMcap, match='magic'):
         read_topics(empty, SENSOR_TOPICS)
 
 
@@ -276,15 +278,17 @@ def swapped_channel() -> tuple[bytes, ...]:
 ])
 def test_corrupt_or_unsupported_content_is_refused(tmp_path, records, match):
     path = mcap_file(tmp_path / 'bad.mcap', *records)
-    with pytest.raises(UnsupportedMcap, match=match):
+    with pytest.raises(McapError, match=match) as raised:
         read_topics(path, ['/imu'])
+    unsupported = match in ("encoding 'json'", 'precede its Channel')
+    assert isinstance(raised.value, UnsupportedMcap if unsupported else CorruptMcap)
 
 
 def test_a_file_without_data_end_or_footer_is_refused(tmp_path):
     path = mcap_file(tmp_path / 'open.mcap', schema(1, IMU), channel(1, 1, '/imu'),
                      message(1, 1, cdr(0)), end=False)
     path.write_bytes(path.read_bytes() + MAGIC)
-    with pytest.raises(UnsupportedMcap, match='no DataEnd or Footer'):
+    with pytest.raises(CorruptMcap, match='no DataEnd or Footer'):
         read_topics(path, ['/imu'])
 
 
@@ -294,7 +298,7 @@ def test_a_chunk_whose_size_disagrees_with_its_header_is_refused(tmp_path):
     struct.pack_into('<Q', content, 16, 1000)   # uncompressed_size
     path = mcap_file(tmp_path / 'size.mcap', schema(1, IMU), channel(1, 1, '/imu'),
                      record(0x06, bytes(content)))
-    with pytest.raises(UnsupportedMcap, match='its header says 1000'):
+    with pytest.raises(CorruptMcap, match='its header says 1000'):
         read_topics(path, ['/imu'])
 
 
@@ -324,3 +328,120 @@ def test_a_file_that_cannot_be_mapped_is_read(bags, monkeypatch):
     read = read_topics(bags[False], ['/imu'])['/imu']
     assert read.log_time_ns.tolist() == mapped.log_time_ns.tolist()
     assert [bytes(p) for p in read.payloads] == [bytes(p) for p in mapped.payloads]
+
+
+# -- verification: CRCs, the ends of the file, time ranges, sizes ------------------------
+
+def timed_chunk(records: bytes, start: int, end: int, crc: int | None = None,
+                compression: str = '') -> bytes:
+    """A Chunk with a log-time range and a CRC (by default the right one)."""
+    packed = {'': lambda data: data, 'lz4': lz4.frame.compress,
+              'zstd': zstandard.ZstdCompressor().compress}[compression](records)
+    crc = zlib.crc32(records) if crc is None else crc
+    return record(0x06, struct.pack('<QQQI', start, end, len(records), crc)
+                  + string(compression) + struct.pack('<Q', len(packed)) + packed)
+
+
+def sealed_file(path: Path, *records: bytes, data_crc: bool = True,
+                summary_crc: bool = True) -> Path:
+    """Write a file with DataEnd and Footer carrying real CRCs (or 0)."""
+    head = MAGIC + record(0x01, string('ros2') + string('hand')) + b''.join(records)
+    data_end = record(0x0F, struct.pack('<I', zlib.crc32(head) if data_crc else 0))
+    summary_start = len(head) + len(data_end)
+    summary = schema(1, IMU)
+    footer_start = summary_start + len(summary)
+    footer_head = struct.pack('<BQQQ', 0x02, 20, summary_start, 0)
+    crc = zlib.crc32(summary + footer_head) if summary_crc else 0
+    path.write_bytes(head + data_end + summary + footer_head + struct.pack('<I', crc) + MAGIC)
+    assert footer_start + 29 + 8 == path.stat().st_size
+    return path
+
+
+def imu_chunk(**kwargs) -> bytes:
+    inside = (schema(1, IMU) + channel(1, 1, '/imu') + message(1, 100, cdr(0))
+              + message(1, 200, cdr(1)))
+    return timed_chunk(inside, 100, 200, **kwargs)
+
+
+@pytest.mark.parametrize('compression', ['', 'zstd', 'lz4'])
+def test_a_sealed_file_with_every_crc_is_read_and_the_mcap_package_agrees(tmp_path,
+                                                                          compression):
+    path = sealed_file(tmp_path / 'sealed.mcap', imu_chunk(compression=compression))
+    with open(path, 'rb') as stream:
+        assert len(list(make_reader(stream, validate_crcs=True).iter_messages())) == 2
+    got = read_topics(path, ['/imu'])['/imu']
+    assert got.log_time_ns.tolist() == [100, 200]
+
+
+def test_crc_mismatches_name_the_place(tmp_path):
+    good = imu_chunk()
+    at = len(MAGIC) + len(record(0x01, string('ros2') + string('hand')))
+    path = sealed_file(tmp_path / 'chunk.mcap', imu_chunk(crc=12345), data_crc=False)
+    with pytest.raises(CorruptMcap, match=f'chunk at offset {at}: CRC mismatch .*0x00003039'):
+        read_topics(path, ['/imu'])
+    path = sealed_file(tmp_path / 'data.mcap', good)
+    data = bytearray(path.read_bytes())
+    data[at + 60] ^= 1
+    path.write_bytes(bytes(data))
+    with pytest.raises(CorruptMcap, match=f'chunk at offset {at}: CRC mismatch .*; the '
+                                          'data-section CRC fails too'):
+        read_topics(path, ['/imu'])
+    data[at + 60] ^= 1
+    data[at - 3] ^= 1       # in the Header record, which only the data-section CRC covers
+    path.write_bytes(bytes(data))
+    with pytest.raises(CorruptMcap, match=r'data section \(bytes 0 to \d+\): CRC mismatch'):
+        read_topics(path, ['/imu'])
+    path = sealed_file(tmp_path / 'summary.mcap', good)
+    data = bytearray(path.read_bytes())
+    data[-8 - 29 - 5] ^= 1      # inside the summary's Schema record
+    path.write_bytes(bytes(data))
+    with pytest.raises(CorruptMcap, match='summary section at offset .*CRC mismatch'):
+        read_topics(path, ['/imu'])
+
+
+def test_a_crc_mismatch_wins_over_the_error_it_causes(tmp_path):
+    # A flipped length inside a chunk breaks the walk; the CRC says why.
+    inside = bytearray(schema(1, IMU) + channel(1, 1, '/imu') + message(1, 100, cdr(0)))
+    crc = zlib.crc32(bytes(inside))
+    inside[len(schema(1, IMU)) + len(channel(1, 1, '/imu')) + 8] = 0x40
+    path = sealed_file(tmp_path / 'walk.mcap', timed_chunk(bytes(inside), 100, 100, crc=crc),
+                       data_crc=False)
+    with pytest.raises(CorruptMcap, match='CRC mismatch'):
+        read_topics(path, ['/imu'])
+
+
+def test_a_message_outside_its_chunks_range_is_refused(tmp_path):
+    inside = schema(1, IMU) + channel(1, 1, '/imu') + message(1, 150, cdr(0)) + message(
+        1, 150 + (1 << 40), cdr(1))
+    path = mcap_file(tmp_path / 'time.mcap', timed_chunk(inside, 150, 160))
+    with pytest.raises(CorruptMcap, match=r"log time 1099511627926 ns lies outside its "
+                                          r"chunk's range \[150, 160\]"):
+        read_topics(path, ['/imu'])
+
+
+def test_the_data_section_must_end_where_the_footer_says(tmp_path):
+    path = sealed_file(tmp_path / 'ends.mcap', imu_chunk())
+    data = bytearray(path.read_bytes())
+    struct.pack_into('<Q', data, len(data) - 8 - 20, 7)     # summary_start
+    path.write_bytes(bytes(data))
+    with pytest.raises(CorruptMcap, match='the data section ends at .* Footer puts the next'):
+        read_topics(path, ['/imu'])
+    struct.pack_into('<Q', data, len(data) - 8 - 20, 1 << 40)
+    path.write_bytes(bytes(data))
+    with pytest.raises(CorruptMcap, match='past the Footer'):
+        read_topics(path, ['/imu'])
+    path.write_bytes(bytes(data[:-8 - 29]) + b'\x00' * 29 + MAGIC)
+    with pytest.raises(CorruptMcap, match='no Footer record before the trailing magic'):
+        read_topics(path, ['/imu'])
+
+
+@pytest.mark.parametrize('compression', ['zstd', 'lz4'])
+def test_declared_sizes_bound_decompression(tmp_path, compression):
+    inside = schema(1, IMU) + channel(1, 1, '/imu') + message(1, 1, cdr(0) * 1000)
+    packed = {'lz4': lz4.frame.compress,
+              'zstd': zstandard.ZstdCompressor().compress}[compression](inside)
+    for declared, match in ((len(inside) - 1, 'holds more than'),
+                            (1 << 40, 'declares 1099511627776 uncompressed bytes')):
+        path = mcap_file(tmp_path / 'size.mcap', raw_chunk(compression, declared, packed))
+        with pytest.raises(CorruptMcap, match=match):
+            read_topics(path, ['/imu'])

@@ -7,7 +7,6 @@ with timeouts, never on fixed sleeps.
 
 from __future__ import annotations
 
-import itertools
 import os
 import signal
 import subprocess
@@ -20,27 +19,32 @@ from typing import Any
 
 import pytest
 
+from gyro_ekf.ros_env import claim_domain, DomainLease, ros_env_values
+
 REPO = Path(__file__).resolve().parents[2]
-# Fast DDS accepts domains 0-232; the session-wide conftest uses 100-199 and wraps.
-_domains = itertools.count(215 + os.getpid() % 9)
+# Domains handed out by node_env() without a fixture to give them back: held until the
+# session ends (ros_processes gives its own back at the end of its module).
+_session_leases: list[DomainLease] = []
 
 
-def node_env(tmp_path: Path) -> dict[str, str]:
-    """Environment for processes of one test module: loopback, own domain, own log dir."""
-    domain = next(_domains)
-    if domain > 232:
-        domain = 200 + domain % 15
+def _env_in_domain(tmp_path: Path, lease: DomainLease) -> dict[str, str]:
     log_dir = tmp_path / 'ros_log'
     log_dir.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
-    env.update({
-        'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-        'ROS_DOMAIN_ID': str(domain),
-        'ROS_LOG_DIR': str(log_dir),
-        'PYTHONUNBUFFERED': '1',
-        'PYTHONPATH': os.pathsep.join([str(REPO), env.get('PYTHONPATH', '')]).rstrip(os.pathsep),
-    })
+    env.update(ros_env_values(lease.domain_id, log_dir))
+    env['PYTHONPATH'] = os.pathsep.join([str(REPO), env.get('PYTHONPATH', '')]).rstrip(
+        os.pathsep)
     return env
+
+
+def node_env(tmp_path: Path) -> dict[str, str]:
+    """Environment for processes of one test: loopback, own domain, own log dir.
+
+    No other test or run on this machine gets the domain until this test session ends.
+    """
+    lease = claim_domain()
+    _session_leases.append(lease)
+    return _env_in_domain(tmp_path, lease)
 
 
 class Processes:
@@ -146,7 +150,8 @@ def diagnostics_of():
 def ros_processes(tmp_path_factory) -> Iterator[tuple[Processes, Probe]]:
     """Processes and a probe sharing one loopback-only domain for a whole test module."""
     tmp = tmp_path_factory.mktemp('ros')
-    env = node_env(tmp)
+    lease = claim_domain()
+    env = _env_in_domain(tmp, lease)
     saved = {k: os.environ.get(k) for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID',
                                             'ROS_LOG_DIR')}
     for key in saved:
@@ -158,6 +163,7 @@ def ros_processes(tmp_path_factory) -> Iterator[tuple[Processes, Probe]]:
     finally:
         processes.stop_all()
         probe.close()
+        lease.release()
         for key, value in saved.items():
             if value is None:
                 os.environ.pop(key, None)

@@ -24,7 +24,7 @@ def lagged_run(ros_processes, sim_bag, diagnostics_of):
     # Two more periodic statuses: the last scans (after the last IMU sample) are in.
     _, probe = ros_processes
     seen = len(diagnostics)
-    probe.spin_until(lambda: len(diagnostics) >= seen + 2, 10, 'two more diagnostics')
+    probe.spin_until(lambda: len(diagnostics) >= seen + 2, 60, 'two more diagnostics')
     _, run = _offline(sim_bag)
     return odometry, diagnostics_of(diagnostics, '/ekf_node: gyro bias EKF'), replay, \
         bag_trip, run
