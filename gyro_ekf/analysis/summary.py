@@ -5,7 +5,9 @@ Definitions (see `metrics` for the band and the interpolation):
 - *Offline bias*: the static-window mean per axis, its white-noise sigma, the standard
   error of the mean and the window; null with the reason when no window was accepted.
 - *Online bias*: the bias state at the last estimate with its filter sigma, and the mean
-  and standard deviation of the bias state over the second half of the trip's duration.
+  and standard deviation of the bias state over the second half of the trip's duration;
+  the zero-rate updates (gyro samples applied standing still) and stops, and where the
+  trip is known to start static, the bias and its sigma at the end of that stretch.
 - *Association*: detected poles, how many were MATCHED (and the other outcomes), the share
   matched, and the longest time without any applied landmark update, counted from the first
   to the last estimate (so a trip that starts with no pole in view counts that stretch).
@@ -97,7 +99,17 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'last_half_mean_rad_s': half_mean, 'last_half_mean_deg_s': _deg(half_mean),
         'last_half_std_rad_s': half_std, 'last_half_std_deg_s': _deg(half_std),
         'last_half_mean_sigma_rad_s': float(bias_sigma[last_half].mean())
-        if last_half.any() else math.nan}
+        if last_half.any() else math.nan,
+        'zero_rate_updates': int(run.result.stats.zero_rate_updates),
+        'stops': int(run.result.stats.stops)}
+    # Where the trip is known to start static, the bias the zero-rate updates learned there.
+    static_end = trip.start_s + trip.static_duration_s
+    at_static_end = int(np.searchsorted(stamps, static_end, side='right')) - 1
+    if trip.static_duration_s > 0.0 and at_static_end >= 0:
+        summary['online_bias'].update({
+            'static_start_end_s': float(stamps[at_static_end]),
+            'at_static_start_end_deg_s': _deg(float(bias[at_static_end])),
+            'at_static_start_end_sigma_deg_s': _deg(float(bias_sigma[at_static_end]))})
     if cal is not None:
         summary['online_bias']['last_half_mean_minus_offline_deg_s'] = _deg(
             half_mean - float(cal.bias_rad_s[2]))

@@ -96,7 +96,24 @@ class EkfConfig:
     rest_yaw_rate_rad_s: float = config_field(
         1.0 * DEG, 'rad/s', 'Turning faster than this (gyro minus bias) the platform is not '
         'standing still, whatever its speed (a turn on the spot brings other beams onto '
-        'the poles).', 0.0, 10.0)
+        'the poles); a stop whose mean gyro rate is farther than this plus three bias sigmas '
+        'from the bias is a turn on the spot, not a stop (zero-rate updates).', 0.0, 10.0)
+    # Zero-rate updates (a stop): standing still, each gyro sample measures the bias alone
+    # (core/events.py). The speed threshold is rest_speed_m_s above.
+    zero_rate_min_still_s: float = config_field(
+        0.5, 's', 'Zero-rate updates: the platform stands still once |speed| has stayed at or '
+        'below rest_speed_m_s this long (a speed passing through zero gives one or two zero '
+        'samples; 0.5 s also gives the spread 50-100 gyro samples).', 0.0, 1e6)
+    zero_rate_max_spread_rad_s: float = config_field(
+        1.5 * DEG, 'rad/s', 'Zero-rate updates: only while the gyro samples of the stop spread '
+        '(std) at most this much, as a still gyro shows only its white noise (vibration, a '
+        'push or a turn does not; default: the gyro noise the filter allows in motion). '
+        '0: never.', 0.0, 1.0)
+    zero_rate_min_noise_rad_s: float = config_field(
+        0.01 * DEG, 'rad/s', 'Zero-rate updates: each gyro sample at a stop measures the bias '
+        'with the spread of the stop\'s samples as its sigma, but never less than this (a '
+        'quantised or noiseless gyro shows no spread; MEMS gyros show 0.05-0.5 deg/s per '
+        'sample).', 1e-9, 1.0)
     # Sensor health (core/health.py). A LiDAR that disagrees with the map while another
     # LiDAR vouches for the pose is excluded until a window of re-checks agrees again. The
     # shared logs' worst 5 s windows (2016, 2022, 2023): share >= 0.83, |bearing mean| <=

@@ -9,6 +9,17 @@ then the event's value replaces the held one (or, for an observation, updates th
 Events with equal stamps are ordered speed, observation, IMU, so the estimate emitted on an
 IMU sample includes every observation stamped at or before it.
 
+Standing still, each gyro sample measures the bias alone (a zero-rate update): once the
+odometry speed has stayed within ``rest_speed_m_s`` for ``zero_rate_min_still_s``, while the
+gyro samples of the stop spread at most ``zero_rate_max_spread_rad_s`` and their mean is
+no turn (within ``rest_yaw_rate_rad_s`` plus three bias sigmas of the bias: an unknown bias
+cannot be told from a slow turn on the spot), every IMU sample updates the bias with the
+stop's spread as its sigma (at least ``zero_rate_min_noise_rad_s``) and the prediction holds
+the position. The bias is so learned at every stop, as the offline static calibration
+learns it from the first seconds. Landmark updates at rest go on as before (their n-th
+look during a stop uses n R); the two measure different things, the pose against the map
+and the bias against zero rate.
+
 Time going backwards raises TimeWentBackwardsError; the caller decides to reset (a looped
 bag) or to drop the event. It is never silently accepted. A gap is predicted in steps of at
 most `max_prediction_step_s`, but never in more than MAX_PREDICTION_STEPS steps: a stamp far
@@ -131,6 +142,8 @@ class DriverStats:
         long_gaps: gaps between events longer than MAX_PREDICTION_STEPS steps (predicted in
             coarser steps).
         excluded: detections of excluded LiDARs (re-checked, not applied; in no outcome).
+        zero_rate_updates: gyro samples applied as zero-rate updates (standing still).
+        stops: times zero-rate updates began (once per stop unless the stop was shaken).
     """
 
     imu: int = 0
@@ -147,6 +160,8 @@ class DriverStats:
     longest_gap_s: float = 0.0
     long_gaps: int = 0
     excluded: int = 0
+    zero_rate_updates: int = 0
+    stops: int = 0
 
     @property
     def mean_nis(self) -> float:
@@ -162,7 +177,8 @@ class DriverStats:
                 'first_association_s': self.first_association_s,
                 'last_association_s': self.last_association_s,
                 'longest_gap_s': self.longest_gap_s, 'long_gaps': self.long_gaps,
-                'excluded': self.excluded}
+                'excluded': self.excluded, 'zero_rate_updates': self.zero_rate_updates,
+                'stops': self.stops}
 
 
 class EventDriver:
@@ -179,6 +195,7 @@ class EventDriver:
             (core/health.py).
         last_transition: the last exclusion or readmission on_detections caused, or None.
         sensor_names: display name per mount for health reports (kept across resets).
+        zero_rate: whether zero-rate updates are being applied now (standing still).
     """
 
     def __init__(self, config: EkfConfig | None = None, landmarks: LandmarkMap | None = None,
@@ -197,6 +214,15 @@ class EventDriver:
         self.speed_m_s = 0.0
         self.rate_rad_s: float | None = None
         self._first_scan_s: float | None = None
+        self._end_stop()
+
+    def _end_stop(self) -> None:
+        """Forget the stop (moving, or not known to stand still)."""
+        # Stamp of the speed sample the stop began with, and the running mean and sum of
+        # squared deviations (Welford) of the stop's gyro samples.
+        self._stop_since_s: float | None = None
+        self._stop_n, self._stop_mean, self._stop_m2 = 0, 0.0, 0.0
+        self.zero_rate = False
 
     @property
     def landmarks(self) -> LandmarkMap | None:
@@ -220,17 +246,22 @@ class EventDriver:
         self.rate_rad_s = None
         self._first_scan_s = None
         self._rest_updates = {}
+        self._end_stop()
 
     def save(self) -> tuple:
         """Return everything ``restore`` needs to put the driver back as it is now."""
         stats = dataclasses.replace(self.stats, outcomes=dict(self.stats.outcomes))
         return (self.ekf.save(), stats, self.stamp_s, self.speed_m_s, self.rate_rad_s,
-                self._first_scan_s, dict(self._rest_updates), self.health.save())
+                self._first_scan_s, dict(self._rest_updates), self.health.save(),
+                (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
+                 self.zero_rate))
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
         (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self._first_scan_s,
-         rest_updates, health) = saved
+         rest_updates, health, stop) = saved
+        (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
+         self.zero_rate) = stop
         self._rest_updates = dict(rest_updates)
         self.health.restore(health)
         self.ekf.restore(ekf)
@@ -254,10 +285,11 @@ class EventDriver:
             # only cost time in proportion to the gap (hours for a stamp 4e8 s ahead).
             step = dt_s / MAX_PREDICTION_STEPS
             self.stats.long_gaps += 1
+        hold = self.zero_rate
         while dt_s > step:
-            self.ekf.predict(self.speed_m_s, rate, step)
+            self.ekf.predict(self.speed_m_s, rate, step, hold)
             dt_s -= step
-        self.ekf.predict(self.speed_m_s, rate, dt_s)
+        self.ekf.predict(self.speed_m_s, rate, dt_s, hold)
         self.stamp_s = stamp_s
 
     def on_speed(self, stamp_s: float, speed_m_s: float) -> None:
@@ -267,6 +299,11 @@ class EventDriver:
         self.stats.speed += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
+        if abs(speed_m_s) <= self.config.rest_speed_m_s:
+            if self._stop_since_s is None and self.config.zero_rate_max_spread_rad_s > 0.0:
+                self._stop_since_s = stamp_s
+        elif self._stop_since_s is not None:
+            self._end_stop()
 
     def on_imu(self, stamp_s: float, yaw_rate_rad_s: float) -> Estimate:
         """Predict to stamp_s, then hold the new measured yaw rate (rad/s, bias included)."""
@@ -280,6 +317,33 @@ class EventDriver:
         self.stats.imu += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
+        if self._stop_since_s is not None:
+            self._zero_rate_update(stamp_s, yaw_rate_rad_s)
+
+    def _zero_rate_update(self, stamp_s: float, rate_rad_s: float) -> None:
+        """Add a gyro sample to the stop; apply it as a zero-rate update once still."""
+        n = self._stop_n + 1
+        delta = rate_rad_s - self._stop_mean
+        self._stop_mean += delta / n
+        self._stop_m2 += delta * (rate_rad_s - self._stop_mean)
+        self._stop_n = n
+        config = self.config
+        if n < 2 or stamp_s - self._stop_since_s < config.zero_rate_min_still_s:
+            return
+        variance = self._stop_m2 / (n - 1)
+        ekf = self.ekf
+        turn_limit = config.rest_yaw_rate_rad_s + 3.0 * math.sqrt(max(ekf.bias_var, 0.0))
+        if (variance > config.zero_rate_max_spread_rad_s ** 2
+                or abs(self._stop_mean - ekf.bias_rad_s) > turn_limit):
+            # Vibration, a push or a turn on the spot: not still after all. The spread is
+            # of the whole stop, so a shaken stop stays shaken.
+            self.zero_rate = False
+            return
+        if not self.zero_rate:
+            self.zero_rate = True
+            self.stats.stops += 1
+        ekf.update_zero_rate(rate_rad_s, max(variance, config.zero_rate_min_noise_rad_s ** 2))
+        self.stats.zero_rate_updates += 1
 
     def estimate(self) -> Estimate:
         """Return a snapshot of the filter (state and covariance are copies)."""

@@ -20,7 +20,8 @@ prediction without it. Each IMU sample yields an estimate:
 with covariance; speed and bias-corrected yaw rate in the twist) and `ekf/bias`
 (Vector3Stamped, z = bias in rad/s), every `publish_every_n`-th sample. `/diagnostics`
 reports the bias and its sigma in deg/s, associated/rejected observations, mean NIS, input
-rates, time since the last associated landmark and the drop counts, and the health verdict
+rates, time since the last associated landmark, the drop counts, the zero-rate updates
+(`standing_still`: they are being applied now, core/events.py), and the health verdict
 of the run since the start or the last reset (`verdict`, `verdict_reasons`: core.health's,
 as `gyro-ekf run` writes it in summary.json; level WARN when degraded, ERROR when failed),
 with each LiDAR's window figures (`lidar_<scan topic>_*`, `excluded` true while its
@@ -617,6 +618,8 @@ class EkfNode(Node):
                 'refused_held_observations': str(self._lagged.stats.refused)}),
             **{f'dropped_{k}': str(v) for k, v in self.dropped.items()},
             'excluded_detections': str(stats.excluded),
+            'zero_rate_updates': str(stats.zero_rate_updates),
+            'standing_still': str(self.driver.zero_rate).lower(),
         }
         verdict = self._verdict(since)
         values['verdict'] = verdict['verdict']
