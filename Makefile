@@ -15,7 +15,7 @@ export MPLBACKEND := Agg
 
 DEMO_BAG := bags/sim_static_start
 
-.PHONY: venv demo test bags bench fuzz lint clean
+.PHONY: venv demo test bags bench fuzz lint docs clean
 
 venv: $(STAMP)
 
@@ -41,6 +41,10 @@ bench: $(STAMP)
 # bounded (FUZZ_ARGS, e.g. --budget-s 60 --seed 3), writes results/fuzz.json.
 fuzz: $(STAMP)
 	$(BIN)/python -m fuzz $(FUZZ_ARGS)
+
+# docs/parameters.md from the nodes' declarations (a test compares them).
+docs: $(STAMP)
+	$(BIN)/python tools/parameters_doc.py docs/parameters.md
 
 lint: $(STAMP)
 	$(BIN)/python -m pytest -q -m linter test

@@ -36,7 +36,7 @@ def read(path: Path) -> list[str]:
                     (low is not None and value < low) or (high is not None and value > high)):
                 out.append(f'{group}.{spec.name} = {value} outside [{low}, {high}]')
     for name, value in params.options.items():
-        if name in ('use_stated_noise', 'use_calibration'):
+        if name in ('use_stated_noise', 'use_calibration', 'use_message_covariance'):
             if not isinstance(value, bool):
                 out.append(f'option {name} = {value!r} is not a boolean')
         elif not isinstance(value, (int, float)) or isinstance(value, bool) or not (

@@ -127,11 +127,22 @@ def event_count(trip: Trip) -> int:
 # Same defaults as the EKF node's parameters of the same names.
 DEFAULT_USE_CALIBRATION = False
 DEFAULT_CALIBRATION_SIGMA_RAD_S = math.radians(0.05)
+DEFAULT_USE_MESSAGE_COVARIANCE = True
+
+
+def without_message_covariance(trip: Trip) -> Trip:
+    """Drop every input message's own variance from a trip (the configured noise applies)."""
+    if trip.imu.yaw_rate_variance is None and trip.speed.speed_variance is None:
+        return trip
+    return dataclasses.replace(
+        trip, imu=dataclasses.replace(trip.imu, yaw_rate_variance=None),
+        speed=dataclasses.replace(trip.speed, speed_variance=None))
 
 
 def run_trip(trip: Trip, params: PipelineParams | None = None, use_stated_noise: bool = True,
              progress: Callable[[int], None] | None = None,
-             use_calibration: bool | None = None) -> OfflineRun:
+             use_calibration: bool | None = None,
+             use_message_covariance: bool | None = None) -> OfflineRun:
     """Calibrate (where the trip starts static) and run the EKF over the whole trip.
 
     The filter starts at the trip's initial pose with the configured priors, so by default
@@ -146,8 +157,17 @@ def run_trip(trip: Trip, params: PipelineParams | None = None, use_stated_noise:
         progress: called with the number of events processed since the last call.
         use_calibration: seed the bias from the static window; None takes the params
             file's option (default False).
+        use_message_covariance: let each IMU and odometry message's own variance (where
+            positive, see core.validation.message_variance) replace the configured gyro or
+            speed noise for that message, as the EKF node's parameter of that name does;
+            None takes the params file's option (default True).
     """
     params = params or PipelineParams()
+    if use_message_covariance is None:
+        use_message_covariance = bool(params.options.get('use_message_covariance',
+                                                         DEFAULT_USE_MESSAGE_COVARIANCE))
+    if not use_message_covariance:
+        trip = without_message_covariance(trip)
     config, sources = effective_config(trip.noise, params, use_stated_noise)
     calibration, reason = calibrate(trip, params.calibration)
     driver = EventDriver(config, trip.landmarks, trip.initial_pose,

@@ -44,7 +44,8 @@ _CONFIG_TYPES: dict[str, type] = {
 _FIELD_OWNER = {f.name: group for group, kind in _CONFIG_TYPES.items()
                 for f in dataclasses.fields(kind)}
 
-OPTIONS = ('use_stated_noise', 'use_calibration', 'calibration_bias_sigma_rad_s')
+OPTIONS = ('use_stated_noise', 'use_calibration', 'calibration_bias_sigma_rad_s',
+           'use_message_covariance')
 """Node-level options `gyro-ekf run` honours besides the config fields."""
 
 
@@ -146,9 +147,10 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
             built[group] = make_config(kind, values[group], source=source)
         except CoreError as err:
             raise ParamsFileError(str(err)) from None
-    if 'use_stated_noise' in options and not isinstance(options['use_stated_noise'], bool):
-        raise ParamsFileError(f"{source}: parameter 'use_stated_noise' must be true or false, "
-                              f"got {options['use_stated_noise']!r}")
+    for name in ('use_stated_noise', 'use_message_covariance'):
+        if name in options and not isinstance(options[name], bool):
+            raise ParamsFileError(f"{source}: parameter '{name}' must be true or false, "
+                                  f'got {options[name]!r}')
     return PipelineParams(
         ekf=built['ekf'], calibration=built['calibration'], detector=built['detector'],
         explicit={group: tuple(sorted(v)) for group, v in values.items()}, options=options)

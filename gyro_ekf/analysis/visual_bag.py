@@ -41,11 +41,11 @@ from gyro_ekf.core.types import FloatArray, Trip
 from gyro_ekf.io import messages as msgs
 from gyro_ekf.io.defaults import NS_PER_S
 
-TF = '/tf'
-TF_STATIC = '/tf_static'
-EKF_PATH = 'ekf/path'
-EKF_MARKERS = 'ekf/markers'
-LANDMARK_MARKERS = 'landmark_markers'
+TF = topics.TF
+TF_STATIC = topics.TF_STATIC
+EKF_PATH = topics.EKF_PATH
+EKF_MARKERS = topics.EKF_MARKERS
+LANDMARK_MARKERS = topics.LANDMARK_MARKERS
 TF_TYPE = 'tf2_msgs/msg/TFMessage'
 PATH_TYPE = 'nav_msgs/msg/Path'
 MARKER_ARRAY_TYPE = 'visualization_msgs/msg/MarkerArray'

@@ -36,6 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--no-bag', action='store_true', help='skip the estimates bag')
     parser.add_argument('--ignore-stated-noise', action='store_true',
                         help="use the configured noise sigmas even where the log states its own")
+    parser.add_argument('--ignore-message-covariance', action='store_true',
+                        help='use the configured gyro and speed noise even where a message '
+                        'gives its own variance (angular_velocity_covariance[8], '
+                        'twist.covariance[0])')
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                         help='storage plugin of the estimates bag')
     parser.add_argument('--force', action='store_true',
@@ -125,9 +129,14 @@ def run(args: argparse.Namespace) -> int:
     folder = outputs.prepare_output_dir(args.output, force=args.force)
     use_stated = not args.ignore_stated_noise and bool(params.options.get('use_stated_noise',
                                                                           True))
+    use_message_covariance = not args.ignore_message_covariance and bool(
+        params.options.get('use_message_covariance', True))
+    if not use_message_covariance:
+        report.covariances_used.clear()  # read, but not used
     show = not args.no_progress and sys.stderr.isatty()
     with _progress_bar(event_count(trip), show) as bar:
         result = run_trip(trip, params, use_stated_noise=use_stated, progress=bar.update,
+                          use_message_covariance=use_message_covariance,
                           use_calibration=True if args.use_calibration else None)
     est = result.result.estimates
     summary = summarize(result, report)

@@ -199,12 +199,15 @@ class GyroBiasEkf:
         p[9] = float(sigma_rad_s) ** 2
 
     def predict(self, speed_m_s: float, rate_rad_s: float, dt_s: float,
+                speed_variance: float | None = None, rate_variance: float | None = None,
                 hold_position: bool = False) -> None:
         """Propagate over dt_s seconds with constant speed (m/s) and measured yaw rate (rad/s).
 
-        ``hold_position`` (standing still): x and y do not move and gain no speed noise
-        (the position random walk still applies); yaw still integrates the rate minus the
-        bias.
+        speed_variance ((m/s)^2) and rate_variance ((rad/s)^2), when given, replace the
+        configured sigma_v^2 and sigma_w^2 of Pu for this step (the inputs' own message
+        covariances). ``hold_position`` (standing still): x and y do not move and gain no
+        speed noise (the position random walk still applies); yaw still integrates the
+        rate minus the bias.
         """
         if dt_s <= 0.0:
             return
@@ -233,7 +236,9 @@ class GyroBiasEkf:
         # Held, the odometry's zero is exact (no speed noise); the position random walk
         # stays: landmark looks at rest repeat their errors and move the estimate by
         # millimetres, which a frozen position covariance would not cover.
-        qv = 0.0 if hold_position else t2 * self._sigma_v2
+        qv = 0.0 if hold_position else t2 * (
+            self._sigma_v2 if speed_variance is None else speed_variance)
+        qw = t2 * (self._sigma_w2 if rate_variance is None else rate_variance)
         qp = dt_s * self._q_pos2
         self._p = [
             m00 + a * m02 + qv * c * c + qp,
@@ -243,7 +248,7 @@ class GyroBiasEkf:
             m11 + b * m12 + qv * s * s + qp,
             m12 + d * m13,
             m13,
-            m22 + d * m23 + t2 * self._sigma_w2,
+            m22 + d * m23 + qw,
             m23,
             p33 + t2 * self._q_b2,
         ]

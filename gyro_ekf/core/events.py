@@ -213,6 +213,9 @@ class EventDriver:
         self.stamp_s: float | None = None
         self.speed_m_s = 0.0
         self.rate_rad_s: float | None = None
+        # The held inputs' own variances (None: the configured noise).
+        self.speed_variance: float | None = None
+        self.rate_variance: float | None = None
         self._first_scan_s: float | None = None
         self._end_stop()
 
@@ -244,6 +247,7 @@ class EventDriver:
         self.stamp_s = None
         self.speed_m_s = 0.0
         self.rate_rad_s = None
+        self.speed_variance = self.rate_variance = None
         self._first_scan_s = None
         self._rest_updates = {}
         self._end_stop()
@@ -252,14 +256,15 @@ class EventDriver:
         """Return everything ``restore`` needs to put the driver back as it is now."""
         stats = dataclasses.replace(self.stats, outcomes=dict(self.stats.outcomes))
         return (self.ekf.save(), stats, self.stamp_s, self.speed_m_s, self.rate_rad_s,
-                self._first_scan_s, dict(self._rest_updates), self.health.save(),
+                self.speed_variance, self.rate_variance, self._first_scan_s,
+                dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
                  self.zero_rate))
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
-        (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self._first_scan_s,
-         rest_updates, health, stop) = saved
+        (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self.speed_variance,
+         self.rate_variance, self._first_scan_s, rest_updates, health, stop) = saved
         (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
          self.zero_rate) = stop
         self._rest_updates = dict(rest_updates)
@@ -285,17 +290,24 @@ class EventDriver:
             # only cost time in proportion to the gap (hours for a stamp 4e8 s ahead).
             step = dt_s / MAX_PREDICTION_STEPS
             self.stats.long_gaps += 1
+        speed_variance, rate_variance = self.speed_variance, self.rate_variance
         hold = self.zero_rate
         while dt_s > step:
-            self.ekf.predict(self.speed_m_s, rate, step, hold)
+            self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance, hold)
             dt_s -= step
-        self.ekf.predict(self.speed_m_s, rate, dt_s, hold)
+        self.ekf.predict(self.speed_m_s, rate, dt_s, speed_variance, rate_variance, hold)
         self.stamp_s = stamp_s
 
-    def on_speed(self, stamp_s: float, speed_m_s: float) -> None:
-        """Predict to stamp_s, then hold the new speed (m/s)."""
+    def on_speed(self, stamp_s: float, speed_m_s: float, variance: float | None = None
+                 ) -> None:
+        """Predict to stamp_s, then hold the new speed (m/s).
+
+        variance: the message's own speed variance ((m/s)^2), held with the speed; None
+        means the configured speed noise.
+        """
         self._advance(stamp_s, 'speed')
         self.speed_m_s = speed_m_s
+        self.speed_variance = variance
         self.stats.speed += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
@@ -305,15 +317,22 @@ class EventDriver:
         elif self._stop_since_s is not None:
             self._end_stop()
 
-    def on_imu(self, stamp_s: float, yaw_rate_rad_s: float) -> Estimate:
-        """Predict to stamp_s, then hold the new measured yaw rate (rad/s, bias included)."""
-        self.step_imu(stamp_s, yaw_rate_rad_s)
+    def on_imu(self, stamp_s: float, yaw_rate_rad_s: float, variance: float | None = None
+               ) -> Estimate:
+        """Predict to stamp_s, then hold the new measured yaw rate (rad/s, bias included).
+
+        variance: the message's own yaw-rate variance ((rad/s)^2), held with the rate; None
+        means the configured gyro noise.
+        """
+        self.step_imu(stamp_s, yaw_rate_rad_s, variance)
         return self.estimate()
 
-    def step_imu(self, stamp_s: float, yaw_rate_rad_s: float) -> None:
+    def step_imu(self, stamp_s: float, yaw_rate_rad_s: float, variance: float | None = None
+                 ) -> None:
         """Do what on_imu does without building the Estimate (for callers that batch)."""
         self._advance(stamp_s, 'imu')
         self.rate_rad_s = yaw_rate_rad_s
+        self.rate_variance = variance
         self.stats.imu += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
@@ -660,6 +679,12 @@ class TripRun:
     health: HealthMonitor | None = None
 
 
+def _variances(values: FloatArray | None, n: int) -> list[float | None]:
+    if values is None:
+        return [None] * n
+    return [None if math.isnan(v) else v for v in np.asarray(values, dtype=np.float64).tolist()]
+
+
 def drive_trip(trip: Trip, driver: EventDriver,
                progress: Callable[[int], None] | None = None) -> TripRun:
     """Run every event of a trip through a driver and collect the history.
@@ -680,6 +705,10 @@ def drive_trip(trip: Trip, driver: EventDriver,
     update_x, update_y, update_nis = array('d'), array('d'), array('d')
     yaw_rates = trip.imu.yaw_rate_rad_s
     speeds = trip.speed.speed_m_s
+    # Each message's own variance where the trip has one (NaN: not given), else None: the
+    # configured noise. Lists of floats and None, read once per event.
+    rate_variances = _variances(trip.imu.yaw_rate_variance, len(yaw_rates))
+    speed_variances = _variances(trip.speed.speed_variance, len(speeds))
     angles = [scan.angles_rad for scan in trip.scans]
     detected: dict[int, tuple[int, list[PoleDetections]]] = {}
     row = 0
@@ -697,14 +726,14 @@ def drive_trip(trip: Trip, driver: EventDriver,
 
     for stamp_s, kind, series, index in iter_trip_events(trip):
         if kind is EventKind.IMU:
-            driver.step_imu(stamp_s, float(yaw_rates[index]))
+            driver.step_imu(stamp_s, float(yaw_rates[index]), rate_variances[index])
             stamps[row] = stamp_s
             pending.append(packed_row())
             row += 1
             if len(pending) == ROW_BLOCK:
                 flush()
         elif kind is EventKind.SPEED:
-            driver.on_speed(stamp_s, float(speeds[index]))
+            driver.on_speed(stamp_s, float(speeds[index]), speed_variances[index])
         else:
             scan: ScanSeries = trip.scans[series]
             begin, found = detected.get(series, (0, []))

@@ -121,15 +121,17 @@ class LaggedObservations:
         """Observations waiting for the inputs to pass their stamp."""
         return len(self._pending)
 
-    def on_speed(self, stamp_s: float, speed_m_s: float) -> None:
+    def on_speed(self, stamp_s: float, speed_m_s: float, variance: float | None = None
+                 ) -> None:
         """Apply a speed sample (inputs come in stamp order) after the observations before it."""
         self._release_before(stamp_s, EventKind.SPEED)
-        self._apply(stamp_s, EventKind.SPEED, speed_m_s)
+        self._apply(stamp_s, EventKind.SPEED, (speed_m_s, variance))
 
-    def on_imu(self, stamp_s: float, yaw_rate_rad_s: float) -> Estimate:
+    def on_imu(self, stamp_s: float, yaw_rate_rad_s: float, variance: float | None = None
+               ) -> Estimate:
         """Apply an IMU sample after the observations up to its stamp; return the estimate."""
         self._release_before(stamp_s, EventKind.IMU)
-        self._apply(stamp_s, EventKind.IMU, yaw_rate_rad_s)
+        self._apply(stamp_s, EventKind.IMU, (yaw_rate_rad_s, variance))
         return self.driver.estimate()
 
     def observation(self, stamp_s: float, points_sensor_m: FloatArray,
@@ -197,9 +199,9 @@ class LaggedObservations:
     def _apply_keyed(self, stamp_s: float, kind: EventKind, value: Any, arrival: int) -> None:
         saved = self.driver.save()
         if kind is EventKind.IMU:
-            self.driver.step_imu(stamp_s, value)
+            self.driver.step_imu(stamp_s, *value)
         elif kind is EventKind.SPEED:
-            self.driver.on_speed(stamp_s, value)
+            self.driver.on_speed(stamp_s, *value)
         else:
             self.driver.on_detections(stamp_s, value[0], value[1])
         self._keys.append((stamp_s, int(kind), arrival))

@@ -47,12 +47,16 @@ class ImuSeries:
             imu_link (z = yaw rate, counter-clockwise positive).
         axes_known: which of the three axes the log really measured; unknown axes hold 0.
         linear_acceleration_m_s2: shape (n, 3), m/s^2, or None when the log has none.
+        yaw_rate_variance: each message's own variance of the z rate (its
+            angular_velocity_covariance[8]), shape (n,), (rad/s)^2, NaN where not given;
+            None when no sample gives one (the configured gyro noise applies).
     """
 
     stamp_s: FloatArray
     angular_velocity_rad_s: FloatArray
     axes_known: tuple[bool, bool, bool] = (True, True, True)
     linear_acceleration_m_s2: FloatArray | None = None
+    yaw_rate_variance: FloatArray | None = None
 
     @property
     def yaw_rate_rad_s(self) -> FloatArray:
@@ -67,10 +71,13 @@ class SpeedSeries:
     Attributes:
         stamp_s: shape (n,), s, non-decreasing.
         speed_m_s: shape (n,), m/s, forward positive.
+        speed_variance: each message's own speed variance (twist.covariance[0]), shape
+            (n,), (m/s)^2, NaN where not given; None when no sample gives one.
     """
 
     stamp_s: FloatArray
     speed_m_s: FloatArray
+    speed_variance: FloatArray | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -44,6 +44,32 @@ def value_problem(value: float, limit: float, unit: str) -> str | None:
     return None
 
 
+def message_variance(value: float, limit: float) -> tuple[float | None, bool]:
+    """Return a message's own variance as the filter takes it, and whether it was bad.
+
+    Positive and at most limit^2 (limit: the value's own plausible range, so a sigma
+    beyond it says nothing): used. 0 or -1 mean "not given" (REP-145; -1 also marks a
+    field without data): the configured noise, silently. NaN, inf, other negatives or
+    above limit^2: the configured noise too, and the caller counts it.
+    """
+    if 0.0 < value <= limit * limit:
+        return value, False
+    return None, not (value == 0.0 or value == -1.0)
+
+
+def message_variances(values: NDArray | None, limit: float
+                      ) -> tuple[FloatArray | None, int]:
+    """message_variance of a whole series: NaN where not used (None if none is), bad count."""
+    if values is None:
+        return None, 0
+    array = np.asarray(values, dtype=np.float64)
+    with np.errstate(invalid='ignore'):
+        used = (array > 0.0) & (array <= limit * limit)
+        silent = (array == 0.0) | (array == -1.0)
+    bad = int((~used & ~silent).sum())
+    return (np.where(used, array, np.nan) if used.any() else None), bad
+
+
 def rate_problem(rate_rad_s: float, limits: InputLimits = LIMITS) -> str | None:
     """Why an angular velocity (one axis, rad/s) is refused, or None."""
     return value_problem(rate_rad_s, limits.max_yaw_rate_rad_s, 'rad/s')
@@ -165,6 +191,10 @@ class InputReport:
         gaps: forward jumps beyond the limit that a stream stays after (a sensor silent for
             a while); kept, since the other streams carry the filter through them, and
             flagged: one text per gap.
+        covariances_used: field -> samples whose own variance replaces the configured
+            noise (imu.angular_velocity_covariance[8], speed.twist.covariance[0]).
+        covariances_ignored: field -> samples whose variance was NaN, negative or beyond
+            its limit: the configured noise is used for them (the sample itself is kept).
     """
 
     source: str
@@ -174,6 +204,8 @@ class InputReport:
     samples_dropped: dict[str, int] = field(default_factory=dict)
     time_breaks: dict[str, int] = field(default_factory=dict)
     gaps: list[str] = field(default_factory=list)
+    covariances_used: dict[str, int] = field(default_factory=dict)
+    covariances_ignored: dict[str, int] = field(default_factory=dict)
 
     @property
     def total_dropped(self) -> int:
@@ -195,6 +227,10 @@ class InputReport:
             lines.append(f'--skip-bad dropped {self.total_dropped} samples: {parts}')
         if self.gaps:
             lines.append(f'{len(self.gaps)} long gap(s) in a stream: {"; ".join(self.gaps)}')
+        if self.covariances_ignored:
+            parts = ', '.join(f'{n} {name}' for name, n in self.covariances_ignored.items())
+            lines.append(f'ignored bad message covariances ({parts}): NaN, negative or '
+                         'beyond the limit; the configured noise is used for those samples')
         return f'{self.source}: ' + '; '.join(lines) if lines else None
 
     def to_dict(self) -> dict[str, Any]:
@@ -206,7 +242,9 @@ class InputReport:
             'dropped': [{'field': f, 'reason': r, 'count': n,
                          'first_index': self.first_index[(f, r)]}
                         for (f, r), n in self.dropped.items()],
-            'time_breaks': dict(self.time_breaks), 'gaps': list(self.gaps)}
+            'time_breaks': dict(self.time_breaks), 'gaps': list(self.gaps),
+            'covariances_used': dict(self.covariances_used),
+            'covariances_ignored': dict(self.covariances_ignored)}
 
 
 class _Stream:
@@ -310,8 +348,24 @@ def _refuse(source: str, field_name: str, index: int | None, problem: str | None
         raise InvalidInputError(source, field_name, index, problem)
 
 
+_RATE_VARIANCE = 'imu.angular_velocity_covariance[8]'
+_SPEED_VARIANCE = 'speed.twist.covariance[0]'
+
+
+def _variances(values: NDArray | None, limit: float, name: str,
+               report: InputReport) -> FloatArray | None:
+    used, bad = message_variances(values, limit)
+    if bad:
+        report.covariances_ignored[name] = bad
+    if used is not None:
+        report.covariances_used[name] = int(np.isfinite(used).sum())
+    return used
+
+
 def _check_imu(imu: ImuSeries, stream: _Stream, limits: InputLimits) -> ImuSeries:
     rates = np.asarray(imu.angular_velocity_rad_s)
+    variances = _variances(imu.yaw_rate_variance, limits.max_yaw_rate_rad_s, _RATE_VARIANCE,
+                           stream.report)
     for axis, known in zip(range(3), imu.axes_known):
         if known:
             stream.values(f'imu.angular_velocity.{"xyz"[axis]}', rates[:, axis],
@@ -324,11 +378,14 @@ def _check_imu(imu: ImuSeries, stream: _Stream, limits: InputLimits) -> ImuSerie
     stream.time()
     keep = stream.finish()
     if keep is None:
-        return imu
+        if variances is imu.yaw_rate_variance:
+            return imu
+        return dataclasses.replace(imu, yaw_rate_variance=variances)
     return dataclasses.replace(
         imu, stamp_s=imu.stamp_s[keep], angular_velocity_rad_s=rates[keep],
         linear_acceleration_m_s2=None if imu.linear_acceleration_m_s2 is None
-        else imu.linear_acceleration_m_s2[keep])
+        else imu.linear_acceleration_m_s2[keep],
+        yaw_rate_variance=None if variances is None else variances[keep])
 
 
 def _check_scans(scan: ScanSeries, stream: _Stream, source: str,
@@ -434,7 +491,8 @@ def validate_trip(trip: Trip, source: str, limits: InputLimits = LIMITS,
         skip_bad: drop bad samples and count them instead of refusing the first.
 
     Returns:
-        The trip (the same object when nothing was dropped) and what was dropped.
+        The trip (the same object when nothing was dropped and no message gives its own
+        variance) and what was dropped.
 
     Raises:
         InvalidInputError: names source, field, index and reason, e.g.
@@ -447,10 +505,15 @@ def validate_trip(trip: Trip, source: str, limits: InputLimits = LIMITS,
 
     stream = _Stream('speed', trip.speed.stamp_s, source, limits, report)
     stream.values('speed.speed_m_s', trip.speed.speed_m_s, limits.max_speed_m_s, 'm/s')
+    variances = _variances(trip.speed.speed_variance, limits.max_speed_m_s, _SPEED_VARIANCE,
+                           report)
     stream.time()
     keep = stream.finish()
     speed = trip.speed if keep is None else SpeedSeries(
-        stamp_s=trip.speed.stamp_s[keep], speed_m_s=trip.speed.speed_m_s[keep])
+        stamp_s=trip.speed.stamp_s[keep], speed_m_s=trip.speed.speed_m_s[keep],
+        speed_variance=None if variances is None else variances[keep])
+    if keep is None and variances is not trip.speed.speed_variance:
+        speed = dataclasses.replace(speed, speed_variance=variances)
 
     scans = tuple(_check_scans(s, _Stream(f'lidar.{s.topic}', s.stamp_s, source, limits,
                                           report), source, limits) for s in trip.scans)
@@ -470,7 +533,7 @@ def validate_trip(trip: Trip, source: str, limits: InputLimits = LIMITS,
 
     _check_timeline([('imu', imu.stamp_s), ('speed', speed.stamp_s)]
                     + [(s.topic, s.stamp_s) for s in scans], source, limits)
-    if not report.samples_dropped:
+    if not report.samples_dropped and imu is trip.imu and speed is trip.speed:
         return trip, report
     return dataclasses.replace(trip, imu=imu, speed=speed, scans=scans,
                                ground_truth=truth), report

@@ -431,33 +431,37 @@ class _Sink:
 
 class _ImuSink(_Sink):
     msgtype = topics.IMU_TYPE
-    grows = ('stamps', 'rates', 'accel')
+    grows = ('stamps', 'rates', 'rate_variances', 'accel')
 
     def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int,
                  acceleration: bool) -> None:
         super().__init__(path, topic, hint, bag_bytes)
-        self.fields = ('angular_velocity', 'linear_acceleration') if acceleration else (
-            'angular_velocity',)
+        self.fields = ('angular_velocity', 'angular_velocity_covariance') + (
+            ('linear_acceleration',) if acceleration else ())
         self.rates = np.zeros((self.count, 3))
+        self.rate_variances = np.zeros(self.count)
         self.accel = np.zeros((self.count, 3)) if acceleration else None
 
     def store(self, columns: fast_cdr.Columns, rows: slice) -> None:
         self.rates[rows] = columns.values['angular_velocity']
+        self.rate_variances[rows] = columns.values['angular_velocity_covariance'][:, 8]
         if self.accel is not None:
             self.accel[rows] = columns.values['linear_acceleration']
 
 
 class _OdomSink(_Sink):
     msgtype = topics.ODOMETRY_TYPE
-    fields = ('twist.twist.linear',)
-    grows = ('stamps', 'speeds')
+    fields = ('twist.twist.linear', 'twist.covariance')
+    grows = ('stamps', 'speeds', 'speed_variances')
 
     def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
         super().__init__(path, topic, hint, bag_bytes)
         self.speeds = np.zeros(self.count)
+        self.speed_variances = np.zeros(self.count)
 
     def store(self, columns: fast_cdr.Columns, rows: slice) -> None:
         self.speeds[rows] = columns.values['twist.twist.linear'][:, 0]
+        self.speed_variances[rows] = columns.values['twist.covariance'][:, 0]
 
 
 class _TruthSink(_Sink):
@@ -609,11 +613,13 @@ def read_bag(path: Path | str, fast: bool = True, acceleration: bool = True) -> 
     return _bag_trip(
         path, params, int(start),
         imu_ns=imu.stamps[:imu.n], rates=imu.rates[:imu.n],
+        rate_variances=imu.rate_variances[:imu.n],
         accel=imu.accel[:imu.n] if imu.accel is not None and imu_first is not None
         and _has_accel(imu_first) else None,
         axes_known=(True, True, True) if imu_first is None else msgs.axes_known_of(
             imu_first.angular_velocity_covariance),
         odom_ns=odom.stamps[:odom.n], speeds=odom.speeds[:odom.n],
+        speed_variances=odom.speed_variances[:odom.n],
         scans=[d for d in (scans[t].data() for t in scan_topics) if d is not None],
         truth=None if truth is None else (truth.stamps[:truth.n], truth.poses[:truth.n]),
         landmarks=None if landmark_message is None else msgs.landmarks_of(landmark_message),
@@ -680,11 +686,18 @@ def _has_accel(imu_message: Any) -> bool:
     return bool(imu_message.linear_acceleration_covariance[0] != -1.0)
 
 
+def _given(variances: np.ndarray) -> np.ndarray | None:
+    # Raw as the messages hold them (0 and -1 included); core.validation decides which
+    # are used. None when no message gives one: the usual case needs no per-sample check.
+    return None if not np.any(variances) else variances
+
+
 def _bag_trip(path: Path, params: BagParams | None, start: int, *, imu_ns: np.ndarray,
-              rates: np.ndarray, accel: np.ndarray | None,
+              rates: np.ndarray, rate_variances: np.ndarray, accel: np.ndarray | None,
               axes_known: tuple[bool, bool, bool], odom_ns: np.ndarray, speeds: np.ndarray,
-              scans: list[_ScanData], truth: tuple[np.ndarray, np.ndarray] | None,
-              landmarks: LandmarkMap | None, initial_pose: np.ndarray | None) -> BagTrip:
+              speed_variances: np.ndarray, scans: list[_ScanData],
+              truth: tuple[np.ndarray, np.ndarray] | None, landmarks: LandmarkMap | None,
+              initial_pose: np.ndarray | None) -> BagTrip:
     """Assemble the Trip of a bag from its decoded arrays (stamps in ns) and its sidecar."""
     def seconds(stamps: np.ndarray) -> np.ndarray:
         return (stamps - np.int64(start)) / float(msgs.NS_PER_S)
@@ -709,8 +722,10 @@ def _bag_trip(path: Path, params: BagParams | None, start: int, *, imu_ns: np.nd
     trip = Trip(
         name=params.name if params is not None else path.name,
         imu=ImuSeries(stamp_s=seconds(imu_ns), angular_velocity_rad_s=rates,
-                      axes_known=axes_known, linear_acceleration_m_s2=accel),
-        speed=SpeedSeries(stamp_s=seconds(odom_ns), speed_m_s=speeds),
+                      axes_known=axes_known, linear_acceleration_m_s2=accel,
+                      yaw_rate_variance=_given(rate_variances)),
+        speed=SpeedSeries(stamp_s=seconds(odom_ns), speed_m_s=speeds,
+                          speed_variance=_given(speed_variances)),
         scans=tuple(series),
         landmarks=landmarks,
         initial_pose=initial_pose,
@@ -740,11 +755,13 @@ def _read_bag_rosbags(path: Path, acceleration: bool = True) -> BagTrip:
     # Lists, not arrays sized by the bag's counts: those are only hints.
     imu_ns: list[int] = []
     rates: list[tuple[float, float, float]] = []
+    rate_variances: list[float] = []
     accel: list[tuple[float, float, float]] = []
     has_accel = False
     axes_known: tuple[bool, bool, bool] = (True, True, True)
     odom_ns: list[int] = []
     speeds: list[float] = []
+    speed_variances: list[float] = []
     truth_ns: list[int] = []
     truth: list[tuple[float, float, float]] = []
     scans = {t: _ScanCollector(path, t) for t in scan_topics}
@@ -758,10 +775,12 @@ def _read_bag_rosbags(path: Path, acceleration: bool = True) -> BagTrip:
             w, a = message.angular_velocity, message.linear_acceleration
             imu_ns.append(stamp)
             rates.append((w.x, w.y, w.z))
+            rate_variances.append(message.angular_velocity_covariance[8])
             accel.append((a.x, a.y, a.z))
         elif topic == ODOM_TOPIC:
             odom_ns.append(stamp)
             speeds.append(message.twist.twist.linear.x)
+            speed_variances.append(message.twist.covariance[0])
         elif topic in scans:
             scans[topic].add(stamp, message)
         elif topic == GROUND_TRUTH_TOPIC:
@@ -777,9 +796,11 @@ def _read_bag_rosbags(path: Path, acceleration: bool = True) -> BagTrip:
 
     return _bag_trip(
         path, params, int(start), imu_ns=np.array(imu_ns, dtype=np.int64),
-        rates=rows(rates, 3), accel=rows(accel, 3) if has_accel and acceleration else None,
+        rates=rows(rates, 3), rate_variances=np.array(rate_variances, dtype=np.float64),
+        accel=rows(accel, 3) if has_accel and acceleration else None,
         axes_known=axes_known, odom_ns=np.array(odom_ns, dtype=np.int64),
         speeds=np.array(speeds, dtype=np.float64),
+        speed_variances=np.array(speed_variances, dtype=np.float64),
         scans=[d for d in (scans[t].data() for t in scan_topics) if d is not None],
         truth=((np.array(truth_ns, dtype=np.int64), rows(truth, 3))
                if GROUND_TRUTH_TOPIC in by_topic else None),

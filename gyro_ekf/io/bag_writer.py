@@ -111,6 +111,13 @@ def _stamps_ns(stamp_s: np.ndarray, start_time_ns: int, what: str) -> np.ndarray
     return stamps
 
 
+def _own_variances(name: str, values: np.ndarray | None, n: int) -> np.ndarray | None:
+    if values is None:
+        return None
+    _same_length(name, len(values), n)
+    return np.nan_to_num(np.asarray(values, dtype=np.float64), nan=0.0)
+
+
 def plan_topics(trip: Trip, start_time_ns: int) -> list[TopicPlan]:
     """Plan the topics of a trip's bag, in tie-break order, each with stamps and builder.
 
@@ -138,19 +145,42 @@ def plan_topics(trip: Trip, start_time_ns: int) -> list[TopicPlan]:
     if accel is not None:
         _same_length('imu.linear_acceleration_m_s2', accel.shape[0], imu.stamp_s.size)
     imu_ns = _stamps_ns(imu.stamp_s, start_time_ns, topics.IMU)
+    # The stated noise in every message; a trip read from a bag keeps each message's own
+    # variance (NaN there: not given, written as 0).
     rate_cov = msgs.angular_velocity_covariance(imu.axes_known, trip.noise.gyro_rad_s)
+    rate_vars = _own_variances('imu.yaw_rate_variance', imu.yaw_rate_variance,
+                               imu.stamp_s.size)
+
+    def imu_covariance(i: int) -> np.ndarray:
+        if rate_vars is None:
+            return rate_cov
+        own = rate_cov.copy()
+        own[8] = rate_vars[i]
+        return own
+
     plans.append(TopicPlan(
         topics.bag_topic(topics.IMU), topics.IMU_TYPE, SENSOR_QOS, imu_ns,
-        lambda i: msgs.imu_message(int(imu_ns[i]), rates[i], rate_cov,
+        lambda i: msgs.imu_message(int(imu_ns[i]), rates[i], imu_covariance(i),
                                    None if accel is None else accel[i])))
 
     speed = trip.speed
     _same_length('speed.speed_m_s', speed.speed_m_s.size, speed.stamp_s.size)
     speed_ns = _stamps_ns(speed.stamp_s, start_time_ns, topics.ODOM)
     twist_cov = msgs.speed_covariance(trip.noise.speed_m_s)
+    speed_vars = _own_variances('speed.speed_variance', speed.speed_variance,
+                                speed.stamp_s.size)
+
+    def twist_covariance(i: int) -> np.ndarray:
+        if speed_vars is None:
+            return twist_cov
+        own = twist_cov.copy()
+        own[0] = speed_vars[i]
+        return own
+
     plans.append(TopicPlan(
         topics.bag_topic(topics.ODOM), topics.ODOMETRY_TYPE, SENSOR_QOS, speed_ns,
-        lambda i: msgs.speed_message(int(speed_ns[i]), float(speed.speed_m_s[i]), twist_cov)))
+        lambda i: msgs.speed_message(int(speed_ns[i]), float(speed.speed_m_s[i]),
+                                     twist_covariance(i))))
 
     seen: set[str] = set()
     for series in trip.scans:

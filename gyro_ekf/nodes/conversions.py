@@ -125,6 +125,21 @@ def corrected_imu(message: Imu, bias_rad_s: Sequence[float]) -> Imu:
     return out
 
 
+def online_corrected_imu(message: Imu, bias_rad_s: float, bias_variance: float) -> Imu:
+    """ekf/imu: the input with the EKF's yaw-rate bias removed and its variance added.
+
+    The bias variance goes onto angular_velocity_covariance[8] (the corrected rate is
+    uncertain by the sensor noise plus the bias estimate's); a covariance marked unknown
+    (element 0 is -1, REP-145) stays so.
+    """
+    out = corrected_imu(message, (0.0, 0.0, bias_rad_s))
+    covariance = np.array(message.angular_velocity_covariance, dtype=np.float64)
+    if covariance[0] != -1.0:
+        covariance[8] = max(covariance[8], 0.0) + bias_variance
+    out.angular_velocity_covariance = covariance
+    return out
+
+
 def odometry_speed(message: Odometry) -> float:
     """Forward speed of an Odometry message (twist.linear.x), m/s."""
     return float(message.twist.twist.linear.x)

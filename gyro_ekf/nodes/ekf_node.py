@@ -18,7 +18,15 @@ filter still ends where strict order ends, but a pose published before a scan ar
 prediction without it. Each IMU sample yields an estimate:
 `ekf/pose` (PoseWithCovarianceStamped in `map`), `ekf/odometry` (nav_msgs/Odometry: pose
 with covariance; speed and bias-corrected yaw rate in the twist) and `ekf/bias`
-(Vector3Stamped, z = bias in rad/s), every `publish_every_n`-th sample. `/diagnostics`
+(Vector3Stamped in the IMU's frame, z = bias in rad/s), every `publish_every_n`-th sample;
+`ekf/imu` (sensor_msgs/Imu: each input IMU message with the current online bias removed and
+its variance added to angular_velocity_covariance[8], as imu_tools users expect). For
+RViz and Foxglove (nodes.visuals, the same messages `gyro-ekf run` writes into its bag):
+`ekf/path` (nav_msgs/Path, the last `path_length` poses, 1 Hz), `ekf/markers`
+(MarkerArray: 2-sigma ellipse, heading, the last scan's associated detections with a line
+to their landmark and its other detections, 2 Hz), latched `landmark_markers` (the map),
+and with `publish_tf` TF `map -> base_link` (or `map -> odom_frame`, robot_localization's
+rule) where the install has tf2_msgs. `/diagnostics`
 reports the bias and its sigma in deg/s, associated/rejected observations, mean NIS, input
 rates, time since the last associated landmark, the drop counts, the zero-rate updates
 (`standing_still`: they are being applied now, core/events.py), and the health verdict
@@ -63,14 +71,18 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
+from nav_msgs.msg import Path as PathMessage
 from rclpy.clock import Clock, ClockType, JumpThreshold, TimeJump
 from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
 
 from gyro_ekf import topics
+from gyro_ekf.analysis.visual_bag import MARKERS_PERIOD_S, PATH_LENGTH, PATH_PERIOD_S, \
+    PATH_SPACING_S
 from gyro_ekf.core.config import EkfConfig, InputLimits, with_stated_noise
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core import health
@@ -78,13 +90,14 @@ from gyro_ekf.core.events import Estimate, EventDriver, EventKind, StreamMerger
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
 from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import LandmarkMap, LidarMount
-from gyro_ekf.core.validation import coordinate_problem, mount_problem, rate_problem, \
-    speed_problem
+from gyro_ekf.core.validation import coordinate_problem, message_variance, mount_problem, \
+    rate_problem, speed_problem
 from gyro_ekf.errors import GyroEkfError
-from gyro_ekf.nodes import qos
+from gyro_ekf.io import messages
+from gyro_ekf.nodes import qos, visuals
 from gyro_ekf.nodes.conversions import (drop_reason, EstimateMessages, odometry_speed,
-                                        points_of, pose_and_covariance, pose_problem,
-                                        stamp_ns, TimeOrigin)
+                                        online_corrected_imu, points_of, pose_and_covariance,
+                                        pose_problem, quaternion_yaw, stamp_ns, TimeOrigin)
 from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar
 from gyro_ekf.nodes.runtime import run_node
 
@@ -163,6 +176,11 @@ class EkfNode(Node):
             config = with_stated_noise(config, sidecar.noise)
         self.config = config
         self._sidecar = sidecar
+        self._use_message_covariance = declare(
+            self, 'use_message_covariance', True,
+            'A positive imu angular_velocity_covariance[8] or odom twist.covariance[0] '
+            'replaces the configured gyro or speed noise for that message (0 or -1: not '
+            'given; NaN, other negatives or beyond the limits.* range: ignored and counted)')
         self._use_calibration = declare(
             self, 'use_calibration', False,
             'Seed the bias state and its variance from gyro_bias (calibration_node)')
@@ -222,6 +240,16 @@ class EkfNode(Node):
         self._map_frame = declare(self, 'map_frame', topics.MAP_FRAME, 'Frame of the estimate')
         self._base_frame = declare(self, 'base_frame', topics.BASE_FRAME,
                                    'Child frame of ekf/odometry')
+        publish_tf = declare(self, 'publish_tf', True,
+                             'Broadcast the estimate on /tf (needs tf2_msgs: a ROS install '
+                             'has it, the PyPI packages do not)')
+        self._odom_frame = declare(self, 'odom_frame', '',
+                                   'Frame of the odometry pose: set it to broadcast map -> '
+                                   'odom_frame (so that map -> odom -> base_link is the '
+                                   'estimate) instead of map -> base_frame')
+        path_length = declare(self, 'path_length', PATH_LENGTH,
+                              'Most poses in ekf/path (one every '
+                              f'{PATH_SPACING_S:g} s)', '', 1, 1_000_000)
 
         landmarks = load_landmarks_file(landmarks_file, limits) if landmarks_file else None
         self.driver = EventDriver(self.config, landmarks=landmarks, pose=sidecar.initial_pose)
@@ -251,6 +279,7 @@ class EkfNode(Node):
         self.dropped = dict.fromkeys(DROP_REASONS, 0)
         self.resets = 0
         self.published = 0
+        self.covariances_ignored = 0
         self._estimates = 0
         self._late_streak = 0
         self._late_streams: set[str] = set()
@@ -261,6 +290,10 @@ class EkfNode(Node):
         self._rate_base = (self.get_clock().now(), dict(self._received))
         self._rates_hz = dict.fromkeys(self._received, 0.0)
         self._last_estimate: Estimate | None = None
+        self._last_ns = 0
+        self._last_report = None
+        self._odom_pose: tuple[float, float, float] | None = None
+        self._path = visuals.PathHistory(path_length, PATH_SPACING_S)
         self._messages = EstimateMessages(self._map_frame, self._base_frame,
                                           self.config.speed_noise_m_s,
                                           self.config.gyro_noise_rad_s)
@@ -271,6 +304,14 @@ class EkfNode(Node):
         self._bias_pub = self.create_publisher(Vector3Stamped, topics.EKF_BIAS, qos.OUTPUT)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
                                                       qos.OUTPUT)
+        self._imu_pub = self.create_publisher(Imu, topics.EKF_IMU, qos.stream_output(lossless))
+        self._path_pub = self.create_publisher(PathMessage, topics.EKF_PATH, qos.OUTPUT)
+        self._markers_pub = self.create_publisher(MarkerArray, topics.EKF_MARKERS, qos.OUTPUT)
+        self._landmark_markers_pub = self.create_publisher(
+            MarkerArray, topics.LANDMARK_MARKERS, qos.LATCHED)
+        self._tf_pub = self._tf_publisher() if publish_tf else None
+        if landmarks is not None:
+            self._publish_landmark_markers(landmarks)
         # Map, pose and bias first: the executor serves ready subscriptions in creation order.
         self.create_subscription(PoseArray, topics.LANDMARK_MAP, self._on_map, qos.LATCHED)
         self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE,
@@ -286,6 +327,8 @@ class EkfNode(Node):
                                      qos.stream_output(lossless))
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_timer(period, self._publish_diagnostics)
+        self.create_timer(PATH_PERIOD_S, self._publish_path)
+        self.create_timer(MARKERS_PERIOD_S, self._publish_markers)
         self.create_timer(min(self._idle_flush_s / 2.0, 0.25), self._flush_when_idle,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._jump_handle = self.get_clock().create_jump_callback(
@@ -322,7 +365,19 @@ class EkfNode(Node):
         if not -self._max_rate <= rate <= self._max_rate and self._refuse(
                 rate_problem(rate, self._limits), 'imu yaw rate'):
             return
-        self._push(message.header.stamp, EventKind.IMU, rate, 'imu', 'imu')
+        if self._messages.bias.header.frame_id != message.header.frame_id:
+            # The bias is the IMU's: ekf/bias is in its frame, live and offline.
+            self._messages.bias.header.frame_id = message.header.frame_id or topics.IMU_FRAME
+        # Corrected at once with the newest bias (it moves slowly), not after the merger.
+        estimate = self._last_estimate
+        if estimate is not None and self._imu_pub.get_subscription_count():
+            self._imu_pub.publish(online_corrected_imu(
+                message, float(estimate.state[3]), float(estimate.covariance[3, 3])))
+        variance = None
+        if self._use_message_covariance:
+            variance = self._variance(message.angular_velocity_covariance[8], self._max_rate,
+                                      'imu angular_velocity_covariance[8]')
+        self._push(message.header.stamp, EventKind.IMU, (rate, variance), 'imu', 'imu')
 
     def _on_odom(self, message: Odometry) -> None:
         self._received['odom'] += 1
@@ -330,7 +385,26 @@ class EkfNode(Node):
         if not -self._max_speed <= speed <= self._max_speed and self._refuse(
                 speed_problem(speed, self._limits), 'odom speed'):
             return
-        self._push(message.header.stamp, EventKind.SPEED, speed, 'odom', 'odom')
+        if self._odom_frame:
+            pose = message.pose.pose
+            self._odom_pose = (float(pose.position.x), float(pose.position.y),
+                               quaternion_yaw(pose.orientation))
+        variance = None
+        if self._use_message_covariance:
+            variance = self._variance(message.twist.covariance[0], self._max_speed,
+                                      'odom twist.covariance[0]')
+        self._push(message.header.stamp, EventKind.SPEED, (speed, variance), 'odom', 'odom')
+
+    def _variance(self, value: float, limit: float, what: str) -> float | None:
+        """Return the message's own variance, or None (the configured noise); count a bad one."""
+        variance, bad = message_variance(float(value), limit)
+        if bad:
+            self.covariances_ignored += 1
+            self.get_logger().warn(f'{what} = {float(value)!r} is NaN, negative or beyond '
+                                   f'{limit:g}^2: the configured noise is used instead '
+                                   f'({self.covariances_ignored} so far)',
+                                   throttle_duration_sec=5.0)
+        return variance
 
     def _on_landmarks(self, message: PoseArray) -> None:
         self._received['landmarks'] += 1
@@ -439,17 +513,18 @@ class EkfNode(Node):
         for stamp_s, kind, (ns, value) in events:
             try:
                 if kind is EventKind.IMU:
-                    estimate = driver.on_imu(stamp_s, value)
+                    estimate = driver.on_imu(stamp_s, *value)
                     if self._first_imu_s is None:
                         self._first_imu_s = stamp_s
                     self._estimates += 1
-                    self._last_estimate = estimate
+                    self._last_estimate, self._last_ns = estimate, ns
                     if self._estimates % self._publish_every == 0:
                         self._publish(estimate, ns)
                 elif kind is EventKind.SPEED:
-                    driver.on_speed(stamp_s, value)
+                    driver.on_speed(stamp_s, *value)
                 else:
-                    self.driver.on_detections(stamp_s, value[0], value[1])
+                    self._last_report = self.driver.on_detections(stamp_s, value[0],
+                                                                  value[1])
                     self._log_health_changes()
             except CoreError as err:
                 self._drop('filter_error', f'the filter refused a {kind.name.lower()} event: '
@@ -463,7 +538,40 @@ class EkfNode(Node):
             self._odometry_pub.publish(odometry)
         if self._bias_pub.get_subscription_count():
             self._bias_pub.publish(bias)
+        x, y, yaw = (float(v) for v in estimate.state[:3])
+        self._path.add(ns, x, y, yaw)
+        if self._tf_pub is not None and self._tf_pub.get_subscription_count():
+            t = visuals.tf_transform((x, y, yaw), self._map_frame, self._base_frame,
+                                     self._odom_frame, self._odom_pose)
+            self._tf_pub.publish(messages.serialize(messages.tf_message([
+                messages.transform_stamped(ns, *t)])))
         self.published += 1
+
+    def _tf_publisher(self):
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            self.get_logger().warn('publish_tf: tf2_msgs is not installed (ROS from PyPI has '
+                                   'no tf2): no TF is broadcast; ekf/pose and ekf/odometry '
+                                   'carry the estimate')
+            return None
+        # tf2_ros's TransformBroadcaster: reliable, volatile, depth 100.
+        return self.create_publisher(TFMessage, topics.TF, 100)
+
+    def _publish_path(self) -> None:
+        if len(self._path) and self._path_pub.get_subscription_count():
+            self._path_pub.publish(messages.serialize(self._path.message(self._map_frame)))
+
+    def _publish_markers(self) -> None:
+        estimate = self._last_estimate
+        if estimate is not None and self._markers_pub.get_subscription_count():
+            self._markers_pub.publish(visuals.markers_bytes(
+                self._last_ns, estimate.state, estimate.covariance, self._last_report,
+                self.driver.landmarks, self._map_frame))
+
+    def _publish_landmark_markers(self, landmarks: LandmarkMap) -> None:
+        self._landmark_markers_pub.publish(
+            visuals.landmark_markers_bytes(landmarks, self._map_frame))
 
     def _on_map(self, message: PoseArray) -> None:
         points = points_of(message)
@@ -474,6 +582,7 @@ class EkfNode(Node):
                               f'{topics.LANDMARK_MAP} holds a bad landmark; keeping the '
                               'current map'):
             self.driver.landmarks = LandmarkMap(points)
+            self._publish_landmark_markers(self.driver.landmarks)
             self._forget_history()
             self.get_logger().info(f'landmark map: {points.shape[0]} landmarks')
 
@@ -516,6 +625,8 @@ class EkfNode(Node):
         self._late_streak, self._late_streams = 0, set()
         self._logged_transitions = 0
         self._first_imu_s = None
+        self._path.clear()
+        self._last_report = None
         self.resets += 1
         self.get_logger().warn(f'filter reset: {why}')
 
@@ -610,6 +721,7 @@ class EkfNode(Node):
             'time_since_association_s': '' if since is None else f'{since:.3f}',
             'estimates': str(self._estimates), 'published': str(self.published),
             'buffered': str(len(self._buffer)), 'resets': str(self.resets),
+            'ignored_covariances': str(self.covariances_ignored),
             'held_far_ahead': str(self._gate.held), 'long_gaps': str(stats.long_gaps),
             **({} if self._lagged is None else {
                 'held_observations': str(self._lagged.held),

@@ -6,6 +6,7 @@ import sys
 from collections.abc import Callable
 
 import rclpy
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
@@ -25,6 +26,10 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> in
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except GyroEkfError as err:
+        print(f'[FATAL] {err}', file=sys.stderr)
+        return 1
+    except (InvalidParameterTypeException, InvalidParameterValueException) as err:
+        # rclpy's own range and type checks of declared parameters (`-p path_length:=0`).
         print(f'[FATAL] {err}', file=sys.stderr)
         return 1
     except Exception:

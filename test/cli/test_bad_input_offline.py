@@ -285,3 +285,39 @@ def test_2016_log_with_a_nan_landmark_in_its_map_names_the_map(tmp_path, capsys)
     _fails(capsys, ['convert', str(tmp_path / 'log'), '-o', str(tmp_path / 'bag'), '--skip-bad'],
            'error: MapMTRN4010.mat: landmarks.xy_m[1]: nan is not finite')
     assert not (tmp_path / 'bag').exists()
+
+
+def test_run_ignores_and_counts_bad_message_covariances(tmp_path, capsys, caplog, sim_trip):
+    rate_vars = np.full(len(sim_trip.imu.stamp_s), sim_trip.noise.gyro_rad_s ** 2)
+    rate_vars[[100, 200]] = [np.inf, -5.0]  # (a NaN the writer takes as "not given")
+    speed_vars = np.zeros(len(sim_trip.speed.stamp_s))
+    speed_vars[50] = 1e9  # a sigma of 31 km/s: beyond any speed
+    bag = _bag_of(dataclasses.replace(
+        sim_trip, imu=dataclasses.replace(sim_trip.imu, yaw_rate_variance=rate_vars),
+        speed=dataclasses.replace(sim_trip.speed, speed_variance=speed_vars)), tmp_path)
+    out = tmp_path / 'out'
+    assert main(['run', str(bag), '-o', str(out), '--no-plots', '--no-progress']) == 0
+    summary = _strict_json((out / 'summary.json').read_text())
+    assert summary['input']['covariances_ignored'] == {
+        'imu.angular_velocity_covariance[8]': 2, 'speed.twist.covariance[0]': 1}
+    assert summary['input']['covariances_used'] == {
+        'imu.angular_velocity_covariance[8]': len(rate_vars) - 2}
+    assert 'ignored bad message covariances' in caplog.text
+    assert summary['ground_truth']['position_rmse_m'] < 0.05
+
+
+def test_message_covariances_replace_the_noise_unless_ignored(tmp_path, sim_trip):
+    # Messages that say the gyro is 5 times noisier than the log states.
+    rate_vars = np.full(len(sim_trip.imu.stamp_s), (5.0 * sim_trip.noise.gyro_rad_s) ** 2)
+    bag = _bag_of(dataclasses.replace(sim_trip, imu=dataclasses.replace(
+        sim_trip.imu, yaw_rate_variance=rate_vars)), tmp_path)
+    yaw_variance = {}
+    for flags in ([], ['--ignore-message-covariance']):
+        out = tmp_path / ('ignored' if flags else 'used')
+        assert main(['-q', 'run', str(bag), '-o', str(out), '--no-plots', '--no-progress',
+                     '--no-bag', *flags]) == 0
+        rows = np.loadtxt(out / 'estimates.csv', delimiter=',', skiprows=1, max_rows=400)
+        header = (out / 'estimates.csv').read_text().splitlines()[0].split(',')
+        yaw_variance[bool(flags)] = rows[-1, header.index('var_yaw')]
+    # The noisier gyro leaves more doubt about the heading.
+    assert yaw_variance[False] > yaw_variance[True]

@@ -120,6 +120,37 @@ def test_implausible_and_non_finite_values_are_dropped_per_reason(start_ekf):
     assert speeds <= {0.0, 1.0}
 
 
+def test_bad_message_covariances_are_ignored_and_counted_and_good_ones_used(start_ekf):
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import Imu
+
+    ekf = start_ekf('covariances')
+    start = 1_700_000_100 * 10 ** 9
+    ekf.send_pairs(start, 0, 20)
+    for i, (rate_variance, speed_variance) in enumerate(
+            [(math.nan, -3.0), (1e9, math.inf), (-1.0, 0.0), (0.25, 0.04)]):
+        ns = start + (20 + i) * STEP_NS
+        odom = Odometry()
+        odom.twist.covariance[0] = speed_variance
+        ekf.odom.publish(_stamped(odom, ns))
+        imu = Imu()
+        imu.angular_velocity_covariance[8] = rate_variance
+        ekf.imu.publish(_stamped(imu, ns))
+    ekf.send_pairs(start, 24, 60)
+    ekf.probe.spin_until(lambda: len(ekf.estimates_at([start + 59 * STEP_NS])) == 1, 30,
+                         'the last estimate')
+    values = ekf.wait_for(_count('estimates', 60), 'every sample processed')
+    # NaN, -3, 1e9, inf: four bad values; -1 and 0 mean "not given".
+    assert values['ignored_covariances'] == '4'
+    assert values['dropped_non_finite'] == '0' and values['resets'] == '0'
+    own = {m.header.stamp.sec * 10 ** 9 + m.header.stamp.nanosec: m.pose.covariance[35]
+           for m in ekf.estimates_at(start + i * STEP_NS for i in range(60))}
+    # The 0.25 (rad/s)^2 message: the next step's yaw variance grows by T^2 * 0.25 at
+    # least, far beyond the configured gyro noise's share.
+    step = own[start + 24 * STEP_NS] - own[start + 23 * STEP_NS]
+    assert step >= 0.01 ** 2 * 0.25 * 0.999
+
+
 def test_an_initial_pose_with_a_negative_variance_or_a_zero_quaternion_is_refused(
         start_ekf):
     from geometry_msgs.msg import PoseWithCovarianceStamped

@@ -129,3 +129,36 @@ def test_a_mount_or_start_pose_out_of_its_limits_is_a_configuration_error(ros_en
             EkfNode(context=context)
     finally:
         context.try_shutdown()
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('param, match', [
+    ('path_length:=0', r'path_length out of range'),
+    ('publish_tf:=7', r"'publish_tf' to '7' of type 'INTEGER', expecting type 'BOOL'"),
+])
+def test_a_parameter_rclpy_refuses_is_one_line_and_exit_1(ros_env, param, match):
+    import re
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, '-m', 'gyro_ekf.nodes.ekf_node', '--ros-args',
+                             '-p', param], env=ros_env, capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 1
+    assert re.search(match, result.stderr)
+    assert 'Traceback' not in result.stderr + result.stdout
+    assert [line for line in result.stderr.splitlines() if line.startswith('[FATAL]')]
+
+
+@pytest.mark.ros
+def test_the_parameters_doc_is_what_the_nodes_declare(ros_env):
+    import subprocess
+    import sys
+
+    # ros_env: the tool claims a domain of its own; the env keeps it on loopback anyway.
+    result = subprocess.run([sys.executable, str(REPO / 'tools' / 'parameters_doc.py')],
+                            env=ros_env, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert '| `path_length` | `600` |' in result.stdout
+    assert result.stdout == (REPO / 'docs' / 'parameters.md').read_text(), (
+        'docs/parameters.md is stale: run `make docs`')
