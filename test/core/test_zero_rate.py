@@ -158,3 +158,42 @@ def test_the_2016_static_start_teaches_the_bias_of_the_static_window(shared_data
     # Without zero-rate updates the sigma is well above it.
     off = _drive(trip, **OFF).estimates
     assert math.degrees(math.sqrt(off.covariance[row, 3, 3])) > 0.01
+
+
+def _stop_rates(trip, spans, change):
+    """The trip with the z gyro samples inside its stops replaced by change(samples)."""
+    imu = trip.imu
+    inside = np.zeros(imu.stamp_s.size, dtype=bool)
+    for start_s, end_s in spans:
+        inside |= (imu.stamp_s >= start_s) & (imu.stamp_s < end_s)
+    rates = imu.angular_velocity_rad_s.copy()
+    rates[inside, 2] = change(rates[inside, 2])
+    return dataclasses.replace(trip, imu=dataclasses.replace(imu, angular_velocity_rad_s=rates))
+
+
+def test_a_shaken_stop_teaches_nothing():
+    trip, spans = trip_with_stops(seed=3, stops_at_s=(15.0,), stop_s=STOP_S)
+    rng = np.random.default_rng(8)
+    # Vibration: 3 deg/s of spread, twice zero_rate_max_spread_rad_s.
+    shaken = _stop_rates(trip, spans, lambda w: w + math.radians(3.0) * rng.standard_normal(
+        w.size))
+    assert _drive(shaken).stats.zero_rate_updates == 0
+    assert _drive(trip).stats.zero_rate_updates > 0
+
+
+def test_a_gyro_without_noise_at_rest_counts_no_more_than_the_noise_floor():
+    trip, spans = trip_with_stops(seed=3, stops_at_s=(15.0,), stop_s=STOP_S)
+    true_bias = trip.true_gyro_bias_rad_s[2]
+    # Every sample of the stop reads the bias exactly: no spread.
+    exact = _stop_rates(trip, spans, lambda w: np.full_like(w, true_bias))
+    run = _drive(exact)
+    estimates = run.estimates
+    row = _at(estimates, spans[0][1])
+    n = run.stats.zero_rate_updates
+    floor = EkfConfig().zero_rate_min_noise_rad_s
+    assert n > 0
+    # n samples at the floor's sigma give at most n / floor^2 of information.
+    assert 1.0 / estimates.covariance[row, 3, 3] <= 1.0 / estimates.covariance[
+        _at(estimates, spans[0][0]), 3, 3] + n / floor ** 2
+    assert abs(estimates.state[row, 3] - true_bias) <= 3.0 * math.sqrt(
+        estimates.covariance[row, 3, 3])
