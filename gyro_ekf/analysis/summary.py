@@ -5,11 +5,16 @@ Definitions (see `metrics` for the band and the interpolation):
 - *Offline bias*: the static-window mean per axis, its white-noise sigma, the standard
   error of the mean and the window; null with the reason when no window was accepted.
 - *Online bias*: the bias state at the last estimate with its filter sigma, and the mean
-  and standard deviation of the bias state over the second half of the trip's duration.
+  and standard deviation of the bias state over the second half of the trip's duration;
+  the zero-rate updates (gyro samples applied standing still) and stops, and where the
+  trip is known to start static, the bias and its sigma at the end of that stretch.
 - *Association*: detected poles, how many were MATCHED (and the other outcomes), the share
   matched, and the longest time without any applied landmark update, counted from the first
   to the last estimate (so a trip that starts with no pole in view counts that stretch).
 - *NIS*: of every applied update (2 dof): mean and share inside the two-sided 95 % band.
+- *Health*: per LiDAR its association share, NIS mean and mean bearing innovation, and
+  when it was excluded (`core/health.py`); the verdict ok / degraded / failed with one
+  sentence per reason (thresholds in `core/health.py`).
 - *Input*: what the validation boundary dropped (with --skip-bad): samples per stream,
   counts per field and reason with the first index, and how often a stream's time went back.
 - *Ground truth* (only when the trip has it): position RMSE and max error, heading RMSE
@@ -28,6 +33,7 @@ import numpy as np
 
 from gyro_ekf.analysis import metrics
 from gyro_ekf.analysis.offline import OfflineRun
+from gyro_ekf.core import health
 from gyro_ekf.core.types import BIAS, FloatArray
 from gyro_ekf.core.validation import InputReport
 
@@ -93,7 +99,17 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'last_half_mean_rad_s': half_mean, 'last_half_mean_deg_s': _deg(half_mean),
         'last_half_std_rad_s': half_std, 'last_half_std_deg_s': _deg(half_std),
         'last_half_mean_sigma_rad_s': float(bias_sigma[last_half].mean())
-        if last_half.any() else math.nan}
+        if last_half.any() else math.nan,
+        'zero_rate_updates': int(run.result.stats.zero_rate_updates),
+        'stops': int(run.result.stats.stops)}
+    # Where the trip is known to start static, the bias the zero-rate updates learned there.
+    static_end = trip.start_s + trip.static_duration_s
+    at_static_end = int(np.searchsorted(stamps, static_end, side='right')) - 1
+    if trip.static_duration_s > 0.0 and at_static_end >= 0:
+        summary['online_bias'].update({
+            'static_start_end_s': float(stamps[at_static_end]),
+            'at_static_start_end_deg_s': _deg(float(bias[at_static_end])),
+            'at_static_start_end_sigma_deg_s': _deg(float(bias_sigma[at_static_end]))})
     if cal is not None:
         summary['online_bias']['last_half_mean_minus_offline_deg_s'] = _deg(
             half_mean - float(cal.bias_rad_s[2]))
@@ -114,10 +130,41 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'dof': 2, 'band': nis_band, 'share_in_band': metrics.share_inside(nis, *nis_band)}
 
     summary['input'] = None if input_report is None else input_report.to_dict()
+    summary['health'] = _health(run, summary, start, end)
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)
     return summary
+
+
+def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
+            ) -> dict[str, Any]:
+    """Return the verdict with its reasons, and the per-LiDAR figures."""
+    stamps = association_stamps(run)
+    if stamps.size:
+        # The stretch before the first update is judged on its own (2023 starts 10 s
+        # with no pole in view); after it, every gap and the stretch to the end count.
+        start_gap = float(stamps[0]) - start
+        longest = float(np.max(np.diff(np.append(stamps, end)), initial=0.0))
+    else:
+        start_gap, longest = end - start, 0.0
+    monitor = run.result.health
+    sensors = [] if monitor is None else monitor.report()
+    section = summary['input']
+    dropped = {} if section is None else {f'{stream} samples': int(n) for stream, n
+                                          in section['samples_dropped'].items()}
+    stats = run.result.stats
+    figures = health.RunFigures(
+        # Excluded LiDARs' detections have their own reason, not the share's.
+        detections=int(stats.detections - stats.excluded),
+        matched=int(stats.outcomes.get('matched', 0)),
+        updates=int(stats.updates), nis_mean=summary['nis']['mean'],
+        longest_gap_s=longest, start_gap_s=start_gap, sensors=sensors, dropped=dropped,
+        final_bias_rad_s=summary['online_bias']['final_rad_s'])
+    return {**health.verdict(figures), 'lidars': sensors,
+            'transitions': [] if monitor is None else [
+                {'stamp_s': t.stamp_s, 'lidar': t.sensor, 'change': t.change,
+                 'reason': t.reason} for t in monitor.transitions]}
 
 
 def _truth_summary(run: OfflineRun, last_half: np.ndarray) -> dict[str, Any]:

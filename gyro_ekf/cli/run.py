@@ -21,6 +21,9 @@ HELP = 'run calibration and the EKF on a bag offline; write CSV, bag, summary an
 
 log = logging.getLogger(__name__)
 
+STRICT_EXIT_CODE = 3
+"""Exit code of `run --strict` when the health verdict is not ok."""
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add this command's arguments."""
@@ -45,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--use-calibration', action='store_true',
                         help='seed the EKF bias from the static window (as the EKF node\'s '
                         'use_calibration); by default the online bias is found independently')
+    parser.add_argument('--strict', action='store_true',
+                        help='exit 3 unless the health verdict is ok (outputs are still '
+                        'written)')
     parser.add_argument('--path-length', type=_path_length, default=None, metavar='POSES',
                         help='most poses per ekf/path message of the estimates bag (>= 1; '
                         'default 600, a pose every 0.2 s)')
@@ -72,7 +78,10 @@ def _table(summary: dict[str, Any]) -> str:
         return 'n/a' if value is None or (isinstance(value, float) and math.isnan(value)) \
             else format(value, fmt)
 
-    rows = [('trip', summary['trip']['name']),
+    verdict = summary['health']
+    rows = [('verdict', verdict['verdict'] + ''.join(f'\n  - {reason}'
+                                                     for reason in verdict['reasons'])),
+            ('trip', summary['trip']['name']),
             ('duration (s)', number(summary['trip']['duration_s'], '.1f'))]
     offline = summary['offline_bias']
     rows.append(('offline bias (deg/s)', 'n/a' if offline is None
@@ -164,4 +173,9 @@ def run(args: argparse.Namespace) -> int:
              summary['trip']['duration_s'], processed_s,
              summary['timing']['real_time_factor'] or math.nan)
     print(_table(summary))
+    verdict = summary['health']
+    if args.strict and verdict['verdict'] != 'ok':
+        print(f'gyro-ekf run: --strict: verdict {verdict["verdict"]}: '
+              f'{verdict["reasons"][0]}', file=sys.stderr)
+        return STRICT_EXIT_CODE
     return 0

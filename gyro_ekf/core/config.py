@@ -96,7 +96,46 @@ class EkfConfig:
     rest_yaw_rate_rad_s: float = config_field(
         1.0 * DEG, 'rad/s', 'Turning faster than this (gyro minus bias) the platform is not '
         'standing still, whatever its speed (a turn on the spot brings other beams onto '
-        'the poles).', 0.0, 10.0)
+        'the poles); a stop whose mean gyro rate is farther than this plus three bias sigmas '
+        'from the bias is a turn on the spot, not a stop (zero-rate updates).', 0.0, 10.0)
+    # Zero-rate updates (a stop): standing still, each gyro sample measures the bias alone
+    # (core/events.py). The speed threshold is rest_speed_m_s above.
+    zero_rate_min_still_s: float = config_field(
+        0.5, 's', 'Zero-rate updates: the platform stands still once |speed| has stayed at or '
+        'below rest_speed_m_s this long (a speed passing through zero gives one or two zero '
+        'samples; 0.5 s also gives the spread 50-100 gyro samples).', 0.0, 1e6)
+    zero_rate_max_spread_rad_s: float = config_field(
+        1.5 * DEG, 'rad/s', 'Zero-rate updates: only while the gyro samples of the stop spread '
+        '(std) at most this much, as a still gyro shows only its white noise (vibration, a '
+        'push or a turn does not; default: the gyro noise the filter allows in motion). '
+        '0: never.', 0.0, 1.0)
+    zero_rate_min_noise_rad_s: float = config_field(
+        0.01 * DEG, 'rad/s', 'Zero-rate updates: each gyro sample at a stop measures the bias '
+        'with the spread of the stop\'s samples as its sigma, but never less than this (a '
+        'quantised or noiseless gyro shows no spread; MEMS gyros show 0.05-0.5 deg/s per '
+        'sample).', 1e-9, 1.0)
+    # Sensor health (core/health.py). A LiDAR that disagrees with the map while another
+    # LiDAR vouches for the pose is excluded until a window of re-checks agrees again. The
+    # shared logs' worst 5 s windows (2016, 2022, 2023): share >= 0.83, |bearing mean| <=
+    # 0.26 deg, NIS mean <= 2.7; a LiDAR mounted 6 deg off associates 0 %.
+    health_window_s: float = config_field(
+        5.0, 's', 'Sensor health: sliding window of each LiDAR\'s scans the consistency '
+        'figures are taken over.', 0.1, 1e4)
+    health_min_detections: int = config_field(
+        20, '1', 'Sensor health: fewest detections (and, for the bearing and NIS rules, '
+        'matches) in the window before a LiDAR is judged.', 1, 1_000_000)
+    health_min_association_share: float = config_field(
+        0.5, '1', 'Sensor health: a LiDAR associating less than this share of its detections '
+        'while another LiDAR associates well disagrees with the map.', 0.0, 1.0)
+    health_good_association_share: float = config_field(
+        0.8, '1', 'Sensor health: share at which a LiDAR associates well (vouches for the '
+        'pose, or is readmitted after its re-checks).', 0.0, 1.0)
+    health_bearing_bias_sigmas: float = config_field(
+        10.0, '1', 'Sensor health: a LiDAR whose mean bearing innovation over the window is '
+        'beyond this many bearing noise sigmas disagrees (a yaw mount error).', 0.1, 1e6)
+    health_max_nis_mean: float = config_field(
+        10.0, '1', 'Sensor health: a LiDAR whose mean NIS (2 dof, expected 2) over the window '
+        'is above this disagrees.', 0.1, 1e9)
 
 
 @dataclass(frozen=True, slots=True)

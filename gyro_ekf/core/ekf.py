@@ -24,6 +24,10 @@ is exact.
 Because the bias enters yaw through ``-T`` in J, landmark updates that correct yaw also
 correct the bias: that is how the filter finds the bias online.
 
+Standing still (the driver decides when, ``events.py``), a gyro sample w measures the bias
+alone: z = w, h(x) = b, H = [0, 0, 0, 1] (a zero-rate update, ``update_zero_rate``), and the
+prediction holds the position (no translation, no speed noise).
+
 The arithmetic is written out on plain floats over the 10 distinct entries of the
 symmetric P rather than as 4x4 numpy products: J and H are sparse, and at this size
 numpy's per-call overhead costs several times the arithmetic itself (see `make bench`,
@@ -104,6 +108,11 @@ class GyroBiasEkf:
     def bias_rad_s(self) -> float:
         """Bias estimate, rad/s."""
         return self._s[3]
+
+    @property
+    def bias_var(self) -> float:
+        """Variance of the bias estimate, (rad/s)^2."""
+        return self._p[9]
 
     @property
     def x_prior(self) -> FloatArray:
@@ -190,13 +199,15 @@ class GyroBiasEkf:
         p[9] = float(sigma_rad_s) ** 2
 
     def predict(self, speed_m_s: float, rate_rad_s: float, dt_s: float,
-                speed_variance: float | None = None, rate_variance: float | None = None
-                ) -> None:
+                speed_variance: float | None = None, rate_variance: float | None = None,
+                hold_position: bool = False) -> None:
         """Propagate over dt_s seconds with constant speed (m/s) and measured yaw rate (rad/s).
 
         speed_variance ((m/s)^2) and rate_variance ((rad/s)^2), when given, replace the
         configured sigma_v^2 and sigma_w^2 of Pu for this step (the inputs' own message
-        covariances).
+        covariances). ``hold_position`` (standing still): x and y do not move and gain no
+        speed noise (the position random walk still applies); yaw still integrates the
+        rate minus the bias.
         """
         if dt_s <= 0.0:
             return
@@ -204,7 +215,7 @@ class GyroBiasEkf:
         speed_m_s, rate_rad_s, dt_s = float(speed_m_s), float(rate_rad_s), float(dt_s)
         x, y, yaw, bias = self._s
         c, s = math.cos(yaw), math.sin(yaw)
-        step = dt_s * speed_m_s
+        step = 0.0 if hold_position else dt_s * speed_m_s
         self._s = [x + step * c, y + step * s, wrap_scalar(yaw + dt_s * (rate_rad_s - bias)),
                    bias]
         # J = I + E with E[0,2] = a, E[1,2] = b, E[2,3] = d; first M = J P (rows) ...
@@ -222,7 +233,11 @@ class GyroBiasEkf:
         # ... then J P J^T = M J^T, plus Q = Ju Pu Ju^T + Q2 written out (speed noise lies
         # along the heading).
         t2 = dt_s * dt_s
-        qv = t2 * (self._sigma_v2 if speed_variance is None else speed_variance)
+        # Held, the odometry's zero is exact (no speed noise); the position random walk
+        # stays: landmark looks at rest repeat their errors and move the estimate by
+        # millimetres, which a frozen position covariance would not cover.
+        qv = 0.0 if hold_position else t2 * (
+            self._sigma_v2 if speed_variance is None else speed_variance)
         qw = t2 * (self._sigma_w2 if rate_variance is None else rate_variance)
         qp = dt_s * self._q_pos2
         self._p = [
@@ -237,6 +252,38 @@ class GyroBiasEkf:
             m23,
             p33 + t2 * self._q_b2,
         ]
+
+    def update_zero_rate(self, rate_rad_s: float, variance: float) -> float:
+        """Correct with a gyro sample taken standing still: z = w = b + noise.
+
+        h(x) = b and H = [0, 0, 0, 1], so S = P[3, 3] + R and K = P[:, 3] / S; the Joseph
+        form (I - K H) P (I - K H)^T + K R K^T reduces to P - P[:, 3] P[3, :] / S. The
+        innovation, gain and prior of the last landmark update are kept.
+
+        Args:
+            rate_rad_s: the measured yaw rate, bias included, rad/s.
+            variance: R, the sample's noise variance, (rad/s)^2.
+
+        Returns:
+            The NIS (w - b)^2 / S.
+
+        Raises:
+            CoreError: S is not positive.
+        """
+        p = self._p
+        p03, p13, p23, p33 = p[3], p[6], p[8], p[9]
+        s = p33 + variance
+        if not s > 0.0:
+            raise CoreError(f'zero-rate innovation variance {s} is not positive')
+        x, y, yaw, bias = self._s
+        innovation = float(rate_rad_s) - bias
+        k0, k1, k2, k3 = p03 / s, p13 / s, p23 / s, p33 / s
+        self._s = [x + k0 * innovation, y + k1 * innovation,
+                   wrap_scalar(yaw + k2 * innovation), bias + k3 * innovation]
+        self._p = [p[0] - p03 * k0, p[1] - p03 * k1, p[2] - p03 * k2, p[3] - p03 * k3,
+                   p[4] - p13 * k1, p[5] - p13 * k2, p[6] - p13 * k3,
+                   p[7] - p23 * k2, p[8] - p23 * k3, p33 - p33 * k3]
+        return innovation * innovation / s
 
     def innovation(self, z: FloatArray, landmark_xy_m: FloatArray,
                    mount: LidarMount = _NO_MOUNT) -> tuple[FloatArray, FloatArray, FloatArray]:

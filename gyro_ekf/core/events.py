@@ -9,6 +9,17 @@ then the event's value replaces the held one (or, for an observation, updates th
 Events with equal stamps are ordered speed, observation, IMU, so the estimate emitted on an
 IMU sample includes every observation stamped at or before it.
 
+Standing still, each gyro sample measures the bias alone (a zero-rate update): once the
+odometry speed has stayed within ``rest_speed_m_s`` for ``zero_rate_min_still_s``, while the
+gyro samples of the stop spread at most ``zero_rate_max_spread_rad_s`` and their mean is
+no turn (within ``rest_yaw_rate_rad_s`` plus three bias sigmas of the bias: an unknown bias
+cannot be told from a slow turn on the spot), every IMU sample updates the bias with the
+stop's spread as its sigma (at least ``zero_rate_min_noise_rad_s``) and the prediction holds
+the position. The bias is so learned at every stop, as the offline static calibration
+learns it from the first seconds. Landmark updates at rest go on as before (their n-th
+look during a stop uses n R); the two measure different things, the pose against the map
+and the bias against zero rate.
+
 Time going backwards raises TimeWentBackwardsError; the caller decides to reset (a looped
 bag) or to drop the event. It is never silently accepted. A gap is predicted in steps of at
 most `max_prediction_step_s`, but never in more than MAX_PREDICTION_STEPS steps: a stamp far
@@ -39,6 +50,7 @@ from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.detection import PoleDetections, detect_poles_in_scans
 from gyro_ekf.core.ekf import GyroBiasEkf, unpack_rows
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
+from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map, sensor_to_map
 from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount, ScanSeries, Trip
 
@@ -124,10 +136,14 @@ class DriverStats:
         updates: landmark updates applied.
         recoveries: scans associated by map distance after a gap (see EkfConfig).
         nis_sum: sum of the NIS of all updates.
+        first_association_s: stamp of the first applied update, or None.
         last_association_s: stamp of the last applied update, or None.
         longest_gap_s: longest time between applied updates (from the first one).
         long_gaps: gaps between events longer than MAX_PREDICTION_STEPS steps (predicted in
             coarser steps).
+        excluded: detections of excluded LiDARs (re-checked, not applied; in no outcome).
+        zero_rate_updates: gyro samples applied as zero-rate updates (standing still).
+        stops: times zero-rate updates began (once per stop unless the stop was shaken).
     """
 
     imu: int = 0
@@ -139,9 +155,13 @@ class DriverStats:
     updates: int = 0
     recoveries: int = 0
     nis_sum: float = 0.0
+    first_association_s: float | None = None
     last_association_s: float | None = None
     longest_gap_s: float = 0.0
     long_gaps: int = 0
+    excluded: int = 0
+    zero_rate_updates: int = 0
+    stops: int = 0
 
     @property
     def mean_nis(self) -> float:
@@ -154,8 +174,11 @@ class DriverStats:
                 'detections': self.detections, 'outcomes': dict(self.outcomes),
                 'updates': self.updates, 'recoveries': self.recoveries,
                 'mean_nis': self.mean_nis,
+                'first_association_s': self.first_association_s,
                 'last_association_s': self.last_association_s,
-                'longest_gap_s': self.longest_gap_s, 'long_gaps': self.long_gaps}
+                'longest_gap_s': self.longest_gap_s, 'long_gaps': self.long_gaps,
+                'excluded': self.excluded, 'zero_rate_updates': self.zero_rate_updates,
+                'stops': self.stops}
 
 
 class EventDriver:
@@ -168,6 +191,11 @@ class EventDriver:
         rate_rad_s: held measured yaw rate (bias included), rad/s, or None before the first.
         landmarks: the map used for association, or None.
         stats: running counts.
+        health: per-LiDAR consistency figures; excludes a LiDAR that disagrees
+            (core/health.py).
+        last_transition: the last exclusion or readmission on_detections caused, or None.
+        sensor_names: display name per mount for health reports (kept across resets).
+        zero_rate: whether zero-rate updates are being applied now (standing still).
     """
 
     def __init__(self, config: EkfConfig | None = None, landmarks: LandmarkMap | None = None,
@@ -179,6 +207,9 @@ class EventDriver:
         self.ekf = GyroBiasEkf(self.config, pose, bias_rad_s)
         self.landmarks = landmarks
         self.stats = DriverStats()
+        self.health = HealthMonitor(self.config)
+        self.last_transition: Transition | None = None
+        self.sensor_names: dict[LidarMount, str] = {}
         self.stamp_s: float | None = None
         self.speed_m_s = 0.0
         self.rate_rad_s: float | None = None
@@ -186,6 +217,15 @@ class EventDriver:
         self.speed_variance: float | None = None
         self.rate_variance: float | None = None
         self._first_scan_s: float | None = None
+        self._end_stop()
+
+    def _end_stop(self) -> None:
+        """Forget the stop (moving, or not known to stand still)."""
+        # Stamp of the speed sample the stop began with, and the running mean and sum of
+        # squared deviations (Welford) of the stop's gyro samples.
+        self._stop_since_s: float | None = None
+        self._stop_n, self._stop_mean, self._stop_m2 = 0, 0.0, 0.0
+        self.zero_rate = False
 
     @property
     def landmarks(self) -> LandmarkMap | None:
@@ -203,25 +243,32 @@ class EventDriver:
         """Start over (a looped bag, a ~/reset call): new filter, held inputs and counts."""
         self.ekf.reset(pose, bias_rad_s)
         self.stats = DriverStats()
+        self.health = HealthMonitor(self.config)
         self.stamp_s = None
         self.speed_m_s = 0.0
         self.rate_rad_s = None
         self.speed_variance = self.rate_variance = None
         self._first_scan_s = None
         self._rest_updates = {}
+        self._end_stop()
 
     def save(self) -> tuple:
         """Return everything ``restore`` needs to put the driver back as it is now."""
         stats = dataclasses.replace(self.stats, outcomes=dict(self.stats.outcomes))
         return (self.ekf.save(), stats, self.stamp_s, self.speed_m_s, self.rate_rad_s,
                 self.speed_variance, self.rate_variance, self._first_scan_s,
-                dict(self._rest_updates))
+                dict(self._rest_updates), self.health.save(),
+                (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
+                 self.zero_rate))
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
         (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self.speed_variance,
-         self.rate_variance, self._first_scan_s, rest_updates) = saved
+         self.rate_variance, self._first_scan_s, rest_updates, health, stop) = saved
+        (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
+         self.zero_rate) = stop
         self._rest_updates = dict(rest_updates)
+        self.health.restore(health)
         self.ekf.restore(ekf)
         self.stats = dataclasses.replace(stats, outcomes=dict(stats.outcomes))
 
@@ -244,10 +291,11 @@ class EventDriver:
             step = dt_s / MAX_PREDICTION_STEPS
             self.stats.long_gaps += 1
         speed_variance, rate_variance = self.speed_variance, self.rate_variance
+        hold = self.zero_rate
         while dt_s > step:
-            self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance)
+            self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance, hold)
             dt_s -= step
-        self.ekf.predict(self.speed_m_s, rate, dt_s, speed_variance, rate_variance)
+        self.ekf.predict(self.speed_m_s, rate, dt_s, speed_variance, rate_variance, hold)
         self.stamp_s = stamp_s
 
     def on_speed(self, stamp_s: float, speed_m_s: float, variance: float | None = None
@@ -263,6 +311,11 @@ class EventDriver:
         self.stats.speed += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
+        if abs(speed_m_s) <= self.config.rest_speed_m_s:
+            if self._stop_since_s is None and self.config.zero_rate_max_spread_rad_s > 0.0:
+                self._stop_since_s = stamp_s
+        elif self._stop_since_s is not None:
+            self._end_stop()
 
     def on_imu(self, stamp_s: float, yaw_rate_rad_s: float, variance: float | None = None
                ) -> Estimate:
@@ -283,6 +336,33 @@ class EventDriver:
         self.stats.imu += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
+        if self._stop_since_s is not None:
+            self._zero_rate_update(stamp_s, yaw_rate_rad_s)
+
+    def _zero_rate_update(self, stamp_s: float, rate_rad_s: float) -> None:
+        """Add a gyro sample to the stop; apply it as a zero-rate update once still."""
+        n = self._stop_n + 1
+        delta = rate_rad_s - self._stop_mean
+        self._stop_mean += delta / n
+        self._stop_m2 += delta * (rate_rad_s - self._stop_mean)
+        self._stop_n = n
+        config = self.config
+        if n < 2 or stamp_s - self._stop_since_s < config.zero_rate_min_still_s:
+            return
+        variance = self._stop_m2 / (n - 1)
+        ekf = self.ekf
+        turn_limit = config.rest_yaw_rate_rad_s + 3.0 * math.sqrt(max(ekf.bias_var, 0.0))
+        if (variance > config.zero_rate_max_spread_rad_s ** 2
+                or abs(self._stop_mean - ekf.bias_rad_s) > turn_limit):
+            # Vibration, a push or a turn on the spot: not still after all. The spread is
+            # of the whole stop, so a shaken stop stays shaken.
+            self.zero_rate = False
+            return
+        if not self.zero_rate:
+            self.zero_rate = True
+            self.stats.stops += 1
+        ekf.update_zero_rate(rate_rad_s, max(variance, config.zero_rate_min_noise_rad_s ** 2))
+        self.stats.zero_rate_updates += 1
 
     def estimate(self) -> Estimate:
         """Return a snapshot of the filter (state and covariance are copies)."""
@@ -292,14 +372,22 @@ class EventDriver:
                         speed_m_s=self.speed_m_s, yaw_rate_rad_s=rate)
 
     def on_detections(self, stamp_s: float, points_sensor_m: FloatArray,
-                      mount: LidarMount) -> ObservationReport:
+                      mount: LidarMount, sensor: str | None = None) -> ObservationReport:
         """Predict to stamp_s, associate the detected poles with the map, update.
+
+        A LiDAR the health monitor has excluded is associated but not applied (its report
+        has no NIS); ``last_transition`` tells when this scan excluded or readmitted one.
 
         Args:
             stamp_s: scan stamp, s.
             points_sensor_m: pole centres in the sensor frame, shape (k, 2), m.
-            mount: pose of the sensor on the platform.
+            mount: pose of the sensor on the platform (its health is kept per mount).
+            sensor: its name in health reports (topic or frame) on first use; by default
+                sensor_names[mount].
         """
+        self.last_transition = None
+        if sensor is None:
+            sensor = self.sensor_names.get(mount)
         self._advance(stamp_s, 'observation')
         self.stats.scans += 1
         if self._first_scan_s is None:
@@ -322,7 +410,10 @@ class EventDriver:
         else:
             result = associate(z, prior, P, self.ekf.R, self.landmarks.xy_m,
                                mount, self.config.gate_probability, self.ekf.landmark_var_m2)
+        if self.health.excluded(mount):
+            return self._recheck(stamp_s, points, z, prior, mount, result, sensor)
         nis = []
+        bearing_sum = 0.0
         outcomes = self.stats.outcomes
         landmark_xy = self._landmark_xy
         # Standing still, the same beams hit the same pole scan after scan, so its error
@@ -342,14 +433,37 @@ class EventDriver:
                 nis.append(self.ekf.update(z[match.detection_index],
                                            landmark_xy[match.landmark_index], mount,
                                            float(scale)))
+                bearing_sum += self.ekf.y[1]
+        nis_sum = float(sum(nis))
+        self.last_transition = self.health.record(mount, stamp_s, points.shape[0], len(nis),
+                                                  nis_sum, float(bearing_sum), sensor)
         if nis:
             self.stats.updates += len(nis)
-            self.stats.nis_sum += float(sum(nis))
+            self.stats.nis_sum += nis_sum
             if self.stats.last_association_s is not None:
                 self.stats.longest_gap_s = max(self.stats.longest_gap_s,
                                                stamp_s - self.stats.last_association_s)
+            else:
+                self.stats.first_association_s = stamp_s
             self.stats.last_association_s = stamp_s
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
+
+    def _recheck(self, stamp_s: float, points: FloatArray, z: list, prior: FloatArray,
+                 mount: LidarMount, result: AssociationResult, sensor: str | None
+                 ) -> ObservationReport:
+        """Judge an excluded LiDAR's scan against the map at the current pose; apply nothing."""
+        self.stats.excluded += points.shape[0]
+        matched, nis_sum, bearing_sum = 0, 0.0, 0.0
+        for match in result.associations:
+            if match.outcome is AssociationOutcome.MATCHED:
+                y, _, _ = self.ekf.innovation(z[match.detection_index],
+                                              self.landmarks.xy_m[match.landmark_index], mount)
+                matched += 1
+                nis_sum += match.mahalanobis_sq
+                bearing_sum += float(y[1])
+        self.last_transition = self.health.record(mount, stamp_s, points.shape[0], matched,
+                                                  nis_sum, bearing_sum, sensor)
+        return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
 
     def _still(self) -> bool:
         """Whether the platform is known to stand still (speed and turn rate near zero)."""
@@ -556,11 +670,13 @@ class TripRun:
         updates: the applied landmark updates (compact: a long trip keeps no per-scan
             objects).
         stats: final counts.
+        health: the per-LiDAR health figures, exclusions and readmissions.
     """
 
     estimates: Estimates
     updates: UpdateLog
     stats: DriverStats
+    health: HealthMonitor | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -630,7 +746,7 @@ def drive_trip(trip: Trip, driver: EventDriver,
                     driver.detector_config)
                 detected[series] = (begin, found)
             report = driver.on_detections(stamp_s, found[index - begin].points_sensor_m,
-                                          scan.mount)
+                                          scan.mount, scan.topic)
             if report.nis.size:
                 pairs = report.association.matched_pairs().tolist()
                 update_stamp.extend([stamp_s] * len(pairs))
@@ -655,4 +771,5 @@ def drive_trip(trip: Trip, driver: EventDriver,
         point_map_m=np.column_stack([np.frombuffer(update_x, dtype=np.float64),
                                      np.frombuffer(update_y, dtype=np.float64)]),
         nis=np.frombuffer(update_nis, dtype=np.float64))
-    return TripRun(Estimates(stamps, states, covariances), updates, driver.stats)
+    return TripRun(Estimates(stamps, states, covariances), updates, driver.stats,
+                   driver.health)

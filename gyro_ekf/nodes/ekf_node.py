@@ -28,10 +28,16 @@ to their landmark and its other detections, 2 Hz), latched `landmark_markers` (t
 and with `publish_tf` TF `map -> base_link` (or `map -> odom_frame`, robot_localization's
 rule) where the install has tf2_msgs. `/diagnostics`
 reports the bias and its sigma in deg/s, associated/rejected observations, mean NIS, input
-rates, time since the last associated landmark, the drop counts and the LiDAR mounts in use
-(`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file from `gyro-ekf calibrate-mounts`
-given after the bag's overrides the bag's mounts); `ekf/mounts` (PoseArray in `base_link`,
-latched) holds the same mounts, one pose per `lidar.topics` entry in that order.
+rates, time since the last associated landmark, the drop counts, the zero-rate updates
+(`standing_still`: they are being applied now, core/events.py), the health verdict
+of the run since the start or the last reset (`verdict`, `verdict_reasons`: core.health's,
+as `gyro-ekf run` writes it in summary.json; level WARN when degraded, ERROR when failed),
+with each LiDAR's window figures (`lidar_<scan topic>_*`, `excluded` true while its
+observations are kept out of the filter; each exclusion and readmission is logged), and the
+LiDAR mounts in use (`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file from
+`gyro-ekf calibrate-mounts` given after the bag's overrides the bag's mounts); `ekf/mounts`
+(PoseArray in `base_link`, latched) holds the same mounts, one pose per `lidar.topics`
+entry in that order.
 
 Robustness: every value is checked where it enters, with core.validation and the
 `limits.*` parameters (core.config.InputLimits), and a bad message is dropped and counted per
@@ -83,6 +89,7 @@ from gyro_ekf.analysis.visual_bag import MARKERS_PERIOD_S, PATH_LENGTH, PATH_PER
     PATH_SPACING_S
 from gyro_ekf.core.config import EkfConfig, InputLimits, with_stated_noise
 from gyro_ekf.core.errors import CoreError
+from gyro_ekf.core import health
 from gyro_ekf.core.events import Estimate, EventDriver, EventKind, StreamMerger
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
 from gyro_ekf.core.stamp_gate import StampGate
@@ -101,6 +108,11 @@ from gyro_ekf.nodes.runtime import run_node
 
 DROP_REASONS = ('non_finite', 'out_of_range', 'bad_pose', 'zero_stamp', 'late', 'stamp_jump',
                 'empty_map', 'unknown_frame', 'filter_error')
+VERDICT_DROP_REASONS = tuple(r for r in DROP_REASONS if r != 'late')
+"""Drops the health verdict counts: all but late messages, which a live node under load
+drops by design (the merger's window), not because the input was bad."""
+_LEVELS = {health.OK: DiagnosticStatus.OK, health.DEGRADED: DiagnosticStatus.WARN,
+           health.FAILED: DiagnosticStatus.ERROR}
 
 
 def load_landmarks_file(path: str, limits: InputLimits = InputLimits()) -> LandmarkMap:
@@ -245,6 +257,10 @@ class EkfNode(Node):
 
         landmarks = load_landmarks_file(landmarks_file, limits) if landmarks_file else None
         self.driver = EventDriver(self.config, landmarks=landmarks, pose=sidecar.initial_pose)
+        # Health reports name each LiDAR by its scan topic, as summary.json does.
+        self.driver.sensor_names = {mount: topic for topic, (_, mount) in sidecar.lidars.items()}
+        self._logged_transitions = 0
+        self._first_imu_s: float | None = None
         self._initial_pose = sidecar.initial_pose
         # The first landmarks come later than the first IMU and odometry messages (the
         # detector works on each scan first), so wait for every configured LiDAR frame too,
@@ -509,6 +525,8 @@ class EkfNode(Node):
             try:
                 if kind is EventKind.IMU:
                     estimate = driver.on_imu(stamp_s, *value)
+                    if self._first_imu_s is None:
+                        self._first_imu_s = stamp_s
                     self._estimates += 1
                     self._last_estimate, self._last_ns = estimate, ns
                     if self._estimates % self._publish_every == 0:
@@ -518,6 +536,7 @@ class EkfNode(Node):
                 else:
                     self._last_report = self.driver.on_detections(stamp_s, value[0],
                                                                   value[1])
+                    self._log_health_changes()
             except CoreError as err:
                 self._drop('filter_error', f'the filter refused a {kind.name.lower()} event: '
                            f'{err}')
@@ -615,6 +634,8 @@ class EkfNode(Node):
         if self._lagged is not None:
             self._lagged.reset()
         self._late_streak, self._late_streams = 0, set()
+        self._logged_transitions = 0
+        self._first_imu_s = None
         self._path.clear()
         self._last_report = None
         self.resets += 1
@@ -648,7 +669,43 @@ class EkfNode(Node):
                 self._lagged.flush()
             self._publish_diagnostics()
 
+    def _log_health_changes(self) -> None:
+        """Log every LiDAR exclusion or readmission not logged yet."""
+        monitor = self.driver.health
+        new = monitor.transition_count - self._logged_transitions
+        if new <= 0:
+            return
+        self._logged_transitions = monitor.transition_count
+        for change in list(monitor.transitions)[-min(new, len(monitor.transitions)):]:
+            self.get_logger().warn(f'LiDAR {change.sensor} {change.change} at '
+                                   f'{change.stamp_s:.3f} s: {change.reason}')
+
+    def _verdict(self, since: float | None) -> dict:
+        """Return the health verdict since the start or the last reset, as summary.json has it.
+
+        The figures are summary.json's (analysis/summary.py), counted from the first IMU
+        sample to the last processed event instead of from the first to the last estimate.
+        """
+        stats = self.driver.stats
+        start, now = self._first_imu_s, self.driver.stamp_s
+        first = stats.first_association_s
+        if start is None or now is None:
+            start_gap = 0.0
+        else:
+            start_gap = (now if first is None else first) - start
+        figures = health.RunFigures(
+            # Excluded LiDARs' detections have their own reason, not the share's.
+            detections=stats.detections - stats.excluded,
+            matched=stats.outcomes.get('matched', 0), updates=stats.updates,
+            nis_mean=stats.mean_nis,
+            longest_gap_s=max(stats.longest_gap_s, since or 0.0), start_gap_s=start_gap,
+            sensors=self.driver.health.report(), resets=self.resets,
+            dropped={k: self.dropped[k] for k in VERDICT_DROP_REASONS},
+            final_bias_rad_s=self.driver.ekf.bias_rad_s)
+        return health.verdict(figures)
+
     def _publish_diagnostics(self) -> None:
+        self._log_health_changes()
         now = self.get_clock().now()
         base_time, base_counts = self._rate_base
         elapsed_s = (now - base_time).nanoseconds / 1e9
@@ -689,7 +746,24 @@ class EkfNode(Node):
                for key, value in (('frame_id', frame), ('x_m', f'{mount.x_m:.4f}'),
                                   ('y_m', f'{mount.y_m:.4f}'),
                                   ('yaw_deg', f'{math.degrees(mount.yaw_rad):.3f}'))},
+            'excluded_detections': str(stats.excluded),
+            'zero_rate_updates': str(stats.zero_rate_updates),
+            'standing_still': str(self.driver.zero_rate).lower(),
         }
+        verdict = self._verdict(since)
+        values['verdict'] = verdict['verdict']
+        values['verdict_reasons'] = ' | '.join(verdict['reasons'])
+        for lidar in self.driver.health.report():
+            prefix = f'lidar_{lidar["name"]}_'
+            values.update({
+                prefix + 'window_share': f'{lidar["window_share"]:.3f}',
+                prefix + 'window_nis_mean': f'{lidar["window_nis_mean"]:.3f}',
+                prefix + 'window_bearing_innovation_deg':
+                    f'{lidar["window_bearing_innovation_mean_deg"]:.3f}',
+                prefix + 'excluded': str(lidar['excluded']).lower(),
+                prefix + 'exclusions': str(lidar['exclusions']),
+                prefix + 'excluded_s': f'{lidar["excluded_s"]:.1f}',
+                prefix + 'disagreement': lidar['disagreement'] or ''})
         status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: gyro bias EKF',
                                   hardware_id=self.resolve_topic_name(topics.IMU))
         rising = sorted(k for k, v in self.dropped.items() if v > self._reported_drops[k])
@@ -706,6 +780,13 @@ class EkfNode(Node):
             status.message = 'no landmark associated recently'
         else:
             status.level, status.message = DiagnosticStatus.OK, 'tracking'
+        # The verdict raises the level (WARN degraded, ERROR failed) and names its worst
+        # reason first; what the node sees right now follows it.
+        level = _LEVELS[verdict['verdict']]
+        if level != DiagnosticStatus.OK:
+            now_message = '' if status.level == DiagnosticStatus.OK else f' ({status.message})'
+            status.level = max(status.level, level)
+            status.message = f'{verdict["verdict"]}: {verdict["reasons"][0]}{now_message}'
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         self._diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=now.to_msg()),
                                                       status=[status]))

@@ -4,21 +4,32 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from health_trips import two_lidar_trip
+
 from gyro_ekf.cli.main import main
+from gyro_ekf.cli.run import STRICT_EXIT_CODE
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 from gyro_ekf.io.bag_writer import write_trip_bag
 
 HEADER = 't,x,y,yaw,bias,var_x,var_y,var_yaw,var_bias,cov_xy,cov_xyaw,cov_yyaw'
 STATIC_WINDOW_BIAS_2016_DEG_S = -0.9748
+BAGS = Path(__file__).resolve().parents[2] / 'bags'
 
 
 def _run(bag, out, *extra):
     code = main(['-q', 'run', str(bag), '-o', str(out), '--no-progress', *extra])
-    return code, json.loads((out / 'summary.json').read_text()) if code == 0 else None
+    written = out / 'summary.json'
+    return code, json.loads(written.read_text()) if written.exists() else None
+
+
+def _assert_ok(summary):
+    assert summary['health']['verdict'] == 'ok', summary['health']['reasons']
+    assert summary['health']['reasons'] == []
 
 
 @pytest.fixture(scope='module')
@@ -32,7 +43,9 @@ def test_run_on_a_simulated_bag_meets_the_accuracy_bounds(tmp_path, simulated_ba
     out = tmp_path / 'out'
     code, summary = _run(bag, out)
     assert code == 0
-    assert 'position RMSE' in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert 'position RMSE' in printed and printed.startswith('verdict')
+    _assert_ok(summary)
     truth = summary['ground_truth']
     assert truth['position_rmse_m'] <= 0.02
     assert abs(truth['bias_error_final_deg_s']) <= 0.02
@@ -64,6 +77,7 @@ def test_unseen_simulated_trips_moving_from_the_start_meet_the_bounds(tmp_path, 
           f"{truth['nees_share_in_band']:.3f}, bias error "
           f"{truth['bias_error_final_deg_s']:+.4f} deg/s")
     assert summary['offline_bias'] is None    # no static window: the EKF alone finds it
+    _assert_ok(summary)
     assert truth['position_rmse_m'] <= 0.02
     assert abs(truth['bias_error_final_deg_s']) <= 0.02
     assert truth['nees_share_in_band'] >= 0.9
@@ -114,6 +128,7 @@ def test_real_2016_log_keeps_association_and_finds_the_static_bias(shared_data, 
     bag = _course_bag(shared_data, tmp_path, '2016_project1', '2021_aas01/MapMTRN4010.mat')
     code, summary = _run(bag, tmp_path / 'out', '--no-plots', '--no-bag')
     assert code == 0
+    _assert_ok(summary)
     association = summary['association']
     assert association['share_associated'] >= 0.99
     assert association['longest_gap_s'] <= 5.0
@@ -128,6 +143,8 @@ def test_course_simulations_are_accurate(shared_data, tmp_path, folder):
     bag = _course_bag(shared_data, tmp_path, folder)
     code, summary = _run(bag, tmp_path / 'out', '--no-plots', '--no-bag')
     assert code == 0
+    _assert_ok(summary)
+    assert not any(lidar['exclusions'] for lidar in summary['health']['lidars'])
     truth = summary['ground_truth']
     assert truth['position_rmse_m'] <= 0.02
     if 'bias_error_final_deg_s' in truth:
@@ -143,3 +160,32 @@ def test_course_simulations_are_consistent(shared_data, tmp_path, folder):
           f"(below {truth['nees_share_below_band']:.3f}, "
           f"above {truth['nees_share_above_band']:.3f})")
     assert truth['nees_share_in_band'] >= 0.9
+
+
+@pytest.mark.parametrize('name', ['sim_static_start', 'sim_moving_start'])
+def test_bundled_bags_pass_strict(tmp_path, name, capsys):
+    code, summary = _run(BAGS / name, tmp_path / 'out', '--no-plots', '--no-bag', '--strict')
+    assert code == 0
+    _assert_ok(summary)
+    assert capsys.readouterr().out.splitlines()[0].split() == ['verdict', 'ok']
+
+
+def test_strict_run_on_a_trip_with_a_mis_mounted_lidar_exits_3_and_still_writes(
+        tmp_path, capsys):
+    # The rear LiDAR's stated yaw is 6 deg off: it is excluded, the pose stays right, and
+    # the verdict says so.
+    bag = write_trip_bag(two_lidar_trip(seed=3, rear_yaw_error_deg=6.0), tmp_path / 'bag')
+    out = tmp_path / 'out'
+    code, summary = _run(bag, out, '--no-plots', '--strict')
+    assert code == STRICT_EXIT_CODE == 3
+    captured = capsys.readouterr()
+    assert captured.out.splitlines()[0].split() == ['verdict', 'degraded']
+    errors = captured.err.strip().splitlines()
+    assert len(errors) == 1 and errors[0].startswith(
+        'gyro-ekf run: --strict: verdict degraded: LiDAR scan2 excluded')
+    assert summary['health']['verdict'] == 'degraded'
+    assert (out / 'estimates.csv').exists() and (out / 'estimates').exists()
+    assert summary['ground_truth']['position_rmse_m'] <= 0.02
+    # Without --strict the same run exits 0 and says the same.
+    code, again = _run(bag, tmp_path / 'out2', '--no-plots', '--no-bag')
+    assert code == 0 and again['health'] == summary['health']

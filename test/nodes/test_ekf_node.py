@@ -107,6 +107,9 @@ def test_bias_on_a_simulated_bag_is_within_002_deg_s_of_the_truth(sim_run, diagn
     assert values is not None
     assert int(values['dropped_late']) == 0
     assert int(values['associated']) > 0
+    # A clean trip: the health verdict (summary.json's, live) is ok with no reason.
+    assert values['verdict'] == 'ok' and values['verdict_reasons'] == '', values
+    assert values['lidar_scan_excluded'] == 'false'
 
 
 @pytest.mark.shared_data

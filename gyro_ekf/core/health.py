@@ -1,0 +1,394 @@
+"""Sensor health: does each LiDAR agree with the map, and a verdict on a whole run.
+
+Per LiDAR (keyed by its mount, as the driver's rest counts are) the monitor keeps, over a
+sliding window of ``health_window_s`` of that LiDAR's scans: the association share
+(MATCHED / detected), the mean NIS and the mean bearing innovation of its updates. A yaw
+mount error shows as a bearing innovation of one sign, as detections that fall outside the
+gate (a low share) and, when the gate is wide, as large NIS.
+
+A LiDAR *disagrees* when, with enough samples in its window, its mean bearing innovation
+is beyond ``health_bearing_bias_sigmas`` bearing sigmas, or its mean NIS is above
+``health_max_nis_mean``, or its share is below ``health_min_association_share`` while
+another LiDAR, admitted and agreeing, associates at least ``health_good_association_share``.
+A disagreeing LiDAR is *excluded* only while such another LiDAR vouches for the map and the
+pose: with one LiDAR (or when all disagree) nothing tells which one is wrong, so it is only
+flagged. An excluded LiDAR's scans are still associated under the current pose, but not
+applied; it is readmitted when, at least a window after its exclusion, the re-checks in
+its window agree (share at least the good share, bearing and NIS within their limits).
+On good data no rule fires, so the filter's numbers are exactly those without the monitor.
+
+``verdict`` turns a run's figures (offline: summary.json; live: the EKF node) into
+ok / degraded / failed with one sentence per reason, each with its figure and threshold.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Hashable
+
+from gyro_ekf.core.config import EkfConfig
+
+OK, DEGRADED, FAILED = 'ok', 'degraded', 'failed'
+_RANK = {OK: 0, DEGRADED: 1, FAILED: 2}
+
+MAX_TRANSITIONS = 1000
+"""Exclusions and readmissions kept for reports (counts and times are kept in full)."""
+
+# Verdict thresholds (a whole run, or the live node since its start or last reset).
+VERDICT_DEGRADED_ASSOCIATION_SHARE = 0.9
+"""Below this share of detections MATCHED the run is degraded (the shared logs: 97.6-99.7 %)."""
+VERDICT_FAILED_ASSOCIATION_SHARE = 0.5
+"""Below this share the run failed: most of what the LiDARs saw disagreed with the map."""
+VERDICT_NIS_MEAN_BAND = (0.2, 5.0)
+"""Mean NIS (2 dof, expected 2) of all updates outside this band: degraded (the noise model
+does not describe the data, ten times too wide or 2.5 times too narrow in variance; the
+shared logs give 0.65 (2016), 1.0 (2023), 1.8 (2022))."""
+VERDICT_FAILED_NIS_MEAN = 20.0
+"""Mean NIS above this: failed (updates ten times their stated noise)."""
+VERDICT_MAX_GAP_S = 5.0
+"""Longest time without a landmark update after the first one (the 2016 bound)."""
+VERDICT_MAX_START_GAP_S = 30.0
+"""Longest time before the first landmark update (2023 starts 10 s with no pole in view)."""
+VERDICT_MAX_BIAS_RAD_S = math.radians(10.0)
+"""A gyro bias estimate beyond 10 deg/s is implausible for a MEMS gyro (the logs: < 1 deg/s):
+the gyro or the filter is broken."""
+
+
+@dataclass(slots=True)
+class SensorHealth:
+    """Running figures of one LiDAR (mutable; the monitor updates it)."""
+
+    name: str
+    window: deque = field(default_factory=deque)
+    # Window sums: detected, matched, updates, nis, bearing innovation.
+    w_detected: int = 0
+    w_matched: int = 0
+    w_updates: int = 0
+    w_nis: float = 0.0
+    w_bearing: float = 0.0
+    scans: int = 0
+    detections: int = 0
+    matched: int = 0
+    updates: int = 0
+    nis_sum: float = 0.0
+    bearing_sum: float = 0.0
+    first_s: float | None = None
+    last_s: float | None = None
+    reason: str | None = None
+    flagged_since: float | None = None
+    flagged_s: float = 0.0
+    excluded_since: float | None = None
+    excluded_s: float = 0.0
+    exclusions: int = 0
+    excluded_detections: int = 0
+
+    def copy(self) -> 'SensorHealth':
+        """Return an independent copy of these figures (for the driver's save/restore)."""
+        clone = SensorHealth(**{name: getattr(self, name) for name in self.__slots__})
+        clone.window = deque(self.window)
+        return clone
+
+    @property
+    def excluded(self) -> bool:
+        """Whether its observations are kept out of the filter now."""
+        return self.excluded_since is not None
+
+    def share(self) -> float:
+        """Return the MATCHED share of the detections in the window (nan when none)."""
+        return self.w_matched / self.w_detected if self.w_detected else math.nan
+
+    def nis_mean(self) -> float:
+        """Mean NIS of the window's (applied or re-checked) matches (nan when none)."""
+        return self.w_nis / self.w_updates if self.w_updates else math.nan
+
+    def bearing_mean_rad(self) -> float:
+        """Mean bearing innovation of the window's matches, rad (nan when none)."""
+        return self.w_bearing / self.w_updates if self.w_updates else math.nan
+
+    def time_excluded_s(self, now_s: float | None) -> float:
+        """Total time excluded up to now_s, s."""
+        open_s = 0.0 if self.excluded_since is None or now_s is None else (
+            now_s - self.excluded_since)
+        return self.excluded_s + max(open_s, 0.0)
+
+    def time_flagged_s(self, now_s: float | None) -> float:
+        """Total time it disagreed (excluded or not) up to now_s, s."""
+        open_s = 0.0 if self.flagged_since is None or now_s is None else (
+            now_s - self.flagged_since)
+        return self.flagged_s + max(open_s, 0.0)
+
+    def to_dict(self, now_s: float | None) -> dict[str, Any]:
+        """JSON-ready figures (window and totals) for summary.json and /diagnostics."""
+        return {
+            'name': self.name, 'scans': self.scans, 'detections': self.detections,
+            'matched': self.matched, 'updates': self.updates,
+            'excluded_detections': self.excluded_detections,
+            'nis_mean': self.nis_sum / self.updates if self.updates else math.nan,
+            'bearing_innovation_mean_deg': math.degrees(self.bearing_sum / self.updates)
+            if self.updates else math.nan,
+            'window_share': self.share(), 'window_nis_mean': self.nis_mean(),
+            'window_bearing_innovation_mean_deg': math.degrees(self.bearing_mean_rad()),
+            'disagreement': self.reason, 'excluded': self.excluded,
+            'exclusions': self.exclusions, 'excluded_s': self.time_excluded_s(now_s),
+            'disagreed_s': self.time_flagged_s(now_s)}
+
+
+@dataclass(frozen=True, slots=True)
+class Transition:
+    """A LiDAR excluded or readmitted: stamp s, sensor name, 'excluded'/'readmitted', why."""
+
+    stamp_s: float
+    sensor: str
+    change: str
+    reason: str
+
+
+class HealthMonitor:
+    """Consistency figures per LiDAR and the exclusion rules (see the module docstring)."""
+
+    def __init__(self, config: EkfConfig):
+        """Take the thresholds (health_*) and the bearing noise from the EKF config."""
+        self.config = config
+        self.sensors: dict[Hashable, SensorHealth] = {}
+        self.transitions: deque[Transition] = deque(maxlen=MAX_TRANSITIONS)
+        self.transition_count = 0
+        self.last_s: float | None = None
+        self._bearing_limit_rad = config.health_bearing_bias_sigmas * config.bearing_noise_rad
+
+    def save(self) -> tuple:
+        """Return an independent copy of the state (the driver's save)."""
+        return ({key: s.copy() for key, s in self.sensors.items()}, deque(self.transitions),
+                self.transition_count, self.last_s)
+
+    def restore(self, saved: tuple) -> None:
+        """Put back a state from ``save``."""
+        sensors, transitions, self.transition_count, self.last_s = saved
+        self.sensors = {key: s.copy() for key, s in sensors.items()}
+        self.transitions = deque(transitions, maxlen=MAX_TRANSITIONS)
+
+    def sensor(self, key: Hashable, name: str | None = None) -> SensorHealth:
+        """Return the figures of a LiDAR, created on first use (named after its key by default)."""
+        health = self.sensors.get(key)
+        if health is None:
+            health = self.sensors[key] = SensorHealth(name or str(key))
+        return health
+
+    def excluded(self, key: Hashable) -> bool:
+        """Whether this LiDAR's observations are kept out of the filter now."""
+        health = self.sensors.get(key)
+        return health is not None and health.excluded_since is not None
+
+    def record(self, key: Hashable, stamp_s: float, detected: int, matched: int,
+               nis_sum: float, bearing_sum_rad: float, name: str | None = None
+               ) -> Transition | None:
+        """Add one scan's figures and apply the rules; return an exclusion or readmission.
+
+        Args:
+            key: the LiDAR (its mount).
+            stamp_s: scan stamp, s.
+            detected: poles detected in the scan.
+            matched: detections MATCHED (applied, or only re-checked while excluded).
+            nis_sum: sum of the NIS of those matches.
+            bearing_sum_rad: sum of their bearing innovations (measured minus expected), rad.
+            name: display name (topic or frame) on first use.
+        """
+        health = self.sensor(key, name)
+        self.last_s = stamp_s
+        health.scans += 1
+        health.detections += detected
+        if health.first_s is None:
+            health.first_s = stamp_s
+        health.last_s = stamp_s
+        if health.excluded_since is not None:
+            health.excluded_detections += detected
+        else:
+            health.matched += matched
+            health.updates += matched
+            health.nis_sum += nis_sum
+            health.bearing_sum += bearing_sum_rad
+        health.window.append((stamp_s, detected, matched, nis_sum, bearing_sum_rad))
+        health.w_detected += detected
+        health.w_matched += matched
+        health.w_updates += matched
+        health.w_nis += nis_sum
+        health.w_bearing += bearing_sum_rad
+        start_s = stamp_s - self.config.health_window_s
+        window = health.window
+        while window[0][0] < start_s:
+            _, d, m, n, b = window.popleft()
+            health.w_detected -= d
+            health.w_matched -= m
+            health.w_updates -= m
+            health.w_nis -= n
+            health.w_bearing -= b
+        if health.w_detected < self.config.health_min_detections:
+            return None  # too few to judge: keep the present state
+        return self._judge(key, health, stamp_s)
+
+    def _own_disagreement(self, health: SensorHealth) -> str | None:
+        """Bearing and NIS rules (need health_min_detections matches in the window)."""
+        if health.w_updates < self.config.health_min_detections:
+            return None
+        bearing = health.bearing_mean_rad()
+        if abs(bearing) > self._bearing_limit_rad:
+            return (f'mean bearing innovation {math.degrees(bearing):+.2f} deg beyond '
+                    f'{math.degrees(self._bearing_limit_rad):.2f} deg '
+                    f'({self.config.health_bearing_bias_sigmas:g} bearing sigmas)')
+        nis = health.nis_mean()
+        if nis > self.config.health_max_nis_mean:
+            return f'mean NIS {nis:.1f} above {self.config.health_max_nis_mean:g}'
+        return None
+
+    def _vouching_peer(self, key: Hashable, stamp_s: float) -> str | None:
+        """Name of another admitted, agreeing LiDAR that associates well now, or None."""
+        for other_key, other in self.sensors.items():
+            if (other_key != key and other.excluded_since is None and other.reason is None
+                    and other.last_s is not None
+                    and stamp_s - other.last_s <= self.config.health_window_s
+                    and other.w_detected >= self.config.health_min_detections
+                    and other.share() >= self.config.health_good_association_share):
+                return other.name
+        return None
+
+    def _judge(self, key: Hashable, health: SensorHealth, stamp_s: float
+               ) -> Transition | None:
+        config = self.config
+        reason = self._own_disagreement(health)
+        peer = self._vouching_peer(key, stamp_s)
+        share = health.share()
+        if reason is None and peer is not None and share < config.health_min_association_share:
+            reason = (f'associates {share:.0%} of its detections, below '
+                      f'{config.health_min_association_share:.0%}, while {peer} associates '
+                      f'at least {config.health_good_association_share:.0%}')
+        if health.excluded_since is not None:
+            # Readmitted on a full window of re-checks that agree, the share included.
+            if reason is None and share >= config.health_good_association_share and (
+                    stamp_s - health.excluded_since >= config.health_window_s):
+                return self._change(health, stamp_s, 'readmitted', None,
+                                    f'its re-checks agree again: {share:.0%} associated')
+            if reason is not None:
+                health.reason = reason
+            return None
+        if reason is None:
+            if health.reason is not None:
+                health.flagged_s += stamp_s - (health.flagged_since or stamp_s)
+                health.reason, health.flagged_since = None, None
+            return None
+        if health.reason is None:
+            health.flagged_since = stamp_s
+        health.reason = reason
+        if peer is None:
+            return None  # nothing tells which sensor is wrong: flagged, not excluded
+        return self._change(health, stamp_s, 'excluded', reason, reason)
+
+    def _change(self, health: SensorHealth, stamp_s: float, change: str,
+                reason: str | None, why: str) -> Transition:
+        if change == 'excluded':
+            health.excluded_since = stamp_s
+            health.exclusions += 1
+        else:
+            health.excluded_s += stamp_s - (health.excluded_since or stamp_s)
+            health.excluded_since = None
+            health.flagged_s += stamp_s - (health.flagged_since or stamp_s)
+            health.flagged_since = None
+            health.reason = reason
+        # The window starts again: what decides next is measured in the new state only.
+        health.window.clear()
+        health.w_detected = health.w_matched = health.w_updates = 0
+        health.w_nis = health.w_bearing = 0.0
+        transition = Transition(stamp_s, health.name, change, why)
+        self.transitions.append(transition)
+        self.transition_count += 1
+        return transition
+
+    def report(self) -> list[dict[str, Any]]:
+        """Figures of every LiDAR, in the order first seen."""
+        return [health.to_dict(self.last_s) for health in self.sensors.values()]
+
+
+@dataclass(frozen=True, slots=True)
+class RunFigures:
+    """What the verdict looks at (offline from summary.json's numbers, live from the node).
+
+    Attributes:
+        detections: poles detected by LiDARs while admitted (excluded ones have their
+            own reason).
+        matched: detections MATCHED (applied).
+        updates: landmark updates applied.
+        nis_mean: mean NIS of the updates (nan without).
+        longest_gap_s: longest time without an update after the first one, s (up to now or
+            the end).
+        start_gap_s: time from the start to the first update (or to now/the end when none).
+        sensors: HealthMonitor.report().
+        resets: filter resets.
+        dropped: input samples or messages dropped by the validation boundary, per reason.
+        final_bias_rad_s: the bias estimate now / at the end (nan when unknown).
+    """
+
+    detections: int
+    matched: int
+    updates: int
+    nis_mean: float
+    longest_gap_s: float
+    start_gap_s: float
+    sensors: list[dict[str, Any]]
+    resets: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
+    final_bias_rad_s: float = math.nan
+
+
+def verdict(figures: RunFigures) -> dict[str, Any]:
+    """Return {verdict: ok|degraded|failed, reasons: [sentence with figure and threshold]}."""
+    reasons: list[tuple[str, str]] = []
+
+    def add(level: str, text: str) -> None:
+        reasons.append((level, text))
+
+    if figures.detections and figures.updates == 0:
+        add(FAILED, f'no landmark update in {figures.start_gap_s:.1f} s although '
+            f'{figures.detections} poles were detected')
+    if figures.detections:
+        share = figures.matched / figures.detections
+        if share < VERDICT_FAILED_ASSOCIATION_SHARE:
+            add(FAILED, f'{share:.1%} of detections associated, below '
+                f'{VERDICT_FAILED_ASSOCIATION_SHARE:.0%}')
+        elif share < VERDICT_DEGRADED_ASSOCIATION_SHARE:
+            add(DEGRADED, f'{share:.1%} of detections associated, below '
+                f'{VERDICT_DEGRADED_ASSOCIATION_SHARE:.0%}')
+    for sensor in figures.sensors:
+        if sensor['exclusions']:
+            add(DEGRADED, f'LiDAR {sensor["name"]} excluded {sensor["exclusions"]} time(s), '
+                f'{sensor["excluded_s"]:.1f} s in all' + (' (still excluded)' if sensor[
+                    'excluded'] else '') + (f': {sensor["disagreement"]}'
+                                            if sensor['disagreement'] else ''))
+        elif sensor['disagreed_s'] > 0.0 or sensor['disagreement']:
+            add(DEGRADED, f'LiDAR {sensor["name"]} disagreed with the map for '
+                f'{sensor["disagreed_s"]:.1f} s with no other LiDAR to vouch for the pose'
+                + (f': {sensor["disagreement"]}' if sensor['disagreement'] else ''))
+    low, high = VERDICT_NIS_MEAN_BAND
+    nis = figures.nis_mean
+    if figures.updates and nis > VERDICT_FAILED_NIS_MEAN:
+        add(FAILED, f'mean NIS {nis:.2f} above {VERDICT_FAILED_NIS_MEAN:g}')
+    elif figures.updates and not low <= nis <= high:
+        add(DEGRADED, f'mean NIS {nis:.2f} outside its band [{low:g}, {high:g}]')
+    if figures.updates and figures.longest_gap_s > VERDICT_MAX_GAP_S:
+        add(DEGRADED, f'{figures.longest_gap_s:.1f} s without a landmark update, longer than '
+            f'{VERDICT_MAX_GAP_S:g} s')
+    if figures.updates and figures.start_gap_s > VERDICT_MAX_START_GAP_S:
+        add(DEGRADED, f'first landmark update after {figures.start_gap_s:.1f} s, later than '
+            f'{VERDICT_MAX_START_GAP_S:g} s')
+    if figures.resets:
+        add(DEGRADED, f'the filter was reset {figures.resets} time(s)')
+    dropped = {k: v for k, v in figures.dropped.items() if v}
+    if dropped:
+        add(DEGRADED, f'input dropped by validation: {sum(dropped.values())} ('
+            + ', '.join(f'{k} {v}' for k, v in sorted(dropped.items())) + '), more than 0')
+    if abs(figures.final_bias_rad_s) > VERDICT_MAX_BIAS_RAD_S:
+        add(FAILED, f'gyro bias estimate {math.degrees(figures.final_bias_rad_s):+.2f} deg/s '
+            f'beyond +-{math.degrees(VERDICT_MAX_BIAS_RAD_S):g} deg/s')
+    level = max((lvl for lvl, _ in reasons), key=_RANK.__getitem__, default=OK)
+    # Worst first: the first reason is the one a one-line message names.
+    ordered = sorted(reasons, key=lambda item: -_RANK[item[0]])
+    return {'verdict': level, 'reasons': [text for _, text in ordered]}

@@ -1,0 +1,140 @@
+"""Sensor health: a mis-mounted LiDAR is excluded, an honest one never; the run verdict."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+
+from health_trips import two_lidar_trip
+
+from gyro_ekf.analysis.offline import run_trip
+from gyro_ekf.analysis.params_file import PipelineParams
+from gyro_ekf.analysis.summary import summarize
+from gyro_ekf.core import health
+from gyro_ekf.core.config import EkfConfig
+from gyro_ekf.core.types import LidarMount
+
+# Rules that can never fire: what the filter does without the monitor.
+NO_EXCLUSION = {'health_min_association_share': 0.0, 'health_bearing_bias_sigmas': 1e6,
+                'health_max_nis_mean': 1e9}
+
+
+@pytest.fixture(scope='module')
+def clean():
+    return summarize(run_trip(two_lidar_trip(seed=1)))
+
+
+@pytest.fixture(scope='module')
+def broken():
+    return summarize(run_trip(two_lidar_trip(seed=1, rear_yaw_error_deg=6.0)))
+
+
+def test_honest_lidars_are_never_excluded_and_the_verdict_is_ok(clean):
+    section = clean['health']
+    assert [lidar['name'] for lidar in section['lidars']] == ['scan', 'scan2']
+    assert all(not lidar['exclusions'] and lidar['disagreed_s'] == 0.0
+               for lidar in section['lidars'])
+    assert section['transitions'] == []
+    # The rear LiDAR carries the filter through the front one's dropout.
+    assert section['verdict'] == 'ok', section['reasons']
+    assert clean['ground_truth']['position_rmse_m'] <= 0.02
+
+
+def test_a_clean_trip_without_dropout_is_ok():
+    summary = summarize(run_trip(two_lidar_trip(seed=2, front_dropout_s=None)))
+    assert summary['health']['verdict'] == 'ok', summary['health']['reasons']
+
+
+def test_a_lidar_six_degrees_off_is_excluded_and_the_pose_stays_right(broken):
+    section = broken['health']
+    first = section['transitions'][0]
+    assert first['lidar'] == 'scan2' and first['change'] == 'excluded'
+    assert first['stamp_s'] <= 2.0          # within 20 scans of the rear LiDAR
+    assert [t['change'] for t in section['transitions']] == ['excluded']  # never readmitted
+    rear = section['lidars'][1]
+    assert rear['excluded'] and rear['excluded_s'] >= 55.0
+    assert not section['lidars'][0]['exclusions']
+    assert broken['ground_truth']['position_rmse_m'] <= 0.02
+    # Degraded, not failed: the pose is right, but a sensor was left out (and the front
+    # LiDAR's dropout, with the rear one excluded, leaves 10 s without an update).
+    assert section['verdict'] == 'degraded', section['reasons']
+    assert any(reason.startswith('LiDAR scan2 excluded 1 time(s), 59.')
+               for reason in section['reasons'])
+
+
+def test_without_exclusion_the_same_trip_is_dragged_away_and_fails():
+    trip = two_lidar_trip(seed=1, rear_yaw_error_deg=6.0)
+    config = dataclasses.replace(EkfConfig(), **NO_EXCLUSION)
+    run = run_trip(trip, dataclasses.replace(PipelineParams(), ekf=config))
+    summary = summarize(run)
+    assert summary['health']['transitions'] == []
+    assert summary['ground_truth']['position_rmse_m'] > 0.05
+    assert summary['health']['verdict'] == 'failed'
+
+
+def test_a_single_lidar_off_its_mount_is_flagged_not_excluded():
+    trip = two_lidar_trip(seed=1, rear_yaw_error_deg=6.0, front_dropout_s=None)
+    trip = dataclasses.replace(trip, scans=trip.scans[1:])
+    summary = summarize(run_trip(trip))
+    section = summary['health']
+    assert section['transitions'] == []     # nothing tells the map or the LiDAR is wrong
+    assert section['verdict'] != 'ok'
+
+
+def _feed(monitor, key, stamp_s, good, name):
+    detected = 4
+    matched = 4 if good else 0
+    return monitor.record(key, stamp_s, detected, matched, 2.0 * matched,
+                          math.radians(0.01) * matched, name)
+
+
+def test_monitor_excludes_then_readmits_after_a_window_of_agreeing_rechecks():
+    config = EkfConfig()
+    monitor = health.HealthMonitor(config)
+    front, rear = LidarMount(), LidarMount(yaw_rad=math.pi)
+    changes = []
+    for step in range(200):
+        t = step * 0.1
+        _feed(monitor, front, t, True, 'front')
+        change = _feed(monitor, rear, t, t >= 10.0, 'rear')
+        if change is not None:
+            changes.append((round(change.stamp_s, 1), change.change))
+    # Judged once 20 detections are in (5 scans); readmitted once its window's share is
+    # back at the good share (80 % of the 5 s window after 10 s), and only then.
+    assert changes[0] == (0.4, 'excluded')
+    assert changes[1:] == [(14.0, 'readmitted')]
+    assert not monitor.excluded(rear)
+    report = {r['name']: r for r in monitor.report()}
+    assert report['rear']['exclusions'] == 1 and not report['front']['exclusions']
+
+
+def test_monitor_bearing_rule_catches_a_yaw_bias_the_gate_let_through():
+    config = EkfConfig()
+    monitor = health.HealthMonitor(config)
+    front, rear = LidarMount(), LidarMount(yaw_rad=math.pi)
+    for step in range(20):
+        t = step * 0.1
+        monitor.record(front, t, 4, 4, 8.0, 0.0, 'front')
+        change = monitor.record(rear, t, 4, 4, 8.0, 4 * math.radians(2.0), 'rear')
+        if change is not None:
+            break
+    assert change is not None and change.change == 'excluded'
+    assert 'bearing innovation +2.00 deg' in change.reason
+
+
+def test_verdict_names_each_reason_with_its_figure_and_threshold():
+    figures = health.RunFigures(detections=100, matched=40, updates=40, nis_mean=30.0,
+                                longest_gap_s=7.0, start_gap_s=1.0, sensors=[], resets=1,
+                                dropped={'imu samples': 3})
+    result = health.verdict(figures)
+    assert result['verdict'] == 'failed'
+    text = ' | '.join(result['reasons'])
+    for piece in ('40.0% of detections associated, below 50%', 'mean NIS 30.00 above 20',
+                  '7.0 s without a landmark update, longer than 5 s', 'reset 1 time',
+                  'input dropped by validation: 3'):
+        assert piece in text
+    good = health.RunFigures(detections=100, matched=99, updates=99, nis_mean=2.0,
+                             longest_gap_s=0.5, start_gap_s=1.0, sensors=[])
+    assert health.verdict(good) == {'verdict': 'ok', 'reasons': []}

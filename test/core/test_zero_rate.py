@@ -1,0 +1,199 @@
+"""Zero-rate updates: standing still, each gyro sample measures the bias (core/events.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from stop_trips import trip_with_stops
+
+from gyro_ekf.core.config import EkfConfig, with_stated_noise
+from gyro_ekf.core.ekf import GyroBiasEkf
+from gyro_ekf.core.events import drive_trip, EventDriver
+
+OFF = {'zero_rate_max_spread_rad_s': 0.0}
+STATIC_START_2016_S = 17.92
+"""The 2016 trip's static start (shared data README: speed exactly 0 until then)."""
+STOPS_AT_S, STOP_S = (15.0, 30.0, 45.0), 5.0
+
+
+def _drive(trip, **changes):
+    config = with_stated_noise(dataclasses.replace(EkfConfig(), **changes), trip.noise)
+    return drive_trip(trip, EventDriver(config, pose=trip.initial_pose))
+
+
+def _at(estimates, stamp_s):
+    """Row of the last estimate at or before stamp_s."""
+    return int(np.searchsorted(estimates.stamp_s, stamp_s, side='right')) - 1
+
+
+def test_a_zero_rate_update_is_the_kalman_update_of_h_equal_b():
+    rng = np.random.default_rng(4)
+    A = rng.standard_normal((4, 4))
+    ekf = GyroBiasEkf(EkfConfig(), pose=np.array([1.0, 2.0, 0.3]), bias_rad_s=0.01,
+                      covariance=A @ A.T + 0.1 * np.eye(4))
+    x, P = ekf.x, ekf.P
+    z, r = 0.02, 1e-4
+    H = np.array([[0.0, 0.0, 0.0, 1.0]])
+    S = (H @ P @ H.T).item() + r
+    K = P @ H.T / S
+    nis = ekf.update_zero_rate(z, r)
+    I_KH = np.eye(4) - K @ H
+    assert np.allclose(ekf.x, x + (K * (z - x[3])).ravel(), atol=1e-15)
+    assert np.allclose(ekf.P, I_KH @ P @ I_KH.T + r * K @ K.T, atol=1e-12)
+    assert nis == pytest.approx((z - x[3]) ** 2 / S)
+
+
+def test_holding_the_position_moves_only_the_heading():
+    config = EkfConfig()
+    ekf = GyroBiasEkf(config, pose=np.array([1.0, 2.0, 0.3]), bias_rad_s=0.01)
+    P = ekf.P
+    ekf.predict(0.5, 0.03, 0.1, hold_position=True)
+    assert ekf.x[:2].tolist() == [1.0, 2.0]
+    assert ekf.x[2] == pytest.approx(0.3 + 0.1 * (0.03 - 0.01))
+    # No speed noise; only the position random walk.
+    walk = 0.1 * config.position_random_walk_m_sqrt_s ** 2
+    assert np.allclose(ekf.P[:2, :2], P[:2, :2] + walk * np.eye(2), rtol=0, atol=1e-18)
+
+
+@pytest.fixture(scope='module')
+def stops():
+    """A 60 s simulated trip with three 5 s stops, run with and without zero-rate updates."""
+    trip, spans = trip_with_stops(seed=3, stops_at_s=STOPS_AT_S, stop_s=STOP_S)
+    return trip, spans, _drive(trip), _drive(trip, **OFF)
+
+
+def _information_per_stop(run, spans):
+    """Bias information gained over each stop, 1/sigma_end^2 - 1/sigma_start^2, (s/rad)^2."""
+    estimates = run.estimates
+    gained = []
+    for start_s, end_s in spans:
+        first, last = _at(estimates, start_s), _at(estimates, end_s)
+        var = estimates.covariance[[first, last], 3, 3]
+        gained.append(1.0 / var[1] - 1.0 / var[0])
+    return np.array(gained)
+
+
+def test_the_bias_sigma_shrinks_at_every_stop_by_what_the_gyro_samples_tell(stops):
+    trip, spans, run, off = stops
+    # Standing still, each of the stop's gyro samples measures the bias with the gyro's
+    # white noise: n samples add about n / sigma^2 of information (less the first
+    # zero_rate_min_still_s, which only shows the platform is still).
+    sigma = trip.noise.gyro_rad_s
+    rate = 1.0 / np.median(np.diff(trip.imu.stamp_s))
+    offered = (STOP_S - EkfConfig().zero_rate_min_still_s) * rate / sigma ** 2
+    gained = _information_per_stop(run, spans)
+    landmarks_only = _information_per_stop(off, spans)
+    print('information gained per stop / offered:', np.round(gained / offered, 2),
+          'without zero-rate updates:', np.round(landmarks_only / offered, 2))
+    # Landmark looks at rest teach the bias too (through the heading); the zero-rate
+    # updates add at least half of what the gyro samples offer on top, at every stop.
+    assert np.all(gained - landmarks_only >= 0.5 * offered)
+    assert run.stats.stops == len(spans)
+    true_bias = trip.true_gyro_bias_rad_s[2]
+    estimates = run.estimates
+    for start_s, end_s in spans:
+        row = _at(estimates, end_s)
+        start_var = estimates.covariance[_at(estimates, start_s), 3, 3]
+        assert estimates.covariance[row, 3, 3] < start_var
+        error = estimates.state[row, 3] - true_bias
+        assert abs(error) <= 3.0 * math.sqrt(estimates.covariance[row, 3, 3])
+
+
+def test_a_stop_holds_the_position():
+    trip, spans = trip_with_stops(seed=3, stops_at_s=(15.0,), stop_s=STOP_S)
+    speed = trip.speed
+    start_s, end_s = spans[0]
+    stopped = (speed.stamp_s >= start_s) & (speed.stamp_s < end_s)
+    # The same stop seen by an encoder that creeps at 0.5 mm/s (under rest_speed_m_s).
+    speeds = np.where(stopped, 0.5 * EkfConfig().rest_speed_m_s, speed.speed_m_s)
+    creeping = dataclasses.replace(trip, speed=dataclasses.replace(speed, speed_m_s=speeds))
+    exact, creep = _drive(trip).estimates, _drive(creeping).estimates
+    held = slice(_at(exact, start_s + EkfConfig().zero_rate_min_still_s) + 1,
+                 _at(exact, end_s) + 1)
+    before = slice(_at(exact, start_s) + 1, held.start)
+    # Before the platform is known to stand still the creep moves the estimate; once it
+    # is, the prediction holds the position and the creep adds nothing more (the
+    # landmark updates at rest then pull both estimates together).
+    moved = creep.state[before, :2] - exact.state[before, :2]
+    assert np.abs(moved[-1]).max() > 0.0
+    gap = np.hypot(*(creep.state[held, :2] - exact.state[held, :2]).T)
+    assert gap.max() <= gap[0] + 1e-6, (gap[0], gap.max())   # the creep would add 2 mm
+
+
+def test_a_turn_on_the_spot_is_no_stop():
+    trip, spans = trip_with_stops(seed=3, stops_at_s=(15.0,), stop_s=STOP_S)
+    imu = trip.imu
+    turning = (imu.stamp_s >= spans[0][0]) & (imu.stamp_s < spans[0][1])
+    rates = imu.angular_velocity_rad_s.copy()
+    # Speed 0 but turning at 20 deg/s: its gyro spread is small, its mean is no bias.
+    rates[turning, 2] += math.radians(20.0)
+    trip = dataclasses.replace(trip, imu=dataclasses.replace(imu, angular_velocity_rad_s=rates),
+                               scans=())
+    assert _drive(trip).stats.zero_rate_updates == 0
+
+
+@pytest.mark.shared_data
+def test_the_2016_static_start_teaches_the_bias_of_the_static_window(shared_data):
+    from gyro_ekf.core.calibration import estimate_gyro_bias
+    from gyro_ekf.io.matlab import load_course_log
+
+    trip = load_course_log([shared_data('2016_project1'),
+                            shared_data('2021_aas01/MapMTRN4010.mat')])
+    calibration = estimate_gyro_bias(trip.imu.stamp_s, trip.imu.angular_velocity_rad_s,
+                                     speed_stamp_s=trip.speed.stamp_s,
+                                     speed_m_s=trip.speed.speed_m_s)
+    run = _drive(trip)     # the bias starts at 0 +- 2 deg/s: no calibration seeds it
+    estimates = run.estimates
+    row = _at(estimates, trip.start_s + STATIC_START_2016_S)
+    bias_deg_s = math.degrees(estimates.state[row, 3])
+    sigma_deg_s = math.degrees(math.sqrt(estimates.covariance[row, 3, 3]))
+    static_deg_s = math.degrees(calibration.bias_rad_s[2])
+    print(f'at {estimates.stamp_s[row]:.2f} s: {bias_deg_s:.4f} +- {sigma_deg_s:.4f} deg/s; '
+          f'static window {static_deg_s:.4f} deg/s')
+    assert abs(bias_deg_s - static_deg_s) <= 0.01
+    assert sigma_deg_s <= 0.01
+    # Without zero-rate updates the sigma is well above it.
+    off = _drive(trip, **OFF).estimates
+    assert math.degrees(math.sqrt(off.covariance[row, 3, 3])) > 0.01
+
+
+def _stop_rates(trip, spans, change):
+    """The trip with the z gyro samples inside its stops replaced by change(samples)."""
+    imu = trip.imu
+    inside = np.zeros(imu.stamp_s.size, dtype=bool)
+    for start_s, end_s in spans:
+        inside |= (imu.stamp_s >= start_s) & (imu.stamp_s < end_s)
+    rates = imu.angular_velocity_rad_s.copy()
+    rates[inside, 2] = change(rates[inside, 2])
+    return dataclasses.replace(trip, imu=dataclasses.replace(imu, angular_velocity_rad_s=rates))
+
+
+def test_a_shaken_stop_teaches_nothing():
+    trip, spans = trip_with_stops(seed=3, stops_at_s=(15.0,), stop_s=STOP_S)
+    rng = np.random.default_rng(8)
+    # Vibration: 3 deg/s of spread, twice zero_rate_max_spread_rad_s.
+    shaken = _stop_rates(trip, spans, lambda w: w + math.radians(3.0) * rng.standard_normal(
+        w.size))
+    assert _drive(shaken).stats.zero_rate_updates == 0
+    assert _drive(trip).stats.zero_rate_updates > 0
+
+
+def test_a_gyro_without_noise_at_rest_counts_no_more_than_the_noise_floor():
+    trip, spans = trip_with_stops(seed=3, stops_at_s=(15.0,), stop_s=STOP_S)
+    true_bias = trip.true_gyro_bias_rad_s[2]
+    # Every sample of the stop reads the bias exactly: no spread.
+    exact = _stop_rates(trip, spans, lambda w: np.full_like(w, true_bias))
+    run = _drive(exact)
+    estimates = run.estimates
+    row = _at(estimates, spans[0][1])
+    n = run.stats.zero_rate_updates
+    floor = EkfConfig().zero_rate_min_noise_rad_s
+    assert n > 0
+    # n samples at the floor's sigma give at most n / floor^2 of information.
+    assert 1.0 / estimates.covariance[row, 3, 3] <= 1.0 / estimates.covariance[
+        _at(estimates, spans[0][0]), 3, 3] + n / floor ** 2
+    assert abs(estimates.state[row, 3] - true_bias) <= 3.0 * math.sqrt(
+        estimates.covariance[row, 3, 3])

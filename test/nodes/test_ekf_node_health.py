@@ -1,0 +1,103 @@
+"""ekf_node's health verdict in /diagnostics, on a replayed two-LiDAR bag with one LiDAR
+mis-mounted, against the verdict `gyro-ekf run` writes in summary.json for the same bag.
+
+In its own module, so its processes run in their own ROS domain next to nobody else's.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from health_trips import two_lidar_trip
+
+pytestmark = pytest.mark.ros
+
+STATUS = '/ekf_node: gyro bias EKF'
+
+
+def _status(messages):
+    """The newest status of the EKF node: (level, message, key/values)."""
+    for array in reversed(messages):
+        for status in array.status:
+            if STATUS in status.name:
+                return status.level, status.message, {kv.key: kv.value for kv in status.values}
+    return None
+
+
+@pytest.fixture(scope='module')
+def mis_mounted_run(ros_processes, tmp_path_factory):
+    """The bag through two detector nodes and the EKF node, and through `gyro-ekf run`."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from gyro_ekf.cli.main import main
+    from gyro_ekf.io import read_bag
+    from gyro_ekf.io.bag_writer import write_trip_bag
+    from gyro_ekf.nodes import qos
+
+    tmp = tmp_path_factory.mktemp('health')
+    # The rear LiDAR's stated yaw is 6 deg off its true mount.
+    bag = write_trip_bag(two_lidar_trip(seed=3, rear_yaw_error_deg=6.0), tmp / 'bag')
+    assert main(['-q', 'run', str(bag), '-o', str(tmp / 'out'), '--no-progress',
+                 '--no-plots', '--no-bag']) == 0
+    offline = json.loads((tmp / 'out' / 'summary.json').read_text())['health']
+
+    processes, probe = ros_processes
+    diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
+    lossless = ('-p', 'reliable_inputs:=true')
+    processes.node('landmark_detector_node', *lossless)
+    processes.node('landmark_detector_node', *lossless, '-r', 'scan:=scan2',
+                   '-r', '__node:=landmark_detector_scan2', name='detector_scan2')
+    processes.node('ekf_node', '--params-file', f'{bag}.params.yaml', *lossless,
+                   '-p', 'reorder_window_s:=1.0', '-p', 'diagnostics_period_s:=0.2')
+    probe.spin_until(lambda: probe.node.count_publishers('/landmarks') == 2
+                     and probe.node.count_subscribers('/landmarks') == 1
+                     and probe.node.count_publishers('/ekf/odometry') == 1, 20,
+                     'two detectors and the EKF node on /landmarks')
+    replay = processes.run(
+        'replay', 'gyro_ekf.cli.main', 'replay', str(bag), '--rate', '5',
+        '--topics', 'imu', 'odom', 'scan', 'scan2', 'landmark_map', 'initialpose',
+        '--wait-for', 'imu:1', '--wait-for', 'odom:1', '--wait-for', 'scan:1',
+        '--wait-for', 'scan2:1', timeout_s=150)
+    n_imu = str(len(read_bag(bag).trip.imu.stamp_s))
+    probe.spin_until(lambda: (_status(diagnostics) or (0, '', {}))[2].get('estimates') == n_imu,
+                     60, f'{n_imu} estimates in /diagnostics')
+    # Two more statuses: the scans after the last IMU sample are in (idle flush).
+    seen = len(diagnostics)
+    probe.spin_until(lambda: len(diagnostics) >= seen + 2, 10, 'two more diagnostics')
+    return offline, _status(diagnostics), replay, processes.log('ekf_node')
+
+
+def test_node_reports_the_verdict_summary_json_gives(mis_mounted_run):
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    offline, (level, message, values), replay, _ = mis_mounted_run
+    assert 'all acknowledged: True' in replay
+    assert offline['verdict'] == 'degraded'
+    assert values['verdict'] == 'degraded'
+    assert level == DiagnosticStatus.WARN
+    reasons = values['verdict_reasons'].split(' | ')
+    print('node:', reasons, '\noffline:', offline['reasons'])
+    assert len(reasons) == len(offline['reasons'])
+    # Scans of the two LiDARs that share a stamp reach the node in either order, so the
+    # exclusion may come one scan apart from the offline run's: the time excluded is
+    # compared to 0.1 s, every other reason word for word.
+    prefix = 'LiDAR scan2 excluded 1 time(s), '
+    assert reasons[0].startswith(prefix) and offline['reasons'][0].startswith(prefix)
+    node_s, offline_s = (float(r[len(prefix):].split(' s in all')[0])
+                         for r in (reasons[0], offline['reasons'][0]))
+    assert abs(node_s - offline_s) <= 0.11
+    assert reasons[0].split(' s in all')[1] == offline['reasons'][0].split(' s in all')[1]
+    assert reasons[1:] == offline['reasons'][1:]
+    assert message.startswith('degraded: LiDAR scan2 excluded')
+
+
+def test_node_reports_the_excluded_lidar_and_logs_it(mis_mounted_run):
+    offline, (_, _, values), _, log = mis_mounted_run
+    assert values['lidar_scan2_excluded'] == 'true'
+    assert values['lidar_scan_excluded'] == 'false'
+    assert values['lidar_scan2_exclusions'] == '1'
+    assert values['lidar_scan2_disagreement'].startswith('associates 0% of its detections')
+    assert int(values['excluded_detections']) > 0
+    assert 'LiDAR scan2 excluded at' in log
+    assert [lidar['name'] for lidar in offline['lidars']] == ['scan', 'scan2']
