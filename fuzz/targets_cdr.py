@@ -4,7 +4,7 @@ Seeds are real payloads (Imu, Odometry, LaserScan, PoseWithCovarianceStamped) ta
 bag the simulator writes. A batch of one to five messages of one type, one of them mutated,
 goes through the fast decoder and, message by message, through rosbags' deserializer. The
 fast decoder is right when it returns rosbags' values for every field, or when it raises
-its own CdrDecodeError (which bag_reader turns into a BagError); it is silently wrong when
+its own CdrDecodeError (which bag_sinks turns into a BagError); it is silently wrong when
 it returns values rosbags would not (rosbags refuses the message, or its values differ).
 """
 
@@ -110,7 +110,7 @@ class Cdr(Target):
         fast = isolate.call(fast_values, datas, msgtype)
         reference = isolate.call(rosbags_values, datas, msgtype)
         if fast.status == 'raised' and fast.error == 'gyro_ekf.io.fast_cdr.CdrDecodeError':
-            fast.status = 'clean'  # the decoder's own error; bag_reader makes it a BagError
+            fast.status = 'clean'  # the decoder's own error; bag_sinks makes it a BagError
         verdict.account('decode_columns', fast)
         if reference.status in ('hang', 'crash'):
             verdict.account('rosbags deserialize_cdr', reference)

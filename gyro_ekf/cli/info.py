@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from gyro_ekf.io.bag_reader import BagSummary
+    from gyro_ekf.io.bag_info import BagSummary
 
 HELP = 'print the topics, types, message counts, duration and start time of a bag'
 
@@ -47,7 +47,7 @@ def format_summary(summary: BagSummary) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
-    from gyro_ekf.io.bag_reader import bag_summary
+    from gyro_ekf.io.bag_info import bag_summary
     from gyro_ekf.io.errors import BagError
     from gyro_ekf.io.reindex import needs_reindex
 

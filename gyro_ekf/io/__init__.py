@@ -16,7 +16,7 @@ _EXPORTS = {
     'load_trip': 'trip_file', 'save_trip': 'trip_file',
     'write_trip_bag': 'bag_writer',
     'BagTrip': 'bag_reader', 'iter_bag_messages': 'bag_reader', 'read_bag': 'bag_reader',
-    'read_trip_bag': 'bag_reader', 'bag_summary': 'bag_reader',
+    'read_trip_bag': 'bag_reader', 'bag_summary': 'bag_info',
     'BagParams': 'sidecar', 'read_sidecar': 'sidecar', 'sidecar_path': 'sidecar',
 }
 

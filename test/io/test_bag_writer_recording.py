@@ -17,7 +17,8 @@ from mcap.stream_reader import StreamReader
 
 from gyro_ekf import topics
 from gyro_ekf.io import messages as msgs
-from gyro_ekf.io.bag_reader import bag_summary, iter_bag_messages
+from gyro_ekf.io.bag_info import bag_summary
+from gyro_ekf.io.bag_reader import iter_bag_messages
 from gyro_ekf.io.bag_writer import SENSOR_QOS
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.recording import RecordingBag

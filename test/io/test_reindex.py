@@ -13,7 +13,8 @@ from rosbags.rosbag2 import Reader
 from synthetic_logs import make_trip
 
 from gyro_ekf.cli.main import main
-from gyro_ekf.io.bag_reader import bag_summary, read_bag
+from gyro_ekf.io.bag_info import bag_summary
+from gyro_ekf.io.bag_reader import read_bag
 from gyro_ekf.io.bag_writer import write_trip_bag
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.reindex import needs_reindex, reindex

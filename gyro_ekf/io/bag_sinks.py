@@ -1,0 +1,261 @@
+"""Decode a bag's sensor topics in batches into numpy arrays (`fast_cdr`), one sink per topic.
+
+A sink takes the raw CDR messages of one topic in stamp order (one by one from rosbags, or
+in batches from `mcap_chunks`), decodes them every `BATCH_MESSAGES` messages or
+`_BATCH_BYTES` bytes and stores the columns it needs in arrays that grow as messages come:
+message counts a bag states are only hints, bounded by what its files can hold. The values
+equal those of rosbags' deserialisation (test/io/rosbags_oracle.py reads a bag that way).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from gyro_ekf import topics
+from gyro_ekf.io import fast_cdr, messages as msgs
+from gyro_ekf.io.bag_open import deserialize
+from gyro_ekf.io.errors import BagError
+
+__all__ = ['BATCH_MESSAGES', 'ImuSink', 'OdomSink', 'ScanData', 'ScanSink', 'Sink',
+           'TruthSink', 'check_scans', 'has_acceleration']
+
+_MIN_MESSAGE_BYTES = 35
+"""Bytes a stored message takes at least (an MCAP Message record head and a CDR header)."""
+
+BATCH_MESSAGES = 1024
+_BATCH_BYTES = 1 << 20
+"""A topic's raw messages are decoded every this many messages or bytes, whichever first."""
+
+
+class ScanData(NamedTuple):
+    """What a ScanSeries is built from, whichever path decoded it."""
+
+    topic: str
+    stamps_ns: np.ndarray
+    ranges: np.ndarray
+    intensities: np.ndarray | None
+    geometry: tuple[float, float, float, float]
+    frame_id: str
+
+
+def _capacity(hint: int, bag_bytes: int, message_bytes: int = 0) -> int:
+    """Rows to allocate for a topic: its count hint, bounded by what the files can hold.
+
+    A compressed bag can hold more messages than the bound; the arrays then grow.
+    """
+    return max(0, min(int(hint), 1024 + bag_bytes // (_MIN_MESSAGE_BYTES + message_bytes)))
+
+
+def _grown(array: np.ndarray, used: int, needed: int) -> np.ndarray:
+    """Array with room for `needed` rows, keeping its first `used` rows."""
+    if needed <= array.shape[0]:
+        return array
+    bigger = np.zeros((max(needed, 2 * array.shape[0]),) + array.shape[1:], dtype=array.dtype)
+    bigger[:used] = array[:used]
+    return bigger
+
+
+class Sink:
+    """Raw messages of one topic, decoded in batches into arrays that grow as needed.
+
+    Attributes:
+        stamps: bag stamps, ns; the first n are filled.
+        n: messages decoded so far.
+        first: the first message, deserialised by rosbags (for per-topic constants).
+    """
+
+    msgtype = ''
+    fields: tuple[str, ...] = ()
+    grows: tuple[str, ...] = ('stamps',)
+    """Attributes holding one row per message."""
+
+    def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
+        """Allocate for `hint` messages (a count the bag states), as far as the files allow."""
+        self.path = path
+        self.topic = topic
+        self.hint = hint
+        self.bag_bytes = bag_bytes
+        self.count = _capacity(hint, bag_bytes)
+        self.n = 0
+        self.stamps = np.zeros(self.count, dtype=np.int64)
+        self.first: Any = None
+        self._datas: list[bytes] = []
+        self._stamps: list[int] = []
+        self._bytes = 0
+
+    def add_many(self, stamps: np.ndarray, datas: list[bytes | memoryview]) -> None:
+        """Queue raw messages in stamp order and decode them (a batch of a fast reader)."""
+        for start in range(0, len(datas), BATCH_MESSAGES):
+            self._datas.extend(datas[start:start + BATCH_MESSAGES])
+            self._stamps.extend(stamps[start:start + BATCH_MESSAGES].tolist())
+            self.flush()
+
+    def add(self, stamp: int, data: bytes) -> None:
+        """Queue one raw message; decode the queue when it is full."""
+        self._datas.append(data)
+        self._stamps.append(stamp)
+        self._bytes += len(data)
+        if len(self._datas) >= BATCH_MESSAGES or self._bytes >= _BATCH_BYTES:
+            self.flush()
+
+    def flush(self) -> None:
+        """Decode the queued messages into the arrays."""
+        if not self._datas:
+            return
+        datas, stamps = self._datas, self._stamps
+        self._datas, self._stamps, self._bytes = [], [], 0
+        if self.first is None:
+            self.first = deserialize(self.path, self.topic, self.msgtype, stamps[0], datas[0])
+        k = len(datas)
+        try:
+            columns = fast_cdr.decode_columns(datas, self.msgtype, self.fields, msgs.TYPESTORE)
+        except fast_cdr.CdrDecodeError as err:
+            where = '' if err.index is None else f' at {stamps[err.index]} ns'
+            raise BagError(f"{self.path}: topic '{self.topic}': message{where} does not "
+                           f'decode as {self.msgtype}: {err.reason}') from None
+        for name in self.grows:
+            array = getattr(self, name)
+            if array is not None and array.shape[0] < self.n + k:
+                setattr(self, name, _grown(array, self.n, self.n + k))
+        self.stamps[self.n:self.n + k] = stamps
+        self.store(columns, slice(self.n, self.n + k))
+        self.n += k
+
+    def store(self, columns: fast_cdr.Columns, rows: slice) -> None:
+        """Copy a decoded batch into the arrays at rows."""
+        raise NotImplementedError
+
+
+class ImuSink(Sink):
+    msgtype = topics.IMU_TYPE
+    grows = ('stamps', 'rates', 'rate_variances', 'accel')
+
+    def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int,
+                 acceleration: bool) -> None:
+        super().__init__(path, topic, hint, bag_bytes)
+        self.fields = ('angular_velocity', 'angular_velocity_covariance') + (
+            ('linear_acceleration',) if acceleration else ())
+        self.rates = np.zeros((self.count, 3))
+        self.rate_variances = np.zeros(self.count)
+        self.accel = np.zeros((self.count, 3)) if acceleration else None
+
+    def store(self, columns: fast_cdr.Columns, rows: slice) -> None:
+        self.rates[rows] = columns.values['angular_velocity']
+        self.rate_variances[rows] = columns.values['angular_velocity_covariance'][:, 8]
+        if self.accel is not None:
+            self.accel[rows] = columns.values['linear_acceleration']
+
+
+class OdomSink(Sink):
+    msgtype = topics.ODOMETRY_TYPE
+    fields = ('twist.twist.linear', 'twist.covariance')
+    grows = ('stamps', 'speeds', 'speed_variances')
+
+    def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
+        super().__init__(path, topic, hint, bag_bytes)
+        self.speeds = np.zeros(self.count)
+        self.speed_variances = np.zeros(self.count)
+
+    def store(self, columns: fast_cdr.Columns, rows: slice) -> None:
+        self.speeds[rows] = columns.values['twist.twist.linear'][:, 0]
+        self.speed_variances[rows] = columns.values['twist.covariance'][:, 0]
+
+
+class TruthSink(Sink):
+    msgtype = topics.ODOMETRY_TYPE
+    fields = ('pose.pose.position', 'pose.pose.orientation')
+    grows = ('stamps', 'poses')
+
+    def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
+        super().__init__(path, topic, hint, bag_bytes)
+        self.poses = np.zeros((self.count, 3))
+
+    def store(self, columns: fast_cdr.Columns, rows: slice) -> None:
+        position = columns.values['pose.pose.position']
+        x, y, z, w = columns.values['pose.pose.orientation'].T
+        self.poses[rows, 0] = position[:, 0]
+        self.poses[rows, 1] = position[:, 1]
+        # msgs.quaternion_yaw, element by element: numpy's + and * round as Python's do, and
+        # math.atan2 keeps the result identical to the per-message path.
+        numerator = (2.0 * (w * z + x * y)).tolist()
+        denominator = (1.0 - 2.0 * (y * y + z * z)).tolist()
+        self.poses[rows, 2] = np.fromiter(map(math.atan2, numerator, denominator),
+                                          dtype=np.float64, count=len(numerator))
+
+
+class ScanSink(Sink):
+    msgtype = topics.LASER_SCAN_TYPE
+    fields = ('angle_min', 'angle_increment', 'range_min', 'range_max', 'ranges',
+              'intensities')
+    grows = ('stamps', 'ranges', 'intensities')
+
+    def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
+        super().__init__(path, topic, hint, bag_bytes)
+        self.ranges: np.ndarray | None = None
+        self.intensities: np.ndarray | None = None
+
+    def store(self, columns: fast_cdr.Columns, rows: slice) -> None:
+        first = self.first
+        beams = len(first.ranges)
+        if self.ranges is None:
+            # A scan stores 4 bytes per beam at least: that bounds the rows too.
+            count = max(rows.stop, _capacity(self.hint, self.bag_bytes, 4 * beams))
+            self.ranges = np.empty((count, beams), dtype=np.float32)
+            if len(first.intensities):
+                self.intensities = np.empty((count, beams), dtype=np.float32)
+        values = columns.values
+        check_scans(self.path, self.topic, rows.start, first, columns.counts['ranges'], values,
+                    columns.counts['intensities'])
+        self.ranges[rows] = values['ranges']
+        if self.intensities is not None:
+            self.intensities[rows] = values['intensities']
+
+    def data(self) -> ScanData | None:
+        """Return the scans read, or None when the topic had none."""
+        first = self.first
+        if first is None or self.ranges is None:
+            return None
+        return ScanData(
+            self.topic, self.stamps[:self.n], self.ranges[:self.n],
+            None if self.intensities is None else self.intensities[:self.n],
+            tuple(getattr(first, name) for name in SCAN_GEOMETRY), first.header.frame_id)
+
+
+def has_acceleration(imu_message: Any) -> bool:
+    """Whether an IMU message gives its linear acceleration (REP-145: covariance[0] != -1)."""
+    return bool(imu_message.linear_acceleration_covariance[0] != -1.0)
+
+
+SCAN_GEOMETRY = ('angle_min', 'angle_increment', 'range_min', 'range_max')
+"""The LaserScan fields every scan of a topic must share with its first."""
+
+
+def check_scans(path: Path, topic: str, first_row: int, first: Any, range_counts: np.ndarray,
+                geometry: dict[str, np.ndarray], intensity_counts: np.ndarray) -> None:
+    """Refuse scans that change the first scan's beam count or geometry, or whose
+    intensities (when the first scan has any) are not one per beam.
+
+    Args:
+        first_row: index of the first scan checked among the topic's scans (for the message).
+        first: the topic's first LaserScan message.
+        range_counts, intensity_counts: beams of each scan checked.
+        geometry: each SCAN_GEOMETRY field -> its value in each scan checked.
+
+    Raises:
+        BagError: naming the bag, the topic and the scan (counted from 1).
+    """
+    beams = len(first.ranges)
+    same = range_counts == beams
+    for name in SCAN_GEOMETRY:
+        same &= geometry[name] == getattr(first, name)
+    if not same.all():
+        raise BagError(f"{path}: topic '{topic}': scan {first_row + int(np.argmin(same)) + 1} "
+                       'changes the beam count or geometry; expected one fixed LiDAR per topic')
+    if len(first.intensities) and (intensity_counts != beams).any():
+        wrong = int(np.argmax(intensity_counts != beams))
+        raise BagError(f"{path}: topic '{topic}': scan {first_row + wrong + 1} has "
+                       f'{int(intensity_counts[wrong])} intensities for {beams} beams')
