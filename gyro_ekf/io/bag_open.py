@@ -184,7 +184,7 @@ def topic_connections(path: Path, reader: Reader, params: BagParams | None
 
 
 def _count_hint(value: Any) -> int:
-    """A topic's message count as the metadata states it, or 0 when it is no count.
+    """Return a topic's message count as the metadata states it, or 0 when it is no count.
 
     Only a hint for the first allocation (the arrays grow), so a damaged one (None, a
     string, inf) costs nothing but a regrowth.

@@ -236,8 +236,9 @@ SCAN_GEOMETRY = ('angle_min', 'angle_increment', 'range_min', 'range_max')
 
 def check_scans(path: Path, topic: str, first_row: int, first: Any, range_counts: np.ndarray,
                 geometry: dict[str, np.ndarray], intensity_counts: np.ndarray) -> None:
-    """Refuse scans that change the first scan's beam count or geometry, or whose
-    intensities (when the first scan has any) are not one per beam.
+    """Refuse scans that change the first scan's beam count or geometry.
+
+    Intensities, when the first scan has any, must be one per beam as well.
 
     Args:
         first_row: index of the first scan checked among the topic's scans (for the message).
