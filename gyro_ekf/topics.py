@@ -27,6 +27,11 @@ EKF_MOUNTS = 'ekf/mounts'
 DIAGNOSTICS = '/diagnostics'
 CLOCK = '/clock'
 
+UNKNOWN_AXIS_VARIANCE = 1e6
+"""Angular-velocity variance, (rad/s)^2, marking an axis the IMU does not measure: the bag
+writer writes it, the bag reader and the nodes read it (REP-145 keeps -1 at element 0 for
+"no data at all", which would void the whole vector)."""
+
 IMU_TYPE = 'sensor_msgs/msg/Imu'
 ODOMETRY_TYPE = 'nav_msgs/msg/Odometry'
 LASER_SCAN_TYPE = 'sensor_msgs/msg/LaserScan'

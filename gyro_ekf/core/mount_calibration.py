@@ -38,6 +38,7 @@ import math
 
 import numpy as np
 
+from gyro_ekf.core.angles import wrap_scalar
 from gyro_ekf.core.config import DetectorConfig
 from gyro_ekf.core.detection import detect_poles_in_scans
 from gyro_ekf.core.errors import CoreError
@@ -117,7 +118,7 @@ class MountEstimate:
     @property
     def yaw_error_rad(self) -> float:
         """Estimated minus stated yaw, rad, in [-pi, pi)."""
-        return (self.mount.yaw_rad - self.stated.yaw_rad + math.pi) % (2.0 * math.pi) - math.pi
+        return wrap_scalar(self.mount.yaw_rad - self.stated.yaw_rad)
 
 
 @dataclass(frozen=True, slots=True)
@@ -314,8 +315,7 @@ def calibrate_mount(scans: ScanSeries, landmarks_xy_m: FloatArray, ref_stamp_s: 
                                poles)[1]
     stated_used = stated_distance[stated_distance <= settings.gate_m]
     # Kept next to the stated yaw (185 deg, not -175 deg), as a person compares them.
-    yaw = stated.yaw_rad + (float(theta[0]) - stated.yaw_rad + math.pi) % (2.0 * math.pi) \
-        - math.pi
+    yaw = stated.yaw_rad + wrap_scalar(float(theta[0]) - stated.yaw_rad)
     sigma = np.sqrt(np.abs(np.diag(covariance)))
     rms = float(np.sqrt(np.mean(distance ** 2)))
     rms_stated = float(np.sqrt(np.mean(stated_used ** 2))) if len(stated_used) else math.nan

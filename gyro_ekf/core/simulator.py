@@ -52,6 +52,7 @@ import numpy as np
 
 # The private helper is imported on purpose: the same field metadata (unit, description,
 # bounds) as the other configs lets `info --params` and the nodes list this one too.
+from gyro_ekf.core.angles import wrap_angle
 from gyro_ekf.core.config import DEG
 from gyro_ekf.core.config import config_field as _param
 from gyro_ekf.core.errors import CoreError
@@ -221,7 +222,7 @@ class _Path:
         """Map-frame poses (n, 3): x m, y m, yaw rad in [-pi, pi)."""
         x, y, heading = self.path_frame(s_m)
         xy = self.to_map(np.column_stack([x, y]))
-        yaw = (heading + self.rotation_rad + math.pi) % (2.0 * math.pi) - math.pi
+        yaw = wrap_angle(heading + self.rotation_rad)
         return np.column_stack([xy, yaw])
 
 
@@ -473,7 +474,7 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
     edges = np.append(imu_t, imu_t[-1] + period)
     edge_s = arc(edges)
     yaw_edges = path.pose(edge_s)[:, 2]
-    rate_true = ((np.diff(yaw_edges) + math.pi) % (2.0 * math.pi) - math.pi) / period
+    rate_true = wrap_angle(np.diff(yaw_edges)) / period
     bias = np.array([config.gyro_bias_x_rad_s, config.gyro_bias_y_rad_s,
                      config.gyro_bias_z_rad_s])
     gyro_sigma = np.array([config.gyro_noise_x_rad_s, config.gyro_noise_y_rad_s,

@@ -28,6 +28,7 @@ import numpy as np
 from rosbags.rosbag2 import Reader
 
 from gyro_ekf import topics
+from gyro_ekf.core.stamps import seconds_since
 from gyro_ekf.core.types import (
     GroundTruth, ImuSeries, LandmarkMap, LidarMount, NoiseFigures, ScanSeries, SpeedSeries,
     Trip)
@@ -261,7 +262,7 @@ def assemble_trip(path: Path, params: BagParams | None, start: int, *, imu_ns: n
                   initial_pose: np.ndarray | None) -> BagTrip:
     """Assemble the Trip of a bag from its decoded arrays (stamps in ns) and its sidecar."""
     def seconds(stamps: np.ndarray) -> np.ndarray:
-        return (stamps - np.int64(start)) / float(msgs.NS_PER_S)
+        return seconds_since(stamps, start)
 
     if params is None:
         log.warning('%s: no params sidecar %s; LiDAR mounts default to the platform origin',

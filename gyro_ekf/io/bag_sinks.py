@@ -9,13 +9,13 @@ equal those of rosbags' deserialisation (test/io/rosbags_oracle.py reads a bag t
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from gyro_ekf import topics
+from gyro_ekf.core.angles import yaws_of_quaternions
 from gyro_ekf.io import fast_cdr, messages as msgs
 from gyro_ekf.io.bag_open import deserialize
 from gyro_ekf.io.errors import BagError
@@ -179,12 +179,7 @@ class TruthSink(Sink):
         x, y, z, w = columns.values['pose.pose.orientation'].T
         self.poses[rows, 0] = position[:, 0]
         self.poses[rows, 1] = position[:, 1]
-        # msgs.quaternion_yaw, element by element: numpy's + and * round as Python's do, and
-        # math.atan2 keeps the result identical to the per-message path.
-        numerator = (2.0 * (w * z + x * y)).tolist()
-        denominator = (1.0 - 2.0 * (y * y + z * z)).tolist()
-        self.poses[rows, 2] = np.fromiter(map(math.atan2, numerator, denominator),
-                                          dtype=np.float64, count=len(numerator))
+        self.poses[rows, 2] = yaws_of_quaternions(x, y, z, w)
 
 
 class ScanSink(Sink):

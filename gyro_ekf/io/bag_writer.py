@@ -38,6 +38,7 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.rosbag2.errors import WriterError
 
 from gyro_ekf import topics
+from gyro_ekf.core.stamps import NS_PER_S, ns_at
 from gyro_ekf.core.types import Trip
 from gyro_ekf.io import messages as msgs
 from gyro_ekf.io.defaults import DEFAULT_EPOCH_NS, STORAGE_NAMES
@@ -99,11 +100,11 @@ def _stamps_ns(stamp_s: np.ndarray, start_time_ns: int, what: str) -> np.ndarray
     stamp_s = np.asarray(stamp_s, dtype=np.float64)
     if not np.all(np.isfinite(stamp_s)):
         raise BagError(f"topic '{what}': stamps are not all finite")
-    stamps = np.int64(start_time_ns) + np.rint(stamp_s * msgs.NS_PER_S).astype(np.int64)
+    stamps = ns_at(start_time_ns, stamp_s)
     steps = np.diff(stamps)
     if steps.size and steps.min() < 0:
         i = int(np.argmax(steps < 0))
-        raise BagError(f"topic '{what}': stamp went back {-steps[i] / msgs.NS_PER_S:.6f} s at "
+        raise BagError(f"topic '{what}': stamp went back {-steps[i] / NS_PER_S:.6f} s at "
                        f'message {i + 1}; expected stamps in time order')
     if stamps.size and stamps[0] <= 0:
         raise BagError(f"topic '{what}': first stamp {int(stamps[0])} ns is not after the "

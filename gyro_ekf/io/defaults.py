@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-NS_PER_S = 1_000_000_000
+from gyro_ekf.core.stamps import NS_PER_S
 
 DEFAULT_EPOCH_NS = 1_700_000_000 * NS_PER_S
 """Default bag stamp of a log's time zero: 2023-11-14T22:13:20Z (1.7e9 s since 1970).

@@ -25,7 +25,6 @@ Conventions of the messages the bag writer produces (the reader relies on them):
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -33,8 +32,10 @@ from numpy.typing import NDArray
 from rosbags.typesys import get_typestore, Stores
 
 from gyro_ekf import topics
+from gyro_ekf.core.angles import quaternion_of_yaw, yaw_of_quaternion
+from gyro_ekf.core.stamps import join_ns, split_ns
 from gyro_ekf.core.types import FloatArray, LandmarkMap, ScanSeries
-from gyro_ekf.io.defaults import NS_PER_S
+from gyro_ekf.topics import UNKNOWN_AXIS_VARIANCE
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 """The Jazzy message definitions every bag of gyro_ekf is written and read with."""
@@ -55,9 +56,6 @@ LaserScan = _T[topics.LASER_SCAN_TYPE]
 PoseArray = _T[topics.POSE_ARRAY_TYPE]
 PoseWithCovarianceStamped = _T[topics.POSE_WITH_COVARIANCE_STAMPED_TYPE]
 
-UNKNOWN_AXIS_VARIANCE = 1e6
-"""Variance, (rad/s)^2, that marks an angular-velocity axis the log did not measure."""
-
 _NOT_GIVEN_3x3 = np.array([-1.0] + [0.0] * 8)
 _NOT_GIVEN_6x6 = np.array([-1.0] + [0.0] * 35)
 _ZERO_3x3 = np.zeros(9)
@@ -77,13 +75,13 @@ def deserialize(data: bytes | memoryview, msgtype: str) -> Any:
 
 def to_time(stamp_ns: int) -> Any:
     """builtin_interfaces/Time of integer nanoseconds since the epoch (>= 0)."""
-    sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
+    sec, nanosec = split_ns(stamp_ns)
     return Time(sec=sec, nanosec=nanosec)
 
 
 def from_time(stamp: Any) -> int:
     """Integer nanoseconds of a builtin_interfaces/Time."""
-    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
+    return join_ns(stamp.sec, stamp.nanosec)
 
 
 def header(stamp_ns: int, frame_id: str) -> Any:
@@ -93,12 +91,13 @@ def header(stamp_ns: int, frame_id: str) -> Any:
 
 def yaw_quaternion(yaw_rad: float) -> Any:
     """Quaternion of a rotation about z by yaw_rad."""
-    return Quaternion(x=0.0, y=0.0, z=math.sin(yaw_rad / 2.0), w=math.cos(yaw_rad / 2.0))
+    x, y, z, w = quaternion_of_yaw(yaw_rad)
+    return Quaternion(x=x, y=y, z=z, w=w)
 
 
 def quaternion_yaw(q: Any) -> float:
     """Yaw, rad, of a quaternion (the z rotation of its ZYX Euler angles)."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return yaw_of_quaternion(q.x, q.y, q.z, q.w)
 
 
 def _pose(x_m: float, y_m: float, yaw_rad: float) -> Any:

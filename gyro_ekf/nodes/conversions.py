@@ -19,16 +19,14 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, LaserScan
 from std_msgs.msg import Header
 
+from gyro_ekf.core.angles import quaternion_of_yaw, yaw_of_quaternion
 from gyro_ekf.core.config import InputLimits
 from gyro_ekf.core.events import Estimate
+from gyro_ekf.core.stamps import join_ns, seconds_since, split_ns
 from gyro_ekf.core.types import FloatArray
 from gyro_ekf.core.validation import (coordinate_problem, covariance_problem,
                                       quaternion_problem, scan_geometry_problem)
-
-NS_PER_S = 1_000_000_000
-UNKNOWN_AXIS_VARIANCE = 1e6
-"""Angular-velocity variance, (rad/s)^2, marking an axis the IMU does not measure (as the
-bag writer marks it; REP-145 keeps -1 at element 0 for "no data at all")."""
+from gyro_ekf.topics import UNKNOWN_AXIS_VARIANCE
 
 # Row/column of x, y, yaw in a ROS 6x6 pose covariance (x, y, z, roll, pitch, yaw).
 _POSE_INDEX = (0, 1, 5)
@@ -36,12 +34,12 @@ _POSE_INDEX = (0, 1, 5)
 
 def stamp_ns(stamp: Time) -> int:
     """Integer nanoseconds of a builtin_interfaces/Time."""
-    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
+    return join_ns(stamp.sec, stamp.nanosec)
 
 
 def to_stamp(ns: int) -> Time:
     """builtin_interfaces/Time of integer nanoseconds since the epoch (>= 0)."""
-    sec, nanosec = divmod(int(ns), NS_PER_S)
+    sec, nanosec = split_ns(ns)
     return Time(sec=sec, nanosec=nanosec)
 
 
@@ -61,7 +59,7 @@ class TimeOrigin:
         """Seconds since the time zero (negative before it)."""
         if self.zero_ns is None:
             self.zero_ns = ns
-        return (ns - self.zero_ns) / float(NS_PER_S)
+        return seconds_since(ns, self.zero_ns)
 
 
 def finite(*values: float) -> bool:
@@ -179,12 +177,13 @@ def points_of(message: PoseArray) -> FloatArray:
 
 def yaw_quaternion(yaw_rad: float) -> Quaternion:
     """Quaternion of a rotation about z by yaw_rad."""
-    return Quaternion(x=0.0, y=0.0, z=math.sin(yaw_rad / 2.0), w=math.cos(yaw_rad / 2.0))
+    x, y, z, w = quaternion_of_yaw(yaw_rad)
+    return Quaternion(x=x, y=y, z=z, w=w)
 
 
 def quaternion_yaw(q: Quaternion) -> float:
     """Yaw, rad, of a quaternion (the z rotation of its ZYX Euler angles)."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return yaw_of_quaternion(q.x, q.y, q.z, q.w)
 
 
 def pose_and_covariance(message: PoseWithCovarianceStamped) -> tuple[FloatArray, FloatArray]:
@@ -240,16 +239,16 @@ class EstimateMessages:
             PoseWithCovarianceStamped in the map frame, Odometry (pose with covariance; speed
             and bias-corrected yaw rate in the twist) and Vector3Stamped (z = bias, rad/s).
         """
-        sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
+        sec, nanosec = split_ns(stamp_ns)
         x, y, yaw, bias = (float(v) for v in estimate.state)
         self._pose_covariance[np.ix_(_POSE_INDEX, _POSE_INDEX)] = estimate.covariance[:3, :3]
         covariance = self._pose_covariance.ravel()
         self._twist_covariance[35] = self._gyro_variance + float(estimate.covariance[3, 3])
-        half = yaw / 2.0
+        _, _, qz, qw = quaternion_of_yaw(yaw)
         for target in (self.pose.pose, self.odometry.pose):
             position, orientation = target.pose.position, target.pose.orientation
             position.x, position.y = x, y
-            orientation.z, orientation.w = math.sin(half), math.cos(half)
+            orientation.z, orientation.w = qz, qw
             target.covariance = covariance
         twist = self.odometry.twist
         twist.twist.linear.x = float(estimate.speed_m_s)
