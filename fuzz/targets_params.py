@@ -22,7 +22,7 @@ PARAMS = Path(__file__).resolve().parent.parent / 'config' / 'gyro_ekf.yaml'
 
 def read(path: Path) -> list[str]:
     """Problems of the values read_params_file returns."""
-    from gyro_ekf.analysis.params_file import read_params_file
+    from gyro_ekf.io.params_file import read_params_file
     params = read_params_file(path)
     out = []
     for group in ('ekf', 'calibration', 'detector'):

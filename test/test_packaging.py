@@ -91,6 +91,7 @@ def test_setup_cfg_puts_scripts_where_ros2_run_looks():
 
 def test_core_imports_no_ros_and_no_file_io_libraries():
     code = ('import sys, gyro_ekf.core.events, gyro_ekf.core.calibration, '
+            'gyro_ekf.core.trip_run, gyro_ekf.core.stream_order, gyro_ekf.core.stamps, '
             'gyro_ekf.core.simulator; '
             "bad = [m for m in ('rclpy', 'rosbags', 'scipy', 'matplotlib') if m in sys.modules]; "
             'print(bad); sys.exit(1 if bad else 0)')

@@ -1,1 +1,1 @@
-"""Offline analysis: metrics, summaries, outputs and figures of filter runs."""
+"""Offline analysis: the offline pipeline, metrics, summaries and figures of filter runs."""

@@ -2,11 +2,12 @@
 
 This is what `gyro-ekf run` does between reading the bag and writing its products, with no
 DDS in between: the same `core.events.EventDriver` the live EKF node wraps, fed the trip's
-events in stamp order (`core.events.drive_trip`).
+events in stamp order (`core.trip_run.drive_trip`).
 
-Configuration follows the live nodes: the core defaults, then the noise figures the log
-states (when `use_stated_noise`, as the EKF node's parameter of that name does), then
-whatever a params file sets explicitly.
+Configuration follows the live nodes: the core defaults, then whatever a params file sets
+explicitly, then the noise figures the log states, which replace the configured sigmas
+(default or params file alike) while `use_stated_noise` holds, as the EKF node's parameter
+of that name does; a params file that wants its own sigmas sets `use_stated_noise: false`.
 """
 
 from __future__ import annotations
@@ -19,13 +20,14 @@ import math
 
 import numpy as np
 
-from gyro_ekf.analysis.params_file import PipelineParams, with_lidar_mounts
 from gyro_ekf.core.calibration import estimate_gyro_bias
 from gyro_ekf.core.config import (STATED_NOISE_FIELDS, CalibrationConfig, EkfConfig,
                                   with_stated_noise)
 from gyro_ekf.core.errors import CalibrationError
-from gyro_ekf.core.events import EventDriver, TripRun, drive_trip
+from gyro_ekf.core.events import EventDriver
+from gyro_ekf.core.trip_run import drive_trip, TripRun
 from gyro_ekf.core.types import BIAS, BiasEstimate, FloatArray, NoiseFigures, Trip
+from gyro_ekf.io.params_file import PipelineParams, with_lidar_mounts
 
 log = logging.getLogger(__name__)
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from gyro_ekf.analysis import metrics
 from gyro_ekf.analysis.offline import OfflineRun
-from gyro_ekf.analysis.outputs import staged_file
+from gyro_ekf.io.output_dir import staged_file
 from gyro_ekf.core.types import BIAS, FloatArray
 
 log = logging.getLogger(__name__)

@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
     from gyro_ekf.analysis.bench import run_all, table
-    from gyro_ekf.analysis.outputs import write_summary_json
+    from gyro_ekf.io.results import write_summary_json
 
     results = run_all(args.data, args.long_trip_s, args.core_steps, live_s=args.live_s)
     args.output.parent.mkdir(parents=True, exist_ok=True)

@@ -93,8 +93,8 @@ def _table(estimates: list, reference: object) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
-    from gyro_ekf.analysis.errors import OutputError
-    from gyro_ekf.analysis.outputs import staged_file
+    from gyro_ekf.io.errors import OutputError
+    from gyro_ekf.io.output_dir import staged_file
     from gyro_ekf.core.mount_calibration import MountSettings
     from gyro_ekf.core.validation import validate_trip
     from gyro_ekf.io.bag_reader import read_bag

@@ -170,7 +170,7 @@ def _wait_for_recorder(env: dict[str, str], timeout_s: float) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns the exit code."""
-    from gyro_ekf.analysis.outputs import write_summary_json
+    from gyro_ekf.io.results import write_summary_json
     from gyro_ekf.io import bag_summary, read_sidecar
     from gyro_ekf.io.errors import BagError
 

@@ -58,8 +58,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _path_length(text: str) -> int:
-    from gyro_ekf.analysis.errors import OutputError
-    from gyro_ekf.analysis.visual_bag import check_path_length
+    from gyro_ekf.io.errors import OutputError
+    from gyro_ekf.io.visual_bag import check_path_length
     try:
         return check_path_length(int(text))
     except (ValueError, OutputError):
@@ -112,9 +112,9 @@ def _table(summary: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
-    from gyro_ekf.analysis import outputs
+    from gyro_ekf.io import output_dir, results
     from gyro_ekf.analysis.offline import event_count, run_trip
-    from gyro_ekf.analysis.params_file import PipelineParams, read_params_file
+    from gyro_ekf.io.params_file import PipelineParams, read_params_file
     from gyro_ekf.analysis.summary import summarize
     from gyro_ekf.core.validation import validate_trip
     from gyro_ekf.io.bag_reader import read_bag
@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     trip, report = validate_trip(bag.trip, Path(args.bag).name, skip_bad=args.skip_bad)
     warn_dropped(report)
     read_s = time.perf_counter() - began
-    folder = outputs.prepare_output_dir(args.output, force=args.force)
+    folder = output_dir.prepare_output_dir(args.output, force=args.force)
     use_stated = not args.ignore_stated_noise and bool(params.options.get('use_stated_noise',
                                                                           True))
     use_message_covariance = not args.ignore_message_covariance and bool(
@@ -150,11 +150,11 @@ def run(args: argparse.Namespace) -> int:
         for stated, used in zip(trip.scans, result.trip.scans)}
     # Every product is built in a staging folder that replaces the output folder only when
     # complete: a failure (disk full, read-only) leaves any previous output as it was.
-    with outputs.staged_output_dir(folder, force=args.force) as staging:
-        outputs.write_estimates_csv(staging / outputs.ESTIMATES_CSV, est.stamp_s, est.state,
+    with output_dir.staged_output_dir(folder, force=args.force) as staging:
+        results.write_estimates_csv(staging / output_dir.ESTIMATES_CSV, est.stamp_s, est.state,
                                     est.covariance)
         if not args.no_bag:
-            outputs.write_estimates_bag(staging / outputs.ESTIMATES_BAG, bag.start_time_ns,
+            results.write_estimates_bag(staging / output_dir.ESTIMATES_BAG, bag.start_time_ns,
                                         est.stamp_s, est.state, est.covariance,
                                         result.speed_m_s, result.yaw_rate_rad_s,
                                         storage=args.storage, trip=trip,
@@ -164,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
         summary['timing'] = {'read_s': read_s, 'run_and_outputs_s': processed_s - read_s,
                              'real_time_factor': summary['trip']['duration_s'] / processed_s
                              if processed_s > 0 else None}
-        outputs.write_summary_json(staging / outputs.SUMMARY_JSON, summary)
+        results.write_summary_json(staging / output_dir.SUMMARY_JSON, summary)
         if not args.no_plots:
             from gyro_ekf.analysis.plots import write_plots
             written = write_plots(result, staging)

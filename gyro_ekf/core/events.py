@@ -1,7 +1,9 @@
-"""Feeds speed, gyro and LiDAR events to the EKF in time order.
+"""The event driver: feeds speed, gyro and LiDAR events to the EKF in time order.
 
 The same ``EventDriver`` runs inside the live EKF node and in the offline ``gyro-ekf run``,
-so both produce the same numbers from the same inputs in the same order.
+so both produce the same numbers from the same inputs in the same order. What puts the
+events in that order lives beside it: ``trip_run`` (offline, a whole trip sorted at once,
+and the batch run), ``stream_order.StreamMerger`` and ``lagged.LaggedObservations`` (live).
 
 Inputs are held between samples (zero-order hold): on each event the filter is first
 predicted from the previous event's time to this one with the latest speed and yaw rate,
@@ -31,32 +33,22 @@ other inputs confirm them).
 from __future__ import annotations
 
 import dataclasses
-import enum
-import heapq
-from array import array
-import itertools
-import math
-import time
-from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+import enum
+import math
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from gyro_ekf.core.association import (AssociationOutcome, AssociationResult, associate,
                                        associate_by_distance)
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
-from gyro_ekf.core.detection import PoleDetections, detect_poles_in_scans
-from gyro_ekf.core.ekf import GyroBiasEkf, unpack_rows
+from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.health import HealthMonitor, Transition
-from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map, sensor_to_map
-from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount, ScanSeries, Trip
+from gyro_ekf.core.models import points_to_range_bearing, sensor_to_map
+from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount
 
-
-DETECTION_BLOCK = 512
-"""Scans detected per batch in drive_trip (bounded memory, amortised numpy overhead)."""
 
 _NO_NIS = np.zeros(0)
 _NO_NIS.flags.writeable = False
@@ -65,9 +57,6 @@ _OUTCOME_KEYS = {outcome: outcome.name.lower() for outcome in AssociationOutcome
 MAX_PREDICTION_STEPS = 1000
 """Most prediction steps for one gap (100 s at the default 0.1 s step): a longer gap is split
 into this many equal steps, so a stamp 1e6 s ahead costs what 100 s costs, not 52 s of CPU."""
-
-ROW_BLOCK = 4096
-"""Estimates drive_trip holds as plain floats before copying them into its arrays."""
 
 
 class EventKind(enum.IntEnum):
@@ -479,297 +468,3 @@ class EventDriver:
         if last is None:
             last = self._first_scan_s
         return stamp_s - last > self.config.recovery_after_s
-
-
-ReadyEvents = list[tuple[float, EventKind, Any]]
-
-
-class StreamMerger:
-    """Releases live events in driver order: (stamp, kind, arrival), behind a watermark.
-
-    Live topics arrive out of order across subscriptions, and when the filter falls behind
-    the executor serves each subscription's queue one message at a time, so a 200 Hz IMU
-    queue drains no faster than a 100 Hz odometry queue and the odometry stamps run ahead
-    by more than any fixed window. So an event with stamp t is released once
-    t <= newest stamp of any stream - window_s and t <= the newest stamp of every active
-    stream. A stream is stale (stops holding the others back: a stopped LiDAR) only when
-    both hold: nothing came from it for ``stale_after_s`` on ``clock``, and the other
-    streams' stamps have moved ``stale_after_s`` past its newest stamp. Either alone fails
-    on a busy machine: a process that was starved for a second wakes to find every stream
-    silent on the clock although their messages wait in the queues (their stamps are close),
-    and a queue that drains slower than it fills lags in stamps although its messages keep
-    coming. Neither depends on how fast the machine is. ``max_events`` bounds what is held.
-    An event older than one already released is late: ``push`` returns it in ``late``
-    instead of releasing it out of order. Ties release speed, observation, IMU, as
-    iter_trip_events orders them, so a live run feeds the EventDriver what an offline run
-    does. At the start nothing is released until every expected stream has spoken (or, by
-    the same two measures, stale_after_s has passed): the first messages of two topics
-    reach a subscriber in either order, and releasing the first would make the other late.
-    """
-
-    def __init__(self, window_s: float, max_events: int = 20_000, stale_after_s: float = 1.0,
-                 clock: Callable[[], float] = time.monotonic,
-                 expected_streams: Iterable[str] = ()):
-        """Hold events window_s of stamp time at least, at most max_events at once.
-
-        Args:
-            window_s: least stamp time an event waits behind the newest stamp, s.
-            max_events: the oldest events are released beyond this many.
-            stale_after_s: a stream silent for this long on the clock, and this far
-                behind the other streams' stamps, stops holding events back, s.
-            clock: seconds on the node's clock (monotonic, or ROS time with sim time);
-                replaceable in tests.
-            expected_streams: streams to wait for before the first release (at most
-                stale_after_s after the first event).
-        """
-        self.window_s = window_s
-        self.max_events = max_events
-        self.stale_after_s = stale_after_s
-        self.expected_streams = frozenset(expected_streams)
-        self._started: float | None = None
-        self._first_s = math.inf
-        self._clock = clock
-        self._heap: list[tuple[float, int, int, Any]] = []
-        self._arrival = itertools.count()
-        self._streams: dict[str, tuple[float, float]] = {}
-        self._newest_s = -math.inf
-        self._released_s = -math.inf
-
-    def __len__(self) -> int:
-        return len(self._heap)
-
-    @property
-    def released_s(self) -> float:
-        """Stamp of the last released event (-inf before the first)."""
-        return self._released_s
-
-    def push(self, stream: str, stamp_s: float, kind: EventKind, payload: Any
-             ) -> tuple[ReadyEvents, list[Any]]:
-        """Add an event of a stream; return (events now ready in order, late payloads)."""
-        if stamp_s < self._released_s:
-            return [], [payload]
-        now = self._clock()
-        if self._started is None:
-            self._started = now
-        self._first_s = min(self._first_s, stamp_s)
-        newest_of_stream = self._streams.get(stream, (-math.inf, now))[0]
-        self._streams[stream] = (max(newest_of_stream, stamp_s), now)
-        self._newest_s = max(self._newest_s, stamp_s)
-        heapq.heappush(self._heap, (stamp_s, int(kind), next(self._arrival), payload))
-        if (self._released_s == -math.inf and not self.expected_streams <= self._streams.keys()
-                and not self._passed(now, self._started, self._first_s)
-                and len(self._heap) <= self.max_events):
-            return [], []
-        stale_s, newest_s = self.stale_after_s, self._newest_s
-        watermark = min((newest for newest, seen in self._streams.values()
-                         if now - seen <= stale_s or newest_s - newest <= stale_s),
-                        default=math.inf)  # not stale (see _passed), inline: per message
-        return self._release(min(self._newest_s - self.window_s, watermark)), []
-
-    def active_streams(self) -> set[str]:
-        """Streams seen since the last clear that are not stale."""
-        now = self._clock()
-        return {stream for stream, (newest, seen) in self._streams.items()
-                if not self._passed(now, seen, newest)}
-
-    def _passed(self, now: float, seen: float, newest_s: float) -> bool:
-        """Tell whether stale_after_s has passed on the clock and in the stamps.
-
-        On the clock since `seen`, and in the newest stamp of any stream since `newest_s`.
-        """
-        return (now - seen > self.stale_after_s
-                and self._newest_s - newest_s > self.stale_after_s)
-
-    def flush(self) -> ReadyEvents:
-        """Release everything held."""
-        return self._release(math.inf)
-
-    def clear(self) -> None:
-        """Drop everything and forget the streams and stamps seen (after a reset)."""
-        self._heap.clear()
-        self._streams.clear()
-        self._started = None
-        self._first_s = math.inf
-        self._newest_s = -math.inf
-        self._released_s = -math.inf
-
-    def _release(self, until_s: float) -> ReadyEvents:
-        ready = []
-        while self._heap and (self._heap[0][0] <= until_s or len(self._heap) > self.max_events):
-            stamp_s, kind, _, payload = heapq.heappop(self._heap)
-            self._released_s = stamp_s
-            ready.append((stamp_s, EventKind(kind), payload))
-        return ready
-
-
-def iter_trip_events(trip: Trip, block: int = 65_536
-                     ) -> Iterator[tuple[float, EventKind, int, int]]:
-    """All events of a trip in driver order: (stamp_s, kind, series index, sample index).
-
-    The series index picks the ScanSeries for observations (0 otherwise). The order is
-    computed once on compact arrays and handed out in blocks, so a long trip never holds
-    a Python object per event.
-    """
-    stamps = [trip.speed.stamp_s, trip.imu.stamp_s] + [s.stamp_s for s in trip.scans]
-    kinds = [EventKind.SPEED, EventKind.IMU] + [EventKind.OBSERVATION] * len(trip.scans)
-    series = [0, 0] + list(range(len(trip.scans)))
-    all_stamps = np.concatenate(stamps)
-    all_kinds = np.concatenate([np.full(len(s), int(k), dtype=np.int8)
-                                for s, k in zip(stamps, kinds)])
-    all_series = np.concatenate([np.full(len(s), i, dtype=np.int16)
-                                 for s, i in zip(stamps, series)])
-    all_index = np.concatenate([np.arange(len(s), dtype=np.int32) for s in stamps])
-    order = np.lexsort((all_index, all_series, all_kinds, all_stamps))
-    kinds_by_value = [EventKind(k) for k in range(len(EventKind))]
-    for begin in range(0, order.size, block):
-        part = order[begin:begin + block]
-        # tolist() per block: element-wise numpy scalar access would dominate the loop.
-        yield from zip(all_stamps[part].tolist(),
-                       [kinds_by_value[k] for k in all_kinds[part].tolist()],
-                       all_series[part].tolist(), all_index[part].tolist())
-
-
-@dataclass(frozen=True, slots=True)
-class Estimates:
-    """History of a run: one row per IMU sample.
-
-    Attributes:
-        stamp_s: shape (n,), s.
-        state: shape (n, 4): x m, y m, yaw rad, bias rad/s.
-        covariance: shape (n, 4, 4).
-    """
-
-    stamp_s: FloatArray
-    state: FloatArray
-    covariance: FloatArray
-
-
-@dataclass(frozen=True, slots=True)
-class UpdateLog:
-    """Every landmark update applied during a run, in time order.
-
-    Attributes:
-        stamp_s: scan stamp of each update, shape (m,), s.
-        landmark: index of the landmark in the map, shape (m,).
-        point_map_m: the detection placed in the map at the prior pose, shape (m, 2), m.
-        nis: normalised innovation squared of each update, shape (m,).
-    """
-
-    stamp_s: FloatArray
-    landmark: NDArray[np.int64]
-    point_map_m: FloatArray
-    nis: FloatArray
-
-
-@dataclass(frozen=True, slots=True)
-class TripRun:
-    """Result of driving the filter through a whole trip.
-
-    Attributes:
-        estimates: one row per IMU sample.
-        updates: the applied landmark updates (compact: a long trip keeps no per-scan
-            objects).
-        stats: final counts.
-        health: the per-LiDAR health figures, exclusions and readmissions.
-    """
-
-    estimates: Estimates
-    updates: UpdateLog
-    stats: DriverStats
-    health: HealthMonitor | None = None
-
-
-def _variances(values: FloatArray | None, n: int) -> list[float | None]:
-    if values is None:
-        return [None] * n
-    return [None if math.isnan(v) else v for v in np.asarray(values, dtype=np.float64).tolist()]
-
-
-def drive_trip(trip: Trip, driver: EventDriver,
-               progress: Callable[[int], None] | None = None) -> TripRun:
-    """Run every event of a trip through a driver and collect the history.
-
-    Args:
-        trip: the inputs; trip.landmarks is used when the driver has no map.
-        driver: a fresh driver (its pose is the filter's start).
-        progress: called with the number of events processed since the last call.
-    """
-    if driver.landmarks is None:
-        driver.landmarks = trip.landmarks
-    n = len(trip.imu.stamp_s)
-    stamps = np.empty(n)
-    states = np.empty((n, 4))
-    covariances = np.empty((n, 4, 4))
-    # array('d') keeps 8 bytes per value while a long trip accumulates updates.
-    update_stamp, update_landmark = array('d'), array('q')
-    update_x, update_y, update_nis = array('d'), array('d'), array('d')
-    yaw_rates = trip.imu.yaw_rate_rad_s
-    speeds = trip.speed.speed_m_s
-    # Each message's own variance where the trip has one (NaN: not given), else None: the
-    # configured noise. Lists of floats and None, read once per event.
-    rate_variances = _variances(trip.imu.yaw_rate_variance, len(yaw_rates))
-    speed_variances = _variances(trip.speed.speed_variance, len(speeds))
-    angles = [scan.angles_rad for scan in trip.scans]
-    detected: dict[int, tuple[int, list[PoleDetections]]] = {}
-    row = 0
-    processed = 0
-    # Rows are kept as plain floats and copied into the arrays a block at a time: two
-    # small arrays per IMU step would cost more than the filter step itself.
-    pending: list[list[float]] = []
-    packed_row = driver.ekf.packed_row
-
-    def flush() -> None:
-        if pending:
-            start = row - len(pending)
-            states[start:row], covariances[start:row] = unpack_rows(pending)
-            pending.clear()
-
-    for stamp_s, kind, series, index in iter_trip_events(trip):
-        if kind is EventKind.IMU:
-            driver.step_imu(stamp_s, float(yaw_rates[index]), rate_variances[index])
-            stamps[row] = stamp_s
-            pending.append(packed_row())
-            row += 1
-            if len(pending) == ROW_BLOCK:
-                flush()
-        elif kind is EventKind.SPEED:
-            driver.on_speed(stamp_s, float(speeds[index]), speed_variances[index])
-        else:
-            scan: ScanSeries = trip.scans[series]
-            begin, found = detected.get(series, (0, []))
-            if not begin <= index < begin + len(found):
-                # Detection does not depend on the filter: do a block of scans at once.
-                begin, stop = index, min(index + DETECTION_BLOCK, len(scan.stamp_s))
-                found = detect_poles_in_scans(
-                    scan.ranges_m[begin:stop], angles[series],
-                    None if scan.intensities is None else scan.intensities[begin:stop],
-                    driver.detector_config)
-                detected[series] = (begin, found)
-            report = driver.on_detections(stamp_s, found[index - begin].points_sensor_m,
-                                          scan.mount, scan.topic)
-            if report.nis.size:
-                pairs = report.association.matched_pairs().tolist()
-                update_stamp.extend([stamp_s] * len(pairs))
-                prior = report.prior_state.tolist()
-                points = report.points_sensor_m
-                for detection, landmark in pairs:
-                    update_landmark.append(landmark)
-                    px, py = sensor_point_to_map(prior, *points[detection].tolist(),
-                                                 scan.mount)
-                    update_x.append(px)
-                    update_y.append(py)
-                update_nis.extend(report.nis.tolist())
-        processed += 1
-        if progress is not None and processed % 10_000 == 0:
-            progress(10_000)
-    flush()
-    if progress is not None:
-        progress(processed % 10_000)
-    updates = UpdateLog(
-        stamp_s=np.frombuffer(update_stamp, dtype=np.float64),
-        landmark=np.frombuffer(update_landmark, dtype=np.int64),
-        point_map_m=np.column_stack([np.frombuffer(update_x, dtype=np.float64),
-                                     np.frombuffer(update_y, dtype=np.float64)]),
-        nis=np.frombuffer(update_nis, dtype=np.float64))
-    return TripRun(Estimates(stamps, states, covariances), updates, driver.stats,
-                   driver.health)

@@ -1,4 +1,4 @@
-"""Errors of the io layer: course logs that cannot be read and bags that cannot be used.
+"""Errors of the io layer: logs and bags that cannot be read, outputs and params files.
 
 Every message names the file (and, for logs, the field) and says what was expected.
 """
@@ -14,3 +14,11 @@ class LogFormatError(GyroEkfError):
 
 class BagError(GyroEkfError):
     """A bag cannot be written, or is missing, unreadable or lacks a needed topic."""
+
+
+class OutputError(GyroEkfError):
+    """An output cannot be written (exists already, or the file system refused)."""
+
+
+class ParamsFileError(GyroEkfError):
+    """A ROS 2 params YAML is unreadable or holds a bad value."""

@@ -35,7 +35,7 @@ from typing import Any
 
 import yaml
 
-from gyro_ekf.analysis.errors import ParamsFileError
+from gyro_ekf.io.errors import ParamsFileError
 from gyro_ekf.core.config import CalibrationConfig, DetectorConfig, EkfConfig, make_config
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.types import LidarMount, Trip

@@ -19,7 +19,7 @@ BAG_FILES = ('metadata.yaml', 'metadata.yaml.tmp', '*.mcap', '*.mcap.zstd', '*.d
 """Files of a rosbag2 folder as rosbags and gyro-ekf write them (sqlite's side files too)."""
 
 STAGING_PATTERNS = ('.*.tmp', '.*.staging', '.*.old')
-"""Hidden names of a staged write beside its target (see analysis.outputs, bag_writer)."""
+"""Hidden names of a staged write beside its target (see io.output_dir, bag_writer)."""
 
 
 def first_foreign(folder: Path, files: tuple[str, ...],

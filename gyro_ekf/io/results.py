@@ -1,16 +1,13 @@
 """Writers of the products of `gyro-ekf run`: estimates CSV, summary JSON, estimates bag.
 
-Every writer builds its file (or bag folder) under a temporary name beside the target and
-renames it into place, so an interrupted run never leaves a half-written product. `gyro-ekf
-run` builds all its products in a staging folder (`staged_output_dir`) that replaces the
-output folder only when complete. `prepare_output_dir` refuses a folder that already holds
-files unless asked to (`--force`), and even then one holding anything but run's own products.
+Each builds its file (or bag folder) under a temporary name beside the target and renames it
+into place (`output_dir.staged_file`), so an interrupted run never leaves a half-written
+product; the folder they go into is `output_dir`'s.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from contextlib import contextmanager
 import json
 import logging
 import math
@@ -23,12 +20,15 @@ from typing import Any, TYPE_CHECKING
 import numpy as np
 
 from gyro_ekf import topics
-from gyro_ekf.analysis.errors import OutputError
+from gyro_ekf.core.angles import quaternions_of_yaws
+from gyro_ekf.core.stamps import NS_PER_S, ns_at, split_ns_array
 from gyro_ekf.core.types import FloatArray
-from gyro_ekf.io.defaults import NS_PER_S
+from gyro_ekf.io.errors import OutputError
+from gyro_ekf.io.output_dir import staged_file
+from gyro_ekf.io.products import os_reason
 
 if TYPE_CHECKING:
-    from gyro_ekf.core.events import UpdateLog
+    from gyro_ekf.core.trip_run import UpdateLog
     from gyro_ekf.core.types import Trip
 
 log = logging.getLogger(__name__)
@@ -37,152 +37,10 @@ CSV_HEADER = ('t,x,y,yaw,bias,var_x,var_y,var_yaw,var_bias,cov_xy,cov_xyaw,cov_y
 """Columns of estimates.csv: s since the bag's first message, m, m, rad, rad/s, then the
 variances m^2, m^2, rad^2, (rad/s)^2 and covariances m^2, m rad, m rad."""
 
-ESTIMATES_CSV = 'estimates.csv'
-ESTIMATES_BAG = 'estimates'
-SUMMARY_JSON = 'summary.json'
-
 _BAG_VERSION = 9
 _CSV_BLOCK_ROWS = 50_000
 _BAG_BLOCK_ROWS = 1024
 _INT32_MAX = 2**31 - 1
-
-
-RUN_PRODUCTS = (SUMMARY_JSON, ESTIMATES_CSV, 'trajectory.png', 'bias.png', 'errors.png',
-                'nis.png')
-"""Files `gyro-ekf run` writes into its output folder (besides the ESTIMATES_BAG folder)."""
-
-
-def prepare_output_dir(path: Path | str, force: bool = False) -> Path:
-    """Check that an output folder may be written: absent, empty, or (with force) ours.
-
-    Nothing is created here: `staged_output_dir` builds the products beside the folder and
-    renames them into place, so a run that fails leaves no folder behind.
-
-    Raises:
-        OutputError: the path is a file, a non-empty folder without force, or a folder that
-            holds something `gyro-ekf run` does not write (named; force never deletes it).
-    """
-    from gyro_ekf.io.products import BAG_FILES, first_foreign
-
-    path = Path(path)
-    if path.is_symlink() or (path.exists() and not path.is_dir()):
-        raise OutputError(f'{path}: exists and is not a folder')
-    if path.is_dir() and any(path.iterdir()):
-        if not force:
-            raise OutputError(f'{path}: folder is not empty; use --force to overwrite its '
-                              'products')
-        foreign = first_foreign(path, RUN_PRODUCTS, {ESTIMATES_BAG: BAG_FILES})
-        if foreign is not None:
-            raise OutputError(f'{foreign}: is not a product of gyro-ekf run; --force replaces '
-                              'only its own products (summary.json, estimates.csv, estimates/, '
-                              'the PNGs): move it away first')
-    return path
-
-
-@contextmanager
-def staged_output_dir(path: Path | str, force: bool = False) -> Iterator[Path]:
-    """Yield a staging folder beside path; on success its products replace path's.
-
-    A previous output stays untouched until the new one is complete (then its products go,
-    including any the new run does not write, such as figures after --no-plots); the folder
-    itself stays. On any failure the staging folder is removed. OS errors (read-only file
-    system, disk full) become one OutputError naming the path.
-
-    Raises:
-        OutputError: as prepare_output_dir, or the file system refused a write.
-    """
-    path = prepare_output_dir(path, force)
-    where = path.absolute()  # `-o .` has no name of its own to stage beside
-    try:
-        where.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f'.{where.name}.', suffix='.staging',
-                                        dir=where.parent))
-    except OSError as err:
-        raise OutputError(f'{path}: cannot write the outputs: {_reason(err)}') from None
-    try:
-        yield staging
-        os.chmod(staging, 0o777 & ~_umask())
-        _swap_into_place(staging, where, force)
-    except OSError as err:
-        raise OutputError(f'{path}: cannot write the outputs: {_reason(err)}') from None
-    except OutputError as err:
-        # A writer inside names its staged file; the user knows only the output folder.
-        raise OutputError(str(err).replace(str(staging), str(path))) from None
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-
-
-def _swap_into_place(staging: Path, path: Path, force: bool) -> None:
-    """Move the staged products into path (created if missing); old products are removed.
-
-    An existing folder stays (its permissions, a mount point, a shell's cwd): its old
-    products are moved aside first and restored if a move fails.
-    """
-    if not path.exists():
-        os.replace(staging, path)
-        return
-    prepare_output_dir(path, force)  # again: nothing foreign appeared during the run
-    old = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.old', dir=path.parent))
-    moved_old: list[str] = []
-    moved_new: list[str] = []
-    try:
-        for entry in sorted(path.iterdir()):
-            os.replace(entry, old / entry.name)
-            moved_old.append(entry.name)
-        for entry in sorted(staging.iterdir()):
-            os.replace(entry, path / entry.name)
-            moved_new.append(entry.name)
-    except OSError:
-        for name in moved_new:
-            _remove(path / name)
-        for name in moved_old:
-            os.replace(old / name, path / name)
-        raise
-    finally:
-        shutil.rmtree(old, ignore_errors=True)
-
-
-def _remove(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path, ignore_errors=True)
-    else:
-        path.unlink(missing_ok=True)
-
-
-def _reason(err: OSError) -> str:
-    from gyro_ekf.io.products import os_reason
-    return os_reason(err)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-@contextmanager
-def staged_file(target: Path) -> Iterator[Path]:
-    """Yield a temporary path beside target; rename it onto target if the block succeeds.
-
-    Raises:
-        OutputError: the file system refused a write (read-only, full), naming target.
-    """
-    try:
-        handle, name = tempfile.mkstemp(prefix=f'.{target.name}.', suffix='.tmp',
-                                        dir=target.parent)
-    except OSError as err:
-        raise OutputError(f'{target}: cannot write: {_reason(err)}') from None
-    os.close(handle)
-    staged = Path(name)
-    try:
-        yield staged
-        os.chmod(staged, 0o666 & ~_umask())
-        os.replace(staged, target)
-    except OSError as err:
-        raise OutputError(f'{target}: cannot write: {_reason(err)}') from None
-    finally:
-        if staged.exists():
-            staged.unlink()
 
 
 def estimates_table(stamp_s: FloatArray, state: FloatArray, covariance: FloatArray
@@ -296,12 +154,8 @@ class _EstimateEncoder:
             state: shape (m, 4); covariance: shape (m, 4, 4).
             speed_m_s, yaw_rate_rad_s: shape (m,).
         """
-        sec, nanosec = np.divmod(np.asarray(stamps_ns, dtype=np.int64), NS_PER_S)
-        half_yaw = (state[:, 2] / 2.0).tolist()
-        # math, not numpy: msgs.yaw_quaternion's exact values (numpy's SIMD sin may differ).
-        quaternion_zw = np.column_stack([
-            np.fromiter(map(math.sin, half_yaw), dtype=np.float64, count=len(half_yaw)),
-            np.fromiter(map(math.cos, half_yaw), dtype=np.float64, count=len(half_yaw))])
+        sec, nanosec = split_ns_array(stamps_ns)
+        quaternion_zw = quaternions_of_yaws(state[:, 2])
         # x, y, yaw of the state -> rows/columns 0, 1, 5 of the row-major 6x6.
         out = []
         for template in (self.pose, self.odometry):
@@ -358,7 +212,7 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     (`imu_frame`: the input IMU's frame_id, `imu_link` by default; z = yaw-rate bias,
     rad/s). Pose covariances are 6x6 row-major over (x, y, z, roll, pitch, yaw); z, roll
     and pitch are not estimated and carry 0. Plus the visual topics
-    of analysis.visual_bag (/tf, /tf_static, ekf/path, ekf/markers, landmark_markers): the
+    of io.visual_bag (/tf, /tf_static, ekf/path, ekf/markers, landmark_markers): the
     latched ones first, then per block of rows the per-estimate topics, the block's /tf
     and its other visual messages (log times exact; MCAP readers order by log time).
 
@@ -384,8 +238,8 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.rosbag2.errors import WriterError
 
-    from gyro_ekf.analysis import visual_bag
-    from gyro_ekf.analysis.visual_bag import VisualTopics
+    from gyro_ekf.io import visual_bag
+    from gyro_ekf.io.visual_bag import VisualTopics
     from gyro_ekf.io import messages as msgs
     from gyro_ekf.io.bag_writer import LATCHED_QOS
     from gyro_ekf.io.batch_write import enable_chunk_crcs, write_rows
@@ -397,7 +251,7 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     if storage not in plugins:
         raise OutputError(f'{path}: unknown storage {storage!r}; expected one of '
                           f'{sorted(plugins)}')
-    stamps_ns = int(start_time_ns) + np.round(np.asarray(stamp_s) * 1e9).astype(np.int64)
+    stamps_ns = ns_at(start_time_ns, stamp_s)
     state = np.asarray(state, dtype=np.float64)
     P = np.asarray(covariance, dtype=np.float64)
     speed_m_s = np.asarray(speed_m_s, dtype=np.float64)
@@ -412,7 +266,7 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     try:
         aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
     except OSError as err:
-        raise OutputError(f'{path}: cannot write the estimates bag: {_reason(err)}') from None
+        raise OutputError(f'{path}: cannot write the estimates bag: {os_reason(err)}') from None
     staged = aside / path.name
     try:
         with Writer(staged, version=_BAG_VERSION, storage_plugin=plugins[storage]) as writer:
@@ -453,7 +307,7 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     except WriterError as err:
         raise OutputError(f'{path}: cannot write the estimates bag: {err}') from None
     except OSError as err:
-        raise OutputError(f'{path}: cannot write the estimates bag: {_reason(err)}') from None
+        raise OutputError(f'{path}: cannot write the estimates bag: {os_reason(err)}') from None
     finally:
         shutil.rmtree(aside, ignore_errors=True)
     return path

@@ -15,7 +15,7 @@ What the estimates bag holds so that Foxglove or RViz shows the run without setu
 - `ekf/markers` visualization_msgs/MarkerArray every MARKERS_PERIOD_S (and at the last
   estimate): the 2-sigma position ellipse, the heading, and the detections of the last scan
   in that period that updated the filter, each with a line to its landmark. The offline run
-  keeps only the applied updates (core.events.UpdateLog), so the 'rejected' marker is
+  keeps only the applied updates (core.trip_run.UpdateLog), so the 'rejected' marker is
   always empty here.
 - `landmark_markers` (transient local): one cylinder per landmark of the map.
 
@@ -29,17 +29,17 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 import heapq
-import math
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from gyro_ekf import topics
-from gyro_ekf.analysis.errors import OutputError
+from gyro_ekf.io.errors import OutputError
+from gyro_ekf.core.angles import quaternions_of_yaws
+from gyro_ekf.core.stamps import NS_PER_S, ns_at, seconds_since, split_ns, split_ns_array
 from gyro_ekf.core.types import FloatArray, Trip
 from gyro_ekf.io import messages as msgs
-from gyro_ekf.io.defaults import NS_PER_S
 
 TF = topics.TF
 TF_STATIC = topics.TF_STATIC
@@ -70,19 +70,12 @@ def check_path_length(path_length: int) -> int:
     return int(path_length)
 
 
-def _split_ns(stamps_ns: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    return np.divmod(np.asarray(stamps_ns, dtype=np.int64), NS_PER_S)
-
-
 def _pose_columns(poses: FloatArray) -> FloatArray:
     """x, y, 0, then the yaw quaternion (0, 0, sin, cos), shape (n, 7); math's sin/cos."""
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-    half = (poses[:, 2] / 2.0).tolist()
     out = np.zeros((len(poses), 7))
     out[:, :2] = poses[:, :2]
-    # math, not numpy: msgs.yaw_quaternion's exact values (numpy's SIMD sin may differ).
-    out[:, 5] = np.fromiter(map(math.sin, half), dtype=np.float64, count=len(half))
-    out[:, 6] = np.fromiter(map(math.cos, half), dtype=np.float64, count=len(half))
+    out[:, 5:7] = quaternions_of_yaws(poses[:, 2])
     return out
 
 
@@ -99,7 +92,7 @@ class _TfTemplate:
 
     def rows(self, stamps_ns: NDArray[np.int64], poses: FloatArray) -> NDArray[np.uint8]:
         """One message per row, shape (n, size): stamps ns, poses (n, 3) x m, y m, yaw rad."""
-        sec, nanosec = _split_ns(stamps_ns)
+        sec, nanosec = split_ns_array(stamps_ns)
         rows = np.tile(self.data, (len(sec), 1))
         rows[:, 8:12].view('<i4')[:, 0] = sec
         rows[:, 12:16].view('<u4')[:, 0] = nanosec
@@ -133,7 +126,7 @@ class _PathTemplate:
 
         Encoded once per run: each path message then only joins the rows it holds.
         """
-        sec, nanosec = _split_ns(stamps_ns)
+        sec, nanosec = split_ns_array(stamps_ns)
         columns = _pose_columns(poses)
         out = []
         for template in (self.first, self.rest):
@@ -148,7 +141,7 @@ class _PathTemplate:
                ) -> bytes:
         """Join one Path: its stamp, its first pose, the rest (rows of `elements`)."""
         head = self.head.copy()
-        sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
+        sec, nanosec = split_ns(stamp_ns)
         head[4:8].view('<i4')[0], head[8:12].view('<u4')[0] = sec, nanosec
         head[-4:].view('<u4')[0] = 1 + len(rest)
         return head.tobytes() + first.tobytes() + rest.tobytes()
@@ -199,7 +192,7 @@ class _MarkersTemplate:
     def _values(stamps_ns: NDArray[np.int64], poses: FloatArray, covariance_xy: FloatArray
                 ) -> tuple[dict[str, NDArray[Any]], None]:
         """Per row the numbers the builder writes, each an array of its wire dtype."""
-        sec, nanosec = _split_ns(stamps_ns)
+        sec, nanosec = split_ns_array(stamps_ns)
         major, minor, direction = msgs.covariance_ellipses(covariance_xy)
         heading = _pose_columns(poses)
         turned = _pose_columns(np.column_stack([poses[:, :2], direction]))
@@ -263,7 +256,7 @@ class VisualTopics:
         stamps_ns: estimate stamps, shape (n,), ns since the epoch.
         state: shape (n, 4); covariance: shape (n, 4, 4).
         trip: the run's inputs (LiDAR mounts, map, ground truth), or None.
-        updates: the run's core.events.UpdateLog, or None.
+        updates: the run's core.trip_run.UpdateLog, or None.
         path_length: most poses in an ekf/path message (>= 1).
         imu_frame: the IMU's frame (identity on base_link in /tf_static).
 
@@ -321,10 +314,10 @@ class VisualTopics:
         yield from heapq.merge(*streams, key=lambda m: m.stamp_ns)
 
     def _relative_s(self) -> FloatArray:
-        return (self.stamps_ns - self.start_time_ns) / 1e9
+        return seconds_since(self.stamps_ns, self.start_time_ns)
 
     def _to_ns(self, stamp_s: FloatArray) -> NDArray[np.int64]:
-        return self.start_time_ns + np.round(np.asarray(stamp_s) * 1e9).astype(np.int64)
+        return ns_at(self.start_time_ns, stamp_s)
 
     def _truth(self) -> Iterator[SparseMessage]:
         truth = None if self.trip is None else self.trip.ground_truth

@@ -85,13 +85,14 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from gyro_ekf import topics
-from gyro_ekf.analysis.visual_bag import MARKERS_PERIOD_S, PATH_LENGTH, PATH_PERIOD_S, \
+from gyro_ekf.io.visual_bag import MARKERS_PERIOD_S, PATH_LENGTH, PATH_PERIOD_S, \
     PATH_SPACING_S
 from gyro_ekf.core.config import EkfConfig, InputLimits, with_stated_noise
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core import health
-from gyro_ekf.core.events import Estimate, EventDriver, EventKind, StreamMerger
+from gyro_ekf.core.events import Estimate, EventDriver, EventKind
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
+from gyro_ekf.core.stream_order import StreamMerger
 from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import LandmarkMap, LidarMount
 from gyro_ekf.core.validation import coordinate_problem, initial_pose_problem, message_variance, \

@@ -9,8 +9,8 @@ import math
 import pytest
 import yaml
 
-from gyro_ekf.analysis.errors import ParamsFileError
-from gyro_ekf.analysis.params_file import read_params_file, read_params_text
+from gyro_ekf.io.errors import ParamsFileError
+from gyro_ekf.io.params_file import read_params_file, read_params_text
 from gyro_ekf.cli.main import main
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 from gyro_ekf.core.types import LandmarkMap

@@ -144,17 +144,17 @@ def test_run_force_replaces_its_own_products(short_bag, tmp_path):
                                         (errno.EROFS, 'read-only file system')])
 def test_run_turns_a_failed_write_into_one_line_and_keeps_the_old_output(
         short_bag, tmp_path, capsys, monkeypatch, code, words):
-    from gyro_ekf.analysis import outputs
+    from gyro_ekf.io import results
 
     out = tmp_path / 'out'
     out.mkdir()
     (out / 'summary.json').write_text('{"earlier": true}')
-    real = outputs.write_estimates_csv
+    real = results.write_estimates_csv
 
     def fail(path, *args, **kwargs):
         real(path, *args, **kwargs)
         raise OSError(code, os.strerror(code), str(path))
-    monkeypatch.setattr(outputs, 'write_estimates_csv', fail)
+    monkeypatch.setattr(results, 'write_estimates_csv', fail)
     assert main(['run', str(short_bag), '-o', str(out), '--force', '--no-progress']) == 1
     err = capsys.readouterr().err.strip()
     assert err == f'gyro-ekf run: error: {out}: cannot write the outputs: {words}'

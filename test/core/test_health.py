@@ -10,7 +10,7 @@ import pytest
 from health_trips import two_lidar_trip
 
 from gyro_ekf.analysis.offline import run_trip
-from gyro_ekf.analysis.params_file import PipelineParams
+from gyro_ekf.io.params_file import PipelineParams
 from gyro_ekf.analysis.summary import summarize
 from gyro_ekf.core import health
 from gyro_ekf.core.config import EkfConfig

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from gyro_ekf.analysis.offline import run_trip
-from gyro_ekf.analysis.params_file import PipelineParams
+from gyro_ekf.io.params_file import PipelineParams
 from gyro_ekf.core.config import EkfConfig, with_stated_noise
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.events import EventDriver

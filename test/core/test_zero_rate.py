@@ -11,7 +11,8 @@ from stop_trips import trip_with_stops
 
 from gyro_ekf.core.config import EkfConfig, with_stated_noise
 from gyro_ekf.core.ekf import GyroBiasEkf
-from gyro_ekf.core.events import drive_trip, EventDriver
+from gyro_ekf.core.events import EventDriver
+from gyro_ekf.core.trip_run import drive_trip
 
 OFF = {'zero_rate_max_spread_rad_s': 0.0}
 STATIC_START_2016_S = 17.92

@@ -20,8 +20,8 @@ from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import Reader
 import yaml
 
-from gyro_ekf.analysis import outputs, visual_bag
-from gyro_ekf.analysis.errors import OutputError
+from gyro_ekf.io import output_dir, results, visual_bag
+from gyro_ekf.io.errors import OutputError
 from gyro_ekf.cli.main import main
 from gyro_ekf.io import messages as msgs
 
@@ -60,7 +60,8 @@ def run(tmp_path_factory):
     rows = np.loadtxt(out / 'estimates.csv', delimiter=',', skiprows=1)
     start_ns = yaml.safe_load((BAGS / 'sim_static_start.params.yaml').read_text())[
         '/**']['ros__parameters']['trip']['log_time_zero_ns']
-    return out / outputs.ESTIMATES_BAG, rows, _messages(out / outputs.ESTIMATES_BAG), start_ns
+    bag = out / output_dir.ESTIMATES_BAG
+    return bag, rows, _messages(bag), start_ns
 
 
 def _row_at(rows, start_ns: int, stamp_ns: int) -> np.ndarray:
@@ -193,7 +194,7 @@ def test_static_transforms_follow_the_sidecar_mount(tmp_path):
     lidar['scan'].update(x_m=0.31, y_m=-0.12, yaw_rad=0.25)
     (tmp_path / 'moved.params.yaml').write_text(yaml.safe_dump(params))
     assert _run(bag, tmp_path / 'out') == 0
-    (_, _, static), = _messages(tmp_path / 'out' / outputs.ESTIMATES_BAG)['/tf_static']
+    (_, _, static), = _messages(tmp_path / 'out' / output_dir.ESTIMATES_BAG)['/tf_static']
     # The child is the frame_id of the scans, so TF places them.
     mount, = [t for t in static.transforms if t.child_frame_id == 'laser']
     assert mount.header.frame_id == 'base_link'
@@ -210,7 +211,7 @@ def test_path_length_zero_is_refused(tmp_path, capsys):
     assert not (tmp_path / 'out').exists()
     stamps = np.arange(3) * 0.005
     with pytest.raises(OutputError, match='path length 0: must be a whole number of poses'):
-        outputs.write_estimates_bag(tmp_path / 'estimates', 1_700_000_000_000_000_000, stamps,
+        results.write_estimates_bag(tmp_path / 'estimates', 1_700_000_000_000_000_000, stamps,
                                     np.zeros((3, 4)), np.tile(np.eye(4), (3, 1, 1)),
                                     np.zeros(3), np.zeros(3), path_length=0)
     assert not (tmp_path / 'estimates').exists()
@@ -241,7 +242,7 @@ def test_bias_is_in_the_imu_frame(run, tmp_path):
     assert imu_frame in {t.child_frame_id for t in static.transforms}
     # Another IMU frame: ekf/bias and the identity mount follow it.
     stamps = np.arange(3) * 0.005
-    written = outputs.write_estimates_bag(
+    written = results.write_estimates_bag(
         tmp_path / 'estimates', 1_700_000_000_000_000_000, stamps, np.zeros((3, 4)),
         np.tile(np.eye(4), (3, 1, 1)), np.zeros(3), np.zeros(3), imu_frame='gyro_board')
     with Reader(written) as reader:

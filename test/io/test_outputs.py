@@ -10,8 +10,8 @@ import pytest
 from rosbags.rosbag2 import Reader
 
 from gyro_ekf import topics
-from gyro_ekf.analysis import outputs
-from gyro_ekf.analysis.errors import OutputError
+from gyro_ekf.io import output_dir, results
+from gyro_ekf.io.errors import OutputError
 from gyro_ekf.io import messages as msgs
 
 
@@ -25,7 +25,7 @@ def _history(n=5):
 
 def test_csv_header_columns_and_units(tmp_path):
     stamps, state, P = _history()
-    path = outputs.write_estimates_csv(tmp_path / 'estimates.csv', stamps, state, P)
+    path = results.write_estimates_csv(tmp_path / 'estimates.csv', stamps, state, P)
     lines = path.read_text().splitlines()
     assert lines[0] == 't,x,y,yaw,bias,var_x,var_y,var_yaw,var_bias,cov_xy,cov_xyaw,cov_yyaw'
     rows = np.loadtxt(path, delimiter=',', skiprows=1)
@@ -36,28 +36,28 @@ def test_csv_header_columns_and_units(tmp_path):
 
 def test_output_folder_is_not_overwritten_without_force(tmp_path):
     out = tmp_path / 'out'
-    assert outputs.prepare_output_dir(out) == out
+    assert output_dir.prepare_output_dir(out) == out
     assert not out.exists()                       # nothing is created before the outputs
     out.mkdir()
-    outputs.prepare_output_dir(out)              # empty: fine
+    output_dir.prepare_output_dir(out)              # empty: fine
     (out / 'summary.json').write_text('{}')
     with pytest.raises(OutputError, match='not empty; use --force'):
-        outputs.prepare_output_dir(out)
-    assert outputs.prepare_output_dir(out, force=True) == out
+        output_dir.prepare_output_dir(out)
+    assert output_dir.prepare_output_dir(out, force=True) == out
     (tmp_path / 'file').write_text('')
     with pytest.raises(OutputError, match='not a folder'):
-        outputs.prepare_output_dir(tmp_path / 'file')
+        output_dir.prepare_output_dir(tmp_path / 'file')
 
 
 def test_summary_json_turns_nan_into_null(tmp_path):
-    path = outputs.write_summary_json(tmp_path / 's.json', {
+    path = results.write_summary_json(tmp_path / 's.json', {
         'a': math.nan, 'b': np.float64(1.5), 'c': np.array([1, 2]), 'd': {'e': np.int64(3)}})
     assert json.loads(path.read_text()) == {'a': None, 'b': 1.5, 'c': [1, 2], 'd': {'e': 3}}
 
 
 def test_estimates_bag_has_the_live_node_topics(tmp_path):
     stamps, state, P = _history()
-    bag = outputs.write_estimates_bag(tmp_path / 'estimates', 1_700_000_000_000_000_000, stamps,
+    bag = results.write_estimates_bag(tmp_path / 'estimates', 1_700_000_000_000_000_000, stamps,
                                       state, P, np.full(5, 0.3), np.full(5, 0.1))
     with Reader(bag) as reader:
         kinds = {c.topic: c.msgtype for c in reader.connections}
@@ -84,4 +84,4 @@ def test_estimates_bag_has_the_live_node_topics(tmp_path):
     assert odom.twist.twist.angular.z == pytest.approx(0.1)
     assert messages['/ekf/bias'][1][1].vector.z == pytest.approx(-0.017)
     with pytest.raises(OutputError, match='exists already'):
-        outputs.write_estimates_bag(bag, 1, stamps, state, P, np.zeros(5), np.zeros(5))
+        results.write_estimates_bag(bag, 1, stamps, state, P, np.zeros(5), np.zeros(5))

@@ -10,8 +10,8 @@ import pytest
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
 from gyro_ekf import topics
-from gyro_ekf.analysis import outputs
-from gyro_ekf.analysis.errors import OutputError
+from gyro_ekf.io import results
+from gyro_ekf.io.errors import OutputError
 from gyro_ekf.io import messages as msgs
 from gyro_ekf.io.batch_write import enable_chunk_crcs
 
@@ -68,13 +68,13 @@ def _history(n: int, seed: int = 0):
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
 def test_estimates_bag_is_what_per_message_rosbags_writes(tmp_path, monkeypatch, storage):
     # Small blocks, so rows straddle blocks and MCAP chunks close mid-block.
-    monkeypatch.setattr(outputs, '_BAG_BLOCK_ROWS', 1500)
+    monkeypatch.setattr(results, '_BAG_BLOCK_ROWS', 1500)
     n = 4000
     history = _history(n)
     (tmp_path / 'new').mkdir()
     (tmp_path / 'old').mkdir()
     # The visual topics are checked against rosbags in test_estimates_bag_visual.py.
-    new = outputs.write_estimates_bag(tmp_path / 'new' / 'estimates', START_NS, *history,
+    new = results.write_estimates_bag(tmp_path / 'new' / 'estimates', START_NS, *history,
                                       storage=storage, visual=False)
     old = tmp_path / 'old' / 'estimates'
     reference_bag(old, START_NS, *history, storage=storage)
@@ -89,13 +89,13 @@ def test_estimates_bag_is_what_per_message_rosbags_writes(tmp_path, monkeypatch,
 def test_estimates_bag_refuses_stamps_beyond_int32_seconds(tmp_path):
     stamps, state, covariance, speed, rate = _history(10)
     with pytest.raises(OutputError, match='int32 seconds'):
-        outputs.write_estimates_bag(tmp_path / 'estimates', 2**31 * 1_000_000_000, stamps,
+        results.write_estimates_bag(tmp_path / 'estimates', 2**31 * 1_000_000_000, stamps,
                                     state, covariance, speed, rate)
     assert not (tmp_path / 'estimates').exists()
 
 
 def test_empty_history_writes_an_empty_bag(tmp_path):
-    bag = outputs.write_estimates_bag(tmp_path / 'estimates', START_NS, np.zeros(0),
+    bag = results.write_estimates_bag(tmp_path / 'estimates', START_NS, np.zeros(0),
                                       np.zeros((0, 4)), np.zeros((0, 4, 4)), np.zeros(0),
                                       np.zeros(0))
     with Reader(bag) as reader:

@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from gyro_ekf.analysis.errors import ParamsFileError
-from gyro_ekf.analysis.params_file import read_params_file, read_params_text
+from gyro_ekf.io.errors import ParamsFileError
+from gyro_ekf.io.params_file import read_params_file, read_params_text
 from gyro_ekf.core.config import EkfConfig
 
 TEXT = """

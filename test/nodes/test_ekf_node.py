@@ -19,7 +19,8 @@ PUBLISH_EVERY = 20
 
 def _offline(bag):
     from gyro_ekf.core.config import EkfConfig, with_stated_noise
-    from gyro_ekf.core.events import drive_trip, EventDriver
+    from gyro_ekf.core.events import EventDriver
+    from gyro_ekf.core.trip_run import drive_trip
     from gyro_ekf.io import read_bag
 
     bag_trip = read_bag(bag)

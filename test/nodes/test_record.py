@@ -21,7 +21,7 @@ pytest.importorskip('rclpy')
 from geometry_msgs.msg import Vector3Stamped  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 
-from gyro_ekf.io.bag_info import bag_summary
+from gyro_ekf.io.bag_info import bag_summary  # noqa: E402
 from gyro_ekf.io.bag_reader import iter_bag_messages  # noqa: E402
 
 COUNT = 120

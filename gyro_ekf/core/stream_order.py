@@ -1,0 +1,143 @@
+"""Stream ordering for live use: release events from several topics in driver order.
+
+An offline run knows every event of a trip and sorts them (`trip_run.iter_trip_events`); a
+live node receives each topic on its own subscription, out of order across topics, and
+must decide when an event can no longer be overtaken. ``StreamMerger`` holds events behind
+a watermark and releases them in the order the ``EventDriver`` expects (stamp, then speed <
+observation < IMU). `core.lagged.LaggedObservations` is the other live policy: the fast
+inputs go through at once and a late observation is replayed into a short history.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+import heapq
+import itertools
+import math
+import time
+from typing import Any
+
+from gyro_ekf.core.events import EventKind
+
+__all__ = ['ReadyEvents', 'StreamMerger']
+
+
+ReadyEvents = list[tuple[float, EventKind, Any]]
+
+
+class StreamMerger:
+    """Releases live events in driver order: (stamp, kind, arrival), behind a watermark.
+
+    Live topics arrive out of order across subscriptions, and when the filter falls behind
+    the executor serves each subscription's queue one message at a time, so a 200 Hz IMU
+    queue drains no faster than a 100 Hz odometry queue and the odometry stamps run ahead
+    by more than any fixed window. So an event with stamp t is released once
+    t <= newest stamp of any stream - window_s and t <= the newest stamp of every active
+    stream. A stream is stale (stops holding the others back: a stopped LiDAR) only when
+    both hold: nothing came from it for ``stale_after_s`` on ``clock``, and the other
+    streams' stamps have moved ``stale_after_s`` past its newest stamp. Either alone fails
+    on a busy machine: a process that was starved for a second wakes to find every stream
+    silent on the clock although their messages wait in the queues (their stamps are close),
+    and a queue that drains slower than it fills lags in stamps although its messages keep
+    coming. Neither depends on how fast the machine is. ``max_events`` bounds what is held.
+    An event older than one already released is late: ``push`` returns it in ``late``
+    instead of releasing it out of order. Ties release speed, observation, IMU, as
+    iter_trip_events orders them, so a live run feeds the EventDriver what an offline run
+    does. At the start nothing is released until every expected stream has spoken (or, by
+    the same two measures, stale_after_s has passed): the first messages of two topics
+    reach a subscriber in either order, and releasing the first would make the other late.
+    """
+
+    def __init__(self, window_s: float, max_events: int = 20_000, stale_after_s: float = 1.0,
+                 clock: Callable[[], float] = time.monotonic,
+                 expected_streams: Iterable[str] = ()):
+        """Hold events window_s of stamp time at least, at most max_events at once.
+
+        Args:
+            window_s: least stamp time an event waits behind the newest stamp, s.
+            max_events: the oldest events are released beyond this many.
+            stale_after_s: a stream silent for this long on the clock, and this far
+                behind the other streams' stamps, stops holding events back, s.
+            clock: seconds on the node's clock (monotonic, or ROS time with sim time);
+                replaceable in tests.
+            expected_streams: streams to wait for before the first release (at most
+                stale_after_s after the first event).
+        """
+        self.window_s = window_s
+        self.max_events = max_events
+        self.stale_after_s = stale_after_s
+        self.expected_streams = frozenset(expected_streams)
+        self._started: float | None = None
+        self._first_s = math.inf
+        self._clock = clock
+        self._heap: list[tuple[float, int, int, Any]] = []
+        self._arrival = itertools.count()
+        self._streams: dict[str, tuple[float, float]] = {}
+        self._newest_s = -math.inf
+        self._released_s = -math.inf
+
+    def __len__(self) -> int:
+        return len(self._heap)
+
+    @property
+    def released_s(self) -> float:
+        """Stamp of the last released event (-inf before the first)."""
+        return self._released_s
+
+    def push(self, stream: str, stamp_s: float, kind: EventKind, payload: Any
+             ) -> tuple[ReadyEvents, list[Any]]:
+        """Add an event of a stream; return (events now ready in order, late payloads)."""
+        if stamp_s < self._released_s:
+            return [], [payload]
+        now = self._clock()
+        if self._started is None:
+            self._started = now
+        self._first_s = min(self._first_s, stamp_s)
+        newest_of_stream = self._streams.get(stream, (-math.inf, now))[0]
+        self._streams[stream] = (max(newest_of_stream, stamp_s), now)
+        self._newest_s = max(self._newest_s, stamp_s)
+        heapq.heappush(self._heap, (stamp_s, int(kind), next(self._arrival), payload))
+        if (self._released_s == -math.inf and not self.expected_streams <= self._streams.keys()
+                and not self._passed(now, self._started, self._first_s)
+                and len(self._heap) <= self.max_events):
+            return [], []
+        stale_s, newest_s = self.stale_after_s, self._newest_s
+        watermark = min((newest for newest, seen in self._streams.values()
+                         if now - seen <= stale_s or newest_s - newest <= stale_s),
+                        default=math.inf)  # not stale (see _passed), inline: per message
+        return self._release(min(self._newest_s - self.window_s, watermark)), []
+
+    def active_streams(self) -> set[str]:
+        """Streams seen since the last clear that are not stale."""
+        now = self._clock()
+        return {stream for stream, (newest, seen) in self._streams.items()
+                if not self._passed(now, seen, newest)}
+
+    def _passed(self, now: float, seen: float, newest_s: float) -> bool:
+        """Tell whether stale_after_s has passed on the clock and in the stamps.
+
+        On the clock since `seen`, and in the newest stamp of any stream since `newest_s`.
+        """
+        return (now - seen > self.stale_after_s
+                and self._newest_s - newest_s > self.stale_after_s)
+
+    def flush(self) -> ReadyEvents:
+        """Release everything held."""
+        return self._release(math.inf)
+
+    def clear(self) -> None:
+        """Drop everything and forget the streams and stamps seen (after a reset)."""
+        self._heap.clear()
+        self._streams.clear()
+        self._started = None
+        self._first_s = math.inf
+        self._newest_s = -math.inf
+        self._released_s = -math.inf
+
+    def _release(self, until_s: float) -> ReadyEvents:
+        ready = []
+        while self._heap and (self._heap[0][0] <= until_s or len(self._heap) > self.max_events):
+            stamp_s, kind, _, payload = heapq.heappop(self._heap)
+            self._released_s = stamp_s
+            ready.append((stamp_s, EventKind(kind), payload))
+        return ready

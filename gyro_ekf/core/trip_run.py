@@ -1,0 +1,208 @@
+"""The offline batch run: every event of a trip through one EventDriver, history as arrays.
+
+`drive_trip` is what `gyro-ekf run` (analysis.offline) runs: the trip's events in driver
+order (`iter_trip_events`, computed once on compact arrays), LiDAR detection a block of
+scans at a time (it does not depend on the filter), and the estimates kept as the filter's
+packed rows, copied into arrays a block at a time, so a long trip holds no Python object
+per sample.
+"""
+
+from __future__ import annotations
+
+from array import array
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gyro_ekf.core.detection import PoleDetections, detect_poles_in_scans
+from gyro_ekf.core.ekf import unpack_rows
+from gyro_ekf.core.events import DriverStats, EventDriver, EventKind
+from gyro_ekf.core.health import HealthMonitor
+from gyro_ekf.core.models import sensor_point_to_map
+from gyro_ekf.core.types import FloatArray, ScanSeries, Trip
+
+__all__ = ['DETECTION_BLOCK', 'Estimates', 'ROW_BLOCK', 'TripRun', 'UpdateLog', 'drive_trip',
+           'iter_trip_events']
+
+DETECTION_BLOCK = 512
+"""Scans detected per batch in drive_trip (bounded memory, amortised numpy overhead)."""
+
+
+ROW_BLOCK = 4096
+"""Estimates drive_trip holds as plain floats before copying them into its arrays."""
+
+
+def iter_trip_events(trip: Trip, block: int = 65_536
+                     ) -> Iterator[tuple[float, EventKind, int, int]]:
+    """All events of a trip in driver order: (stamp_s, kind, series index, sample index).
+
+    The series index picks the ScanSeries for observations (0 otherwise). The order is
+    computed once on compact arrays and handed out in blocks, so a long trip never holds
+    a Python object per event.
+    """
+    stamps = [trip.speed.stamp_s, trip.imu.stamp_s] + [s.stamp_s for s in trip.scans]
+    kinds = [EventKind.SPEED, EventKind.IMU] + [EventKind.OBSERVATION] * len(trip.scans)
+    series = [0, 0] + list(range(len(trip.scans)))
+    all_stamps = np.concatenate(stamps)
+    all_kinds = np.concatenate([np.full(len(s), int(k), dtype=np.int8)
+                                for s, k in zip(stamps, kinds)])
+    all_series = np.concatenate([np.full(len(s), i, dtype=np.int16)
+                                 for s, i in zip(stamps, series)])
+    all_index = np.concatenate([np.arange(len(s), dtype=np.int32) for s in stamps])
+    order = np.lexsort((all_index, all_series, all_kinds, all_stamps))
+    kinds_by_value = [EventKind(k) for k in range(len(EventKind))]
+    for begin in range(0, order.size, block):
+        part = order[begin:begin + block]
+        # tolist() per block: element-wise numpy scalar access would dominate the loop.
+        yield from zip(all_stamps[part].tolist(),
+                       [kinds_by_value[k] for k in all_kinds[part].tolist()],
+                       all_series[part].tolist(), all_index[part].tolist())
+
+
+@dataclass(frozen=True, slots=True)
+class Estimates:
+    """History of a run: one row per IMU sample.
+
+    Attributes:
+        stamp_s: shape (n,), s.
+        state: shape (n, 4): x m, y m, yaw rad, bias rad/s.
+        covariance: shape (n, 4, 4).
+    """
+
+    stamp_s: FloatArray
+    state: FloatArray
+    covariance: FloatArray
+
+
+@dataclass(frozen=True, slots=True)
+class UpdateLog:
+    """Every landmark update applied during a run, in time order.
+
+    Attributes:
+        stamp_s: scan stamp of each update, shape (m,), s.
+        landmark: index of the landmark in the map, shape (m,).
+        point_map_m: the detection placed in the map at the prior pose, shape (m, 2), m.
+        nis: normalised innovation squared of each update, shape (m,).
+    """
+
+    stamp_s: FloatArray
+    landmark: NDArray[np.int64]
+    point_map_m: FloatArray
+    nis: FloatArray
+
+
+@dataclass(frozen=True, slots=True)
+class TripRun:
+    """Result of driving the filter through a whole trip.
+
+    Attributes:
+        estimates: one row per IMU sample.
+        updates: the applied landmark updates (compact: a long trip keeps no per-scan
+            objects).
+        stats: final counts.
+        health: the per-LiDAR health figures, exclusions and readmissions.
+    """
+
+    estimates: Estimates
+    updates: UpdateLog
+    stats: DriverStats
+    health: HealthMonitor | None = None
+
+
+def _variances(values: FloatArray | None, n: int) -> list[float | None]:
+    if values is None:
+        return [None] * n
+    return [None if math.isnan(v) else v for v in np.asarray(values, dtype=np.float64).tolist()]
+
+
+def drive_trip(trip: Trip, driver: EventDriver,
+               progress: Callable[[int], None] | None = None) -> TripRun:
+    """Run every event of a trip through a driver and collect the history.
+
+    Args:
+        trip: the inputs; trip.landmarks is used when the driver has no map.
+        driver: a fresh driver (its pose is the filter's start).
+        progress: called with the number of events processed since the last call.
+    """
+    if driver.landmarks is None:
+        driver.landmarks = trip.landmarks
+    n = len(trip.imu.stamp_s)
+    stamps = np.empty(n)
+    states = np.empty((n, 4))
+    covariances = np.empty((n, 4, 4))
+    # array('d') keeps 8 bytes per value while a long trip accumulates updates.
+    update_stamp, update_landmark = array('d'), array('q')
+    update_x, update_y, update_nis = array('d'), array('d'), array('d')
+    yaw_rates = trip.imu.yaw_rate_rad_s
+    speeds = trip.speed.speed_m_s
+    # Each message's own variance where the trip has one (NaN: not given), else None: the
+    # configured noise. Lists of floats and None, read once per event.
+    rate_variances = _variances(trip.imu.yaw_rate_variance, len(yaw_rates))
+    speed_variances = _variances(trip.speed.speed_variance, len(speeds))
+    angles = [scan.angles_rad for scan in trip.scans]
+    detected: dict[int, tuple[int, list[PoleDetections]]] = {}
+    row = 0
+    processed = 0
+    # Rows are kept as plain floats and copied into the arrays a block at a time: two
+    # small arrays per IMU step would cost more than the filter step itself.
+    pending: list[list[float]] = []
+    packed_row = driver.ekf.packed_row
+
+    def flush() -> None:
+        if pending:
+            start = row - len(pending)
+            states[start:row], covariances[start:row] = unpack_rows(pending)
+            pending.clear()
+
+    for stamp_s, kind, series, index in iter_trip_events(trip):
+        if kind is EventKind.IMU:
+            driver.step_imu(stamp_s, float(yaw_rates[index]), rate_variances[index])
+            stamps[row] = stamp_s
+            pending.append(packed_row())
+            row += 1
+            if len(pending) == ROW_BLOCK:
+                flush()
+        elif kind is EventKind.SPEED:
+            driver.on_speed(stamp_s, float(speeds[index]), speed_variances[index])
+        else:
+            scan: ScanSeries = trip.scans[series]
+            begin, found = detected.get(series, (0, []))
+            if not begin <= index < begin + len(found):
+                # Detection does not depend on the filter: do a block of scans at once.
+                begin, stop = index, min(index + DETECTION_BLOCK, len(scan.stamp_s))
+                found = detect_poles_in_scans(
+                    scan.ranges_m[begin:stop], angles[series],
+                    None if scan.intensities is None else scan.intensities[begin:stop],
+                    driver.detector_config)
+                detected[series] = (begin, found)
+            report = driver.on_detections(stamp_s, found[index - begin].points_sensor_m,
+                                          scan.mount, scan.topic)
+            if report.nis.size:
+                pairs = report.association.matched_pairs().tolist()
+                update_stamp.extend([stamp_s] * len(pairs))
+                prior = report.prior_state.tolist()
+                points = report.points_sensor_m
+                for detection, landmark in pairs:
+                    update_landmark.append(landmark)
+                    px, py = sensor_point_to_map(prior, *points[detection].tolist(),
+                                                 scan.mount)
+                    update_x.append(px)
+                    update_y.append(py)
+                update_nis.extend(report.nis.tolist())
+        processed += 1
+        if progress is not None and processed % 10_000 == 0:
+            progress(10_000)
+    flush()
+    if progress is not None:
+        progress(processed % 10_000)
+    updates = UpdateLog(
+        stamp_s=np.frombuffer(update_stamp, dtype=np.float64),
+        landmark=np.frombuffer(update_landmark, dtype=np.int64),
+        point_map_m=np.column_stack([np.frombuffer(update_x, dtype=np.float64),
+                                     np.frombuffer(update_y, dtype=np.float64)]),
+        nis=np.frombuffer(update_nis, dtype=np.float64))
+    return TripRun(Estimates(stamps, states, covariances), updates, driver.stats,
+                   driver.health)
