@@ -194,7 +194,8 @@ def _check_storage_connections(path: Path, reader: Reader) -> None:
             continue
         other = next((c for c in stored if c.topic == wanted.topic), None)
         detail = ('no connection' if other is None else f'type {other.msgtype!r}'
-                  if other.msgtype != wanted.msgtype else 'another serialization, QoS or type hash')
+                  if other.msgtype != wanted.msgtype
+                  else 'another serialization, QoS or type hash')
         raise BagError(f"{path}: topic '{wanted.topic}' has {detail} in its storage file, "
                        f"but {wanted.msgtype} in metadata.yaml; rosbags would drop its messages")
 
@@ -341,7 +342,7 @@ def _topics(path: Path, reader: Reader, params: BagParams | None
 
 
 def _count_hint(value: Any) -> int:
-    """A topic's message count as the metadata states it, or 0 when it is no count.
+    """Return a topic's message count as the metadata states it, or 0 when it is no count.
 
     Only a hint for the first allocation (the arrays grow), so a damaged one (None, a
     string, inf) costs nothing but a regrowth.

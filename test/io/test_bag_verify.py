@@ -70,6 +70,7 @@ def plain_bag(tmp_path, monkeypatch):
 
 # -- the CRCs the project writes -------------------------------------------------------
 
+
 @pytest.mark.parametrize('compress', [False, True], ids=['plain', 'zstd'])
 def test_written_bags_carry_every_crc_and_other_readers_check_them(tmp_path, crc_writer,
                                                                    compress):
@@ -113,6 +114,7 @@ def test_crcs_can_be_enabled_before_open_and_sqlite3_is_left_alone(tmp_path):
 
 
 # -- one test per case of the issue ---------------------------------------------------
+
 
 def test_a_flipped_bit_in_an_imu_value_is_a_crc_error(crc_bag):
     trip = big_trip()
@@ -176,7 +178,6 @@ def test_a_count_of_10_to_the_12_in_the_metadata_is_only_a_hint(plain_bag):
     assert_trips_equal(read_bag(plain_bag, fast=False).trip, want)
 
 
-
 def _edit_metadata(bag, change) -> None:
     meta_path = bag / 'metadata.yaml'
     meta = yaml.safe_load(meta_path.read_text())
@@ -219,6 +220,7 @@ def test_metadata_listing_no_file_or_one_twice_is_refused(plain_bag, files, reas
         with pytest.raises(BagError, match=f'metadata.yaml: relative_file_paths {reason}'):
             read_bag(plain_bag, fast=fast)
 
+
 def statistics_counts_at(data: bytes) -> list[int]:
     """Offsets of the per-channel message counts in the Statistics record."""
     stats = next(r for r in top_records(data) if r.opcode == 0x0B)
@@ -260,7 +262,6 @@ def test_a_scan_topic_typed_imu_is_refused_naming_the_topic(tmp_path):
             read_bag(bag, fast=fast)
 
 
-
 @pytest.mark.parametrize('fast', [True, False])
 def test_a_type_damaged_in_the_mcap_summary_is_refused(plain_bag, fast):
     # Found by `make fuzz`: rosbags matches the summary's channels against metadata.yaml and
@@ -274,6 +275,7 @@ def test_a_type_damaged_in_the_mcap_summary_is_refused(plain_bag, fast):
                                        'its storage file, but sensor_msgs/msg/Imu in '
                                        'metadata.yaml; rosbags would drop its messages'):
         read_bag(plain_bag, fast=fast)
+
 
 def test_a_lidar_topic_named_by_the_sidecar_must_be_a_laser_scan(tmp_path):
     trip = big_trip()
@@ -334,6 +336,7 @@ def test_lengths_past_the_bytes_present_are_bag_errors(plain_bag, where):
 
 # -- reading without what a plain install lacks, and falling back ----------------------
 
+
 def test_zstd_bags_are_read_without_the_zstandard_package(tmp_path, monkeypatch):
     bag = write_trip_bag(big_trip(), tmp_path / 'z', compress=True)
     monkeypatch.setitem(sys.modules, 'zstandard', None)    # import zstandard fails
@@ -370,6 +373,7 @@ def test_a_damaged_file_is_never_handed_to_rosbags(plain_bag, monkeypatch):
 
 
 # -- a small mutation loop --------------------------------------------------------------
+
 
 def mutants(data: bytes, rng: np.random.Generator, count: int):
     """Yield (what, mutated bytes): bit flips, random bytes, 0xff runs, cuts, zeroed words."""
