@@ -71,6 +71,7 @@ def plain_bag(tmp_path, monkeypatch):
 
 # -- the CRCs the project writes -------------------------------------------------------
 
+
 @pytest.mark.parametrize('compress', [False, True], ids=['plain', 'zstd'])
 def test_written_bags_carry_every_crc_and_other_readers_check_them(tmp_path, crc_writer,
                                                                    compress):
@@ -114,6 +115,7 @@ def test_crcs_can_be_enabled_before_open_and_sqlite3_is_left_alone(tmp_path):
 
 
 # -- one test per case of the issue ---------------------------------------------------
+
 
 def test_a_flipped_bit_in_an_imu_value_is_a_crc_error(crc_bag):
     trip = big_trip()
@@ -335,6 +337,7 @@ def test_lengths_past_the_bytes_present_are_bag_errors(plain_bag, where):
 
 # -- reading without what a plain install lacks, and falling back ----------------------
 
+
 def test_zstd_bags_are_read_without_the_zstandard_package(tmp_path, monkeypatch):
     bag = write_trip_bag(big_trip(), tmp_path / 'z', compress=True)
     monkeypatch.setitem(sys.modules, 'zstandard', None)    # import zstandard fails
@@ -371,6 +374,7 @@ def test_a_damaged_file_is_never_handed_to_rosbags(plain_bag, monkeypatch):
 
 
 # -- a small mutation loop --------------------------------------------------------------
+
 
 def mutants(data: bytes, rng: np.random.Generator, count: int):
     """Yield (what, mutated bytes): bit flips, random bytes, 0xff runs, cuts, zeroed words."""
