@@ -1,12 +1,17 @@
-"""A private ROS 2 environment for the project's tests and benchmarks (no ROS import).
+"""A private ROS 2 environment for the project's own processes (no ROS import).
 
-Processes that create ROS nodes for a test or a benchmark run with loopback-only discovery
-(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), their own log directory and a DDS domain that
-no other run on this machine uses at the same time. A domain is claimed with an exclusive
-``flock`` on ``/tmp/gyro_ekf-ros-domain-<N>.lock``: the kernel drops the lock when the
-holder exits, even when it is killed, so no stale claim outlives a crashed run. A domain
-whose Fast DDS ports are bound (a process started by hand, or a node of a finished run still
-shutting down) is passed over as well.
+The one home of the ROS environment and of child-process handling: every process the
+project starts for a test, a benchmark, `make demo` or `make docs` that creates ROS nodes
+runs with loopback-only discovery (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), its own log
+directory and an explicit DDS domain (`child_env`), and is started and stopped the same way
+(`ChildProcesses`: output to a log file each, SIGINT, then a kill after a timeout). Tests,
+benchmarks and `make docs` claim a domain that no other run on this machine uses at the same
+time (`claim_domain`); `make demo` uses the fixed, documented 42 unless told otherwise.
+
+A domain is claimed with an exclusive ``flock`` on ``/tmp/gyro_ekf-ros-domain-<N>.lock``:
+the kernel drops the lock when the holder exits, even when it is killed, so no stale claim
+outlives a crashed run. A domain whose Fast DDS ports are bound (a process started by hand,
+or a node of a finished run still shutting down) is passed over as well.
 
 A private network namespace per run (``unshare -rn``) would not be enough on its own: Fast
 DDS' shared-memory transport names its segments after the port numbers in ``/dev/shm``,
@@ -15,11 +20,16 @@ which a network namespace does not separate.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 import errno
 import fcntl
 import itertools
 import os
 from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
 
 # Fast DDS maps domains 0-232 onto UDP ports; 0 is every ROS install's default and 42 the
 # domain of `make demo` (Makefile), so neither is handed out.
@@ -147,3 +157,64 @@ def ros_env_values(domain_id: int, log_dir: Path | str) -> dict[str, str]:
         'ROS_LOG_DIR': str(log_dir),
         'PYTHONUNBUFFERED': '1',
     }
+
+
+def child_env(domain_id: int, log_dir: Path | str, base: Mapping[str, str] | None = None
+              ) -> dict[str, str]:
+    """Return the whole environment of a child: base (os.environ) plus ros_env_values.
+
+    The folder holding the gyro_ekf package goes first on PYTHONPATH, so `python -m
+    gyro_ekf...` in the child runs this copy of the package, installed or not.
+    """
+    env = dict(os.environ if base is None else base)
+    env.update(ros_env_values(domain_id, log_dir))
+    package_root = str(Path(__file__).resolve().parents[1])
+    env['PYTHONPATH'] = os.pathsep.join(p for p in (package_root, env.get('PYTHONPATH')) if p)
+    return env
+
+
+class ChildProcesses:
+    """Children run as `python -m MODULE ...`, each with its output in <log_dir>/<name>.log.
+
+    `stop_all` sends SIGINT to every child still running (the nodes shut down cleanly on
+    it), waits up to a timeout for all of them together, and kills what has not stopped.
+    """
+
+    def __init__(self, env: Mapping[str, str], log_dir: Path | str,
+                 cwd: Path | str | None = None):
+        self.env = dict(env)
+        self.log_dir = Path(log_dir)
+        self.cwd = cwd
+        self.started: list[tuple[str, subprocess.Popen]] = []
+
+    def start(self, name: str, *args: str) -> subprocess.Popen:
+        """Start `python -m <args...>` with its output in <log_dir>/<name>.log."""
+        with self.log_path(name).open('w') as out:
+            child = subprocess.Popen([sys.executable, '-m', *args], env=self.env, stdout=out,
+                                     stderr=subprocess.STDOUT, cwd=self.cwd)
+        self.started.append((name, child))
+        return child
+
+    def log_path(self, name: str) -> Path:
+        """Return the log file of a child."""
+        return self.log_dir / f'{name}.log'
+
+    def log(self, name: str) -> str:
+        """Return the output of a started child so far."""
+        return self.log_path(name).read_text()
+
+    def stop_all(self, timeout_s: float = 10.0,
+                 on_kill: Callable[[str], None] | None = None) -> None:
+        """SIGINT every child still running, wait, kill what does not stop (on_kill(name))."""
+        for _, child in self.started:
+            if child.poll() is None:
+                child.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + timeout_s
+        for name, child in self.started:
+            try:
+                child.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                if on_kill is not None:
+                    on_kill(name)
+                child.kill()
+                child.wait()

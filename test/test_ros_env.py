@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
 import signal
 import socket
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -82,3 +85,46 @@ def test_fixtures_run_in_a_claimed_domain(ros_env):
     # The fixture's claim is held for the test: nobody else can take the domain meanwhile.
     assert ros_env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
     assert domains.try_claim(int(ros_env['ROS_DOMAIN_ID'])) is None
+
+
+def test_a_child_env_is_private_and_runs_this_package(tmp_path):
+    env = domains.child_env(17, tmp_path / 'log', base={'PYTHONPATH': '/elsewhere',
+                                                        'ROS_DOMAIN_ID': '0'})
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    assert env['ROS_DOMAIN_ID'] == '17'
+    package_root = Path(domains.__file__).resolve().parents[1]
+    assert env['PYTHONPATH'].split(os.pathsep) == [str(package_root), '/elsewhere']
+
+
+CHILD = '''import signal, sys, time
+if sys.argv[1:] == ['stubborn']:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+print('ready', flush=True)
+try:
+    while True:
+        time.sleep(0.05)
+except KeyboardInterrupt:
+    print('stopped on SIGINT', flush=True)
+'''
+
+
+def _wait_for_line(processes, name, line, timeout_s=30.0):
+    deadline = time.monotonic() + timeout_s
+    while line not in processes.log(name):
+        assert time.monotonic() < deadline, f'{name} never printed {line!r}'
+        time.sleep(0.01)
+
+
+def test_children_stop_on_sigint_and_the_stubborn_one_is_killed(tmp_path):
+    (tmp_path / 'child_module.py').write_text(CHILD)
+    processes = domains.ChildProcesses(domains.child_env(17, tmp_path / 'log'), tmp_path,
+                                       cwd=tmp_path)
+    polite = processes.start('polite', 'child_module')
+    stubborn = processes.start('stubborn', 'child_module', 'stubborn')
+    for name in ('polite', 'stubborn'):
+        _wait_for_line(processes, name, 'ready')
+    killed = []
+    processes.stop_all(timeout_s=1.0, on_kill=killed.append)
+    assert polite.returncode == 0
+    assert 'stopped on SIGINT' in processes.log('polite')
+    assert killed == ['stubborn'] and stubborn.returncode == -signal.SIGKILL

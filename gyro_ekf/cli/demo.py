@@ -20,7 +20,6 @@ import argparse
 import logging
 import math
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -96,18 +95,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _environment(output: Path) -> dict[str, str]:
-    """Build the environment of every process: loopback discovery, a domain, a log dir."""
-    import gyro_ekf
+    """Build the environment of every process: loopback discovery, a domain, a log dir.
 
-    env = dict(os.environ)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = env.get('ROS_AUTOMATIC_DISCOVERY_RANGE') or \
-        'LOCALHOST'
-    env['ROS_DOMAIN_ID'] = env.get('ROS_DOMAIN_ID') or DEFAULT_DOMAIN_ID
-    env.setdefault('ROS_LOG_DIR', str(output / 'ros_log'))
-    env['PYTHONUNBUFFERED'] = '1'
-    package_root = str(Path(gyro_ekf.__file__).resolve().parents[1])
-    env['PYTHONPATH'] = os.pathsep.join(p for p in (package_root, env.get('PYTHONPATH')) if p)
-    return env
+    The domain is the environment's ROS_DOMAIN_ID (the Makefile's GYRO_EKF_DOMAIN_ID), else
+    DEFAULT_DOMAIN_ID; the log dir the environment's ROS_LOG_DIR, else output/ros_log.
+    """
+    from gyro_ekf.ros_env import child_env
+
+    domain = int(os.environ.get('ROS_DOMAIN_ID') or DEFAULT_DOMAIN_ID)
+    return child_env(domain, os.environ.get('ROS_LOG_DIR') or output / 'ros_log')
 
 
 def _config_file() -> Path | None:
@@ -117,35 +113,6 @@ def _config_file() -> Path | None:
     candidates = [Path(gyro_ekf.__file__).resolve().parents[1] / 'config' / 'gyro_ekf.yaml',
                   Path(sys.prefix) / 'share' / 'gyro_ekf' / 'config' / 'gyro_ekf.yaml']
     return next((p for p in candidates if p.exists()), None)
-
-
-class _Group:
-    """Child processes with their logs; stopped with SIGINT, then killed."""
-
-    def __init__(self, env: dict[str, str], log_dir: Path):
-        self.env = env
-        self.log_dir = log_dir
-        self.children: list[tuple[str, subprocess.Popen]] = []
-
-    def start(self, name: str, args: list[str]) -> subprocess.Popen:
-        with (self.log_dir / f'{name}.log').open('w') as out:
-            child = subprocess.Popen([sys.executable, '-m', *args], env=self.env, stdout=out,
-                                     stderr=subprocess.STDOUT)
-        self.children.append((name, child))
-        return child
-
-    def stop(self, timeout_s: float = 10.0) -> None:
-        for _, child in self.children:
-            if child.poll() is None:
-                child.send_signal(signal.SIGINT)
-        deadline = time.monotonic() + timeout_s
-        for name, child in self.children:
-            try:
-                child.wait(timeout=max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                log.warning('%s did not stop on SIGINT; killing it', name)
-                child.kill()
-                child.wait()
 
 
 def _wait_for_recorder(env: dict[str, str], timeout_s: float) -> None:
@@ -170,9 +137,10 @@ def _wait_for_recorder(env: dict[str, str], timeout_s: float) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns the exit code."""
-    from gyro_ekf.io.results import write_summary_json
     from gyro_ekf.io import bag_summary, read_sidecar
     from gyro_ekf.io.errors import BagError
+    from gyro_ekf.io.results import write_summary_json
+    from gyro_ekf.ros_env import ChildProcesses
 
     started = time.monotonic()
     bag: Path = args.bag
@@ -189,21 +157,21 @@ def run(args: argparse.Namespace) -> int:
     files = [str(f) for f in (_config_file(), bag.parent / (bag.name + '.params.yaml'))
              if f is not None and f.exists()]
     params_files = [arg for f in files for arg in ('--params-file', f)]
-    group = _Group(env, output)
+    group = ChildProcesses(env, output)
     _say(f'starting calibration_node, {len(scan_topics)} landmark detector(s), ekf_node and '
          f'the recorder (logs in {output})')
     try:
-        group.start('calibration_node', ['gyro_ekf.nodes.calibration_node', '--ros-args',
-                                         *params_files, *node_args])
+        group.start('calibration_node', 'gyro_ekf.nodes.calibration_node', '--ros-args',
+                    *params_files, *node_args)
         for topic in scan_topics:
-            group.start(f'landmark_detector_{topic}', [
+            group.start(f'landmark_detector_{topic}', *[
                 'gyro_ekf.nodes.landmark_detector_node', '--ros-args', *params_files,
                 *node_args, '-r', f'scan:={topic}', '-r', f'__node:=landmark_detector_{topic}'])
-        group.start('ekf_node', [
+        group.start('ekf_node', *[
             'gyro_ekf.nodes.ekf_node', '--ros-args', *params_files, *node_args,
             '-p', 'use_calibration:=true', '-p', 'reorder_window_s:=1.0',
             '-p', f'publish_every_n:={args.publish_every_n}'])
-        recorder = group.start('record', [
+        recorder = group.start('record', *[
             'gyro_ekf.cli.main', 'record', *RECORDED, '-o', str(output / 'bag'), '--force',
             '--use-sim-time', '--idle-exit-s', '3'])
         _say('waiting for the nodes and the recorder to discover each other')
@@ -214,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
                        '--clock', '--topics', 'imu', 'odom', *scan_topics, *latched,
                        '--wait-for', 'imu:2', '--wait-for', 'odom:2']
         replay_args += [arg for t in scan_topics for arg in ('--wait-for', f'{t}:1')]
-        replay = group.start('replay', replay_args)
+        replay = group.start('replay', *replay_args)
         code = _wait_replay(replay, bag, args, bag_summary(bag).duration_ns / 1e9)
         if code != 0:
             raise BagError(f'{bag}: the replay failed (exit {code}); see '
@@ -223,7 +191,8 @@ def run(args: argparse.Namespace) -> int:
         recorder.wait(timeout=60)
     finally:
         _say('stopping the nodes')
-        group.stop()
+        group.stop_all(
+            on_kill=lambda name: log.warning('%s did not stop on SIGINT; killing it', name))
     _say('reading the recorded bag')
     summary = _summary(bag, output / 'bag', params)
     summary['wall_time_s'] = round(time.monotonic() - started, 1)

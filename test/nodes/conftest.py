@@ -8,9 +8,7 @@ with timeouts, never on fixed sleeps.
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -19,7 +17,7 @@ from typing import Any
 
 import pytest
 
-from gyro_ekf.ros_env import claim_domain, DomainLease, ros_env_values
+from gyro_ekf.ros_env import ChildProcesses, child_env, claim_domain, DomainLease
 
 REPO = Path(__file__).resolve().parents[2]
 # Domains handed out by node_env() without a fixture to give them back: held until the
@@ -30,11 +28,7 @@ _session_leases: list[DomainLease] = []
 def _env_in_domain(tmp_path: Path, lease: DomainLease) -> dict[str, str]:
     log_dir = tmp_path / 'ros_log'
     log_dir.mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ)
-    env.update(ros_env_values(lease.domain_id, log_dir))
-    env['PYTHONPATH'] = os.pathsep.join([str(REPO), env.get('PYTHONPATH', '')]).rstrip(
-        os.pathsep)
-    return env
+    return child_env(lease.domain_id, log_dir)
 
 
 def node_env(tmp_path: Path) -> dict[str, str]:
@@ -47,21 +41,11 @@ def node_env(tmp_path: Path) -> dict[str, str]:
     return _env_in_domain(tmp_path, lease)
 
 
-class Processes:
-    """Subprocesses of a test; stopped with SIGINT (then killed) at the end."""
+class Processes(ChildProcesses):
+    """Subprocesses of a test (gyro_ekf.ros_env.ChildProcesses run from the repository)."""
 
     def __init__(self, env: dict[str, str], log_dir: Path):
-        self.env = env
-        self.log_dir = log_dir
-        self.started: list[tuple[subprocess.Popen, Path]] = []
-
-    def start(self, name: str, *args: str) -> subprocess.Popen:
-        """Start `python -m <args...>` with its output in <log_dir>/<name>.log."""
-        log = self.log_dir / f'{name}.log'
-        process = subprocess.Popen([sys.executable, '-m', *args], env=self.env,
-                                   stdout=log.open('w'), stderr=subprocess.STDOUT, cwd=REPO)
-        self.started.append((process, log))
-        return process
+        super().__init__(env, log_dir, cwd=REPO)
 
     def node(self, executable: str, *ros_args: str, name: str | None = None
              ) -> subprocess.Popen:
@@ -80,22 +64,6 @@ class Processes:
         output = self.log(name)
         assert code == 0, f'{name} exited with {code}:\n{output}'
         return output
-
-    def log(self, name: str) -> str:
-        """Output of a started process so far."""
-        return (self.log_dir / f'{name}.log').read_text()
-
-    def stop_all(self, timeout_s: float = 10.0) -> None:
-        """SIGINT every process still running, wait, kill what does not stop."""
-        for process, _ in self.started:
-            if process.poll() is None:
-                process.send_signal(signal.SIGINT)
-        for process, _ in self.started:
-            try:
-                process.wait(timeout=timeout_s)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
 
 
 class Probe:

@@ -1,0 +1,110 @@
+"""Stream ordering for live use: StreamMerger releases in driver order behind a watermark."""
+
+from gyro_ekf.core.events import EventKind
+from gyro_ekf.core.stream_order import StreamMerger
+
+
+def test_merger_releases_in_driver_order_and_reports_late_events():
+    buffer = StreamMerger(window_s=0.05, clock=lambda: 0.0)
+    released = []
+    for stream, stamp, kind, name in [
+            ('imu', 1.00, EventKind.IMU, 'imu@1.00'),
+            ('odom', 1.00, EventKind.SPEED, 'speed@1.00'),
+            ('scan', 0.99, EventKind.OBSERVATION, 'scan@0.99'),
+            ('odom', 1.07, EventKind.SPEED, 'speed@1.07'),
+            ('scan', 1.07, EventKind.OBSERVATION, 'scan@1.07'),
+            ('imu', 1.06, EventKind.IMU, 'imu@1.06')]:
+        ready, late = buffer.push(stream, stamp, kind, name)
+        assert late == []
+        released += [p for _, _, p in ready]
+    # Released once every stream has passed them and they are window_s behind the newest.
+    assert released == ['scan@0.99', 'speed@1.00', 'imu@1.00']
+    ready, late = buffer.push('imu', 0.98, EventKind.IMU, 'imu@0.98')
+    assert ready == [] and late == ['imu@0.98']
+    assert [p for _, _, p in buffer.flush()] == ['imu@1.06', 'speed@1.07', 'scan@1.07']
+
+
+def test_merger_waits_for_the_slowest_active_stream_until_it_goes_stale():
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.01, stale_after_s=1.0, clock=lambda: now[0])
+    buffer.push('imu', 1.0, EventKind.IMU, 'imu@1.0')
+    # odom runs 2 s ahead, but the IMU has not reached those stamps: nothing past 1.0 goes.
+    released = []
+    for k in range(20):
+        released += buffer.push('odom', 1.0 + 0.1 * k, EventKind.SPEED, k)[0]
+    assert [p for _, _, p in released] == [0, 'imu@1.0']  # speed first at equal stamps
+    now[0] = 2.0  # the IMU has been silent for 2 s of wall time: it no longer holds back
+    released = buffer.push('odom', 3.0, EventKind.SPEED, 'last')[0]
+    assert len(released) == 19 and released[-1][2] == 19
+
+
+def test_merger_is_bounded():
+    buffer = StreamMerger(window_s=100.0, max_events=3, clock=lambda: 0.0)
+    released = []
+    for k in range(5):
+        released += buffer.push('imu', float(k), EventKind.IMU, k)[0]
+    assert len(buffer) == 3 and [p for _, _, p in released] == [0, 1]
+
+
+def test_merger_waits_for_the_expected_streams_before_the_first_release():
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0],
+                          expected_streams=('imu', 'odom'))
+    assert buffer.push('imu', 1.0, EventKind.IMU, 'imu1') == ([], [])
+    # odom's first message is older than imu's: without the wait it would be late.
+    ready, late = buffer.push('odom', 0.99, EventKind.SPEED, 'odom0')
+    assert late == [] and [p for _, _, p in ready] == ['odom0']   # imu1 waits for odom
+    # After a reset it waits again; a stream that never comes stops the wait when stale:
+    # stale_after_s on the clock and in the stamps of the others.
+    buffer.clear()
+    assert buffer.push('imu', 2.0, EventKind.IMU, 'imu2') == ([], [])
+    now[0] = 1.5
+    assert buffer.push('imu', 2.01, EventKind.IMU, 'imu3') == ([], [])  # stamps: 0.01 s
+    ready, _ = buffer.push('imu', 3.01, EventKind.IMU, 'imu4')
+    assert [p for _, _, p in ready] == ['imu2', 'imu3', 'imu4']
+
+
+def test_a_starved_process_does_not_find_its_streams_stale():
+    # The process slept 5 s on the clock; both queues still hold messages 10 ms apart.
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0],
+                          expected_streams=('imu', 'odom'))
+    late = []
+    for k in range(100):
+        if k == 50:
+            now[0] += 5.0
+        stamp = 0.01 * k
+        late += buffer.push('imu', stamp + 0.005, EventKind.IMU, k)[1]
+        late += buffer.push('odom', stamp, EventKind.SPEED, k)[1]
+    assert late == []
+    assert buffer.active_streams() == {'imu', 'odom'}
+
+
+def test_a_stream_whose_queue_lags_in_stamps_still_holds_the_others_back():
+    # The IMU keeps arriving, 2 s behind the odometry in stamps (a queue that drains
+    # slower than it fills): it is not stale, so no IMU sample becomes late.
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0],
+                          expected_streams=('imu', 'odom'))
+    late, released = [], []
+    for k in range(400):
+        now[0] += 0.01
+        ready, gone = buffer.push('odom', 2.0 + 0.01 * k, EventKind.SPEED, ('odom', k))
+        released += ready
+        late += gone
+        ready, gone = buffer.push('imu', 0.01 * k, EventKind.IMU, ('imu', k))
+        released += ready
+        late += gone
+    assert late == []
+    assert max(stamp for stamp, _, _ in released) <= 0.01 * 399
+
+
+def test_a_stopped_stream_goes_stale_on_the_clock_and_in_the_stamps():
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0])
+    buffer.push('scan', 0.0, EventKind.OBSERVATION, 'scan')
+    for k in range(300):
+        now[0] = 0.01 * k
+        buffer.push('imu', 0.01 * k, EventKind.IMU, k)
+    assert buffer.active_streams() == {'imu'}
+    assert len(buffer) < 5
