@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ['ChannelInfo', 'CorruptMcap', 'MAGIC', 'McapError', 'TopicMessages',
-           'UnsupportedMcap', 'read_records', 'read_topics', 'stream_topics']
+           'UnsupportedMcap', 'read_records', 'stream_topics']
 
 MAGIC = b'\x89MCAP0\r\n'
 """Leading and trailing magic of an MCAP (major version 0) file."""
@@ -648,7 +648,8 @@ def read_records(path: Path | str, data: bytes | memoryview, end: int
         topic -> its messages, and topic -> its channel, for every topic with a channel.
 
     Raises:
-        CorruptMcap, UnsupportedMcap: as read_topics; `offset` says which record is at fault.
+        CorruptMcap, UnsupportedMcap: as stream_topics; `offset` says which record is at
+            fault.
     """
     scan = _Scan(Path(path), None)
     view = memoryview(data)
@@ -688,49 +689,38 @@ def _map(path: Path) -> tuple[memoryview, mmap.mmap | None]:
     return memoryview(mapped), mapped
 
 
-def read_topics(path: Path | str, topics: Collection[str]) -> dict[str, TopicMessages]:
-    """Read and verify the log times and raw payloads of some topics of an MCAP file.
-
-    Args:
-        path: the .mcap file.
-        topics: topic names wanted (absolute, e.g. '/imu').
-
-    Returns:
-        topic -> its messages in ascending log time (stable), for every wanted topic that has
-        a channel in the file (with empty arrays if it has no message); topics without a
-        channel are absent. Messages of one topic on several channels are merged.
-
-    Raises:
-        CorruptMcap: bad magic, a CRC mismatch, a truncated or corrupt record, a length past
-            the bytes present, no DataEnd/Footer, a log time outside its chunk, a wanted topic
-            without a schema or with channels of two types.
-        UnsupportedMcap: an unsupported chunk compression or codec, a wanted topic not in CDR.
-        OSError: the file cannot be read.
-    """
-    scan = _Scan(Path(path), topics)
-    return _scan_file(scan, scan.result)
-
-
 def stream_topics(path: Path | str, topics: Collection[str],
                   consumer: Callable[[str, TopicMessages], None],
                   batch_messages: int = 65_536) -> dict[str, str]:
     """Hand the messages of some topics to consumer in batches, in log-time order per topic.
 
-    Like read_topics, but the messages go to ``consumer(topic, batch)`` whenever about
-    batch_messages have been read (at a chunk boundary), so memory stays bounded on long
-    bags. Batches of one topic come in ascending log time; a file whose chunks are not in
-    that order raises UnsupportedMcap (batches already handed over stay with the consumer,
-    who should start over with another reader). The file's CRCs are only known good when
-    this returns: on any error, batches already handed over must be thrown away. Batches
-    handed over during the scan reach the consumer while the garbage collector is paused;
-    keep it short.
+    The log times and raw payloads of the wanted topics go to ``consumer(topic, batch)``
+    whenever about batch_messages have been read (at a chunk boundary), so memory stays
+    bounded on long bags; within a batch, messages are in ascending log time (ties keep file
+    order) and messages of one topic on several channels are merged. Batches of one topic
+    come in ascending log time; a file whose chunks are not in that order raises
+    UnsupportedMcap (batches already handed over stay with the consumer, who should start
+    over with another reader). The file's CRCs are only known good when this returns: on any
+    error, batches already handed over must be thrown away. Batches handed over during the
+    scan reach the consumer while the garbage collector is paused; keep it short.
+
+    Args:
+        path: the .mcap file.
+        topics: topic names wanted (absolute, e.g. '/imu').
+        consumer: called with (topic, TopicMessages) for each batch.
+        batch_messages: messages held before a batch is handed over.
 
     Returns:
-        topic -> message type, for every wanted topic with a channel in the file.
+        topic -> message type, for every wanted topic with a channel in the file (a topic
+        without messages gets no batch).
 
     Raises:
-        CorruptMcap, UnsupportedMcap: as read_topics, or chunks out of log-time order; an
-            error raised by the consumer is replaced by a CorruptMcap when a CRC fails.
+        CorruptMcap: bad magic, a CRC mismatch, a truncated or corrupt record, a length past
+            the bytes present, no DataEnd/Footer, a log time outside its chunk, a wanted topic
+            without a schema or with channels of two types; it also replaces an error raised
+            by the consumer when a CRC fails.
+        UnsupportedMcap: an unsupported chunk compression or codec, a wanted topic not in CDR,
+            or chunks out of log-time order.
         OSError: the file cannot be read.
     """
     scan = _Scan(Path(path), topics, consumer, batch_messages)

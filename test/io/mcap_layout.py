@@ -9,6 +9,8 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 
+from gyro_ekf.io import mcap_chunks
+
 MAGIC = b'\x89MCAP0\r\n'
 
 
@@ -22,6 +24,25 @@ class Record(NamedTuple):
     @property
     def end(self) -> int:
         return self.offset + 9 + self.length
+
+
+def read_topics(path: Path | str, topics: list[str]) -> dict[str, mcap_chunks.TopicMessages]:
+    """Every message of some topics, through mcap_chunks.stream_topics as read_bag reads them.
+
+    The batches of each topic are joined; a topic with a channel but no message comes back
+    with empty arrays, one without a channel is absent.
+    """
+    batches: dict[str, list[mcap_chunks.TopicMessages]] = {}
+    msgtypes = mcap_chunks.stream_topics(
+        path, topics, lambda topic, batch: batches.setdefault(topic, []).append(batch))
+    joined = {}
+    for topic, msgtype in msgtypes.items():
+        parts = batches.get(topic, [])
+        times = (np.concatenate([b.log_time_ns for b in parts]) if parts
+                 else np.zeros(0, dtype=np.int64))
+        joined[topic] = mcap_chunks.TopicMessages(
+            msgtype, times, [payload for b in parts for payload in b.payloads])
+    return joined
 
 
 def top_records(data: bytes) -> list[Record]:

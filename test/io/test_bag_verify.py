@@ -18,7 +18,7 @@ from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 from mcap_layout import (
     assert_trips_equal, chunk_compression, chunk_records_at, chunks, crc_writer, crcs, data_end,
-    flip, mcap_of, messages_in_chunk, put, top_records)
+    flip, mcap_of, messages_in_chunk, put, read_topics, top_records)
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
@@ -341,7 +341,7 @@ def test_lengths_past_the_bytes_present_are_bag_errors(plain_bag, where):
 def test_zstd_bags_are_read_without_the_zstandard_package(tmp_path, monkeypatch):
     bag = write_trip_bag(big_trip(), tmp_path / 'z', compress=True)
     monkeypatch.setitem(sys.modules, 'zstandard', None)    # import zstandard fails
-    got = mcap_chunks.read_topics(mcap_of(bag), ['/imu'])['/imu']
+    got = read_topics(mcap_of(bag), ['/imu'])['/imu']
     assert len(got.payloads) == len(big_trip().imu.stamp_s)
 
 

@@ -10,6 +10,7 @@ import zlib
 
 import lz4.frame
 from mcap.reader import make_reader
+from mcap_layout import read_topics
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
@@ -18,7 +19,7 @@ import zstandard
 from gyro_ekf.core.simulator import simulate_trip, SimulationConfig
 from gyro_ekf.io.bag_writer import write_trip_bag
 from gyro_ekf.io.mcap_chunks import (
-    CorruptMcap, MAGIC, McapError, read_topics, TopicMessages, UnsupportedMcap)
+    CorruptMcap, MAGIC, McapError, TopicMessages, UnsupportedMcap)
 
 SENSOR_TOPICS = ('/imu', '/odom', '/scan')
 IMU = 'sensor_msgs/msg/Imu'
