@@ -8,6 +8,7 @@ package.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import struct
@@ -416,3 +417,34 @@ def test_mutated_bags_with_crcs_give_the_trip_or_a_bag_error(tmp_path, crc_write
         assert_trips_equal(got, want)
         outcomes['same'] += 1
     assert outcomes['error'] > 50
+
+
+@pytest.mark.parametrize('change, message', [
+    ('beams', 'scan 2 changes the beam count or geometry'),
+    ('increment', 'scan 2 changes the beam count or geometry'),
+    ('range_max', 'scan 2 changes the beam count or geometry'),
+    ('intensities', 'scan 2 has 90 intensities for 181 beams')])
+@pytest.mark.parametrize('read', [read_bag, read_bag_rosbags], ids=['fast', 'rosbags'])
+def test_a_scan_that_changes_the_lidar_is_refused_naming_it(tmp_path, change, message, read):
+    # One LiDAR per topic: both readers share one check (bag_sinks.check_scans).
+    scans = make_trip().scans[0]
+    assert scans.beam_count == 181 and scans.intensities is not None
+    stamp = 10**18
+    imu = msgs.serialize(msgs.imu_message(stamp, np.zeros(3), np.zeros(9), None))
+    odom = msgs.serialize(msgs.speed_message(stamp, 1.0, np.zeros(36)))
+    laser = [msgs.scan_message(stamp + k, scans, k) for k in range(3)]
+    laser[1] = dataclasses.replace(laser[1], **{
+        'beams': {'ranges': laser[1].ranges[:-1]},
+        'increment': {'angle_increment': 2 * laser[1].angle_increment},
+        'range_max': {'range_max': laser[1].range_max + 1.0},
+        'intensities': {'intensities': laser[1].intensities[:90]}}[change])
+    bag = tmp_path / 'changing'
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        for topic, msgtype, datas in (
+                ('/imu', topics.IMU_TYPE, [imu]), ('/odom', topics.ODOMETRY_TYPE, [odom]),
+                ('/scan', topics.LASER_SCAN_TYPE, [msgs.serialize(m) for m in laser])):
+            connection = writer.add_connection(topic, msgtype, typestore=msgs.TYPESTORE)
+            for k, data in enumerate(datas):
+                writer.write(connection, stamp + k, data)
+    with pytest.raises(BagError, match=f"changing: topic '/scan': {message}"):
+        read(bag)
