@@ -33,10 +33,7 @@ other inputs confirm them).
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
-import enum
 import math
-from typing import Any
 
 import numpy as np
 
@@ -45,8 +42,9 @@ from gyro_ekf.core.association import (AssociationOutcome, AssociationResult, as
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
+from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
-from gyro_ekf.core.models import points_to_range_bearing, sensor_to_map
+from gyro_ekf.core.models import points_to_range_bearing
 from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount
 
 
@@ -57,117 +55,6 @@ _OUTCOME_KEYS = {outcome: outcome.name.lower() for outcome in AssociationOutcome
 MAX_PREDICTION_STEPS = 1000
 """Most prediction steps for one gap (100 s at the default 0.1 s step): a longer gap is split
 into this many equal steps, so a stamp 1e6 s ahead costs what 100 s costs, not 52 s of CPU."""
-
-
-class EventKind(enum.IntEnum):
-    """Event types; the value orders events that share a stamp."""
-
-    SPEED = 0
-    OBSERVATION = 1
-    IMU = 2
-
-
-@dataclass(frozen=True, slots=True)
-class Estimate:
-    """Filter output after one IMU sample.
-
-    Attributes:
-        stamp_s: s.
-        state: shape (4,): x m, y m, yaw rad, bias rad/s.
-        covariance: shape (4, 4).
-        speed_m_s: held speed, m/s.
-        yaw_rate_rad_s: bias-corrected yaw rate, rad/s.
-    """
-
-    stamp_s: float
-    state: FloatArray
-    covariance: FloatArray
-    speed_m_s: float
-    yaw_rate_rad_s: float
-
-
-@dataclass(frozen=True, slots=True)
-class ObservationReport:
-    """What happened to one scan's detections.
-
-    Attributes:
-        stamp_s: s.
-        points_sensor_m: detections in the sensor frame, shape (k, 2), m.
-        prior_state: the filter state before this scan's updates, shape (4,).
-        mount: pose of the sensor on the platform.
-        association: outcome per detection, or None without a map.
-        nis: NIS of every applied update, shape (matched,).
-        points_map_m: the detections placed in the map at the prior pose, shape (k, 2), m
-            (computed on access: most callers never look).
-    """
-
-    stamp_s: float
-    points_sensor_m: FloatArray
-    prior_state: FloatArray
-    mount: LidarMount
-    association: AssociationResult | None
-    nis: FloatArray
-
-    @property
-    def points_map_m(self) -> FloatArray:
-        """The detections in the map frame at the prior pose, shape (k, 2), m."""
-        return sensor_to_map(self.prior_state, self.points_sensor_m, self.mount)
-
-
-@dataclass(slots=True)
-class DriverStats:
-    """Running counts of the driver (mutable; read with ``snapshot``).
-
-    Attributes:
-        imu, speed, scans: events processed per kind.
-        detections: poles detected.
-        outcomes: detections per association outcome name.
-        updates: landmark updates applied.
-        recoveries: scans associated by map distance after a gap (see EkfConfig).
-        nis_sum: sum of the NIS of all updates.
-        first_association_s: stamp of the first applied update, or None.
-        last_association_s: stamp of the last applied update, or None.
-        longest_gap_s: longest time between applied updates (from the first one).
-        long_gaps: gaps between events longer than MAX_PREDICTION_STEPS steps (predicted in
-            coarser steps).
-        excluded: detections of excluded LiDARs (re-checked, not applied; in no outcome).
-        zero_rate_updates: gyro samples applied as zero-rate updates (standing still).
-        stops: times zero-rate updates began (once per stop unless the stop was shaken).
-    """
-
-    imu: int = 0
-    speed: int = 0
-    scans: int = 0
-    detections: int = 0
-    outcomes: dict[str, int] = field(
-        default_factory=lambda: {o.name.lower(): 0 for o in AssociationOutcome})
-    updates: int = 0
-    recoveries: int = 0
-    nis_sum: float = 0.0
-    first_association_s: float | None = None
-    last_association_s: float | None = None
-    longest_gap_s: float = 0.0
-    long_gaps: int = 0
-    excluded: int = 0
-    zero_rate_updates: int = 0
-    stops: int = 0
-
-    @property
-    def mean_nis(self) -> float:
-        """Mean NIS of all updates (nan before the first)."""
-        return self.nis_sum / self.updates if self.updates else math.nan
-
-    def snapshot(self) -> dict[str, Any]:
-        """Return a plain copy for reports."""
-        return {'imu': self.imu, 'speed': self.speed, 'scans': self.scans,
-                'detections': self.detections, 'outcomes': dict(self.outcomes),
-                'updates': self.updates, 'recoveries': self.recoveries,
-                'mean_nis': self.mean_nis,
-                'first_association_s': self.first_association_s,
-                'last_association_s': self.last_association_s,
-                'longest_gap_s': self.longest_gap_s, 'long_gaps': self.long_gaps,
-                'excluded': self.excluded, 'zero_rate_updates': self.zero_rate_updates,
-                'stops': self.stops}
 
 
 class EventDriver:

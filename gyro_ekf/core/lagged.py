@@ -28,7 +28,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from gyro_ekf.core.errors import CoreError
-from gyro_ekf.core.events import Estimate, EventDriver, EventKind
+from gyro_ekf.core.event_records import Estimate, EventKind
+from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.types import FloatArray, LidarMount
 
 

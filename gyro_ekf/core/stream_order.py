@@ -17,7 +17,7 @@ import math
 import time
 from typing import Any
 
-from gyro_ekf.core.events import EventKind
+from gyro_ekf.core.event_records import EventKind
 
 __all__ = ['ReadyEvents', 'StreamMerger']
 

@@ -19,7 +19,8 @@ from numpy.typing import NDArray
 
 from gyro_ekf.core.detection import PoleDetections, detect_poles_in_scans
 from gyro_ekf.core.ekf import unpack_rows
-from gyro_ekf.core.events import DriverStats, EventDriver, EventKind
+from gyro_ekf.core.event_records import DriverStats, EventKind
+from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.health import HealthMonitor
 from gyro_ekf.core.models import sensor_point_to_map
 from gyro_ekf.core.types import FloatArray, ScanSeries, Trip

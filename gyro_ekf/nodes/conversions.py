@@ -21,7 +21,7 @@ from std_msgs.msg import Header
 
 from gyro_ekf.core.angles import quaternion_of_yaw, yaw_of_quaternion
 from gyro_ekf.core.config import InputLimits
-from gyro_ekf.core.events import Estimate
+from gyro_ekf.core.event_records import Estimate
 from gyro_ekf.core.stamps import join_ns, seconds_since, split_ns
 from gyro_ekf.core.types import FloatArray
 from gyro_ekf.core.validation import (coordinate_problem, covariance_problem,

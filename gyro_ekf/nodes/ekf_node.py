@@ -90,7 +90,8 @@ from gyro_ekf.io.visual_bag import MARKERS_PERIOD_S, PATH_LENGTH, PATH_PERIOD_S,
 from gyro_ekf.core.config import EkfConfig, InputLimits, with_stated_noise
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core import health
-from gyro_ekf.core.events import Estimate, EventDriver, EventKind
+from gyro_ekf.core.event_records import Estimate, EventKind
+from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
 from gyro_ekf.core.stream_order import StreamMerger
 from gyro_ekf.core.stamp_gate import StampGate

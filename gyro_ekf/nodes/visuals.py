@@ -22,7 +22,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from gyro_ekf.core.association import AssociationOutcome
-from gyro_ekf.core.events import ObservationReport
+from gyro_ekf.core.event_records import ObservationReport
 from gyro_ekf.core.types import FloatArray, LandmarkMap
 from gyro_ekf.io import messages
 

@@ -8,7 +8,8 @@ import pytest
 
 from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core.errors import TimeWentBackwardsError
-from gyro_ekf.core.events import EventDriver, EventKind
+from gyro_ekf.core.event_records import EventKind
+from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 from gyro_ekf.core.trip_run import drive_trip, iter_trip_events
 from gyro_ekf.core.types import ImuSeries, SpeedSeries, Trip

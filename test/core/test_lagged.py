@@ -10,7 +10,8 @@ import pytest
 from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core.detection import detect_poles_in_scans
 from gyro_ekf.core.errors import CoreError
-from gyro_ekf.core.events import EventDriver, EventKind
+from gyro_ekf.core.event_records import EventKind
+from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.trip_run import drive_trip, iter_trip_events
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip

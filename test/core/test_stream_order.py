@@ -1,6 +1,6 @@
 """Stream ordering for live use: StreamMerger releases in driver order behind a watermark."""
 
-from gyro_ekf.core.events import EventKind
+from gyro_ekf.core.event_records import EventKind
 from gyro_ekf.core.stream_order import StreamMerger
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gyro_ekf.core.association import Association, AssociationOutcome, AssociationResult
-from gyro_ekf.core.events import ObservationReport
+from gyro_ekf.core.event_records import ObservationReport
 from gyro_ekf.core.types import LandmarkMap, LidarMount
 from gyro_ekf.io import messages
 from gyro_ekf.nodes import visuals

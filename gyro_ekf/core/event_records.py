@@ -1,0 +1,129 @@
+"""What the event driver takes and gives: event kinds, estimates, scan reports, counts.
+
+Apart from the driver (`events`), so the modules that order events for it (`trip_run`,
+`stream_order`, `lagged`) and the nodes that publish its output need not import it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import enum
+import math
+from typing import Any
+
+from gyro_ekf.core.association import AssociationOutcome, AssociationResult
+from gyro_ekf.core.models import sensor_to_map
+from gyro_ekf.core.types import FloatArray, LidarMount
+
+__all__ = ['DriverStats', 'Estimate', 'EventKind', 'ObservationReport']
+
+
+class EventKind(enum.IntEnum):
+    """Event types; the value orders events that share a stamp."""
+
+    SPEED = 0
+    OBSERVATION = 1
+    IMU = 2
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """Filter output after one IMU sample.
+
+    Attributes:
+        stamp_s: s.
+        state: shape (4,): x m, y m, yaw rad, bias rad/s.
+        covariance: shape (4, 4).
+        speed_m_s: held speed, m/s.
+        yaw_rate_rad_s: bias-corrected yaw rate, rad/s.
+    """
+
+    stamp_s: float
+    state: FloatArray
+    covariance: FloatArray
+    speed_m_s: float
+    yaw_rate_rad_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class ObservationReport:
+    """What happened to one scan's detections.
+
+    Attributes:
+        stamp_s: s.
+        points_sensor_m: detections in the sensor frame, shape (k, 2), m.
+        prior_state: the filter state before this scan's updates, shape (4,).
+        mount: pose of the sensor on the platform.
+        association: outcome per detection, or None without a map.
+        nis: NIS of every applied update, shape (matched,).
+        points_map_m: the detections placed in the map at the prior pose, shape (k, 2), m
+            (computed on access: most callers never look).
+    """
+
+    stamp_s: float
+    points_sensor_m: FloatArray
+    prior_state: FloatArray
+    mount: LidarMount
+    association: AssociationResult | None
+    nis: FloatArray
+
+    @property
+    def points_map_m(self) -> FloatArray:
+        """The detections in the map frame at the prior pose, shape (k, 2), m."""
+        return sensor_to_map(self.prior_state, self.points_sensor_m, self.mount)
+
+
+@dataclass(slots=True)
+class DriverStats:
+    """Running counts of the driver (mutable; read with ``snapshot``).
+
+    Attributes:
+        imu, speed, scans: events processed per kind.
+        detections: poles detected.
+        outcomes: detections per association outcome name.
+        updates: landmark updates applied.
+        recoveries: scans associated by map distance after a gap (see EkfConfig).
+        nis_sum: sum of the NIS of all updates.
+        first_association_s: stamp of the first applied update, or None.
+        last_association_s: stamp of the last applied update, or None.
+        longest_gap_s: longest time between applied updates (from the first one).
+        long_gaps: gaps longer than events.MAX_PREDICTION_STEPS steps (predicted in
+            coarser steps).
+        excluded: detections of excluded LiDARs (re-checked, not applied; in no outcome).
+        zero_rate_updates: gyro samples applied as zero-rate updates (standing still).
+        stops: times zero-rate updates began (once per stop unless the stop was shaken).
+    """
+
+    imu: int = 0
+    speed: int = 0
+    scans: int = 0
+    detections: int = 0
+    outcomes: dict[str, int] = field(
+        default_factory=lambda: {o.name.lower(): 0 for o in AssociationOutcome})
+    updates: int = 0
+    recoveries: int = 0
+    nis_sum: float = 0.0
+    first_association_s: float | None = None
+    last_association_s: float | None = None
+    longest_gap_s: float = 0.0
+    long_gaps: int = 0
+    excluded: int = 0
+    zero_rate_updates: int = 0
+    stops: int = 0
+
+    @property
+    def mean_nis(self) -> float:
+        """Mean NIS of all updates (nan before the first)."""
+        return self.nis_sum / self.updates if self.updates else math.nan
+
+    def snapshot(self) -> dict[str, Any]:
+        """Return a plain copy for reports."""
+        return {'imu': self.imu, 'speed': self.speed, 'scans': self.scans,
+                'detections': self.detections, 'outcomes': dict(self.outcomes),
+                'updates': self.updates, 'recoveries': self.recoveries,
+                'mean_nis': self.mean_nis,
+                'first_association_s': self.first_association_s,
+                'last_association_s': self.last_association_s,
+                'longest_gap_s': self.longest_gap_s, 'long_gaps': self.long_gaps,
+                'excluded': self.excluded, 'zero_rate_updates': self.zero_rate_updates,
+                'stops': self.stops}
