@@ -16,6 +16,7 @@ import time
 
 from typing import Any, Callable
 
+from gyro_ekf.core.stamps import NS_PER_S
 from gyro_ekf.io.defaults import DEFAULT_EPOCH_NS, STORAGE_NAMES
 from gyro_ekf.io.errors import BagError
 
@@ -39,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--start-time', default=None, metavar='T',
                         help='bag time of the log\'s time zero: seconds since 1970 (e.g. '
                         '1700000000.25) or an ISO 8601 time (e.g. 2024-03-01T09:00:00Z); '
-                        f'default {DEFAULT_EPOCH_NS // 10**9} s = 2023-11-14T22:13:20Z')
+                        f'default {DEFAULT_EPOCH_NS // NS_PER_S} s = 2023-11-14T22:13:20Z')
     parser.add_argument('--force', action='store_true',
                         help='replace an existing OUT_BAG and its params file')
     add_skip_bad_argument(parser)
@@ -68,7 +69,7 @@ def parse_start_time(text: str) -> int:
     """
     try:
         value = Decimal(text)
-        ns = int(value * 10**9)
+        ns = int(value * NS_PER_S)
     except InvalidOperation:
         try:
             moment = datetime.fromisoformat(text)
@@ -78,7 +79,7 @@ def parse_start_time(text: str) -> int:
         if moment.tzinfo is None:
             moment = moment.replace(tzinfo=timezone.utc)
         delta = moment - datetime(1970, 1, 1, tzinfo=timezone.utc)
-        ns = (delta.days * 86_400 + delta.seconds) * 10**9 + delta.microseconds * 1000
+        ns = (delta.days * 86_400 + delta.seconds) * NS_PER_S + delta.microseconds * 1000
     if ns <= 0:
         raise BagError(f'--start-time {text!r}: must be after 1970-01-01 (0 reads as "unset")')
     return ns

@@ -140,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
     from gyro_ekf.io import bag_summary, read_sidecar
     from gyro_ekf.io.errors import BagError
     from gyro_ekf.io.results import write_summary_json
+    from gyro_ekf.core.stamps import seconds_since
     from gyro_ekf.ros_env import ChildProcesses
 
     started = time.monotonic()
@@ -183,7 +184,8 @@ def run(args: argparse.Namespace) -> int:
                        '--wait-for', 'imu:2', '--wait-for', 'odom:2']
         replay_args += [arg for t in scan_topics for arg in ('--wait-for', f'{t}:1')]
         replay = group.start('replay', *replay_args)
-        code = _wait_replay(replay, bag, args, bag_summary(bag).duration_ns / 1e9)
+        duration_s = seconds_since(bag_summary(bag).duration_ns, 0)
+        code = _wait_replay(replay, bag, args, duration_s)
         if code != 0:
             raise BagError(f'{bag}: the replay failed (exit {code}); see '
                            f'{output / "replay.log"}')
@@ -249,6 +251,7 @@ def _summary(bag: Path, recorded: Path, params) -> dict:
 
     from gyro_ekf.core.calibration import estimate_gyro_bias
     from gyro_ekf.core.errors import CalibrationError
+    from gyro_ekf.core.stamps import seconds_since
     from gyro_ekf.io import iter_bag_messages, read_bag
     from gyro_ekf.io.messages import from_time
 
@@ -293,7 +296,7 @@ def _summary(bag: Path, recorded: Path, params) -> dict:
         summary['true_bias_deg_s'] = math.degrees(params.true_gyro_bias_rad_s[2])
     pose = last.get('/ekf/pose')
     if pose is not None and trip.ground_truth is not None:
-        stamp_s = (from_time(pose.header.stamp) - bag_trip.start_time_ns) / 1e9
+        stamp_s = seconds_since(from_time(pose.header.stamp), bag_trip.start_time_ns)
         truth = trip.ground_truth
         x = np.interp(stamp_s, truth.stamp_s, truth.pose[:, 0])
         y = np.interp(stamp_s, truth.stamp_s, truth.pose[:, 1])

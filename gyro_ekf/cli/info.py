@@ -20,18 +20,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def iso_time(stamp_ns: int) -> str:
     """UTC ISO 8601 text of ns since the epoch, to the nanosecond."""
-    seconds, nanoseconds = divmod(int(stamp_ns), 10**9)
+    from gyro_ekf.core.stamps import split_ns
+
+    seconds, nanoseconds = split_ns(stamp_ns)
     moment = datetime.fromtimestamp(seconds, tz=timezone.utc)
     return moment.strftime('%Y-%m-%dT%H:%M:%S') + f'.{nanoseconds:09d}Z'
 
 
 def format_summary(summary: BagSummary) -> str:
     """Render the text `info` prints."""
+    from gyro_ekf.core.stamps import seconds_since
+
     lines = [
         f'bag:       {summary.path}',
         f'storage:   {summary.storage} (rosbag2 metadata version {summary.version})',
         f'start:     {iso_time(summary.start_time_ns)} ({summary.start_time_ns} ns)',
-        f'duration:  {summary.duration_ns / 1e9:.4f} s',
+        f'duration:  {seconds_since(summary.duration_ns, 0):.4f} s',
         f'messages:  {summary.message_count}',
         f'params:    {summary.sidecar if summary.sidecar is not None else "(none)"}',
         'topics:',

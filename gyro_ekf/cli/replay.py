@@ -8,6 +8,8 @@ import re
 from collections.abc import Iterator
 from pathlib import Path
 
+from gyro_ekf.core.stamps import NS_PER_S
+
 HELP = 'publish a bag over DDS with its recorded QoS and, with --clock, /clock'
 
 log = logging.getLogger(__name__)
@@ -106,8 +108,9 @@ class BagSource:
             self.topics.append(ReplayTopic(connection.topic, connection.msgtype, latched,
                                            reliable))
         self.latched = {t.name for t in self.topics if t.latched}
-        self.from_ns = self.start_ns + int(start_s * 1e9)
-        self.until_ns = None if duration_s is None else self.from_ns + int(duration_s * 1e9)
+        self.from_ns = self.start_ns + int(start_s * NS_PER_S)
+        self.until_ns = (None if duration_s is None
+                         else self.from_ns + int(duration_s * NS_PER_S))
 
     def __call__(self) -> Iterator[tuple[str, int, bytes]]:
         """Iterate afresh over (topic, stamp ns, CDR bytes) in stamp order."""

@@ -29,6 +29,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
 from gyro_ekf import topics
+from gyro_ekf.core.stamps import NS_PER_S, seconds_since
 from gyro_ekf.nodes import qos
 from gyro_ekf.nodes.conversions import to_stamp
 
@@ -251,7 +252,7 @@ class Replayer(Node):
         published = 0
         loops = 0
         bag_s = 0.0
-        clock_period_ns = int(1e9 / clock_hz) if clock_hz > 0 else 0
+        clock_period_ns = int(NS_PER_S / clock_hz) if clock_hz > 0 else 0
         first_publish = last_publish = None
         clock_message = Clock()
         while self._running():
@@ -271,7 +272,7 @@ class Replayer(Node):
                     if start_ns is None:
                         start_ns = stamp
                     if rate > 0:
-                        target = wall_start + (stamp - start_ns) / 1e9 / rate
+                        target = wall_start + seconds_since(stamp, start_ns) / rate
                         self._sleep_until(target)
                     if self._clock_pub is not None and (
                             last_clock_ns is None or stamp - last_clock_ns >= clock_period_ns):
@@ -295,7 +296,7 @@ class Replayer(Node):
                 if close is not None:
                     close()  # a generator's reader is closed now, not at garbage collection
             if start_ns is not None and stamp is not None:
-                bag_s += (stamp - start_ns) / 1e9
+                bag_s += seconds_since(stamp, start_ns)
             if not loop or start_ns is None or (max_loops is not None and loops >= max_loops):
                 break
         stopped = self.stop()

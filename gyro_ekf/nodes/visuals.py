@@ -23,6 +23,7 @@ import numpy as np
 
 from gyro_ekf.core.association import AssociationOutcome
 from gyro_ekf.core.event_records import ObservationReport
+from gyro_ekf.core.stamps import NS_PER_S
 from gyro_ekf.core.types import FloatArray, LandmarkMap
 from gyro_ekf.io import messages
 
@@ -77,7 +78,7 @@ class PathHistory:
     def __init__(self, length: int, spacing_s: float):
         """Keep at most length poses (the path's bound), spaced spacing_s apart."""
         self._poses: deque[tuple[int, float, float, float]] = deque(maxlen=length)
-        self._spacing_ns = int(spacing_s * 1e9)
+        self._spacing_ns = int(spacing_s * NS_PER_S)
 
     def add(self, stamp_ns: int, x_m: float, y_m: float, yaw_rad: float) -> None:
         """Offer an estimate; it is kept when spacing_s has passed since the last kept one."""
