@@ -60,13 +60,27 @@ class EkfUnderTest:
         from sensor_msgs.msg import Imu
         message = Imu()
         message.angular_velocity.z = rate
-        self.imu.publish(_stamped(message, stamp_ns))
+        self._publish(self.imu, _stamped(message, stamp_ns))
+
+    def _publish(self, publisher, message) -> None:
+        # A reliable KEEP_ALL writer blocks while the reader's history is full and gives up
+        # ("cannot publish data") after Fast DDS's max_blocking_time: on a loaded machine a
+        # burst outruns the node. Waiting and sending again keeps every message (the test
+        # counts them all) without asserting how fast they go.
+        from rclpy.impl.implementation_singleton import rclpy_implementation
+        for _ in range(600):
+            try:
+                publisher.publish(message)
+                return
+            except rclpy_implementation.RCLError:
+                self.probe.executor.spin_once(timeout_sec=0.05)
+        publisher.publish(message)
 
     def send_odom(self, stamp_ns: int, speed: float = 0.0) -> None:
         from nav_msgs.msg import Odometry
         message = Odometry()
         message.twist.twist.linear.x = speed
-        self.odom.publish(_stamped(message, stamp_ns))
+        self._publish(self.odom, _stamped(message, stamp_ns))
 
     def send_pairs(self, start_ns: int, first: int, last: int, speed: float = 0.0) -> None:
         for i in range(first, last):
