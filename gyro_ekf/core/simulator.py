@@ -210,13 +210,13 @@ class SimulationConfig:
         return tuple((stated, _offset(stated, yaw, x, y)) for stated, yaw, x, y in mounts)
 
     def gyro_bias_drift_z(self, t_s: FloatArray) -> FloatArray:
-        """Yaw-axis bias change since t = 0 at times t_s (n,): the ramp plus the step, rad/s."""
+        """Return the yaw-axis bias change since t = 0 at times t_s (n,): ramp plus step, rad/s."""
         t_s = np.asarray(t_s, dtype=np.float64)
         return (self.gyro_bias_ramp_rad_s2 * t_s
                 + np.where(t_s >= self.gyro_bias_step_at_s, self.gyro_bias_step_rad_s, 0.0))
 
     def gyro_bias_z_at(self, t_s: FloatArray) -> FloatArray:
-        """True yaw-axis gyro bias at times t_s (n,), rad/s."""
+        """Return the true yaw-axis gyro bias at times t_s (n,), rad/s."""
         return self.gyro_bias_z_rad_s + self.gyro_bias_drift_z(t_s)
 
     @property
