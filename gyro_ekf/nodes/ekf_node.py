@@ -123,9 +123,9 @@ _LEVELS = {health.OK: DiagnosticStatus.OK, health.DEGRADED: DiagnosticStatus.WAR
 
 STALE_INPUT_S = 1.0
 """An input silent this long on the node clock (ROS time with use_sim_time), while the other
-inputs' stamps move this far past its own, stops holding them back, s. Ten periods of a
-10 Hz LiDAR: jitter or a starved queue does not make a live input stale; a sensor that
-stopped costs the others one second of latency once."""
+inputs' stamps move this far past its own, stops holding them back, s: ten periods of a
+10 Hz LiDAR, so a late scan is waited for, and a sensor that stopped costs the others one
+second of latency once."""
 
 MAX_BUFFERED_EVENTS = 20_000
 """Most messages the merger (and the late-observation history) holds: bounds memory when an
@@ -133,7 +133,7 @@ input stalls without going stale; the oldest are released beyond it."""
 
 IDLE_FLUSH_S = 0.5
 """Wall time without input after which held messages are processed, s: at the end of the
-data nothing else would release them; longer than any pause of a replay under load."""
+data nothing else releases them (the check runs every 0.25 s and needs two idle ticks)."""
 
 LOOP_JUMP_S = 1.0
 """A message this far behind the filter counts towards a restart of the data (a looped bag
