@@ -48,7 +48,7 @@ stress: $(STAMP)
 fuzz: $(STAMP)
 	$(BIN)/python -m fuzz $(FUZZ_ARGS)
 
-# docs/parameters.md from the nodes' declarations (a test compares them).
+# docs/parameters.md and config/gyro_ekf.yaml from the nodes' declarations (tests compare them).
 docs: $(STAMP)
 	$(BIN)/python tools/parameters_doc.py docs/parameters.md
 
