@@ -53,14 +53,17 @@ input confirms the new time (every input paused and resumed together: a real gap
 `confirm_jump_after` consecutive messages of its input, each close to the last, while no
 other input spoke; if its input goes on near the common time instead, it was an outlier and
 is dropped as `stamp_jump`. There is no common time until the first such confirmation, so
-a lone first message far from the others cannot wedge the node. Which input is silent
-(`stale_input_s`) is judged on the node clock (ROS time with use_sim_time) and in the stamps
-of the other inputs together, so a busy or starved machine does not make an input stale.
-The filter resets only for a reason it logs: ROS time jumping back (/clock going backwards,
-a looped bag with /clock), stamps that restart (`restart_after_late` messages in a row, from
-every active input, `loop_jump_s` behind the filter: a looped bag without /clock), or
-`~/reset` (std_srvs/Trigger). One input whose stamps fall behind only has its messages
-dropped as late. The node never dies on input.
+a lone first message far from the others cannot wedge the node. An input is silent
+(`stale_input_s`, core StreamMerger) only when nothing of it was received while the newest
+stamp received on any input moved that far on, and as long on the node clock (ROS time with
+use_sim_time): an input whose messages wait in its queue is served in every executor round,
+so a busy or starved machine, or a /clock that runs ahead of the queued messages, does not
+make it stale, and its messages are not dropped as late. The filter resets only for a
+reason it logs: ROS time jumping back (/clock going backwards, a looped bag with /clock),
+stamps that restart (`restart_after_late` messages in a row, from every active input,
+`loop_jump_s` behind the filter: a looped bag without /clock), or `~/reset`
+(std_srvs/Trigger). One input whose stamps fall behind only has its messages dropped as
+late. The node never dies on input.
 """
 
 from __future__ import annotations
@@ -270,8 +273,10 @@ class EkfNode(Node):
         expected = ['imu', 'odom']
         if history_s == 0.0:  # replayed observations do not pass the merger
             expected += [frame for frame, _ in sidecar.lidars.values()]
-        # Silence is judged on the node clock: with use_sim_time that is /clock, which stops
-        # with the data (a paused replay is not a stale input); else the steady clock.
+        # Silence is judged in the received stamps and on the node clock: with use_sim_time
+        # that is /clock, which stops with the data (a paused replay is not a stale input)
+        # but may run ahead of the queued messages (the stamps guard that); else the
+        # steady clock.
         clock = (self._ros_seconds if self.get_parameter('use_sim_time').value
                  else time.monotonic)
         self._buffer = StreamMerger(window_s, max_events, stale_s, clock=clock,
