@@ -38,15 +38,17 @@ class StreamMerger:
     A stream is stale (stops holding the others back: a stopped LiDAR) only when nothing of
     it was received while the newest stamp received on any stream moved ``stale_after_s``
     on, and ``stale_after_s`` passed on ``clock`` since its last message. The first measure
-    is in the stamps of messages actually received, so it does not depend on how fast the
-    machine is: a stream whose messages wait in its queue is served in every executor round,
-    one message per round like the others, so the others cannot move far between two of
-    its messages however far behind it drains (its own stamps may lag by seconds). A
-    starved process, or ROS time from a /clock that runs ahead of the queued data, cannot
-    make a stream stale. The clock measure keeps a burst of one stream (seconds of stamps
-    received at once) from making the others stale. A stream whose stamps run ahead of the
-    others never holds them back, and it is not stale before the others pass its stamps.
-    ``max_events`` bounds what is held.
+    is in the stamps of messages actually received (the data's own time, sim time or not),
+    so it does not depend on how fast the machine is: a stream whose messages wait in its
+    queue is served in every executor round, one message per round like the others, so the
+    others cannot move far between two of its messages however far behind it drains (its
+    own stamps may lag by seconds). A starved process cannot make a stream stale, nor can
+    ROS time from a /clock that runs ahead of the queued data (not used here). The clock
+    (steady) only delays staleness: a burst of one stream (seconds of stamps received at
+    once), or a stream computed upstream from a fast replay (landmarks from a busy
+    detector) that lags by more than stale_after_s of stamps, is not silent. A stream
+    whose stamps run ahead of the others never holds them back, and it is not stale before
+    the others pass its stamps. ``max_events`` bounds what is held.
 
     An event older than one already released is late: ``push`` returns it in ``late``
     instead of releasing it out of order. Ties release speed, observation, IMU, as
@@ -67,8 +69,7 @@ class StreamMerger:
             max_events: the oldest events are released beyond this many.
             stale_after_s: a stream silent for this long on the clock, and while the
                 newest stamp received moved this far, stops holding events back, s.
-            clock: seconds on the node's clock (monotonic, or ROS time with sim time);
-                replaceable in tests.
+            clock: steady seconds (monotonic); replaceable in tests.
             expected_streams: streams to wait for before the first release (at most
                 stale_after_s after the first event).
         """

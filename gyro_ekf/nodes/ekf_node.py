@@ -55,10 +55,11 @@ other input spoke; if its input goes on near the common time instead, it was an 
 is dropped as `stamp_jump`. There is no common time until the first such confirmation, so
 a lone first message far from the others cannot wedge the node. An input is silent
 (`stale_input_s`, core StreamMerger) only when nothing of it was received while the newest
-stamp received on any input moved that far on, and as long on the node clock (ROS time with
-use_sim_time): an input whose messages wait in its queue is served in every executor round,
-so a busy or starved machine, or a /clock that runs ahead of the queued messages, does not
-make it stale, and its messages are not dropped as late. The filter resets only for a
+stamp received on any input moved that far on (the data's own ROS time, with or without
+use_sim_time) and as long passed on the steady clock: an input whose messages wait in its
+queue is served in every executor round, so a busy or starved machine, a /clock that runs
+ahead of the queued messages, a burst of one input or a detector upstream that lags does
+not make it stale, and its messages are not dropped as late. The filter resets only for a
 reason it logs: ROS time jumping back (/clock going backwards, a looped bag with /clock),
 stamps that restart (`restart_after_late` messages in a row, from every active input,
 `loop_jump_s` behind the filter: a looped bag without /clock), or `~/reset`
@@ -214,9 +215,9 @@ class EkfNode(Node):
                             'replayed into the filter (poses at IMU latency; each late scan '
                             'costs a replay of the inputs after it)', 's', 0.0, 5.0)
         stale_s = declare(self, 'stale_input_s', 1.0,
-                          'An input silent for this long on the node clock (ROS time with '
-                          'use_sim_time), while the other inputs\' stamps move this far past '
-                          'its own, stops holding the others back', 's', 0.01, 3600.0)
+                          'An input of which nothing arrived while the newest stamp received '
+                          'moved this far on, and for this long on the steady clock, stops '
+                          'holding the others back', 's', 0.01, 3600.0)
         confirm_after = declare(self, 'confirm_jump_after', 10,
                                 'Consecutive messages of one input, each within '
                                 'limits.max_stamp_jump_s of the last, that confirm a jump of '
@@ -273,13 +274,10 @@ class EkfNode(Node):
         expected = ['imu', 'odom']
         if history_s == 0.0:  # replayed observations do not pass the merger
             expected += [frame for frame, _ in sidecar.lidars.values()]
-        # Silence is judged in the received stamps and on the node clock: with use_sim_time
-        # that is /clock, which stops with the data (a paused replay is not a stale input)
-        # but may run ahead of the queued messages (the stamps guard that); else the
-        # steady clock.
-        clock = (self._ros_seconds if self.get_parameter('use_sim_time').value
-                 else time.monotonic)
-        self._buffer = StreamMerger(window_s, max_events, stale_s, clock=clock,
+        # Silence is judged in the stamps received (the data's own ROS time: a paused
+        # replay is no silence), and, so that a burst or a busy detector upstream is none
+        # either, on the steady clock; never on /clock, which runs ahead of queued messages.
+        self._buffer = StreamMerger(window_s, max_events, stale_s, clock=time.monotonic,
                                     expected_streams=expected)
         self._gate = StampGate(limits.max_stamp_jump_s, confirm_after)
         self._lagged = (LaggedObservations(self.driver, history_s, max_events,
@@ -372,9 +370,6 @@ class EkfNode(Node):
             return False
         self._drop(drop_reason(problem, otherwise), f'{what}: {problem}')
         return True
-
-    def _ros_seconds(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
 
     def _on_imu(self, message: Imu) -> None:
         self._received['imu'] += 1
