@@ -40,9 +40,10 @@ class StreamMerger:
     on, and ``stale_after_s`` passed on ``clock`` since its last message. The first measure
     is in the stamps of messages actually received (the data's own time, sim time or not),
     so it does not depend on how fast the machine is: a stream whose messages wait in its
-    queue is served in every executor round, one message per round like the others, so the
-    others cannot move far between two of its messages however far behind it drains (its
-    own stamps may lag by seconds). A starved process cannot make a stream stale, nor can
+    queue is served in every executor round, one message per round like the others (an
+    events executor serves the queues in arrival order, closer still), so the others cannot
+    move far between two of its messages however far behind it drains (its own stamps may
+    lag by seconds). A starved process cannot make a stream stale, nor can
     ROS time from a /clock that runs ahead of the queued data (not used here). The clock
     (steady) only delays staleness: a burst of one stream (seconds of stamps received at
     once), or a stream computed upstream from a fast replay (landmarks from a busy
