@@ -53,14 +53,18 @@ input confirms the new time (every input paused and resumed together: a real gap
 ten consecutive messages of its input (StampGate's default), each close to the last, while no
 other input spoke; if its input goes on near the common time instead, it was an outlier and
 is dropped as `stamp_jump`. There is no common time until the first such confirmation, so
-a lone first message far from the others cannot wedge the node. Which input is silent
-(STALE_INPUT_S) is judged on the node clock (ROS time with use_sim_time) and in the stamps
-of the other inputs together, so a busy or starved machine does not make an input stale.
-The filter resets only for a reason it logs: ROS time jumping back (/clock going backwards,
-a looped bag with /clock), stamps that restart (RESTART_AFTER_LATE messages in a row, from
-every active input, LOOP_JUMP_S behind the filter: a looped bag without /clock), or
-`~/reset` (std_srvs/Trigger). One input whose stamps fall behind only has its messages
-dropped as late. The node never dies on input.
+a lone first message far from the others cannot wedge the node. An input is silent
+(STALE_INPUT_S, core StreamMerger) only when nothing of it was received while the newest
+stamp received on any input moved that far on (the data's own ROS time, with or without
+use_sim_time) and as long passed on the steady clock: an input whose messages wait in its
+queue is served in every executor round, so a busy or starved machine, a /clock that runs
+ahead of the queued messages, a burst of one input or a detector upstream that lags does
+not make it stale, and its messages are not dropped as late. The filter resets only for a
+reason it logs: ROS time jumping back (/clock going backwards, a looped bag with /clock),
+stamps that restart (RESTART_AFTER_LATE messages in a row, from every active input,
+LOOP_JUMP_S behind the filter: a looped bag without /clock), or `~/reset`
+(std_srvs/Trigger). One input whose stamps fall behind only has its messages dropped as
+late. The node never dies on input.
 
 Parameters are what a user tunes (noise, priors, gate, map source, frames, calibration use,
 observation history, QoS, visuals, TF; docs/parameters.md); the merger's internals are the
@@ -122,10 +126,10 @@ _LEVELS = {health.OK: DiagnosticStatus.OK, health.DEGRADED: DiagnosticStatus.WAR
 
 
 STALE_INPUT_S = 1.0
-"""An input silent this long on the node clock (ROS time with use_sim_time), while the other
-inputs' stamps move this far past its own, stops holding them back, s: ten periods of a
-10 Hz LiDAR, so a late scan is waited for, and a sensor that stopped costs the others one
-second of latency once."""
+"""An input of which nothing arrived while the newest stamp received on any input moved this
+far on, and for this long on the steady clock, stops holding the others back, s: ten periods
+of a 10 Hz LiDAR, so a late scan is waited for, and a sensor that stopped costs the others
+one second of latency once."""
 
 MAX_BUFFERED_EVENTS = 20_000
 """Most messages the merger (and the late-observation history) holds: bounds memory when an
@@ -249,14 +253,11 @@ class EkfNode(Node):
         expected = ['imu', 'odom']
         if history_s == 0.0:  # replayed observations do not pass the merger
             expected += [frame for frame, _ in sidecar.lidars.values()]
-        # Silence is judged on the node clock: with use_sim_time that is /clock, which stops
-        # with the data (a paused replay is not a stale input); else the steady clock.
-        clock = (self._ros_seconds if self.get_parameter('use_sim_time').value
-                 else time.monotonic)
-        # No window: waiting until every active input has passed a stamp restores the order
-        # across topics already; a window on top only adds latency (0.1 s cost 100 ms a pose).
-        self._buffer = StreamMerger(0.0, MAX_BUFFERED_EVENTS, STALE_INPUT_S, clock=clock,
-                                    expected_streams=expected)
+        # Silence is judged in the stamps received (the data's own ROS time: a paused
+        # replay is no silence), and, so that a burst or a busy detector upstream is none
+        # either, on the steady clock; never on /clock, which runs ahead of queued messages.
+        self._buffer = StreamMerger(0.0, MAX_BUFFERED_EVENTS, STALE_INPUT_S,
+                                    clock=time.monotonic, expected_streams=expected)
         self._gate = StampGate(limits.max_stamp_jump_s)
         self._lagged = (LaggedObservations(self.driver, history_s, MAX_BUFFERED_EVENTS,
                                            on_refused=self._observation_refused)
@@ -348,9 +349,6 @@ class EkfNode(Node):
             return False
         self._drop(drop_reason(problem, otherwise), f'{what}: {problem}')
         return True
-
-    def _ros_seconds(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
 
     def _on_imu(self, message: Imu) -> None:
         self._received['imu'] += 1
