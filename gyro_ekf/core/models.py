@@ -175,7 +175,7 @@ def observation_noise(range_m: float | FloatArray, sensor_noise: FloatArray,
 
 
 def observe_bias(state: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """h and H of a gyro sample taken standing still: h = [b], H = [[0, 0, 0, 1]], (1, n)."""
+    """Predict a gyro sample taken standing still: h = [b], H = [[0, 0, 0, 1]], (1, n)."""
     H = np.zeros((1, np.size(state)))
     H[0, BIAS] = 1.0
     return np.array([state[BIAS]], dtype=np.float64), H
