@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gyro_ekf.core import models
-from gyro_ekf.core.ekf import GyroBiasEkf, observe_one
+from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core.types import LidarMount
 
@@ -55,9 +55,6 @@ def test_observation_jacobian_matches_finite_differences(mount):
         numeric = _numeric_jacobian(lambda s: models.observe(s, landmark, mount), state)
         np.testing.assert_allclose(models.observation_jacobian(state, landmark, mount),
                                    numeric, atol=1e-6)
-        z_hat, H = observe_one(state, landmark, mount)
-        np.testing.assert_allclose(z_hat, models.observe(state, landmark, mount), atol=1e-12)
-        np.testing.assert_allclose(H, numeric, atol=1e-6)
 
 
 def test_vectorised_observation_matches_single():
