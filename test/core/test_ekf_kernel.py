@@ -176,3 +176,26 @@ def test_a_filter_run_on_the_kernel_equals_one_on_the_textbook():
     for name in ('x_prior', 'P_prior', 'y', 'S', 'K'):
         np.testing.assert_allclose(getattr(fast, name), getattr(slow, name), rtol=1e-9,
                                    atol=1e-12 * np.abs(getattr(slow, name)).max())
+
+
+def test_the_textbook_update_takes_a_longer_state():
+    # An uncorrelated fifth state the observation ignores: the first four entries update as
+    # without it, and the fifth keeps its value and variance.
+    from gyro_ekf.core.ekf import _correct
+    s, P = _state(), _covariance()
+    landmark = _landmark(s)
+    x4 = np.array(s)
+    x5, P5 = np.r_[x4, 0.4], np.zeros((5, 5))
+    P5[:4, :4], P5[4, 4] = P, 0.02
+    R = np.diag([1e-3, 1e-5])
+    results = []
+    for x, cov in ((x4, P), (x5, P5)):
+        z_hat, H = models.observe_with_jacobian(x, landmark, MOUNTS[1])
+        y = innovation(z_hat + [0.05, -0.01], z_hat)
+        results.append(_correct(x, cov, y, H, R))
+    (a4, P4, S4, K4), (a5, Q5, S5, K5) = results
+    _equal(a5[:4], a4)
+    _equal(Q5[:4, :4], P4)
+    assert a5[4] == 0.4 and Q5[4, 4] == 0.02 and not Q5[4, :4].any()
+    _equal(S5, S4)
+    _equal(K5[:4], K4)
