@@ -44,13 +44,15 @@ import math
 import numpy as np
 
 from gyro_ekf.core import _ekf_kernel, models
-from gyro_ekf.core.angles import wrap_scalar
+from gyro_ekf.core.angles import wrap_angle, wrap_scalar
 from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.models import BEARING, RANGE
 from gyro_ekf.core.types import BIAS, STATE_SIZE, X, Y, YAW, FloatArray, LidarMount
 
 _NO_MOUNT = LidarMount()
+
+_POSE = [X, Y, YAW]
 
 # The covariance is stored as its upper triangle, row by row: _UPPER[k] = (i, j) is the
 # entry P[i, j] at position k (the kernel's p_x_x, p_x_y, ..., p_b_b).
@@ -98,7 +100,7 @@ def initial_covariance(config: EkfConfig) -> FloatArray:
 def innovation(z: FloatArray, z_hat: FloatArray) -> FloatArray:
     """Return y = z - h(x) with the bearing wrapped to [-pi, pi), shape (..., 2)."""
     y = np.asarray(z, dtype=np.float64) - z_hat
-    y[..., BEARING] = (y[..., BEARING] + math.pi) % (2.0 * math.pi) - math.pi
+    y[..., BEARING] = wrap_angle(y[..., BEARING])
     return y
 
 
@@ -420,5 +422,3 @@ class GyroBiasEkf:
         self._s_prior, self._p_prior = prior
         return self.nis
 
-
-_POSE = [X, Y, YAW]
