@@ -421,4 +421,3 @@ class GyroBiasEkf:
             self._r_bearing, self.landmark_var_m2, noise_scale)
         self._s_prior, self._p_prior = prior
         return self.nis
-
