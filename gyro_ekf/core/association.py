@@ -223,6 +223,9 @@ def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
 _OUTCOMES = tuple(AssociationOutcome)
 
 
+_UPPER_TRIANGLE = np.triu_indices(STATE_SIZE)
+"""P's upper triangle row by row: the kernel's packed covariance."""
+
 SCALAR_PAIRS_MAX = 64
 """Up to this many detection-landmark pairs, ``associate`` works in plain floats.
 
@@ -238,29 +241,31 @@ def _mahalanobis_rows(z: list[list[float]], state: FloatArray, P: FloatArray, R:
                       landmark_var_m2: float = 0.0) -> list[list[float]]:
     """mahalanobis_sq in plain floats (the filter's kernel): d2[i][j], detection i, landmark j."""
     x, y, yaw = float(state[X]), float(state[Y]), float(state[YAW])
-    p = np.asarray(P, dtype=np.float64)[np.triu_indices(STATE_SIZE)].tolist()
+    p = np.asarray(P, dtype=np.float64)[_UPPER_TRIANGLE].tolist()
     (r_range, r_cross), (_, r_bearing) = np.asarray(R, dtype=np.float64).tolist()
     per_landmark = []
     for lx, ly in landmarks:
         try:
             range_m, bearing, range2, *H = kernel.observe(x, y, yaw, lx, ly, mount)
         except ZeroDivisionError:
-            # A landmark at the sensor has no bearing: nothing can match it.
-            per_landmark.append(None)
+            # A landmark at the sensor has no bearing: nothing can match it (NaN, then inf).
+            per_landmark.append((0.0, 0.0, math.nan, math.nan, math.nan))
             continue
         # R_j = R + diag(s2, s2 / r^2), as models.observation_noise.
         *_, s00, s01, s11 = kernel.innovation_covariance(
             p, *H, r_range + landmark_var_m2, r_cross, r_bearing + landmark_var_m2 / range2)
         try:
-            inverse = kernel.inverse(s00, s01, s11)
+            i00, i01, i11 = kernel.inverse(s00, s01, s11)
         except CoreError as err:
             raise CoreError(f'mahalanobis_sq: {err}; check P and R') from None
-        per_landmark.append((range_m, bearing, *inverse))
+        per_landmark.append((range_m, bearing, i00, i01, i11))
     distance_sq = kernel.mahalanobis_sq
-    return [[math.inf if near is None
-             else distance_sq(z_range - near[0], wrap_scalar(z_bearing - near[1]), *near[2:])
-             for near in per_landmark]
+    rows = [[distance_sq(z_range - h0, wrap_scalar(z_bearing - h1), i00, i01, i11)
+             for h0, h1, i00, i01, i11 in per_landmark]
             for z_range, z_bearing in z]
+    if any(math.isnan(i00) for _, _, i00, _, _ in per_landmark):
+        rows = [[math.inf if math.isnan(d2) else d2 for d2 in row] for row in rows]
+    return rows
 
 
 def _associate_scalar(z: list[list[float]], state: FloatArray, P: FloatArray, R: FloatArray,
