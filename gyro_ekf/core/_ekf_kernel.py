@@ -62,17 +62,27 @@ def predict(s: list[float], p: list[float], speed_m_s: float, rate_rad_s: float,
     ]
 
 
-def observe(x: float, y: float, yaw: float, landmark_x_m: float, landmark_y_m: float,
-            mount: LidarMount) -> tuple[float, ...]:
-    """Predict h and H of one landmark (``models.observe_with_jacobian``).
+def innovation_terms(s: list[float], p: list[float], landmark_x_m: float,
+                     landmark_y_m: float, mount: LidarMount, range_var: float,
+                     cross_var: float, bearing_var: float, landmark_var_m2: float,
+                     noise_scale: float) -> tuple:
+    """Compute h, H, R, P H^T and S of one landmark (what an update and the gate share).
+
+    As ``models.observe_with_jacobian``, ``models.observation_noise`` (R = the sensor's
+    [[range_var, cross_var], [cross_var, bearing_var]] plus the map's diag(s2, s2 / r^2),
+    all times noise_scale) and ``ekf.innovation_covariance``.
 
     Returns:
-        range, bearing (not wrapped), range^2, then H's range row and bearing row over
-        (x, y, yaw) (its bias column is zero).
+        (range, bearing (not wrapped)), H's range row and bearing row over (x, y, yaw)
+        (its bias column is zero), P H^T's range and bearing columns, (R00, R11) and S as
+        (s00, s01, s11).
 
     Raises:
         ZeroDivisionError: the landmark is at the sensor (no bearing).
     """
+    x, y, yaw = s[0], s[1], s[2]
+    (p_x_x, p_x_y, p_x_yaw, p_x_b, p_y_y, p_y_yaw, p_y_b, p_yaw_yaw, p_yaw_b, _) = p
+    # h and H.
     c, sn = math.cos(yaw), math.sin(yaw)
     xl = x + mount.x_m * c - mount.y_m * sn
     yl = y + mount.x_m * sn + mount.y_m * c
@@ -83,20 +93,12 @@ def observe(x: float, y: float, yaw: float, landmark_x_m: float, landmark_y_m: f
     dy = landmark_y_m - yl
     r2 = dx * dx + dy * dy
     r = math.sqrt(r2)
-    return (r, math.atan2(dy, dx) - yaw - mount.yaw_rad, r2,
-            -dx / r, -dy / r, -(dx * dxl + dy * dyl) / r,
-            dy / r2, -dx / r2, (dy * dxl - dx * dyl) / r2 - 1.0)
-
-
-def innovation_covariance(p: list[float], hr_x: float, hr_y: float, hr_yaw: float,
-                          hb_x: float, hb_y: float, hb_yaw: float, r_range: float,
-                          r_cross: float, r_bearing: float) -> tuple[float, ...]:
-    """P H^T and S = H P H^T + R for H's rows hr (range) and hb (bearing).
-
-    Returns:
-        P H^T's range column (4), its bearing column (4), then S's s00, s01, s11.
-    """
-    (p_x_x, p_x_y, p_x_yaw, p_x_b, p_y_y, p_y_yaw, p_y_b, p_yaw_yaw, p_yaw_b, _) = p
+    hr_x, hr_y, hr_yaw = -dx / r, -dy / r, -(dx * dxl + dy * dyl) / r
+    hb_x, hb_y, hb_yaw = dy / r2, -dx / r2, (dy * dxl - dx * dyl) / r2 - 1.0
+    # R with the map's share.
+    rr = (range_var + landmark_var_m2) * noise_scale
+    rb = (bearing_var + landmark_var_m2 / r2) * noise_scale
+    # P H^T (columns a: range, b: bearing) and S = H P H^T + R.
     a_x = p_x_x * hr_x + p_x_y * hr_y + p_x_yaw * hr_yaw
     a_y = p_x_y * hr_x + p_y_y * hr_y + p_y_yaw * hr_yaw
     a_yaw = p_x_yaw * hr_x + p_y_yaw * hr_y + p_yaw_yaw * hr_yaw
@@ -105,10 +107,12 @@ def innovation_covariance(p: list[float], hr_x: float, hr_y: float, hr_yaw: floa
     b_y = p_x_y * hb_x + p_y_y * hb_y + p_y_yaw * hb_yaw
     b_yaw = p_x_yaw * hb_x + p_y_yaw * hb_y + p_yaw_yaw * hb_yaw
     b_b = p_x_b * hb_x + p_y_b * hb_y + p_yaw_b * hb_yaw
-    return (a_x, a_y, a_yaw, a_b, b_x, b_y, b_yaw, b_b,
-            hr_x * a_x + hr_y * a_y + hr_yaw * a_yaw + r_range,
-            hr_x * b_x + hr_y * b_y + hr_yaw * b_yaw + r_cross,
-            hb_x * b_x + hb_y * b_y + hb_yaw * b_yaw + r_bearing)
+    return ((r, math.atan2(dy, dx) - yaw - mount.yaw_rad),
+            (hr_x, hr_y, hr_yaw, hb_x, hb_y, hb_yaw),
+            (a_x, a_y, a_yaw, a_b, b_x, b_y, b_yaw, b_b), (rr, rb),
+            (hr_x * a_x + hr_y * a_y + hr_yaw * a_yaw + rr,
+             hr_x * b_x + hr_y * b_y + hr_yaw * b_yaw + cross_var * noise_scale,
+             hb_x * b_x + hb_y * b_y + hb_yaw * b_yaw + rb))
 
 
 def inverse(s00: float, s01: float, s11: float) -> tuple[float, float, float]:
@@ -137,17 +141,15 @@ def update(s: list[float], p: list[float], z_range: float, z_bearing: float,
     Returns:
         s, p, y (2), S (s00, s01, s11), K (row by row, 8), NIS against the unscaled R.
     """
-    x, y, yaw, bias = s
-    (p_x_x, p_x_y, p_x_yaw, p_x_b, p_y_y, p_y_yaw, p_y_b, p_yaw_yaw, p_yaw_b, p_b_b) = p
-    r, bearing, r2, hr_x, hr_y, hr_yaw, hb_x, hb_y, hb_yaw = observe(
-        x, y, yaw, landmark_x_m, landmark_y_m, mount)
+    (r, bearing), (hr_x, hr_y, hr_yaw, hb_x, hb_y, hb_yaw), \
+        (a_x, a_y, a_yaw, a_b, b_x, b_y, b_yaw, b_b), (rr, rb), (s00, s01, s11) = \
+        innovation_terms(s, p, landmark_x_m, landmark_y_m, mount, range_var, 0.0,
+                         bearing_var, landmark_var_m2, noise_scale)
     y0 = z_range - r
     y1 = wrap_scalar(z_bearing - bearing)
-    rr = (range_var + landmark_var_m2) * noise_scale
-    rb = (bearing_var + landmark_var_m2 / r2) * noise_scale
-    a_x, a_y, a_yaw, a_b, b_x, b_y, b_yaw, b_b, s00, s01, s11 = innovation_covariance(
-        p, hr_x, hr_y, hr_yaw, hb_x, hb_y, hb_yaw, rr, 0.0, rb)
     i00, i01, i11 = inverse(s00, s01, s11)
+    x, y, yaw, bias = s
+    (p_x_x, p_x_y, p_x_yaw, p_x_b, p_y_y, p_y_yaw, p_y_b, p_yaw_yaw, p_yaw_b, p_b_b) = p
     # K = P H^T S^-1, one row per state.
     k_x0, k_x1 = a_x * i00 + b_x * i01, a_x * i01 + b_x * i11
     k_y0, k_y1 = a_y * i00 + b_y * i01, a_y * i01 + b_y * i11

@@ -226,6 +226,8 @@ _OUTCOMES = tuple(AssociationOutcome)
 _UPPER_TRIANGLE = np.triu_indices(STATE_SIZE)
 """P's upper triangle row by row: the kernel's packed covariance."""
 
+_POSE = [X, Y, YAW]
+
 SCALAR_PAIRS_MAX = 64
 """Up to this many detection-landmark pairs, ``associate`` works in plain floats.
 
@@ -240,20 +242,18 @@ def _mahalanobis_rows(z: list[list[float]], state: FloatArray, P: FloatArray, R:
                       landmarks: list[list[float]], mount: LidarMount,
                       landmark_var_m2: float = 0.0) -> list[list[float]]:
     """mahalanobis_sq in plain floats (the filter's kernel): d2[i][j], detection i, landmark j."""
-    x, y, yaw = float(state[X]), float(state[Y]), float(state[YAW])
+    pose = np.asarray(state, dtype=np.float64)[_POSE].tolist()
     p = np.asarray(P, dtype=np.float64)[_UPPER_TRIANGLE].tolist()
     (r_range, r_cross), (_, r_bearing) = np.asarray(R, dtype=np.float64).tolist()
     per_landmark = []
     for lx, ly in landmarks:
         try:
-            range_m, bearing, range2, *H = kernel.observe(x, y, yaw, lx, ly, mount)
+            (range_m, bearing), _, _, _, (s00, s01, s11) = kernel.innovation_terms(
+                pose, p, lx, ly, mount, r_range, r_cross, r_bearing, landmark_var_m2, 1.0)
         except ZeroDivisionError:
             # A landmark at the sensor has no bearing: nothing can match it (NaN, then inf).
             per_landmark.append((0.0, 0.0, math.nan, math.nan, math.nan))
             continue
-        # R_j = R + diag(s2, s2 / r^2), as models.observation_noise.
-        *_, s00, s01, s11 = kernel.innovation_covariance(
-            p, *H, r_range + landmark_var_m2, r_cross, r_bearing + landmark_var_m2 / range2)
         try:
             i00, i01, i11 = kernel.inverse(s00, s01, s11)
         except CoreError as err:

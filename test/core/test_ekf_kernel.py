@@ -79,19 +79,24 @@ def test_predict_equals_the_textbook(hold_position):
 
 
 @pytest.mark.parametrize('mount', MOUNTS)
-def test_observe_and_innovation_covariance_equal_the_textbook(mount):
+def test_h_H_R_and_S_equal_the_textbook(mount):
+    # What an update and the association gate share: h, H, R (with the map's share and a
+    # cross term), P H^T, S, S^-1 and y^T S^-1 y.
     for _ in range(100):
         s, P = _state(), _covariance()
         landmark = _landmark(s)
-        r, bearing, r2, *rows = kernel.observe(s[0], s[1], s[2], *landmark, mount)
+        sensor = np.array([[RNG.uniform(1e-4, 1e-2), 1e-5], [1e-5, RNG.uniform(1e-6, 1e-4)]])
+        map_var, scale = float(RNG.choice([0.0, 1e-4])), float(RNG.choice([1.0, 2.5]))
+        (r, bearing), rows, pht, (rr, rb), (s00, s01, s11) = kernel.innovation_terms(
+            s, _packed(P), *landmark, mount, sensor[0, 0], sensor[0, 1], sensor[1, 1],
+            map_var, scale)
         h, H = models.observe_with_jacobian(np.array(s), landmark, mount)
-        _equal([r, r2], [h[0], h[0] ** 2])
+        _equal(r, h[0])
         _equal_angle(bearing, h[1])
         _equal(rows, H[:, :3].ravel())
         assert not H[:, BIAS].any()
-        R = np.array([[RNG.uniform(1e-4, 1e-2), 1e-5], [1e-5, RNG.uniform(1e-6, 1e-4)]])
-        *pht, s00, s01, s11 = kernel.innovation_covariance(_packed(P), *rows, R[0, 0],
-                                                           R[0, 1], R[1, 1])
+        R = scale * models.observation_noise(h[0], sensor, map_var)
+        _equal([rr, rb], np.diag(R))
         S = innovation_covariance(H, P, R)
         _equal([[s00, s01], [s01, s11]], S)
         _equal(np.reshape(pht, (2, 4)).T, P @ H.T)
