@@ -34,7 +34,7 @@ prediction holds the position (no translation, no speed noise).
 arithmetic unrolled on plain floats for the report's four states, since at this size
 numpy's per-call overhead costs several times the arithmetic (`make bench` compares it with
 filterpy). Tests check the kernel against ``Textbook`` to 1e-12; ``textbook=True`` runs
-the filter on ``Textbook`` itself (a state the kernel does not cover needs that).
+the filter on ``Textbook`` itself, as does a state the kernel does not cover.
 """
 
 from __future__ import annotations
@@ -222,7 +222,9 @@ class GyroBiasEkf:
                 private kernel: slower, the same numbers to rounding.
         """
         self.config = config or EkfConfig()
-        self._maths = Textbook if textbook else _ekf_kernel
+        # The kernel covers the report's four states only; any other state is textbook.
+        self._maths = (_ekf_kernel if not textbook and STATE_SIZE == _ekf_kernel.STATE_SIZE
+                       else Textbook)
         self._r_range = self.config.range_noise_m ** 2
         self._r_bearing = self.config.bearing_noise_rad ** 2
         self.landmark_var_m2 = self.config.landmark_sigma_m ** 2

@@ -159,6 +159,7 @@ def test_a_filter_run_on_the_kernel_equals_one_on_the_textbook():
     mount = MOUNTS[3]
     fast = GyroBiasEkf(config, pose=[1.0, -2.0, 0.3], bias_rad_s=0.01)
     slow = GyroBiasEkf(config, pose=[1.0, -2.0, 0.3], bias_rad_s=0.01, textbook=True)
+    assert fast._maths is kernel and slow._maths is Textbook
     landmarks = RNG.uniform(-20, 20, size=(10, 2))
     for k in range(3000):
         speed, rate = 0.5 + 0.3 * math.sin(0.01 * k), 0.3 * math.sin(0.003 * k) + 0.01
