@@ -1,16 +1,16 @@
 """Nearest-neighbour data association of pole detections to a known landmark map.
 
 For detection i with observation z_i = [range m, bearing rad] (sensor frame, ROS
-convention, see ``models.points_to_range_bearing``) and landmark j::
+convention, see ``models.points_to_range_bearing``) and landmark j, with the filter's own
+h, H, R and S (``models.py``, ``ekf.py``)::
 
-    h_j = observe(x, l_j, mount)               expected observation, (2,)
-    H_j = observation_jacobian(x, l_j, mount)  (2, 4)
-    S_j = H_j P H_j^T + R_j                    innovation covariance, (2, 2)
-    y_ij = z_i - h_j, bearing wrapped          innovation, (2,)
-    d2_ij = y_ij^T S_j^-1 y_ij                 squared Mahalanobis distance
+    h_j, H_j = observe_with_jacobian(x, l_j, mount)     expected observation, (2,), (2, n)
+    R_j = observation_noise(range_j, R, s2)            R plus the map's uncertainty
+    S_j = H_j P H_j^T + R_j                            innovation covariance, (2, 2)
+    y_ij = z_i - h_j, bearing wrapped                  innovation, (2,)
+    d2_ij = y_ij^T S_j^-1 y_ij                         squared Mahalanobis distance
 
-where R_j = R + diag(s2, s2 / r_j^2) adds the map's own uncertainty (s2: variance of a
-landmark's position along any axis, r_j: predicted range; see ``ekf.GyroBiasEkf``).
+(s2: variance of a landmark's position along any axis).
 
 Landmark j lies inside detection i's gate when d2_ij <= g, where g is the chi-square
 quantile with 2 degrees of freedom at the gate probability p; for 2 dof it has the closed
@@ -36,10 +36,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gyro_ekf.core.angles import wrap_angle, wrap_scalar
+from gyro_ekf.core import _ekf_kernel as kernel
+from gyro_ekf.core.angles import wrap_scalar
+from gyro_ekf.core.ekf import innovation, innovation_covariance, normalised_innovation_sq
 from gyro_ekf.core.errors import CoreError
-from gyro_ekf.core.models import observe_with_jacobian, sensor_position, sensor_to_map
-from gyro_ekf.core.types import FloatArray, LidarMount
+from gyro_ekf.core.models import RANGE, observation_noise, observe_with_jacobian, sensor_to_map
+from gyro_ekf.core.types import STATE_SIZE, X, Y, YAW, FloatArray, LidarMount
 
 _NO_MOUNT = LidarMount()
 
@@ -153,23 +155,18 @@ def mahalanobis_sq(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArra
     landmarks = np.asarray(landmarks_xy_m, dtype=np.float64).reshape(-1, 2)
     if landmarks.shape[0] == 0 or z.shape[0] == 0:
         return np.zeros((z.shape[0], landmarks.shape[0]))
-    h, H = observe_with_jacobian(state, landmarks, mount)      # (k, 2), (k, 2, 4)
-    S = H @ np.asarray(P, dtype=np.float64) @ np.swapaxes(H, 1, 2) + R  # (k, 2, 2)
-    if landmark_var_m2 > 0.0:
-        S[:, 0, 0] += landmark_var_m2
-        with np.errstate(divide='ignore'):
-            S[:, 1, 1] += landmark_var_m2 / np.square(h[:, 0])
-    # Closed-form 2x2 inverse, vectorised over landmarks.
-    a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
-    det = a * d - b * c
-    if np.any(det <= 0.0):
+    h, H = observe_with_jacobian(state, landmarks, mount)           # (k, 2), (k, 2, n)
+    S = innovation_covariance(H, np.asarray(P, dtype=np.float64),
+                              observation_noise(h[:, RANGE], R, landmark_var_m2))
+    # A landmark at the sensor has no bearing (NaN in H): it must never be anyone's nearest.
+    at_sensor = ~np.isfinite(S).all(axis=(1, 2))
+    S[at_sensor] = np.eye(2)
+    if not np.all(np.linalg.eigvalsh(S) > 0.0):
         raise CoreError('mahalanobis_sq: innovation covariance is not positive definite; '
                         'check P and R')
-    y0 = z[:, None, 0] - h[None, :, 0]                        # (n, k)
-    y1 = wrap_angle(z[:, None, 1] - h[None, :, 1])            # (n, k)
-    d2 = (d * y0 * y0 - (b + c) * y0 * y1 + a * y1 * y1) / det
-    # A landmark at the sensor has no bearing (NaN): it must never be anyone's nearest.
-    return np.where(np.isnan(d2), np.inf, d2)
+    d2 = normalised_innovation_sq(innovation(z[:, None, :], h[None, :, :]), S[None])  # (n, k)
+    d2[:, at_sensor] = np.inf
+    return d2
 
 
 def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
@@ -226,7 +223,10 @@ def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
 _OUTCOMES = tuple(AssociationOutcome)
 
 
-_TAU = 2.0 * math.pi
+_UPPER_TRIANGLE = np.triu_indices(STATE_SIZE)
+"""P's upper triangle row by row: the kernel's packed covariance."""
+
+_POSE = [X, Y, YAW]
 
 SCALAR_PAIRS_MAX = 64
 """Up to this many detection-landmark pairs, ``associate`` works in plain floats.
@@ -241,52 +241,29 @@ to the bit.
 def _mahalanobis_rows(z: list[list[float]], state: FloatArray, P: FloatArray, R: FloatArray,
                       landmarks: list[list[float]], mount: LidarMount,
                       landmark_var_m2: float = 0.0) -> list[list[float]]:
-    """mahalanobis_sq in plain floats: d2[i][j] for detection i and landmark j."""
-    yaw = float(state[2])
-    P3 = np.asarray(P, dtype=np.float64)[:3, :3].tolist()
-    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P3
-    (r00, r01), (r10, r11) = np.asarray(R, dtype=np.float64).tolist()
-    c, s = math.cos(yaw), math.sin(yaw)
-    # Plain floats: numpy scalars would spread through the per-landmark loop below.
-    xl, yl = (float(v) for v in sensor_position(state, mount))
-    dxl = -mount.x_m * s - mount.y_m * c
-    dyl = mount.x_m * c - mount.y_m * s
-    heading = yaw + mount.yaw_rad
+    """mahalanobis_sq in plain floats (the filter's kernel): d2[i][j], detection i, landmark j."""
+    pose = np.asarray(state, dtype=np.float64)[_POSE].tolist()
+    p = np.asarray(P, dtype=np.float64)[_UPPER_TRIANGLE].tolist()
+    (r_range, r_cross), (_, r_bearing) = np.asarray(R, dtype=np.float64).tolist()
     per_landmark = []
     for lx, ly in landmarks:
-        dx, dy = lx - xl, ly - yl
-        q = dx * dx + dy * dy
-        if q == 0.0:
-            # A landmark at the sensor has no bearing: nothing can match it.
+        try:
+            (range_m, bearing), _, _, _, (s00, s01, s11) = kernel.innovation_terms(
+                pose, p, lx, ly, mount, r_range, r_cross, r_bearing, landmark_var_m2, 1.0)
+        except ZeroDivisionError:
+            # A landmark at the sensor has no bearing: nothing can match it (NaN, then inf).
             per_landmark.append((0.0, 0.0, math.nan, math.nan, math.nan))
             continue
-        r = math.sqrt(q)
-        a0, a1, a2 = -dx / r, -dy / r, -(dx * dxl + dy * dyl) / r
-        b0, b1, b2 = dy / q, -dx / q, (dy * dxl - dx * dyl) / q - 1.0
-        # S = H P H^T + R with H's bias column zero.
-        pa0 = p00 * a0 + p01 * a1 + p02 * a2
-        pa1 = p01 * a0 + p11 * a1 + p12 * a2
-        pa2 = p02 * a0 + p12 * a1 + p22 * a2
-        pb0 = p00 * b0 + p01 * b1 + p02 * b2
-        pb1 = p01 * b0 + p11 * b1 + p12 * b2
-        pb2 = p02 * b0 + p12 * b1 + p22 * b2
-        s00 = a0 * pa0 + a1 * pa1 + a2 * pa2 + r00 + landmark_var_m2
-        s01 = a0 * pb0 + a1 * pb1 + a2 * pb2 + r01
-        s10 = b0 * pa0 + b1 * pa1 + b2 * pa2 + r10
-        s11 = b0 * pb0 + b1 * pb1 + b2 * pb2 + r11 + landmark_var_m2 / q
-        det = s00 * s11 - s01 * s10
-        if det <= 0.0:
-            raise CoreError('mahalanobis_sq: innovation covariance is not positive definite; '
-                            'check P and R')
-        per_landmark.append((r, wrap_scalar(math.atan2(dy, dx) - heading), s00 / det,
-                             (s01 + s10) / det, s11 / det))
-    # y1 is the bearing innovation wrapped into [-pi, pi) (wrap_scalar, inlined: this
-    # inner loop runs for every detection-landmark pair of every scan).
-    rows = [[w11 * y0 * y0 - w01 * y0 * y1 + w00 * y1 * y1
-             for h0, h1, w00, w01, w11 in per_landmark
-             for y0, y1 in ((z_range - h0, (z_bearing - h1 + math.pi) % _TAU - math.pi),)]
+        try:
+            i00, i01, i11 = kernel.inverse(s00, s01, s11)
+        except CoreError as err:
+            raise CoreError(f'mahalanobis_sq: {err}; check P and R') from None
+        per_landmark.append((range_m, bearing, i00, i01, i11))
+    distance_sq = kernel.mahalanobis_sq
+    rows = [[distance_sq(z_range - h0, wrap_scalar(z_bearing - h1), i00, i01, i11)
+             for h0, h1, i00, i01, i11 in per_landmark]
             for z_range, z_bearing in z]
-    if any(math.isnan(w00) for _, _, w00, _, _ in per_landmark):
+    if any(math.isnan(i00) for _, _, i00, _, _ in per_landmark):
         rows = [[math.inf if math.isnan(d2) else d2 for d2 in row] for row in rows]
     return rows
 

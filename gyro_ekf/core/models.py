@@ -1,8 +1,9 @@
-"""Process and observation models of the gyro-bias EKF, with their Jacobians.
+"""The report's models, each written once: f, J, Ju, Q, h, H (and R's map term).
 
-State ``x = [x, y, yaw, b]`` (m, m, rad, rad/s); inputs ``u = [v, w]`` (speed m/s, measured
-yaw rate rad/s, bias included). From the MTRN4010 Project 3 report
-(``../shared/course-notes/003_3aeb4dcf00f2eae3.txt``), over a step of T seconds::
+State ``x = [x, y, yaw, b]`` (m, m, rad, rad/s; entries named X, Y, YAW, BIAS in
+``types.py``); inputs ``u = [v, w]`` (speed m/s, measured yaw rate rad/s, bias included).
+From the MTRN4010 Project 3 report (``../shared/course-notes/003_3aeb4dcf00f2eae3.txt``),
+over a step of T seconds::
 
     x   += T v cos(yaw)          J = [[1, 0, -T v sin(yaw),  0],
     y   += T v sin(yaw)               [0, 1,  T v cos(yaw),  0],
@@ -23,7 +24,12 @@ platform (``../shared/data/mtrn4010/README.md``, "Observation model")::
 
 ``bearing_zero`` is 0 in ROS convention (0 = forward) and pi/2 for the course's raw
 2016 scans (0 = right); with Lx = Ly = alpha = 0 and pi/2 it is exactly the report's h,
-and ``observation_jacobian`` is the report's H.
+and ``observation_jacobian`` is the report's H. Standing still, a gyro sample measures
+the bias alone: h = b, H = [0, 0, 0, 1] (``observe_bias``).
+
+Every function takes a state of any length whose first entries are X, Y, YAW, BIAS (extra
+states, e.g. a mount offset, have zero columns here until a model uses them). The filter's
+hot path (``_ekf_kernel.py``) unrolls these same lines; tests check it against them.
 """
 
 from __future__ import annotations
@@ -33,78 +39,110 @@ import math
 import numpy as np
 
 from gyro_ekf.core.angles import wrap_angle, wrap_scalar
-from gyro_ekf.core.types import FloatArray, LidarMount
+from gyro_ekf.core.types import BIAS, X, Y, YAW, FloatArray, LidarMount
 
 _NO_MOUNT = LidarMount()
+
+SPEED, RATE = 0, 1
+"""Entries of the input u = [v, w] (columns of Ju, rows of Pu)."""
+
+RANGE, BEARING = 0, 1
+"""Entries of an observation z = [range, bearing] (rows of h and H)."""
 
 
 def predict_state(state: FloatArray, speed_m_s: float, rate_rad_s: float,
                   dt_s: float) -> FloatArray:
-    """Propagate the state over dt_s with constant inputs. Shape (4,) in and out."""
-    x, y, yaw, bias = state
-    return np.array([
-        x + dt_s * speed_m_s * math.cos(yaw),
-        y + dt_s * speed_m_s * math.sin(yaw),
-        wrap_scalar(yaw + dt_s * (rate_rad_s - bias)),
-        bias,
-    ])
+    """f: the state after dt_s with constant inputs, shape (n,) in and out."""
+    x = np.array(state, dtype=np.float64)
+    yaw = x[YAW]
+    x[X] += dt_s * speed_m_s * math.cos(yaw)
+    x[Y] += dt_s * speed_m_s * math.sin(yaw)
+    x[YAW] = wrap_scalar(yaw + dt_s * (rate_rad_s - x[BIAS]))
+    return x
 
 
 def process_jacobian(state: FloatArray, speed_m_s: float, dt_s: float) -> FloatArray:
-    """J = df/dx at the prior state, shape (4, 4)."""
-    yaw = state[2]
-    return np.array([
-        [1.0, 0.0, -dt_s * speed_m_s * math.sin(yaw), 0.0],
-        [0.0, 1.0, dt_s * speed_m_s * math.cos(yaw), 0.0],
-        [0.0, 0.0, 1.0, -dt_s],
-        [0.0, 0.0, 0.0, 1.0],
-    ])
+    """J = df/dx at the prior state, shape (n, n)."""
+    yaw = state[YAW]
+    J = np.eye(np.size(state))
+    J[X, YAW] = -dt_s * speed_m_s * math.sin(yaw)
+    J[Y, YAW] = dt_s * speed_m_s * math.cos(yaw)
+    J[YAW, BIAS] = -dt_s
+    return J
 
 
 def input_jacobian(state: FloatArray, dt_s: float) -> FloatArray:
-    """Ju = df/du (u = [speed, rate]) at the prior state, shape (4, 2)."""
-    yaw = state[2]
-    return np.array([
-        [dt_s * math.cos(yaw), 0.0],
-        [dt_s * math.sin(yaw), 0.0],
-        [0.0, dt_s],
-        [0.0, 0.0],
-    ])
+    """Ju = df/du (u = [speed, rate]) at the prior state, shape (n, 2)."""
+    yaw = state[YAW]
+    Ju = np.zeros((np.size(state), 2))
+    Ju[X, SPEED] = dt_s * math.cos(yaw)
+    Ju[Y, SPEED] = dt_s * math.sin(yaw)
+    Ju[YAW, RATE] = dt_s
+    return Ju
 
 
 def process_noise(state: FloatArray, dt_s: float, speed_sigma_m_s: float,
                   rate_sigma_rad_s: float, position_walk_m_sqrt_s: float,
                   bias_walk_rad_s2: float) -> FloatArray:
-    """Q = Ju Pu Ju^T + Q2 over one step, shape (4, 4)."""
-    ju = input_jacobian(state, dt_s)
-    pu = np.diag([speed_sigma_m_s ** 2, rate_sigma_rad_s ** 2])
-    position_var = position_walk_m_sqrt_s ** 2 * dt_s
-    q2 = np.diag([position_var, position_var, 0.0, (bias_walk_rad_s2 * dt_s) ** 2])
-    return ju @ pu @ ju.T + q2
+    """Q = Ju Pu Ju^T + Q2 over one step, shape (n, n)."""
+    Ju = input_jacobian(state, dt_s)
+    Pu = np.diag([speed_sigma_m_s ** 2, rate_sigma_rad_s ** 2])
+    Q2 = np.zeros((np.size(state), np.size(state)))
+    Q2[X, X] = Q2[Y, Y] = position_walk_m_sqrt_s ** 2 * dt_s
+    Q2[BIAS, BIAS] = (bias_walk_rad_s2 * dt_s) ** 2
+    return Ju @ Pu @ Ju.T + Q2
 
 
 def sensor_position(state: FloatArray, mount: LidarMount = _NO_MOUNT) -> tuple[float, float]:
-    """Position (m) of the LiDAR origin in the map frame."""
-    x, y, yaw = state[0], state[1], state[2]
+    """Position (m) of the LiDAR origin in the map frame: (xL, yL)."""
+    x, y, yaw = state[X], state[Y], state[YAW]
     c, s = math.cos(yaw), math.sin(yaw)
     return x + mount.x_m * c - mount.y_m * s, y + mount.x_m * s + mount.y_m * c
 
 
-def observe(state: FloatArray, landmark_xy_m: FloatArray, mount: LidarMount = _NO_MOUNT,
-            bearing_zero_rad: float = 0.0) -> FloatArray:
-    """Predict [range m, bearing rad] of landmarks: shape (2,) for one, (k, 2) for (k, 2)."""
+def _landmark_offsets(state: FloatArray, landmark_xy_m: FloatArray, mount: LidarMount
+                      ) -> tuple[FloatArray, FloatArray]:
+    """(xa - xL, ya - yL) of each landmark: what h and H are made of."""
     xl, yl = sensor_position(state, mount)
     landmarks = np.asarray(landmark_xy_m, dtype=np.float64)
-    dx = landmarks[..., 0] - xl
-    dy = landmarks[..., 1] - yl
-    bearing = wrap_angle(np.arctan2(dy, dx) - state[2] - mount.yaw_rad + bearing_zero_rad)
-    return np.stack([np.hypot(dx, dy), bearing], axis=-1)
+    return landmarks[..., 0] - xl, landmarks[..., 1] - yl
+
+
+def _h(state: FloatArray, dx: FloatArray, dy: FloatArray, mount: LidarMount,
+       bearing_zero_rad: float) -> FloatArray:
+    bearing = np.arctan2(dy, dx) - state[YAW] - mount.yaw_rad + bearing_zero_rad
+    return np.stack([np.hypot(dx, dy), wrap_angle(bearing)], axis=-1)
+
+
+def _H(state: FloatArray, dx: FloatArray, dy: FloatArray, mount: LidarMount) -> FloatArray:
+    c, s = math.cos(state[YAW]), math.sin(state[YAW])
+    # d(xL)/d(yaw) and d(yL)/d(yaw): the sensor swings around the reference point.
+    dxl_dyaw = -mount.x_m * s - mount.y_m * c
+    dyl_dyaw = mount.x_m * c - mount.y_m * s
+    r2 = dx * dx + dy * dy
+    r = np.sqrt(r2)
+    H = np.zeros(np.shape(dx) + (2, np.size(state)))
+    H[..., RANGE, X] = -dx / r
+    H[..., RANGE, Y] = -dy / r
+    H[..., RANGE, YAW] = -(dx * dxl_dyaw + dy * dyl_dyaw) / r
+    H[..., BEARING, X] = dy / r2
+    H[..., BEARING, Y] = -dx / r2
+    H[..., BEARING, YAW] = (dy * dxl_dyaw - dx * dyl_dyaw) / r2 - 1.0
+    return H
+
+
+def observe(state: FloatArray, landmark_xy_m: FloatArray, mount: LidarMount = _NO_MOUNT,
+            bearing_zero_rad: float = 0.0) -> FloatArray:
+    """h: predicted [range m, bearing rad] of landmarks, (2,) for one, (k, 2) for (k, 2)."""
+    dx, dy = _landmark_offsets(state, landmark_xy_m, mount)
+    return _h(state, dx, dy, mount, bearing_zero_rad)
 
 
 def observation_jacobian(state: FloatArray, landmark_xy_m: FloatArray,
                          mount: LidarMount = _NO_MOUNT) -> FloatArray:
-    """H = dh/dx, shape (2, 4) for one landmark or (k, 2, 4) for (k, 2) landmarks."""
-    return observe_with_jacobian(state, landmark_xy_m, mount)[1]
+    """H = dh/dx, shape (2, n) for one landmark or (k, 2, n) for (k, 2) landmarks."""
+    dx, dy = _landmark_offsets(state, landmark_xy_m, mount)
+    return _H(state, dx, dy, mount)
 
 
 def observe_with_jacobian(state: FloatArray, landmark_xy_m: FloatArray,
@@ -113,37 +151,41 @@ def observe_with_jacobian(state: FloatArray, landmark_xy_m: FloatArray,
 
     Returns:
         h: [range m, bearing rad (0 = sensor forward)], shape (..., 2).
-        H: dh/dx, shape (..., 2, 4).
+        H: dh/dx, shape (..., 2, n).
     """
-    yaw = float(state[2])
-    c, s = math.cos(yaw), math.sin(yaw)
-    xl, yl = sensor_position(state, mount)
-    # d(xL)/d(yaw) and d(yL)/d(yaw): the sensor swings around the reference point.
-    dxl_dyaw = -mount.x_m * s - mount.y_m * c
-    dyl_dyaw = mount.x_m * c - mount.y_m * s
-    landmarks = np.asarray(landmark_xy_m, dtype=np.float64)
-    dx = landmarks[..., 0] - xl
-    dy = landmarks[..., 1] - yl
-    r2 = dx * dx + dy * dy
-    r = np.sqrt(r2)
-    h = np.empty(landmarks.shape[:-1] + (2,))
-    h[..., 0] = r
-    h[..., 1] = wrap_angle(np.arctan2(dy, dx) - yaw - mount.yaw_rad)
-    jac = np.zeros(landmarks.shape[:-1] + (2, 4))
-    jac[..., 0, 0] = -dx / r
-    jac[..., 0, 1] = -dy / r
-    jac[..., 0, 2] = -(dx * dxl_dyaw + dy * dyl_dyaw) / r
-    jac[..., 1, 0] = dy / r2
-    jac[..., 1, 1] = -dx / r2
-    jac[..., 1, 2] = (dy * dxl_dyaw - dx * dyl_dyaw) / r2 - 1.0
-    return h, jac
+    dx, dy = _landmark_offsets(state, landmark_xy_m, mount)
+    return _h(state, dx, dy, mount, 0.0), _H(state, dx, dy, mount)
+
+
+def observation_noise(range_m: float | FloatArray, sensor_noise: FloatArray,
+                      landmark_var_m2: float) -> FloatArray:
+    """R of landmarks at predicted ranges: sensor noise plus the map's, (..., 2, 2).
+
+    A landmark's map position off by sigma along any axis moves its range by sigma and its
+    bearing by sigma / range, so the map adds diag(sigma^2, sigma^2 / range^2) to the
+    sensor's R = diag(sigma_r^2, sigma_b^2).
+    """
+    range_m = np.asarray(range_m, dtype=np.float64)
+    R = np.zeros(range_m.shape + (2, 2)) + sensor_noise
+    R[..., RANGE, RANGE] += landmark_var_m2
+    # A landmark at the sensor (range 0) has no bearing; its H is NaN already.
+    with np.errstate(divide='ignore', invalid='ignore'):
+        R[..., BEARING, BEARING] += landmark_var_m2 / (range_m * range_m)
+    return R
+
+
+def observe_bias(state: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Predict a gyro sample taken standing still: h = [b], H = [[0, 0, 0, 1]], (1, n)."""
+    H = np.zeros((1, np.size(state)))
+    H[0, BIAS] = 1.0
+    return np.array([state[BIAS]], dtype=np.float64), H
 
 
 def sensor_to_map(state: FloatArray, points_sensor_m: FloatArray,
                   mount: LidarMount = _NO_MOUNT) -> FloatArray:
     """Points (k, 2) in the sensor frame to the map frame at the given platform pose."""
     xl, yl = sensor_position(state, mount)
-    heading = state[2] + mount.yaw_rad
+    heading = state[YAW] + mount.yaw_rad
     c, s = math.cos(heading), math.sin(heading)
     points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)
     return np.column_stack([xl + c * points[:, 0] - s * points[:, 1],
@@ -154,7 +196,7 @@ def sensor_point_to_map(state: list[float] | FloatArray, x_m: float, y_m: float,
                         mount: LidarMount = _NO_MOUNT) -> tuple[float, float]:
     """One sensor-frame point to the map frame in plain floats (sensor_to_map for one)."""
     xl, yl = (float(v) for v in sensor_position(state, mount))
-    heading = float(state[2]) + mount.yaw_rad
+    heading = float(state[YAW]) + mount.yaw_rad
     ch, sh = math.cos(heading), math.sin(heading)
     return xl + ch * x_m - sh * y_m, yl + sh * x_m + ch * y_m
 

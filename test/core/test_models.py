@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gyro_ekf.core import models
-from gyro_ekf.core.ekf import GyroBiasEkf, observe_one
+from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core.types import LidarMount
 
@@ -55,9 +55,6 @@ def test_observation_jacobian_matches_finite_differences(mount):
         numeric = _numeric_jacobian(lambda s: models.observe(s, landmark, mount), state)
         np.testing.assert_allclose(models.observation_jacobian(state, landmark, mount),
                                    numeric, atol=1e-6)
-        z_hat, H = observe_one(state, landmark, mount)
-        np.testing.assert_allclose(z_hat, models.observe(state, landmark, mount), atol=1e-12)
-        np.testing.assert_allclose(H, numeric, atol=1e-6)
 
 
 def test_vectorised_observation_matches_single():
@@ -143,3 +140,41 @@ def test_sensor_frame_round_trip():
     np.testing.assert_allclose(models.sensor_to_map(state, points, mount), landmarks,
                                atol=1e-9)
     np.testing.assert_allclose(models.points_to_range_bearing(points), z, atol=1e-12)
+
+
+def test_a_longer_state_adds_entries_the_models_leave_alone():
+    # A fifth state (e.g. a mount offset no model uses yet): f keeps it, J and Q give it an
+    # identity row and column and no noise, h ignores it (zero column in H).
+    state = np.r_[_random_state(), 0.7]
+    speed, rate, dt = 0.8, 0.2, 0.01
+    mount = MOUNTS[3]
+    landmark = RNG.uniform(-10, 10, size=2)
+    f5 = models.predict_state(state, speed, rate, dt)
+    assert f5[4] == 0.7
+    np.testing.assert_array_equal(f5[:4], models.predict_state(state[:4], speed, rate, dt))
+    J5 = models.process_jacobian(state, speed, dt)
+    np.testing.assert_array_equal(J5[:4, :4], models.process_jacobian(state[:4], speed, dt))
+    np.testing.assert_array_equal(J5[4], [0, 0, 0, 0, 1])
+    np.testing.assert_array_equal(J5[:, 4], [0, 0, 0, 0, 1])
+    Q5 = models.process_noise(state, dt, 0.3, 0.03, 0.01, 1e-4)
+    np.testing.assert_array_equal(Q5[:4, :4],
+                                  models.process_noise(state[:4], dt, 0.3, 0.03, 0.01, 1e-4))
+    assert not Q5[4].any() and not Q5[:, 4].any()
+    h5, H5 = models.observe_with_jacobian(state, landmark, mount)
+    h4, H4 = models.observe_with_jacobian(state[:4], landmark, mount)
+    np.testing.assert_array_equal(h5, h4)
+    np.testing.assert_array_equal(H5[:, :4], H4)
+    assert not H5[:, 4].any()
+    hb, Hb = models.observe_bias(state)
+    np.testing.assert_array_equal(hb, [state[3]])
+    np.testing.assert_array_equal(Hb, [[0, 0, 0, 1, 0]])
+
+
+def test_map_uncertainty_adds_its_variance_to_range_and_over_range_squared_to_bearing():
+    sensor = np.diag([0.05 ** 2, 0.01 ** 2])
+    R = models.observation_noise(np.array([2.0, 8.0]), sensor, 0.03 ** 2)
+    np.testing.assert_allclose(R[0], sensor + np.diag([0.03 ** 2, (0.03 / 2.0) ** 2]),
+                               rtol=1e-15)
+    np.testing.assert_allclose(R[1], sensor + np.diag([0.03 ** 2, (0.03 / 8.0) ** 2]),
+                               rtol=1e-15)
+    np.testing.assert_array_equal(models.observation_noise(5.0, sensor, 0.0), sensor)
