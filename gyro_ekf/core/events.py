@@ -303,6 +303,7 @@ class EventDriver:
         if tracker is not None and self.mounts.observe(key, stamp_s, prior.tolist(), points,
                                                        self.landmarks.xy_m, excluded):
             self.health.mount_changed(key, stamp_s)
+        if tracker is not None:
             mount = tracker.used
         if self._recovering(stamp_s):
             self.stats.recoveries += 1
@@ -327,14 +328,17 @@ class EventDriver:
         # landmark by one LiDAR during a stop uses n R, so a stop adds about ln N scans'
         # worth, and the yaw drift is still tracked (that is how the bias is found at rest).
         at_rest = self._still()
+        # A mount estimated online weighs less (core/mount_online.py, its item 6).
+        base = 1.0 if tracker is None else tracker.noise_scale
         for match in result.associations:
             outcomes[_OUTCOME_KEYS[match.outcome]] += 1
             if match.outcome is AssociationOutcome.MATCHED:
-                scale = 1.0
+                scale = base
                 if at_rest:
                     look = (match.landmark_index, key)
-                    scale = self._rest_updates.get(look, 0) + 1
-                    self._rest_updates[look] = scale
+                    n = self._rest_updates.get(look, 0) + 1
+                    self._rest_updates[look] = n
+                    scale = base * n
                 nis.append(self.ekf.update(z[match.detection_index],
                                            landmark_xy[match.landmark_index], mount,
                                            float(scale)))

@@ -19,14 +19,24 @@ every ``fit_every`` new detections, by the same robust least squares as the offl
    within the gate, and the previous fit agrees (within ``agree_sigmas`` of their sigmas).
 4. A converged fit that differs from the mount in use (by more than ``change_sigmas``
    sigmas and ``min_yaw_change_rad`` or ``min_offset_change_m``) replaces it: it is
-   *applied*, and its window starts again so that the new mount is verified on fresh data
-   (``verifying``). One that does not differ *confirms* the mount in use, and fitting stops
+   *applied*. One that does not differ *confirms* the mount in use, and fitting stops
    until the driver restarts the estimator (the health monitor excluded the LiDAR again).
-   A verifying fit of a LiDAR whose observations are kept out of the filter also replaces
-   the mount in use when it confirms it: it is made of later data, seen from a pose that
-   had more time to settle (a mount error of a few tenths of a degree drags the pose for
-   the fraction of a second before the health monitor excludes the LiDAR), and the filter's
-   consistency needs the mount within about 0.02 deg (a fixed bearing error is not noise).
+5. While the LiDAR is kept out of the filter, the pose does not depend on it, so its
+   window keeps growing and, once a mount was applied, every converged fit replaces the
+   mount in use (*refined*) until one has a yaw sigma of at most ``settle_factor`` times
+   the convergence limit; the LiDAR is held out until then (``verifying``). The filter's
+   consistency needs the mount within about 0.02 deg (a fixed bearing error is not
+   noise), and fits of a few seconds scatter by 0.02-0.04 deg: the poses they rest on
+   carry the filter's own heading error, which wanders over seconds. A mount applied
+   while the LiDAR is in the filter is verified on a fresh window instead (the pose
+   leant on the old mount).
+6. A LiDAR taken with a mount estimated online enters the filter with its noise scaled by
+   ``noise_scale``: that mount is known to about 0.02-0.03 deg (fits of different windows
+   scatter so much), a fixed error the filter cannot average away, while its consistency
+   needs the heading well within 0.01 deg. Scaled by 9, the LiDAR carries about a tenth of
+   the weight beside an honest one, so its remaining error moves the heading a tenth as
+   much; alone (the first LiDAR dropped out) it still holds the pose. A stated mount the
+   estimator confirms keeps the configured noise.
 
 Scans taken while the platform stands still add nothing (the same beams hit the same poles
 with the same errors; see ``mount_calibration._moved_scans``).
@@ -75,10 +85,14 @@ class OnlineMountSettings:
         min_inlier_share: a fit laying less than this share of the window within the gate
             is refused (a wrong coarse yaw, a pose gone wrong).
         agree_sigmas: two consecutive fits agree within this many combined sigmas.
+        settle_factor: a LiDAR out of the filter whose mount was re-estimated waits until
+            a fit's yaw sigma is at most this share of converged_yaw_sigma_rad.
         change_sigmas: a converged fit replaces the mount in use only when it differs by
             more than this many sigmas ...
         min_yaw_change_rad: ... and by more than this in yaw, rad ...
         min_offset_change_m: ... or than this in x or y, m.
+        noise_scale: R of a LiDAR taken with a mount estimated online is multiplied by
+            this (see the module docstring).
         fit: the offline fit's settings (search span, gates, Huber threshold, offset
             observability, rest rule).
     """
@@ -90,6 +104,8 @@ class OnlineMountSettings:
     max_rms_m: float = 0.03
     min_inlier_share: float = 0.7
     agree_sigmas: float = 3.0
+    settle_factor: float = 0.5
+    noise_scale: float = 9.0
     change_sigmas: float = 3.0
     min_yaw_change_rad: float = math.radians(0.1)
     min_offset_change_m: float = 0.01
@@ -205,9 +221,14 @@ class MountTracker:
         self._previous: MountFit | None = None
 
     @property
+    def noise_scale(self) -> float:
+        """Factor on R of this LiDAR's observations: above 1 once its mount was estimated."""
+        return self.settings.noise_scale if self.applied else 1.0
+
+    @property
     def verifying(self) -> bool:
-        """Whether a mount it applied is being verified on fresh detections."""
-        return self.state == ESTIMATING and self.applied > 0
+        """Whether a mount it applied is still being verified (the LiDAR waits)."""
+        return self.state != CONFIRMED and self.applied > 0
 
     def save(self) -> tuple:
         """Return the state (O(1): the entries list is append-only)."""
@@ -230,8 +251,8 @@ class MountTracker:
 
     def observe(self, stamp_s: float, pose: list[float], points_sensor_m: FloatArray,
                 poles: FloatArray, excluded: bool = False) -> bool:
-        """Add one scan's detections seen from the filter's pose; return True when the
-        mount in use changed.
+        """Add one scan's detections seen from the filter's pose; return True when a fit
+        replaced the mount in use by one that differs clearly (judge its health afresh).
 
         Args:
             stamp_s: scan stamp, s.
@@ -294,17 +315,25 @@ class MountTracker:
             return False
         if self.converged_s is None:
             self.converged_s = stamp_s
-        if not self._differs(fit):
-            verifying = self.verifying
-            self.state = CONFIRMED
-            if not (verifying and excluded) or fit.mount == self.used:
-                return False
+        differs = self._differs(fit)
+        if excluded and (differs or self.applied):
+            # The pose does not depend on this LiDAR: every converged fit of the growing
+            # window is taken, and the LiDAR waits out of the filter until one has settled.
+            if differs:
+                self.applied += 1
+            elif fit.mount != self.used:
+                self.refined += 1
             self.used = fit.mount
-            self.refined += 1
-            return True
+            if fit.sigma[0] <= settings.settle_factor * settings.converged_yaw_sigma_rad:
+                self.state = CONFIRMED
+            return differs
+        if not differs:
+            self.state = CONFIRMED
+            return False
+        # Taken while in the filter: the pose leant on the old mount, so the new one is
+        # verified on fresh data (no search: it is near).
         self.used = fit.mount
         self.applied += 1
-        # Verified on fresh data, from the new mount (no search: it is near).
         self.restart(ESTIMATING)
         return True
 
@@ -387,13 +416,16 @@ class OnlineMounts:
     def observe(self, mount: LidarMount, stamp_s: float, pose: list[float],
                 points_sensor_m: FloatArray, poles: FloatArray, excluded: bool = False
                 ) -> bool:
-        """Feed a scan to its LiDAR's estimator (if tracked); True when its mount changed."""
+        """Feed a scan to its LiDAR's estimator (if tracked); True when its mount in use
+        changed so much that its health is judged on fresh figures (see MountTracker)."""
         tracker = self.trackers.get(mount)
-        if tracker is None or not tracker.observe(stamp_s, pose, points_sensor_m, poles,
-                                                  excluded):
+        if tracker is None:
             return False
-        self.changes += 1
-        return True
+        used = tracker.used
+        changed = tracker.observe(stamp_s, pose, points_sensor_m, poles, excluded)
+        if tracker.used != used:
+            self.changes += 1
+        return changed
 
     def restart(self, mount: LidarMount) -> None:
         """Estimate a LiDAR's mount again from fresh detections (if tracked)."""
