@@ -136,9 +136,11 @@ class EventDriver:
         self._end_stop()
 
     def track_mounts(self, mounts: Iterable[tuple[LidarMount, str]]) -> None:
-        """Estimate these LiDARs' mounts online, (stated mount, name) each: every LiDAR but
-        the first, which defines the body frame with the odometry (off when
-        ``mount_online_yaw_sigma_rad`` is 0)."""
+        """Estimate these LiDARs' mounts online, (stated mount, name) each.
+
+        Every LiDAR but the first, which defines the body frame with the odometry; off when
+        ``mount_online_yaw_sigma_rad`` is 0.
+        """
         if self.config.mount_online_yaw_sigma_rad > 0.0:
             self.mounts.track(mounts)
 
@@ -358,8 +360,7 @@ class EventDriver:
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
 
     def _judged(self, key: LidarMount, transition: Transition | None) -> None:
-        """Keep the health monitor's decision; a newly excluded LiDAR's mount is estimated
-        again from fresh detections."""
+        """Keep the health monitor's decision; re-estimate a newly excluded LiDAR's mount."""
         self.last_transition = transition
         if transition is not None and transition.change == 'excluded':
             self.mounts.restart(key)

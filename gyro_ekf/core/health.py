@@ -317,7 +317,7 @@ class HealthMonitor:
         health.w_nis = health.w_bearing = 0.0
 
     def mount_changed(self, key: Hashable, stamp_s: float) -> None:
-        """A LiDAR is taken with a new mount from now: judge it on new figures only.
+        """Judge a LiDAR on new figures only: it is taken with a new mount from now.
 
         Its window starts again; an excluded LiDAR is readmitted once a full window of its
         re-checks with the new mount agrees (the rules above).

@@ -211,8 +211,11 @@ class MountTracker:
         self.restart()
 
     def restart(self, state: str = ACQUIRING) -> None:
-        """Estimate again from fresh detections (by default searching the yaw anew: after
-        the LiDAR disagreed with the map again its mount may have moved far)."""
+        """Estimate again from fresh detections.
+
+        By default the yaw is searched anew: after the LiDAR disagreed with the map again,
+        its mount may have moved far.
+        """
         self._start = self._dropped + len(self._entries)
         self._since_fit = 0
         self._last_pose: tuple[float, float, float] | None = None
@@ -251,8 +254,10 @@ class MountTracker:
 
     def observe(self, stamp_s: float, pose: list[float], points_sensor_m: FloatArray,
                 poles: FloatArray, excluded: bool = False) -> bool:
-        """Add one scan's detections seen from the filter's pose; return True when a fit
-        replaced the mount in use by one that differs clearly (judge its health afresh).
+        """Add one scan's detections seen from the filter's pose.
+
+        Returns True when a fit replaced the mount in use by one that differs clearly (its
+        health is to be judged afresh).
 
         Args:
             stamp_s: scan stamp, s.
@@ -409,15 +414,18 @@ class OnlineMounts:
         self.changes = 0
 
     def used(self, mount: LidarMount) -> LidarMount:
-        """The mount a LiDAR stated as `mount` is taken with now."""
+        """Return the mount a LiDAR stated as `mount` is taken with now."""
         tracker = self.trackers.get(mount)
         return mount if tracker is None else tracker.used
 
     def observe(self, mount: LidarMount, stamp_s: float, pose: list[float],
                 points_sensor_m: FloatArray, poles: FloatArray, excluded: bool = False
                 ) -> bool:
-        """Feed a scan to its LiDAR's estimator (if tracked); True when its mount in use
-        changed so much that its health is judged on fresh figures (see MountTracker)."""
+        """Feed a scan to its LiDAR's estimator (if tracked).
+
+        Returns True when its mount in use changed so much that its health is judged on
+        fresh figures (see MountTracker.observe).
+        """
         tracker = self.trackers.get(mount)
         if tracker is None:
             return False
