@@ -302,11 +302,13 @@ class EventDriver:
         z = points_to_range_bearing(points).tolist()
         P = self.ekf.P
         excluded = self.health.excluded(key)
-        if tracker is not None and self.mounts.observe(key, stamp_s, prior.tolist(), points,
-                                                       self.landmarks.xy_m, excluded):
-            self.health.mount_changed(key, stamp_s)
+        held = False
         if tracker is not None:
-            mount = tracker.used
+            # The pose does not depend on a LiDAR held out or excluded.
+            if self.mounts.observe(key, stamp_s, prior.tolist(), points, self.landmarks.xy_m,
+                                   excluded or tracker.holds):
+                self.health.mount_changed(key, stamp_s)
+            mount, held = tracker.used, tracker.holds
         if self._recovering(stamp_s):
             self.stats.recoveries += 1
             result = associate_by_distance(
@@ -316,10 +318,11 @@ class EventDriver:
         else:
             result = associate(z, prior, P, self.ekf.R, self.landmarks.xy_m,
                                mount, self.config.gate_probability, self.ekf.landmark_var_m2)
-        if excluded:
-            # Not readmitted while a mount estimated online is being verified.
+        if excluded or held:
+            # Held out while its mount is estimated online; not readmitted while a mount
+            # estimated online is being verified.
             return self._recheck(stamp_s, points, z, prior, key, mount, result, sensor,
-                                 tracker is None or not tracker.verifying)
+                                 tracker is None or not tracker.verifying, excluded)
         nis = []
         bearing_sum = 0.0
         outcomes = self.stats.outcomes
@@ -367,15 +370,21 @@ class EventDriver:
 
     def _recheck(self, stamp_s: float, points: FloatArray, z: list, prior: FloatArray,
                  key: LidarMount, mount: LidarMount, result: AssociationResult,
-                 sensor: str | None, readmit: bool) -> ObservationReport:
-        """Judge an excluded LiDAR's scan against the map at the current pose; apply nothing.
+                 sensor: str | None, readmit: bool, excluded: bool) -> ObservationReport:
+        """Judge a held-out LiDAR's scan against the map at the current pose; apply nothing.
 
         key: the LiDAR's stated mount (its health key); mount: the mount in use; readmit:
-        whether agreeing re-checks may readmit it now.
+        whether agreeing re-checks may readmit it now; excluded: by the health monitor
+        (else only held while its mount is estimated online: its association outcomes
+        count as any LiDAR's do).
         """
-        self.stats.excluded += points.shape[0]
+        if excluded:
+            self.stats.excluded += points.shape[0]
+        outcomes = self.stats.outcomes
         matched, nis_sum, bearing_sum = 0, 0.0, 0.0
         for match in result.associations:
+            if not excluded:
+                outcomes[_OUTCOME_KEYS[match.outcome]] += 1
             if match.outcome is AssociationOutcome.MATCHED:
                 y, _, _ = self.ekf.innovation(z[match.detection_index],
                                               self.landmarks.xy_m[match.landmark_index], mount)

@@ -30,13 +30,17 @@ every ``fit_every`` new detections, by the same robust least squares as the offl
    carry the filter's own heading error, which wanders over seconds. A mount applied
    while the LiDAR is in the filter is verified on a fresh window instead (the pose
    leant on the old mount).
-6. A LiDAR taken with a mount estimated online enters the filter with its noise scaled by
-   ``noise_scale``: that mount is known to about 0.02-0.03 deg (fits of different windows
-   scatter so much), a fixed error the filter cannot average away, while its consistency
-   needs the heading well within 0.01 deg. Scaled by 9, the LiDAR carries about a tenth of
-   the weight beside an honest one, so its remaining error moves the heading a tenth as
-   much; alone (the first LiDAR dropped out) it still holds the pose. A stated mount the
-   estimator confirms keeps the configured noise.
+6. Until its mount is confirmed the LiDAR's observations are held out of the filter
+   (``holds``; re-checked, as an excluded LiDAR's are): a mount 0.15-0.3 deg off passes
+   the health monitor (its detections still associate) yet drags the pose, so that the
+   fit sees only part of the error and the filter's NEES collapses. A LiDAR whose mount
+   never converges is held for at most ``hold_detections`` detections.
+7. A LiDAR taken with a mount estimated online enters the filter with its noise scaled by
+   ``noise_scale`` (9): that mount is known to about 0.01-0.03 deg, a fixed error the
+   filter cannot average away, while its consistency needs the heading well within 0.01
+   deg. Beside an honest LiDAR it then carries about a tenth of the weight, so its
+   remaining error moves the heading a tenth as much; alone (the first LiDAR dropped out)
+   it still holds the pose.
 
 Scans taken while the platform stands still add nothing (the same beams hit the same poles
 with the same errors; see ``mount_calibration._moved_scans``).
@@ -93,6 +97,8 @@ class OnlineMountSettings:
         min_offset_change_m: ... or than this in x or y, m.
         noise_scale: R of a LiDAR taken with a mount estimated online is multiplied by
             this (see the module docstring).
+        hold_detections: a LiDAR whose mount has not converged after this many detections
+            (while moving) is no longer held out of the filter.
         fit: the offline fit's settings (search span, gates, Huber threshold, offset
             observability, rest rule).
     """
@@ -106,8 +112,9 @@ class OnlineMountSettings:
     agree_sigmas: float = 3.0
     settle_factor: float = 0.5
     noise_scale: float = 9.0
+    hold_detections: int = 2000
     change_sigmas: float = 3.0
-    min_yaw_change_rad: float = math.radians(0.1)
+    min_yaw_change_rad: float = math.radians(0.02)
     min_offset_change_m: float = 0.01
     fit: MountSettings = field(default_factory=MountSettings)
 
@@ -218,6 +225,7 @@ class MountTracker:
         """
         self._start = self._dropped + len(self._entries)
         self._since_fit = 0
+        self._seen = 0
         self._last_pose: tuple[float, float, float] | None = None
         self.state = state
         self.fit: MountFit | None = None
@@ -229,19 +237,28 @@ class MountTracker:
         return self.settings.noise_scale if self.applied else 1.0
 
     @property
+    def holds(self) -> bool:
+        """Whether its observations are held out of the filter (mount not confirmed yet).
+
+        For at most ``hold_detections`` detections, unless a mount was applied.
+        """
+        return self.state != CONFIRMED and (
+            self.applied > 0 or self._seen < self.settings.hold_detections)
+
+    @property
     def verifying(self) -> bool:
         """Whether a mount it applied is still being verified (the LiDAR waits)."""
         return self.state != CONFIRMED and self.applied > 0
 
     def save(self) -> tuple:
         """Return the state (O(1): the entries list is append-only)."""
-        return (self._start, self._dropped + len(self._entries), self._since_fit,
+        return (self._start, self._dropped + len(self._entries), self._since_fit, self._seen,
                 self._last_pose, self.state, self.fit, self._previous, self.used,
                 self.applied, self.refined, self.fits, self.converged_s)
 
     def restore(self, saved: tuple) -> None:
         """Put back a state from ``save``."""
-        (self._start, end, self._since_fit, self._last_pose, self.state, self.fit,
+        (self._start, end, self._since_fit, self._seen, self._last_pose, self.state, self.fit,
          self._previous, self.used, self.applied, self.refined, self.fits,
          self.converged_s) = saved
         if end < self._dropped:
@@ -278,6 +295,7 @@ class MountTracker:
         self._last_pose = (x, y, yaw)
         self._entries.extend((px, py, x, y, yaw) for px, py in points_sensor_m.tolist())
         self._since_fit += len(points_sensor_m)
+        self._seen += len(points_sensor_m)
         size = self._dropped + len(self._entries) - self._start
         settings = self.settings
         if size > settings.max_detections:
