@@ -322,7 +322,7 @@ class EventDriver:
             # Held out while its mount is estimated online; not readmitted while a mount
             # estimated online is being verified.
             return self._recheck(stamp_s, points, z, prior, key, mount, result, sensor,
-                                 tracker is None or not tracker.verifying, excluded)
+                                 tracker is None or not tracker.holds, excluded)
         nis = []
         bearing_sum = 0.0
         outcomes = self.stats.outcomes
