@@ -35,9 +35,11 @@ as `gyro-ekf run` writes it in summary.json; level WARN when degraded, ERROR whe
 with each LiDAR's window figures (`lidar_<scan topic>_*`, `excluded` true while its
 observations are kept out of the filter; each exclusion and readmission is logged), and the
 LiDAR mounts in use (`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file from
-`gyro-ekf calibrate-mounts` given after the bag's overrides the bag's mounts); `ekf/mounts`
-(PoseArray in `base_link`, latched) holds the same mounts, one pose per `lidar.topics`
-entry in that order.
+`gyro-ekf calibrate-mounts` given after the bag's overrides the bag's mounts, and every
+LiDAR but the first has its mount estimated online, core/mount_online.py:
+`mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`); `ekf/mounts` (PoseArray in
+`base_link`, latched) holds the same mounts, one pose per `lidar.topics` entry in that
+order, published again when an online estimate replaces one.
 
 Robustness: every value is checked where it enters, with core.validation and the
 `limits.*` parameters (core.config.InputLimits), and a bad message is dropped and counted per
