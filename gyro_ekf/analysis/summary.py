@@ -15,6 +15,9 @@ Definitions (see `metrics` for the band and the interpolation):
 - *Health*: per LiDAR its association share, NIS mean and mean bearing innovation, and
   when it was excluded (`core/health.py`); the verdict ok / degraded / failed with one
   sentence per reason (thresholds in `core/health.py`).
+- *Online mounts*: per LiDAR but the first, its mount estimated online
+  (`core/mount_online.py`): stated, in use at the end, the last fit with its sigmas and
+  residual, when it converged and how often it replaced the mount in use.
 - *Input*: what the validation boundary dropped (with --skip-bad): samples per stream,
   counts per field and reason with the first index, and how often a stream's time went back.
 - *Ground truth* (only when the trip has it): position RMSE and max error, heading RMSE
@@ -131,6 +134,9 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
 
     summary['input'] = None if input_report is None else input_report.to_dict()
     summary['health'] = _health(run, summary, start, end)
+    mounts = run.result.mounts
+    summary['online_mounts'] = {} if mounts is None else {
+        tracker['name']: tracker for tracker in mounts.report()}
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)

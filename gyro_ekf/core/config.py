@@ -138,6 +138,11 @@ class EkfConfig:
     health_max_nis_mean: float = config_field(
         10.0, '1', 'Sensor health: a LiDAR whose mean NIS (2 dof, expected 2) over the window '
         'is above this disagrees.', 0.1, 1e9)
+    # Online mount calibration (core/mount_online.py) of every LiDAR but the first.
+    mount_online_yaw_sigma_rad: float = config_field(
+        0.01 * DEG, 'rad', 'Online mount calibration: the mount fitted to a LiDAR\'s '
+        'detections (every LiDAR but the first) replaces its stated mount once the fit\'s yaw '
+        'sigma is at most this and the previous fit agrees. 0: off.', 0.0, 1.0)
 
 
 @dataclass(frozen=True, slots=True)

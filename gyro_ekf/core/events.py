@@ -32,6 +32,7 @@ other inputs confirm them).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 import dataclasses
 import math
 
@@ -45,6 +46,7 @@ from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.models import points_to_range_bearing
+from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
 from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount
 
 
@@ -72,6 +74,8 @@ class EventDriver:
         last_transition: the last exclusion or readmission on_detections caused, or None.
         sensor_names: display name per mount for health reports (kept across resets).
         zero_rate: whether zero-rate updates are being applied now (standing still).
+        mounts: the online mount estimators of the LiDARs given to ``track_mounts``
+            (core/mount_online.py); a LiDAR's observations are taken with its mount in use.
     """
 
     def __init__(self, config: EkfConfig | None = None, landmarks: LandmarkMap | None = None,
@@ -84,6 +88,8 @@ class EventDriver:
         self.landmarks = landmarks
         self.stats = DriverStats()
         self.health = HealthMonitor(self.config)
+        self.mounts = OnlineMounts(OnlineMountSettings(
+            converged_yaw_sigma_rad=self.config.mount_online_yaw_sigma_rad))
         self.last_transition: Transition | None = None
         self.sensor_names: dict[LidarMount, str] = {}
         self.stamp_s: float | None = None
@@ -120,6 +126,7 @@ class EventDriver:
         self.ekf.reset(pose, bias_rad_s)
         self.stats = DriverStats()
         self.health = HealthMonitor(self.config)
+        self.mounts.reset()
         self.stamp_s = None
         self.speed_m_s = 0.0
         self.rate_rad_s = None
@@ -128,6 +135,15 @@ class EventDriver:
         self._rest_updates = {}
         self._end_stop()
 
+    def track_mounts(self, mounts: Iterable[tuple[LidarMount, str]]) -> None:
+        """Estimate these LiDARs' mounts online, (stated mount, name) each.
+
+        Every LiDAR but the first, which defines the body frame with the odometry; off when
+        ``mount_online_yaw_sigma_rad`` is 0.
+        """
+        if self.config.mount_online_yaw_sigma_rad > 0.0:
+            self.mounts.track(mounts)
+
     def save(self) -> tuple:
         """Return everything ``restore`` needs to put the driver back as it is now."""
         stats = dataclasses.replace(self.stats, outcomes=dict(self.stats.outcomes))
@@ -135,12 +151,13 @@ class EventDriver:
                 self.speed_variance, self.rate_variance, self._first_scan_s,
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
-                 self.zero_rate))
+                 self.zero_rate), self.mounts.save())
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
         (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self.speed_variance,
-         self.rate_variance, self._first_scan_s, rest_updates, health, stop) = saved
+         self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts) = saved
+        self.mounts.restore(mounts)
         (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
          self.zero_rate) = stop
         self._rest_updates = dict(rest_updates)
@@ -253,6 +270,9 @@ class EventDriver:
 
         A LiDAR the health monitor has excluded is associated but not applied (its report
         has no NIS); ``last_transition`` tells when this scan excluded or readmitted one.
+        A LiDAR whose mount is estimated online (``track_mounts``) feeds its estimator
+        first and is taken with its mount in use (the report's mount); when that mount
+        changes, its health window starts again, and when it is excluded, its estimator.
 
         Args:
             stamp_s: scan stamp, s.
@@ -271,12 +291,24 @@ class EventDriver:
         points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)
         self.stats.detections += points.shape[0]
         prior = self.ekf.x
+        key = mount  # the LiDAR (its stated mount): the key of its health and rest counts
+        tracker = self.mounts.trackers.get(key)
+        if tracker is not None:
+            mount = tracker.used
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
             return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
         # Plain floats from here: a scan has a handful of poles, and numpy's per-call cost
         # would outweigh the arithmetic (this runs ~40 times a second on the real trip).
         z = points_to_range_bearing(points).tolist()
         P = self.ekf.P
+        excluded = self.health.excluded(key)
+        held = False
+        if tracker is not None:
+            # The pose does not depend on a LiDAR held out or excluded.
+            if self.mounts.observe(key, stamp_s, prior.tolist(), points, self.landmarks.xy_m,
+                                   excluded or tracker.holds):
+                self.health.mount_changed(key, stamp_s)
+            mount, held = tracker.used, tracker.holds
         if self._recovering(stamp_s):
             self.stats.recoveries += 1
             result = associate_by_distance(
@@ -286,8 +318,11 @@ class EventDriver:
         else:
             result = associate(z, prior, P, self.ekf.R, self.landmarks.xy_m,
                                mount, self.config.gate_probability, self.ekf.landmark_var_m2)
-        if self.health.excluded(mount):
-            return self._recheck(stamp_s, points, z, prior, mount, result, sensor)
+        if excluded or held:
+            # Held out while its mount is estimated online; not readmitted while a mount
+            # estimated online is being verified.
+            return self._recheck(stamp_s, points, z, prior, key, mount, result, sensor,
+                                 tracker is None or not tracker.holds, excluded)
         nis = []
         bearing_sum = 0.0
         outcomes = self.stats.outcomes
@@ -298,21 +333,24 @@ class EventDriver:
         # landmark by one LiDAR during a stop uses n R, so a stop adds about ln N scans'
         # worth, and the yaw drift is still tracked (that is how the bias is found at rest).
         at_rest = self._still()
+        # A mount estimated online weighs less (core/mount_online.py, its item 6).
+        base = 1.0 if tracker is None else tracker.noise_scale
         for match in result.associations:
             outcomes[_OUTCOME_KEYS[match.outcome]] += 1
             if match.outcome is AssociationOutcome.MATCHED:
-                scale = 1.0
+                scale = base
                 if at_rest:
-                    key = (match.landmark_index, mount)
-                    scale = self._rest_updates.get(key, 0) + 1
-                    self._rest_updates[key] = scale
+                    look = (match.landmark_index, key)
+                    n = self._rest_updates.get(look, 0) + 1
+                    self._rest_updates[look] = n
+                    scale = base * n
                 nis.append(self.ekf.update(z[match.detection_index],
                                            landmark_xy[match.landmark_index], mount,
                                            float(scale)))
                 bearing_sum += self.ekf.y[1]
         nis_sum = float(sum(nis))
-        self.last_transition = self.health.record(mount, stamp_s, points.shape[0], len(nis),
-                                                  nis_sum, float(bearing_sum), sensor)
+        self._judged(key, self.health.record(key, stamp_s, points.shape[0], len(nis),
+                                             nis_sum, float(bearing_sum), sensor))
         if nis:
             self.stats.updates += len(nis)
             self.stats.nis_sum += nis_sum
@@ -324,21 +362,37 @@ class EventDriver:
             self.stats.last_association_s = stamp_s
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
 
+    def _judged(self, key: LidarMount, transition: Transition | None) -> None:
+        """Keep the health monitor's decision; re-estimate a newly excluded LiDAR's mount."""
+        self.last_transition = transition
+        if transition is not None and transition.change == 'excluded':
+            self.mounts.restart(key)
+
     def _recheck(self, stamp_s: float, points: FloatArray, z: list, prior: FloatArray,
-                 mount: LidarMount, result: AssociationResult, sensor: str | None
-                 ) -> ObservationReport:
-        """Judge an excluded LiDAR's scan against the map at the current pose; apply nothing."""
-        self.stats.excluded += points.shape[0]
+                 key: LidarMount, mount: LidarMount, result: AssociationResult,
+                 sensor: str | None, readmit: bool, excluded: bool) -> ObservationReport:
+        """Judge a held-out LiDAR's scan against the map at the current pose; apply nothing.
+
+        key: the LiDAR's stated mount (its health key); mount: the mount in use; readmit:
+        whether agreeing re-checks may readmit it now; excluded: by the health monitor
+        (else only held while its mount is estimated online: its association outcomes
+        count as any LiDAR's do).
+        """
+        if excluded:
+            self.stats.excluded += points.shape[0]
+        outcomes = self.stats.outcomes
         matched, nis_sum, bearing_sum = 0, 0.0, 0.0
         for match in result.associations:
+            if not excluded:
+                outcomes[_OUTCOME_KEYS[match.outcome]] += 1
             if match.outcome is AssociationOutcome.MATCHED:
                 y, _, _ = self.ekf.innovation(z[match.detection_index],
                                               self.landmarks.xy_m[match.landmark_index], mount)
                 matched += 1
                 nis_sum += match.mahalanobis_sq
                 bearing_sum += float(y[1])
-        self.last_transition = self.health.record(mount, stamp_s, points.shape[0], matched,
-                                                  nis_sum, bearing_sum, sensor)
+        self._judged(key, self.health.record(key, stamp_s, points.shape[0], matched,
+                                             nis_sum, bearing_sum, sensor, readmit))
         return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
 
     def _still(self) -> bool:

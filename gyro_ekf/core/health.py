@@ -15,6 +15,9 @@ pose: with one LiDAR (or when all disagree) nothing tells which one is wrong, so
 flagged. An excluded LiDAR's scans are still associated under the current pose, but not
 applied; it is readmitted when, at least a window after its exclusion, the re-checks in
 its window agree (share at least the good share, bearing and NIS within their limits).
+When the LiDAR's mount in use changes (online mount calibration, core/mount_online.py),
+its window starts again, and readmission needs a full window of re-checks with the new
+mount.
 On good data no rule fires, so the filter's numbers are exactly those without the monitor.
 
 ``verdict`` turns a run's figures (offline: summary.json; live: the EKF node) into
@@ -83,6 +86,9 @@ class SensorHealth:
     excluded_s: float = 0.0
     exclusions: int = 0
     excluded_detections: int = 0
+    # Start of the re-checks that may readmit it: its exclusion or its last mount change.
+    rechecks_since: float | None = None
+    mount_changes: int = 0
 
     def copy(self) -> 'SensorHealth':
         """Return an independent copy of these figures (for the driver's save/restore)."""
@@ -132,7 +138,7 @@ class SensorHealth:
             'window_bearing_innovation_mean_deg': math.degrees(self.bearing_mean_rad()),
             'disagreement': self.reason, 'excluded': self.excluded,
             'exclusions': self.exclusions, 'excluded_s': self.time_excluded_s(now_s),
-            'disagreed_s': self.time_flagged_s(now_s)}
+            'disagreed_s': self.time_flagged_s(now_s), 'mount_changes': self.mount_changes}
 
 
 @dataclass(frozen=True, slots=True)
@@ -181,8 +187,8 @@ class HealthMonitor:
         return health is not None and health.excluded_since is not None
 
     def record(self, key: Hashable, stamp_s: float, detected: int, matched: int,
-               nis_sum: float, bearing_sum_rad: float, name: str | None = None
-               ) -> Transition | None:
+               nis_sum: float, bearing_sum_rad: float, name: str | None = None,
+               readmit: bool = True) -> Transition | None:
         """Add one scan's figures and apply the rules; return an exclusion or readmission.
 
         Args:
@@ -193,6 +199,8 @@ class HealthMonitor:
             nis_sum: sum of the NIS of those matches.
             bearing_sum_rad: sum of their bearing innovations (measured minus expected), rad.
             name: display name (topic or frame) on first use.
+            readmit: whether an excluded LiDAR may be readmitted now (not while the mount
+                it is re-checked with is still being verified).
         """
         health = self.sensor(key, name)
         self.last_s = stamp_s
@@ -225,7 +233,7 @@ class HealthMonitor:
             health.w_bearing -= b
         if health.w_detected < self.config.health_min_detections:
             return None  # too few to judge: keep the present state
-        return self._judge(key, health, stamp_s)
+        return self._judge(key, health, stamp_s, readmit)
 
     def _own_disagreement(self, health: SensorHealth) -> str | None:
         """Bearing and NIS rules (need health_min_detections matches in the window)."""
@@ -252,7 +260,7 @@ class HealthMonitor:
                 return other.name
         return None
 
-    def _judge(self, key: Hashable, health: SensorHealth, stamp_s: float
+    def _judge(self, key: Hashable, health: SensorHealth, stamp_s: float, readmit: bool
                ) -> Transition | None:
         config = self.config
         reason = self._own_disagreement(health)
@@ -264,8 +272,9 @@ class HealthMonitor:
                       f'at least {config.health_good_association_share:.0%}')
         if health.excluded_since is not None:
             # Readmitted on a full window of re-checks that agree, the share included.
-            if reason is None and share >= config.health_good_association_share and (
-                    stamp_s - health.excluded_since >= config.health_window_s):
+            if readmit and reason is None and share >= config.health_good_association_share and (
+                    stamp_s - (health.rechecks_since or health.excluded_since)
+                    >= config.health_window_s):
                 return self._change(health, stamp_s, 'readmitted', None,
                                     f'its re-checks agree again: {share:.0%} associated')
             if reason is not None:
@@ -286,7 +295,7 @@ class HealthMonitor:
     def _change(self, health: SensorHealth, stamp_s: float, change: str,
                 reason: str | None, why: str) -> Transition:
         if change == 'excluded':
-            health.excluded_since = stamp_s
+            health.excluded_since = health.rechecks_since = stamp_s
             health.exclusions += 1
         else:
             health.excluded_s += stamp_s - (health.excluded_since or stamp_s)
@@ -294,14 +303,31 @@ class HealthMonitor:
             health.flagged_s += stamp_s - (health.flagged_since or stamp_s)
             health.flagged_since = None
             health.reason = reason
-        # The window starts again: what decides next is measured in the new state only.
-        health.window.clear()
-        health.w_detected = health.w_matched = health.w_updates = 0
-        health.w_nis = health.w_bearing = 0.0
+        self._clear_window(health)
         transition = Transition(stamp_s, health.name, change, why)
         self.transitions.append(transition)
         self.transition_count += 1
         return transition
+
+    @staticmethod
+    def _clear_window(health: SensorHealth) -> None:
+        # The window starts again: what decides next is measured in the new state only.
+        health.window.clear()
+        health.w_detected = health.w_matched = health.w_updates = 0
+        health.w_nis = health.w_bearing = 0.0
+
+    def mount_changed(self, key: Hashable, stamp_s: float) -> None:
+        """Judge a LiDAR on new figures only: it is taken with a new mount from now.
+
+        Its window starts again; an excluded LiDAR is readmitted once a full window of its
+        re-checks with the new mount agrees (the rules above).
+        """
+        health = self.sensors.get(key)
+        if health is None:
+            return
+        health.mount_changes += 1
+        health.rechecks_since = stamp_s
+        self._clear_window(health)
 
     def report(self) -> list[dict[str, Any]]:
         """Figures of every LiDAR, in the order first seen."""

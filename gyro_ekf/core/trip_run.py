@@ -22,6 +22,7 @@ from gyro_ekf.core.ekf import unpack_rows
 from gyro_ekf.core.event_records import DriverStats, EventKind
 from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.health import HealthMonitor
+from gyro_ekf.core.mount_online import OnlineMounts
 from gyro_ekf.core.models import sensor_point_to_map
 from gyro_ekf.core.types import FloatArray, ScanSeries, Trip
 
@@ -105,12 +106,14 @@ class TripRun:
             objects).
         stats: final counts.
         health: the per-LiDAR health figures, exclusions and readmissions.
+        mounts: the online mount estimates of every LiDAR but the first.
     """
 
     estimates: Estimates
     updates: UpdateLog
     stats: DriverStats
     health: HealthMonitor | None = None
+    mounts: OnlineMounts | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -125,11 +128,15 @@ def drive_trip(trip: Trip, driver: EventDriver,
 
     Args:
         trip: the inputs; trip.landmarks is used when the driver has no map.
-        driver: a fresh driver (its pose is the filter's start).
+        driver: a fresh driver (its pose is the filter's start); the mounts of every LiDAR
+            but the first are estimated online (EventDriver.track_mounts).
         progress: called with the number of events processed since the last call.
     """
     if driver.landmarks is None:
         driver.landmarks = trip.landmarks
+    # A LiDAR stated at the first one's mount shares its key (health, rest counts): untracked.
+    driver.track_mounts((scan.mount, scan.topic) for scan in trip.scans[1:]
+                        if scan.mount != trip.scans[0].mount)
     n = len(trip.imu.stamp_s)
     stamps = np.empty(n)
     states = np.empty((n, 4))
@@ -189,7 +196,7 @@ def drive_trip(trip: Trip, driver: EventDriver,
                 for detection, landmark in pairs:
                     update_landmark.append(landmark)
                     px, py = sensor_point_to_map(prior, *points[detection].tolist(),
-                                                 scan.mount)
+                                                 report.mount)
                     update_x.append(px)
                     update_y.append(py)
                 update_nis.extend(report.nis.tolist())
@@ -206,4 +213,4 @@ def drive_trip(trip: Trip, driver: EventDriver,
                                      np.frombuffer(update_y, dtype=np.float64)]),
         nis=np.frombuffer(update_nis, dtype=np.float64))
     return TripRun(Estimates(stamps, states, covariances), updates, driver.stats,
-                   driver.health)
+                   driver.health, driver.mounts)

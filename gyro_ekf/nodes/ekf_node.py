@@ -35,9 +35,11 @@ as `gyro-ekf run` writes it in summary.json; level WARN when degraded, ERROR whe
 with each LiDAR's window figures (`lidar_<scan topic>_*`, `excluded` true while its
 observations are kept out of the filter; each exclusion and readmission is logged), and the
 LiDAR mounts in use (`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file from
-`gyro-ekf calibrate-mounts` given after the bag's overrides the bag's mounts); `ekf/mounts`
-(PoseArray in `base_link`, latched) holds the same mounts, one pose per `lidar.topics`
-entry in that order.
+`gyro-ekf calibrate-mounts` given after the bag's overrides the bag's mounts, and every
+LiDAR but the first has its mount estimated online, core/mount_online.py:
+`mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`); `ekf/mounts` (PoseArray in
+`base_link`, latched) holds the same mounts, one pose per `lidar.topics` entry in that
+order, published again when an online estimate replaces one.
 
 Robustness: every value is checked where it enters, with core.validation and the
 `limits.*` parameters (the core.config.InputLimits this node uses), and a bad message is
@@ -244,6 +246,9 @@ class EkfNode(Node):
         self.driver = EventDriver(self.config, landmarks=landmarks, pose=sidecar.initial_pose)
         # Health reports name each LiDAR by its scan topic, as summary.json does.
         self.driver.sensor_names = {mount: topic for topic, (_, mount) in sidecar.lidars.items()}
+        # Every LiDAR but the first has its mount estimated online (core/mount_online.py).
+        lidars = [(mount, topic) for topic, (_, mount) in sidecar.lidars.items()]
+        self.driver.track_mounts(lidar for lidar in lidars[1:] if lidar[0] != lidars[0][0])
         self._logged_transitions = 0
         self._first_imu_s: float | None = None
         self._initial_pose = sidecar.initial_pose
@@ -300,13 +305,11 @@ class EkfNode(Node):
         self._tf_pub = self._tf_publisher() if publish_tf else None
         if landmarks is not None:
             self._publish_landmark_markers(landmarks)
-        # The LiDAR mounts in use, latched: one pose in base_link per lidar.topics entry.
+        # The LiDAR mounts in use, latched: one pose in base_link per lidar.topics entry,
+        # published again (with the diagnostics) when an online estimate replaces one.
         self._mounts_pub = self.create_publisher(PoseArray, topics.EKF_MOUNTS, qos.LATCHED)
-        self._mounts_pub.publish(PoseArray(
-            header=Header(stamp=self.get_clock().now().to_msg(), frame_id=self._base_frame),
-            poses=[Pose(position=Point(x=float(mount.x_m), y=float(mount.y_m)),
-                        orientation=yaw_quaternion(mount.yaw_rad))
-                   for _, mount in sidecar.lidars.values()]))
+        self._published_mounts: list[LidarMount] = []
+        self._publish_mounts()
         # Map, pose and bias first: the executor serves ready subscriptions in creation order.
         self.create_subscription(PoseArray, topics.LANDMARK_MAP, self._on_map, qos.LATCHED)
         self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE,
@@ -685,8 +688,20 @@ class EkfNode(Node):
             final_bias_rad_s=self.driver.ekf.bias_rad_s)
         return health.verdict(figures)
 
+    def _publish_mounts(self) -> None:
+        """Publish the LiDAR mounts in use on ekf/mounts when they changed."""
+        used = [self.driver.mounts.used(mount) for _, mount in self._sidecar.lidars.values()]
+        if used == self._published_mounts:
+            return
+        self._published_mounts = used
+        self._mounts_pub.publish(PoseArray(
+            header=Header(stamp=self.get_clock().now().to_msg(), frame_id=self._base_frame),
+            poses=[Pose(position=Point(x=float(mount.x_m), y=float(mount.y_m)),
+                        orientation=yaw_quaternion(mount.yaw_rad)) for mount in used]))
+
     def _publish_diagnostics(self) -> None:
         self._log_health_changes()
+        self._publish_mounts()
         now = self.get_clock().now()
         base_time, base_counts = self._rate_base
         elapsed_s = (now - base_time).nanoseconds / 1e9
@@ -721,12 +736,21 @@ class EkfNode(Node):
                 'replayed_events': str(self._lagged.stats.replayed_events),
                 'refused_held_observations': str(self._lagged.stats.refused)}),
             **{f'dropped_{k}': str(v) for k, v in self.dropped.items()},
-            # The mounts in use (from the params files, e.g. calibrate-mounts' output).
+            # The mounts in use (from the params files, e.g. calibrate-mounts' output, or
+            # estimated online) and the online estimators' state.
             **{f'mount_{topic}_{key}': value
-               for topic, (frame, mount) in self._sidecar.lidars.items()
+               for (topic, (frame, _)), mount in zip(self._sidecar.lidars.items(),
+                                                     self._published_mounts)
                for key, value in (('frame_id', frame), ('x_m', f'{mount.x_m:.4f}'),
                                   ('y_m', f'{mount.y_m:.4f}'),
                                   ('yaw_deg', f'{math.degrees(mount.yaw_rad):.3f}'))},
+            **{f'mount_{online["name"]}_{key}': value for online in self.driver.mounts.report()
+               for key, value in (
+                   ('online', online['state']),
+                   ('online_yaw_sigma_deg', '' if online['estimate'] is None
+                    else f'{online["estimate"]["yaw_sigma_deg"]:.4f}'),
+                   ('online_converged_s', '' if online['converged_s'] is None
+                    else f'{online["converged_s"]:.3f}'))},
             'excluded_detections': str(stats.excluded),
             'zero_rate_updates': str(stats.zero_rate_updates),
             'standing_still': str(self.driver.zero_rate).lower(),

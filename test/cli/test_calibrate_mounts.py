@@ -66,7 +66,9 @@ def test_round_trip_the_params_file_brings_the_trip_within_the_bounds(
     assert written['scan2']['x_m'] == pytest.approx(0.46 + float(offset[0]), abs=0.01)
     assert written['scan2']['y_m'] == pytest.approx(float(offset[1]), abs=0.01)
 
-    before = _run(bag, tmp_path / 'before')
+    off = tmp_path / 'off.yaml'
+    off.write_text('/**:\n  ros__parameters:\n    mount_online_yaw_sigma_rad: 0.0\n')
+    before = _run(bag, tmp_path / 'before', '--params-file', str(off))
     after = _run(bag, tmp_path / 'after', '--params-file', str(params))
     truth = after['ground_truth']
     assert truth['position_rmse_m'] <= 0.02
@@ -79,6 +81,24 @@ def test_round_trip_the_params_file_brings_the_trip_within_the_bounds(
     assert after['mounts']['scan2']['used']['yaw_deg'] == pytest.approx(
         180.0 + yaw_error_deg, abs=0.2)
     assert before['mounts']['scan2']['used'] == before['mounts']['scan2']['stated']
+    assert before['online_mounts'] == {}
+    # The written mount is confirmed online, not replaced.
+    assert after['online_mounts']['scan2']['applied'] == 0
+    assert after['online_mounts']['scan2']['state'] == 'confirmed'
+
+    # Without the params file the mount is found online while the filter runs.
+    online = _run(bag, tmp_path / 'online')
+    scan2 = online['online_mounts']['scan2']
+    assert scan2['stated']['yaw_deg'] == pytest.approx(180.0)
+    assert scan2['used']['yaw_deg'] == pytest.approx(180.0 + yaw_error_deg, abs=0.2)
+    assert (scan2['used']['x_m'], scan2['used']['y_m']) == pytest.approx(
+        (0.46 + float(offset[0]), float(offset[1])), abs=0.01)
+    assert scan2['estimate']['yaw_sigma_deg'] < 0.01
+    truth = online['ground_truth']
+    assert truth['position_rmse_m'] <= 0.02
+    assert abs(truth['bias_error_final_deg_s']) <= 0.02
+    assert truth['nees_share_in_band'] >= 0.9
+    assert [t['change'] for t in online['health']['transitions']] == ['excluded', 'readmitted']
 
 
 def test_an_exact_mount_is_written_as_stated_unless_asked_for_every_fit(tmp_path, capsys):

@@ -18,7 +18,10 @@ from gyro_ekf.core.types import LidarMount
 
 # Rules that can never fire: what the filter does without the monitor.
 NO_EXCLUSION = {'health_min_association_share': 0.0, 'health_bearing_bias_sigmas': 1e6,
-                'health_max_nis_mean': 1e9}
+                'health_max_nis_mean': 1e9, 'mount_online_yaw_sigma_rad': 0.0}
+# The monitor alone, without online mount calibration (test/core/test_mount_online.py).
+NO_ONLINE_MOUNTS = dataclasses.replace(
+    PipelineParams(), ekf=dataclasses.replace(EkfConfig(), mount_online_yaw_sigma_rad=0.0))
 
 
 @pytest.fixture(scope='module')
@@ -28,7 +31,7 @@ def clean():
 
 @pytest.fixture(scope='module')
 def broken():
-    return summarize(run_trip(two_lidar_trip(seed=1, rear_yaw_error_deg=6.0)))
+    return summarize(run_trip(two_lidar_trip(seed=1, rear_yaw_error_deg=6.0), NO_ONLINE_MOUNTS))
 
 
 def test_honest_lidars_are_never_excluded_and_the_verdict_is_ok(clean):
@@ -80,6 +83,7 @@ def test_a_single_lidar_off_its_mount_is_flagged_not_excluded():
     summary = summarize(run_trip(trip))
     section = summary['health']
     assert section['transitions'] == []     # nothing tells the map or the LiDAR is wrong
+    assert summary['online_mounts'] == {}   # the first LiDAR defines the body frame
     assert section['verdict'] != 'ok'
 
 

@@ -44,6 +44,10 @@ def test_the_calibrated_mounts_override_the_bags_and_appear_in_diagnostics(
     assert float(values['mount_scan2_x_m']) == pytest.approx(written['x_m'], abs=1e-4)
     assert float(values['mount_scan2_y_m']) == pytest.approx(written['y_m'], abs=1e-4)
     assert (values['mount_scan_x_m'], values['mount_scan_yaw_deg']) == ('0.4600', '0.000')
+    # Every LiDAR but the first has its mount estimated online; no data yet: no estimate.
+    assert values['mount_scan2_online'] == 'acquiring'
+    assert values['mount_scan2_online_yaw_sigma_deg'] == ''
+    assert 'mount_scan_online' not in values
 
     probe.spin_until(lambda: len(latched) >= 1, 60, 'the latched ekf/mounts')
     (message,) = latched

@@ -1,0 +1,497 @@
+"""Online LiDAR mount calibration: every LiDAR but the first re-estimates its mount as it runs.
+
+The first LiDAR and the odometry define the body frame. Every other LiDAR has a small
+estimator of its own, outside the filter's state: its detections, placed in the map with
+the filter's pose at their scan (the prior, before that scan's updates), are kept in a
+sliding window, and the mount (yaw, x, y) that lays them onto the map poles is fitted again
+every ``fit_every`` new detections, by the same robust least squares as the offline
+``gyro-ekf calibrate-mounts`` (``core/mount_calibration.py``):
+
+1. **Acquisition.** Until a fit has been accepted, the yaw is first searched over the
+   stated yaw +-15 deg (a truncated quadratic, so a detection that lands near the wrong
+   pole cannot decide); a mount 10 deg off puts detections 0.9 m from their poles at 5 m,
+   far outside any gate the filter or a linearised fit could use.
+2. **Fit.** Gauss-Newton with Huber weights on (yaw, x, y), re-associating each detection
+   to its nearest pole; the x, y offset is estimated where observable (sigma at most
+   ``max_offset_sigma_m``), else held as stated. Later fits start from the last accepted one.
+3. **Converged** when the yaw sigma is at most ``EkfConfig.mount_online_yaw_sigma_rad``,
+   the residual RMS at most ``max_rms_m``, at least ``min_inlier_share`` of the window lies
+   within the gate, and the previous fit agrees (within ``agree_sigmas`` of their sigmas).
+4. A converged fit that differs from the mount in use (by more than ``change_sigmas``
+   sigmas and ``min_yaw_change_rad`` or ``min_offset_change_m``) replaces it: it is
+   *applied*. One that does not differ *confirms* the mount in use, and fitting stops
+   until the driver restarts the estimator (the health monitor excluded the LiDAR again).
+   The stated mount is confirmed before the convergence limit is reached when two
+   agreeing fits place it within the change limits even at ``change_sigmas`` sigmas.
+5. While the LiDAR is kept out of the filter, the pose does not depend on it, so its
+   window keeps growing and, once a mount was applied, every converged fit replaces the
+   mount in use (*refined*) until one has a yaw sigma of at most ``settle_factor`` times
+   the convergence limit; the LiDAR is held out until then (``holds``). The filter's
+   consistency needs the mount within about 0.02 deg (a fixed bearing error is not
+   noise), and fits of a few seconds scatter by 0.02-0.04 deg: the poses they rest on
+   carry the filter's own heading error, which wanders over seconds. A mount applied
+   while the LiDAR is in the filter is verified on a fresh window instead (the pose
+   leant on the old mount).
+6. Until its mount is confirmed the LiDAR's observations are held out of the filter
+   (``holds``; re-checked, as an excluded LiDAR's are): a mount 0.15-0.3 deg off passes
+   the health monitor (its detections still associate) yet drags the pose, so that the
+   fit sees only part of the error and the filter's NEES collapses. A LiDAR whose mount
+   never converges or settles is held for at most ``hold_detections`` detections. Changes
+   below ``min_yaw_change_rad`` (0.1 deg) are not made: on the 2023 course log, whose
+   mounts are exact, fits along the filter's path come out 0.05 deg off.
+7. A LiDAR taken with a mount estimated online enters the filter with its noise scaled by
+   ``noise_scale`` (9): that mount is known to about 0.01-0.03 deg, a fixed error the
+   filter cannot average away, while its consistency needs the heading well within 0.01
+   deg. Beside an honest LiDAR it then carries about a tenth of the weight, so its
+   remaining error moves the heading a tenth as much; alone (the first LiDAR dropped out)
+   it still holds the pose.
+
+Scans taken while the platform stands still add nothing (the same beams hit the same poles
+with the same errors; see ``mount_calibration._moved_scans``).
+
+How the driver uses it (``core/events.py``): the LiDAR's observations are associated and
+applied with the mount in use. A LiDAR whose stated mount is wrong disagrees with the map,
+and the health monitor keeps its observations out of the filter, so the estimator sees the
+pose of the other LiDAR and the odometry alone; once its mount is applied, the health
+monitor judges a fresh window of re-checks with the new mount and readmits the LiDAR.
+
+The state is a handful of scalars and an append-only list, so ``save`` and ``restore``
+(called on every event by ``core/lagged.py``) cost O(1).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+import math
+from typing import Any
+
+import numpy as np
+
+from gyro_ekf.core.angles import wrap_scalar
+# The offline fit's steps, reused as they are so that both calibrations find the same mount.
+from gyro_ekf.core.mount_calibration import (MIN_DETECTIONS, MountSettings, _coarse_yaw,
+                                             _Detections, _gauss_newton, _nearest, _to_map)
+from gyro_ekf.core.types import FloatArray, LidarMount
+
+ACQUIRING, ESTIMATING, CONFIRMED = 'acquiring', 'estimating', 'confirmed'
+"""Estimator states: no accepted fit yet; fits, mount not confirmed; mount in use confirmed."""
+
+
+@dataclass(frozen=True, slots=True)
+class OnlineMountSettings:
+    """How the online estimator collects, fits and decides.
+
+    Attributes:
+        converged_yaw_sigma_rad: a fit has converged once its yaw sigma is at most this
+            (EkfConfig.mount_online_yaw_sigma_rad), rad.
+        fit_every: new detections between two fits.
+        min_detections: fewest detections in the window before the first fit.
+        max_detections: the window keeps this many of the latest detections.
+        max_rms_m: a fit whose used detections lie farther from their poles (RMS) has not
+            converged, m.
+        min_inlier_share: a fit laying less than this share of the window within the gate
+            is refused (a wrong coarse yaw, a pose gone wrong).
+        agree_sigmas: two consecutive fits agree within this many combined sigmas.
+        settle_factor: a LiDAR out of the filter whose mount was re-estimated waits until
+            a fit's yaw sigma is at most this share of converged_yaw_sigma_rad.
+        change_sigmas: a converged fit replaces the mount in use only when it differs by
+            more than this many sigmas ...
+        min_yaw_change_rad: ... and by more than this in yaw, rad ...
+        min_offset_change_m: ... or than this in x or y, m.
+        noise_scale: R of a LiDAR taken with a mount estimated online is multiplied by
+            this (see the module docstring).
+        hold_detections: a LiDAR whose mount is not confirmed after this many detections
+            (while moving) since the estimator (re)started is no longer held out of the
+            filter, and the health monitor may readmit it.
+        fit: the offline fit's settings (search span, gates, Huber threshold, offset
+            observability, rest rule).
+    """
+
+    converged_yaw_sigma_rad: float = math.radians(0.01)
+    fit_every: int = 100
+    min_detections: int = 100
+    max_detections: int = 4000
+    max_rms_m: float = 0.03
+    min_inlier_share: float = 0.7
+    agree_sigmas: float = 3.0
+    settle_factor: float = 0.5
+    noise_scale: float = 9.0
+    hold_detections: int = 2000
+    change_sigmas: float = 3.0
+    min_yaw_change_rad: float = math.radians(0.1)
+    min_offset_change_m: float = 0.01
+    fit: MountSettings = field(default_factory=MountSettings)
+
+
+@dataclass(frozen=True, slots=True)
+class MountFit:
+    """One fit of a LiDAR's mount on its window of detections.
+
+    Attributes:
+        stamp_s: stamp of the scan that completed the window, s.
+        mount: the fitted mount (x, y as in use when not offset_observable).
+        sigma: 1-sigma of yaw (rad), x and y (m; NaN when not estimated).
+        offset_observable: whether x, y were estimated.
+        rms_m: RMS distance of the used detections to their poles, m.
+        used: detections within the gate at the end of the fit.
+        detections: detections in the window.
+    """
+
+    stamp_s: float
+    mount: LidarMount
+    sigma: tuple[float, float, float]
+    offset_observable: bool
+    rms_m: float
+    used: int
+    detections: int
+
+    def agrees(self, other: MountFit, sigmas: float) -> bool:
+        """Whether two fits lie within `sigmas` combined sigmas of each other."""
+        if abs(wrap_scalar(self.mount.yaw_rad - other.mount.yaw_rad)) > sigmas * math.hypot(
+                self.sigma[0], other.sigma[0]):
+            return False
+        if self.offset_observable and other.offset_observable:
+            return all(abs(a - b) <= sigmas * math.hypot(sa, sb) for a, b, sa, sb in (
+                (self.mount.x_m, other.mount.x_m, self.sigma[1], other.sigma[1]),
+                (self.mount.y_m, other.mount.y_m, self.sigma[2], other.sigma[2])))
+        return self.offset_observable == other.offset_observable
+
+
+def fit_window(points_sensor_m: FloatArray, poses: FloatArray, poles: FloatArray,
+               start: LidarMount, settings: MountSettings, search: bool
+               ) -> tuple[FloatArray, FloatArray, int, bool] | None:
+    """Fit (yaw, x, y) to detections seen from known poses, as calibrate_mount does.
+
+    Args:
+        points_sensor_m: detections in the sensor frame, shape (n, 2), m.
+        poses: platform pose of each detection's scan, shape (n, 3): x m, y m, yaw rad.
+        poles: map pole centres, shape (k, 2), m.
+        start: the mount to start from (its x, y are kept where the offset is not
+            observable).
+        settings: the fit's settings.
+        search: search the yaw over +-settings.search_rad around start's first.
+
+    Returns:
+        (theta (3,), covariance (3, 3), detections used, offset observable), or None when
+        fewer than MIN_DETECTIONS lie within the gate.
+    """
+    found = _Detections(points_sensor_m, poses)
+    yaw = _coarse_yaw(found, poles, start, settings) if search else start.yaw_rad
+    initial = np.array([yaw, start.x_m, start.y_m])
+    theta, covariance, used = _gauss_newton(found, poles, initial, [0, 1, 2], settings)
+    sigma_xy = np.sqrt(np.abs(np.diag(covariance)[1:]))
+    observable = bool(used.sum() >= MIN_DETECTIONS and np.all(np.isfinite(sigma_xy))
+                      and np.all(sigma_xy <= settings.max_offset_sigma_m))
+    if not observable:
+        theta, covariance, used = _gauss_newton(found, poles, initial, [0], settings)
+    count = int(used.sum())
+    if count < MIN_DETECTIONS or not math.isfinite(covariance[0, 0]):
+        return None
+    return theta, covariance, count, observable
+
+
+class MountTracker:
+    """The online mount estimator of one LiDAR (see the module docstring).
+
+    Attributes:
+        name: the LiDAR's name in reports (topic or frame).
+        stated: the mount the log or the parameters state.
+        used: the mount its observations are taken with now.
+        state: ACQUIRING, ESTIMATING or CONFIRMED.
+        fit: the last accepted fit, or None.
+        converged_s: stamp of the first converged (or clearly unchanged) fit, or None.
+        applied: times a fit replaced the mount in use.
+        refined: times a later fit refined it while the LiDAR was held out (see above).
+        fits: fits tried.
+    """
+
+    def __init__(self, stated: LidarMount, name: str, settings: OnlineMountSettings):
+        """Start from the stated mount with an empty window."""
+        self.stated = stated
+        self.name = name
+        self.settings = settings
+        # Detections (sensor x, y, pose x, y, yaw), append-only: the window is
+        # [_start, len) in absolute positions, of which the first _dropped are deleted.
+        self._entries: list[tuple[float, float, float, float, float]] = []
+        self._dropped = 0
+        self.used = stated
+        self.applied = 0
+        self.refined = 0
+        self.fits = 0
+        self.converged_s: float | None = None
+        self.restart()
+
+    def restart(self, state: str = ACQUIRING) -> None:
+        """Estimate again from fresh detections.
+
+        By default the yaw is searched anew: after the LiDAR disagreed with the map again,
+        its mount may have moved far.
+        """
+        self._start = self._dropped + len(self._entries)
+        self._since_fit = 0
+        self._seen = 0
+        self._last_pose: tuple[float, float, float] | None = None
+        self.state = state
+        self.fit: MountFit | None = None
+        self._previous: MountFit | None = None
+
+    @property
+    def noise_scale(self) -> float:
+        """Factor on R of this LiDAR's observations: above 1 once its mount was estimated."""
+        return self.settings.noise_scale if self.applied else 1.0
+
+    @property
+    def holds(self) -> bool:
+        """Whether its observations are held out of the filter (mount not confirmed yet).
+
+        For at most ``hold_detections`` detections since the estimator (re)started.
+        """
+        return self.state != CONFIRMED and self._seen < self.settings.hold_detections
+
+    def save(self) -> tuple:
+        """Return the state (O(1): the entries list is append-only)."""
+        return (self._start, self._dropped + len(self._entries), self._since_fit, self._seen,
+                self._last_pose, self.state, self.fit, self._previous, self.used,
+                self.applied, self.refined, self.fits, self.converged_s)
+
+    def restore(self, saved: tuple) -> None:
+        """Put back a state from ``save``."""
+        (self._start, end, self._since_fit, self._seen, self._last_pose, self.state, self.fit,
+         self._previous, self.used, self.applied, self.refined, self.fits,
+         self.converged_s) = saved
+        if end < self._dropped:
+            # Older than what was compacted away (never within a replay history): empty.
+            self._entries.clear()
+            self._dropped = end
+        else:
+            del self._entries[end - self._dropped:]
+        self._start = max(self._start, self._dropped)
+
+    def observe(self, stamp_s: float, pose: list[float], points_sensor_m: FloatArray,
+                poles: FloatArray, excluded: bool = False) -> bool:
+        """Add one scan's detections seen from the filter's pose.
+
+        Returns True when a fit replaced the mount in use by one that differs clearly (its
+        health is to be judged afresh).
+
+        Args:
+            stamp_s: scan stamp, s.
+            pose: the filter's pose at the scan (before its updates): x m, y m, yaw rad.
+            points_sensor_m: the scan's detections in the sensor frame, shape (k, 2), m.
+            poles: map pole centres, shape (m, 2), m.
+            excluded: whether the LiDAR's observations are kept out of the filter now
+                (the pose does not depend on them).
+        """
+        if self.state == CONFIRMED or not len(points_sensor_m):
+            return False
+        x, y, yaw = pose[0], pose[1], pose[2]
+        last = self._last_pose
+        rest = self.settings.fit
+        if last is not None and (math.hypot(x - last[0], y - last[1]) < rest.rest_distance_m
+                                 and abs(wrap_scalar(yaw - last[2])) < rest.rest_yaw_rad):
+            return False
+        self._last_pose = (x, y, yaw)
+        self._entries.extend((px, py, x, y, yaw) for px, py in points_sensor_m.tolist())
+        self._since_fit += len(points_sensor_m)
+        self._seen += len(points_sensor_m)
+        size = self._dropped + len(self._entries) - self._start
+        settings = self.settings
+        if size > settings.max_detections:
+            self._start += size - settings.max_detections
+            if self._start - self._dropped > 4 * settings.max_detections:
+                # Keep a window's worth before the start: a replay may restore to it.
+                drop = self._start - self._dropped - settings.max_detections
+                del self._entries[:drop]
+                self._dropped += drop
+        if size < settings.min_detections or self._since_fit < settings.fit_every:
+            return False
+        self._since_fit = 0
+        return self._fit(stamp_s, poles, excluded)
+
+    def _fit(self, stamp_s: float, poles: FloatArray, excluded: bool) -> bool:
+        settings = self.settings
+        window = np.array(self._entries[self._start - self._dropped:])
+        self.fits += 1
+        start = self.used if self.fit is None else self.fit.mount
+        result = fit_window(window[:, :2], window[:, 2:], poles, start, settings.fit,
+                            search=self.state == ACQUIRING)
+        if result is None:
+            return False
+        theta, covariance, used, observable = result
+        if used < settings.min_inlier_share * len(window):
+            return False
+        sigma = np.sqrt(np.abs(np.diag(covariance)))
+        x, y = (float(theta[1]), float(theta[2])) if observable else (start.x_m, start.y_m)
+        mount = LidarMount(x, y, self.stated.yaw_rad + wrap_scalar(
+            float(theta[0]) - self.stated.yaw_rad))
+        residual = _nearest(_to_map(_Detections(window[:, :2], window[:, 2:]), *theta),
+                            poles)[1]
+        inside = residual[residual <= settings.fit.gate_m]
+        fit = MountFit(stamp_s, mount, (float(sigma[0]), float(sigma[1]), float(sigma[2])),
+                       observable, float(np.sqrt(np.mean(inside ** 2))), used, len(window))
+        self._previous, self.fit = self.fit, fit
+        if self.state == ACQUIRING:
+            self.state = ESTIMATING
+        if not self.applied and self._clearly_unchanged(fit):
+            # No need to wait for the convergence limit to keep the stated mount.
+            self.state = CONFIRMED
+            if self.converged_s is None:
+                self.converged_s = stamp_s
+            return False
+        if not self._converged():
+            return False
+        if self.converged_s is None:
+            self.converged_s = stamp_s
+        differs = self._differs(fit)
+        if excluded and (differs or self.applied):
+            # The pose does not depend on this LiDAR: every converged fit of the growing
+            # window is taken, and the LiDAR waits out of the filter until one has settled.
+            if differs:
+                self.applied += 1
+            elif fit.mount != self.used:
+                self.refined += 1
+            self.used = fit.mount
+            if fit.sigma[0] <= settings.settle_factor * settings.converged_yaw_sigma_rad:
+                self.state = CONFIRMED
+            return differs
+        if not differs:
+            self.state = CONFIRMED
+            return False
+        # Taken while in the filter: the pose leant on the old mount, so the new one is
+        # verified on fresh data (no search: it is near).
+        self.used = fit.mount
+        self.applied += 1
+        self.restart(ESTIMATING)
+        return True
+
+    def _converged(self) -> bool:
+        fit, previous, settings = self.fit, self._previous, self.settings
+        assert fit is not None
+        if not (fit.sigma[0] <= settings.converged_yaw_sigma_rad
+                and fit.rms_m <= settings.max_rms_m and previous is not None
+                and fit.agrees(previous, settings.agree_sigmas)):
+            return False
+        return not fit.offset_observable or max(fit.sigma[1:]) <= (
+            settings.fit.max_offset_sigma_m)
+
+    def _clearly_unchanged(self, fit: MountFit) -> bool:
+        """Whether a fit agreeing with its previous one keeps the mount in use.
+
+        That is, within the change limits even at ``change_sigmas`` sigmas.
+        """
+        settings, previous, used = self.settings, self._previous, self.used
+        if previous is None or fit.rms_m > settings.max_rms_m or not fit.agrees(
+                previous, settings.agree_sigmas):
+            return False
+        k = settings.change_sigmas
+        if abs(wrap_scalar(fit.mount.yaw_rad - used.yaw_rad)) + k * fit.sigma[0] > (
+                settings.min_yaw_change_rad):
+            return False
+        return not fit.offset_observable or all(
+            abs(a - b) + k * s <= settings.min_offset_change_m
+            for a, b, s in ((fit.mount.x_m, used.x_m, fit.sigma[1]),
+                            (fit.mount.y_m, used.y_m, fit.sigma[2])))
+
+    def _differs(self, fit: MountFit) -> bool:
+        """Whether a converged fit differs clearly from the mount in use."""
+        settings = self.settings
+        used = self.used
+        yaw_change = abs(wrap_scalar(fit.mount.yaw_rad - used.yaw_rad))
+        if yaw_change > max(settings.change_sigmas * fit.sigma[0],
+                            settings.min_yaw_change_rad):
+            return True
+        return fit.offset_observable and any(
+            abs(a - b) > max(settings.change_sigmas * s, settings.min_offset_change_m)
+            for a, b, s in ((fit.mount.x_m, used.x_m, fit.sigma[1]),
+                            (fit.mount.y_m, used.y_m, fit.sigma[2])))
+
+    def report(self) -> dict[str, Any]:
+        """JSON-ready figures (degrees for yaws) for summary.json and /diagnostics."""
+        fit = self.fit
+
+        def mount(m: LidarMount) -> dict[str, float]:
+            return {'x_m': m.x_m, 'y_m': m.y_m, 'yaw_deg': math.degrees(m.yaw_rad)}
+
+        return {
+            'name': self.name, 'state': self.state, 'stated': mount(self.stated),
+            'used': mount(self.used),
+            'yaw_error_deg': math.degrees(wrap_scalar(self.used.yaw_rad - self.stated.yaw_rad)),
+            'estimate': None if fit is None else {
+                **mount(fit.mount), 'stamp_s': fit.stamp_s,
+                'yaw_sigma_deg': math.degrees(fit.sigma[0]),
+                'x_sigma_m': fit.sigma[1] if fit.offset_observable else math.nan,
+                'y_sigma_m': fit.sigma[2] if fit.offset_observable else math.nan,
+                'offset_observable': fit.offset_observable, 'rms_residual_m': fit.rms_m,
+                'detections_used': fit.used, 'detections': fit.detections},
+            'converged_s': self.converged_s, 'applied': self.applied,
+            'refined': self.refined, 'fits': self.fits}
+
+
+class OnlineMounts:
+    """The online estimators of a driver's LiDARs, keyed by stated mount.
+
+    Attributes:
+        trackers: estimator per tracked LiDAR (every LiDAR but the first), by stated mount.
+        changes: times a mount in use changed, over all LiDARs (a publisher compares it).
+    """
+
+    def __init__(self, settings: OnlineMountSettings | None = None):
+        """No LiDAR tracked yet; ``track`` adds them."""
+        self.settings = settings or OnlineMountSettings()
+        self.trackers: dict[LidarMount, MountTracker] = {}
+        self.changes = 0
+
+    def track(self, mounts: Iterable[tuple[LidarMount, str]]) -> None:
+        """Estimate these LiDARs' mounts (stated mount, name) online."""
+        for mount, name in mounts:
+            if mount not in self.trackers:
+                self.trackers[mount] = MountTracker(mount, name, self.settings)
+
+    def reset(self) -> None:
+        """Forget every estimate (a filter reset): each LiDAR starts from its stated mount."""
+        self.trackers = {mount: MountTracker(mount, tracker.name, self.settings)
+                         for mount, tracker in self.trackers.items()}
+        self.changes = 0
+
+    def used(self, mount: LidarMount) -> LidarMount:
+        """Return the mount a LiDAR stated as `mount` is taken with now."""
+        tracker = self.trackers.get(mount)
+        return mount if tracker is None else tracker.used
+
+    def observe(self, mount: LidarMount, stamp_s: float, pose: list[float],
+                points_sensor_m: FloatArray, poles: FloatArray, excluded: bool = False
+                ) -> bool:
+        """Feed a scan to its LiDAR's estimator (if tracked).
+
+        Returns True when its mount in use changed so much that its health is judged on
+        fresh figures (see MountTracker.observe).
+        """
+        tracker = self.trackers.get(mount)
+        if tracker is None:
+            return False
+        used = tracker.used
+        changed = tracker.observe(stamp_s, pose, points_sensor_m, poles, excluded)
+        if tracker.used != used:
+            self.changes += 1
+        return changed
+
+    def restart(self, mount: LidarMount) -> None:
+        """Estimate a LiDAR's mount again from fresh detections (if tracked)."""
+        tracker = self.trackers.get(mount)
+        if tracker is not None:
+            tracker.restart()
+
+    def save(self) -> tuple:
+        """Return the state of every estimator."""
+        return self.changes, [(m, t.save()) for m, t in self.trackers.items()]
+
+    def restore(self, saved: tuple) -> None:
+        """Put back a state from ``save``."""
+        self.changes, trackers = saved
+        for mount, state in trackers:
+            self.trackers[mount].restore(state)
+
+    def report(self) -> list[dict[str, Any]]:
+        """Figures of every tracked LiDAR, in the order tracked."""
+        return [tracker.report() for tracker in self.trackers.values()]
