@@ -17,6 +17,12 @@ applied; it is readmitted when, at least a window after its exclusion, the re-ch
 its window agree (share at least the good share, bearing and NIS within their limits).
 On good data no rule fires, so the filter's numbers are exactly those without the monitor.
 
+Per LiDAR the monitor also tests whether its innovations are white, as a consistent filter's
+are (``WhitenessTest``): a motion or sensor model that is wrong in a slow way (odometry
+scale, a gyro bias that moved, coloured gyro noise, a mount offset) makes the innovations
+of consecutive updates alike, while the NIS mean hardly moves, and the filter's covariance
+is then too small. That test only reports; it never excludes a LiDAR.
+
 ``verdict`` turns a run's figures (offline: summary.json; live: the EKF node) into
 ok / degraded / failed with one sentence per reason, each with its figure and threshold.
 """
@@ -25,10 +31,12 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from statistics import NormalDist
 from dataclasses import dataclass, field
 from typing import Any, Hashable
 
 from gyro_ekf.core.config import EkfConfig
+from gyro_ekf.core.types import FloatArray
 
 OK, DEGRADED, FAILED = 'ok', 'degraded', 'failed'
 _RANK = {OK: 0, DEGRADED: 1, FAILED: 2}
@@ -54,6 +62,134 @@ VERDICT_MAX_START_GAP_S = 30.0
 VERDICT_MAX_BIAS_RAD_S = math.radians(10.0)
 """A gyro bias estimate beyond 10 deg/s is implausible for a MEMS gyro (the logs: < 1 deg/s):
 the gyro or the filter is broken."""
+
+# Whiteness of each LiDAR's innovations (``WhitenessTest``).
+WHITENESS_BLOCK_S = 5.0
+"""Length of the blocks whose summed normalised innovations the whiteness test squares, s:
+long against the scan period (many updates per block, so slow errors add up) and short
+against a trip (a 2-minute trip gives 24 blocks); the health window's length."""
+WHITENESS_SIGNIFICANCE = 1e-3
+"""Chance that a run of a consistent filter is called degraded by the whiteness tests
+(Bonferroni over the range and bearing tests of every LiDAR)."""
+WHITENESS_MIN_BLOCKS = 10
+"""Fewest blocks with updates before a LiDAR's innovations are judged (50 s of driving)."""
+
+
+def chi_square_upper(significance: float, dof: int) -> float:
+    """Return the chi-square quantile with upper tail ``significance`` (Wilson-Hilferty).
+
+    The cube-root normal approximation is within 1 % of the exact quantile from 10 dof on,
+    which is all the whiteness test asks for (``analysis.metrics`` has the exact one; the
+    core stays free of it).
+    """
+    z = NormalDist().inv_cdf(1.0 - significance)
+    k = 2.0 / (9.0 * dof)
+    return dof * (1.0 - k + z * math.sqrt(k)) ** 3
+
+
+class WhitenessTest:
+    """Block-mean test that one LiDAR's normalised innovations are white.
+
+    A consistent filter's innovations are zero-mean and independent from update to update,
+    each with its covariance S, so within a block of ``WHITENESS_BLOCK_S`` the sum of the
+    normalised innovations z = y / sqrt(S_ii) (range and bearing tested apart) has variance
+    equal to the number of updates, and its square divided by that variance is chi-square
+    with 1 dof; over M blocks the sum T is chi-square with M dof. A slow model error (a
+    biased odometry scale, a bias step, coloured gyro noise, a mount offset) makes
+    consecutive innovations alike and T large, while the NIS mean hardly moves.
+
+    The map error of a pole (``landmark_sigma_m``) is the same all trip long, so two looks
+    at one pole share it: the block variance adds sigma_m^2 (a_i . a_j) for each pair of
+    looks at one pole, with a_i the map offset's unit effect on that look's normalised
+    range (line of sight / sqrt(S_rr)) or bearing (its normal / (range sqrt(S_bb))). On a
+    log with an exact map (every simulated one) the test is the plain whiteness test.
+    Updates at rest are left out: their repeated looks repeat their errors by design.
+    """
+
+    __slots__ = ('_sigma_m', '_block_start_s', '_sums', '_counts', '_poles', '_own', 'chi2',
+                 'blocks', 'updates')
+
+    def __init__(self, landmark_sigma_m: float):
+        """Start empty; ``landmark_sigma_m`` is the map error the filter states."""
+        self._sigma_m = landmark_sigma_m
+        self._block_start_s: float | None = None
+        self._sums = [0.0, 0.0]
+        self._counts = 0
+        self._poles: dict[int, list[float]] = {}
+        self._own = [0.0, 0.0]
+        self.chi2 = [0.0, 0.0]
+        self.blocks = 0
+        self.updates = 0
+
+    def copy(self) -> 'WhitenessTest':
+        """Return an independent copy (the driver's save/restore)."""
+        clone = WhitenessTest(self._sigma_m)
+        clone._block_start_s, clone._counts = self._block_start_s, self._counts
+        clone._sums, clone._own, clone.chi2 = list(self._sums), list(self._own), list(self.chi2)
+        clone._poles = {k: list(v) for k, v in self._poles.items()}
+        clone.blocks, clone.updates = self.blocks, self.updates
+        return clone
+
+    def add(self, stamp_s: float, landmark: int, y_range_m: float, y_bearing_rad: float,
+            s_range_m2: float, s_bearing_rad2: float, direction_rad: float,
+            range_m: float) -> None:
+        """Add one applied update: its innovation, the diagonal of S and its line of sight.
+
+        Args:
+            stamp_s: scan stamp, s.
+            landmark: index of the pole in the map.
+            y_range_m, y_bearing_rad: the innovation (measured minus expected).
+            s_range_m2, s_bearing_rad2: the diagonal of its innovation covariance S.
+            direction_rad: direction from the LiDAR to the pole in the map frame.
+            range_m: distance to the pole, m.
+        """
+        if self._block_start_s is None:
+            self._block_start_s = stamp_s
+        elif stamp_s >= self._block_start_s + WHITENESS_BLOCK_S:
+            self._close()
+            # Blocks follow each other on a fixed grid; an empty stretch opens no block.
+            skipped = math.floor((stamp_s - self._block_start_s) / WHITENESS_BLOCK_S)
+            self._block_start_s += skipped * WHITENESS_BLOCK_S
+        sr, sb = math.sqrt(s_range_m2), math.sqrt(s_bearing_rad2)
+        self._sums[0] += y_range_m / sr
+        self._sums[1] += y_bearing_rad / sb
+        self._counts += 1
+        self.updates += 1
+        if self._sigma_m > 0.0:
+            c, s = math.cos(direction_rad), math.sin(direction_rad)
+            ar, ab = self._sigma_m / sr, self._sigma_m / (range_m * sb)
+            pole = self._poles.setdefault(landmark, [0.0, 0.0, 0.0, 0.0])
+            pole[0] += ar * c
+            pole[1] += ar * s
+            pole[2] -= ab * s
+            pole[3] += ab * c
+            self._own[0] += ar * ar
+            self._own[1] += ab * ab
+
+    def _block_chi2(self) -> tuple[float, float]:
+        """Chi-square (1 dof each) of the open block: range, bearing."""
+        shared_r = sum(p[0] * p[0] + p[1] * p[1] for p in self._poles.values()) - self._own[0]
+        shared_b = sum(p[2] * p[2] + p[3] * p[3] for p in self._poles.values()) - self._own[1]
+        n = float(self._counts)
+        return (self._sums[0] ** 2 / (n + max(shared_r, 0.0)),
+                self._sums[1] ** 2 / (n + max(shared_b, 0.0)))
+
+    def _close(self) -> None:
+        if self._counts:
+            r, b = self._block_chi2()
+            self.chi2[0] += r
+            self.chi2[1] += b
+            self.blocks += 1
+        self._sums, self._own, self._counts, self._poles = [0.0, 0.0], [0.0, 0.0], 0, {}
+
+    def figures(self) -> dict[str, Any]:
+        """Chi-square of range and bearing over the closed blocks and the open one."""
+        chi2, blocks = list(self.chi2), self.blocks
+        if self._counts:
+            r, b = self._block_chi2()
+            chi2, blocks = [chi2[0] + r, chi2[1] + b], blocks + 1
+        return {'block_s': WHITENESS_BLOCK_S, 'blocks': blocks, 'updates': self.updates,
+                'range_chi2': chi2[0], 'bearing_chi2': chi2[1]}
 
 
 @dataclass(slots=True)
@@ -156,17 +292,39 @@ class HealthMonitor:
         self.transition_count = 0
         self.last_s: float | None = None
         self._bearing_limit_rad = config.health_bearing_bias_sigmas * config.bearing_noise_rad
+        self.whiteness: dict[Hashable, WhitenessTest] = {}
 
     def save(self) -> tuple:
         """Return an independent copy of the state (the driver's save)."""
         return ({key: s.copy() for key, s in self.sensors.items()}, deque(self.transitions),
-                self.transition_count, self.last_s)
+                self.transition_count, self.last_s,
+                {key: w.copy() for key, w in self.whiteness.items()})
 
     def restore(self, saved: tuple) -> None:
         """Put back a state from ``save``."""
-        sensors, transitions, self.transition_count, self.last_s = saved
+        sensors, transitions, self.transition_count, self.last_s, whiteness = saved
         self.sensors = {key: s.copy() for key, s in sensors.items()}
         self.transitions = deque(transitions, maxlen=MAX_TRANSITIONS)
+        self.whiteness = {key: w.copy() for key, w in whiteness.items()}
+
+    def innovation(self, key: Hashable, stamp_s: float, landmark: int, y: FloatArray,
+                   s: FloatArray, direction_rad: float, range_m: float) -> None:
+        """Add one applied update (not at rest) of this LiDAR to its whiteness test.
+
+        Args:
+            key: the LiDAR (its mount).
+            stamp_s: scan stamp, s.
+            landmark: index of the pole in the map.
+            y: innovation [range m, bearing rad].
+            s: its covariance S, shape (2, 2).
+            direction_rad: direction from the LiDAR to the pole in the map frame.
+            range_m: measured range, m.
+        """
+        test = self.whiteness.get(key)
+        if test is None:
+            test = self.whiteness[key] = WhitenessTest(self.config.landmark_sigma_m)
+        test.add(stamp_s, landmark, float(y[0]), float(y[1]), float(s[0, 0]), float(s[1, 1]),
+                 direction_rad, range_m)
 
     def sensor(self, key: Hashable, name: str | None = None) -> SensorHealth:
         """Return the figures of a LiDAR, created on first use (named after its key by default)."""
@@ -304,8 +462,14 @@ class HealthMonitor:
         return transition
 
     def report(self) -> list[dict[str, Any]]:
-        """Figures of every LiDAR, in the order first seen."""
-        return [health.to_dict(self.last_s) for health in self.sensors.values()]
+        """Figures of every LiDAR, in the order first seen, with its whiteness test."""
+        out = []
+        for key, health in self.sensors.items():
+            figures = health.to_dict(self.last_s)
+            test = self.whiteness.get(key)
+            figures['whiteness'] = None if test is None else test.figures()
+            out.append(figures)
+        return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -339,6 +503,31 @@ class RunFigures:
     final_bias_rad_s: float = math.nan
 
 
+def _whiteness_reasons(sensors: list[dict[str, Any]]) -> list[tuple[str, str]]:
+    """Degraded for each LiDAR and component whose innovations fail the whiteness test."""
+    judged = [s for s in sensors if s.get('whiteness')
+              and s['whiteness']['blocks'] >= WHITENESS_MIN_BLOCKS]
+    if not judged:
+        return []
+    # Bonferroni: range and bearing of every judged LiDAR share the significance.
+    significance = WHITENESS_SIGNIFICANCE / (2 * len(judged))
+    reasons = []
+    for sensor in judged:
+        test = sensor['whiteness']
+        limit = chi_square_upper(significance, test['blocks'])
+        for component in ('range', 'bearing'):
+            chi2 = test[f'{component}_chi2']
+            if chi2 > limit:
+                reasons.append((DEGRADED, (
+                    f'LiDAR {sensor["name"]} {component} innovations are not white: '
+                    f'{test["block_s"]:g}-s block sums give chi-square {chi2:.0f} on '
+                    f'{test["blocks"]} blocks, above {limit:.0f} (significance '
+                    f'{WHITENESS_SIGNIFICANCE:g}): a motion or sensor model error '
+                    f'(odometry scale, gyro bias change, mount offset), the covariance '
+                    f'is too small')))
+    return reasons
+
+
 def verdict(figures: RunFigures) -> dict[str, Any]:
     """Return {verdict: ok|degraded|failed, reasons: [sentence with figure and threshold]}."""
     reasons: list[tuple[str, str]] = []
@@ -367,6 +556,8 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
             add(DEGRADED, f'LiDAR {sensor["name"]} disagreed with the map for '
                 f'{sensor["disagreed_s"]:.1f} s with no other LiDAR to vouch for the pose'
                 + (f': {sensor["disagreement"]}' if sensor['disagreement'] else ''))
+    for level, text in _whiteness_reasons(figures.sensors):
+        add(level, text)
     low, high = VERDICT_NIS_MEAN_BAND
     nis = figures.nis_mean
     if figures.updates and nis > VERDICT_FAILED_NIS_MEAN:
