@@ -298,7 +298,6 @@ class EventDriver:
         # landmark by one LiDAR during a stop uses n R, so a stop adds about ln N scans'
         # worth, and the yaw drift is still tracked (that is how the bias is found at rest).
         at_rest = self._still()
-        yaw = float(prior[2]) + mount.yaw_rad
         for match in result.associations:
             outcomes[_OUTCOME_KEYS[match.outcome]] += 1
             if match.outcome is AssociationOutcome.MATCHED:
@@ -307,15 +306,13 @@ class EventDriver:
                     key = (match.landmark_index, mount)
                     scale = self._rest_updates.get(key, 0) + 1
                     self._rest_updates[key] = scale
-                zi = z[match.detection_index]
-                nis.append(self.ekf.update(zi, landmark_xy[match.landmark_index], mount,
+                nis.append(self.ekf.update(z[match.detection_index],
+                                           landmark_xy[match.landmark_index], mount,
                                            float(scale)))
                 y = self.ekf.y
                 bearing_sum += y[1]
                 if scale == 1.0:
-                    # Direction to the pole in the map frame, for the map error's share.
-                    self.health.innovation(mount, stamp_s, match.landmark_index, y,
-                                           self.ekf.S, yaw + zi[1], zi[0])
+                    self.health.innovation(mount, stamp_s, y, self.ekf.S)
         nis_sum = float(sum(nis))
         self.last_transition = self.health.record(mount, stamp_s, points.shape[0], len(nis),
                                                   nis_sum, float(bearing_sum), sensor)
