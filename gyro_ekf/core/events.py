@@ -44,7 +44,7 @@ from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
-from gyro_ekf.core.models import points_to_range_bearing
+from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount
 
 
@@ -300,6 +300,8 @@ class EventDriver:
         at_rest = self._still()
         for match in result.associations:
             outcomes[_OUTCOME_KEYS[match.outcome]] += 1
+            if match.outcome is AssociationOutcome.UNMATCHED:
+                self._count_unmapped(prior, points[match.detection_index], mount)
             if match.outcome is AssociationOutcome.MATCHED:
                 scale = 1.0
                 if at_rest:
@@ -343,6 +345,13 @@ class EventDriver:
         self.last_transition = self.health.record(mount, stamp_s, points.shape[0], matched,
                                                   nis_sum, bearing_sum, sensor)
         return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
+
+    def _count_unmapped(self, prior: FloatArray, point: FloatArray, mount: LidarMount) -> None:
+        """Count an unmatched detection that lies far from every landmark of the map."""
+        x, y = sensor_point_to_map(prior, float(point[0]), float(point[1]), mount)
+        limit = self.config.recovery_max_distance_m ** 2
+        if all((lx - x) ** 2 + (ly - y) ** 2 > limit for lx, ly in self._landmark_xy):
+            self.stats.unmapped += 1
 
     def _still(self) -> bool:
         """Whether the platform is known to stand still (speed and turn rate near zero)."""

@@ -55,6 +55,9 @@ does not describe the data, ten times too wide or 2.5 times too narrow in varian
 shared logs give 0.65 (2016), 1.0 (2023), 1.8 (2022))."""
 VERDICT_FAILED_NIS_MEAN = 20.0
 """Mean NIS above this: failed (updates ten times their stated noise)."""
+VERDICT_MAX_UNMAPPED_SHARE = 0.5
+"""More than this share of detections far from every mapped pole: degraded (with a map
+that lists most of what the LiDARs see, an unlisted object is the exception)."""
 VERDICT_MAX_GAP_S = 5.0
 """Longest time without a landmark update after the first one (the 2016 bound)."""
 VERDICT_MAX_START_GAP_S = 30.0
@@ -450,6 +453,12 @@ class RunFigures:
         resets: filter resets.
         dropped: input samples or messages dropped by the validation boundary, per reason.
         final_bias_rad_s: the bias estimate now / at the end (nan when unknown).
+        unmapped: of ``detections``, those unmatched and far from every mapped pole
+            (DriverStats.unmapped): objects the map does not list, left out of the share.
+        input_gaps_s: longest time without a sample, per input stream ('gyro',
+            'odometry'), s.
+        input_gap_limit_s: the longest prediction step (``max_prediction_step_s``): a
+            stream silent for longer had its last value held over a gap.
     """
 
     detections: int
@@ -462,6 +471,9 @@ class RunFigures:
     resets: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
     final_bias_rad_s: float = math.nan
+    unmapped: int = 0
+    input_gaps_s: dict[str, float] = field(default_factory=dict)
+    input_gap_limit_s: float = math.inf
 
 
 def _whiteness_reasons(sensors: list[dict[str, Any]]) -> list[tuple[str, str]]:
@@ -500,13 +512,24 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
         add(FAILED, f'no landmark update in {figures.start_gap_s:.1f} s although '
             f'{figures.detections} poles were detected')
     if figures.detections:
-        share = figures.matched / figures.detections
+        # Detections far from every mapped pole are objects the map lacks (a reflector,
+        # a post), not poles the filter failed to match: the share leaves them out...
+        near = figures.detections - figures.unmapped
+        share = figures.matched / near if near else 0.0
+        which = 'of detections' if not figures.unmapped else (
+            f'of detections near a mapped pole ({figures.unmapped} far from every one '
+            f'not counted)')
         if share < VERDICT_FAILED_ASSOCIATION_SHARE:
-            add(FAILED, f'{share:.1%} of detections associated, below '
+            add(FAILED, f'{share:.1%} {which} associated, below '
                 f'{VERDICT_FAILED_ASSOCIATION_SHARE:.0%}')
         elif share < VERDICT_DEGRADED_ASSOCIATION_SHARE:
-            add(DEGRADED, f'{share:.1%} of detections associated, below '
+            add(DEGRADED, f'{share:.1%} {which} associated, below '
                 f'{VERDICT_DEGRADED_ASSOCIATION_SHARE:.0%}')
+        # ...unless they are most of what the LiDARs see: then the map or the pose is wrong.
+        unmapped = figures.unmapped / figures.detections
+        if unmapped > VERDICT_MAX_UNMAPPED_SHARE:
+            add(DEGRADED, f'{unmapped:.1%} of detections lie far from every mapped pole, '
+                f'more than {VERDICT_MAX_UNMAPPED_SHARE:.0%}: the map or the pose is wrong')
     for sensor in figures.sensors:
         if sensor['exclusions']:
             add(DEGRADED, f'LiDAR {sensor["name"]} excluded {sensor["exclusions"]} time(s), '
@@ -533,6 +556,11 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
             f'{VERDICT_MAX_START_GAP_S:g} s')
     if figures.resets:
         add(DEGRADED, f'the filter was reset {figures.resets} time(s)')
+    for stream, gap in figures.input_gaps_s.items():
+        if gap > figures.input_gap_limit_s:
+            add(DEGRADED, f'{stream} silent for {gap:.2f} s, longer than the longest '
+                f'prediction step {figures.input_gap_limit_s:g} s: its last value was held '
+                f'over the gap with the noise of one sample')
     dropped = {k: v for k, v in figures.dropped.items() if v}
     if dropped:
         add(DEGRADED, f'input dropped by validation: {sum(dropped.values())} ('
