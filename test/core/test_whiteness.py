@@ -1,4 +1,4 @@
-"""Whiteness test of each LiDAR's innovations: quiet on a consistent filter, loud on a slow error."""
+"""Whiteness test of each LiDAR's innovations: quiet if consistent, loud on a slow error."""
 
 from __future__ import annotations
 
