@@ -9,8 +9,9 @@ Definitions (see `metrics` for the band and the interpolation):
   the zero-rate updates (gyro samples applied standing still) and stops, and where the
   trip is known to start static, the bias and its sigma at the end of that stretch.
 - *Association*: detected poles, how many were MATCHED (and the other outcomes), how many
-  unmatched ones lay far from every mapped pole (``unmapped``), the share matched, and the longest time without any applied landmark update, counted from the first
-  to the last estimate (so a trip that starts with no pole in view counts that stretch).
+  unmatched ones lay far from every mapped pole (``unmapped``), the share matched, and
+  the longest time without any applied landmark update, counted from the first to the
+  last estimate (so a trip that starts with no pole in view counts that stretch).
 - *NIS*: of every applied update (2 dof): mean and share inside the two-sided 95 % band.
 - *Health*: per LiDAR its association share, NIS mean and mean bearing innovation, when
   it was excluded, and the whiteness test of its innovations (`core/health.py`); the

@@ -314,7 +314,8 @@ class EventDriver:
                 y = self.ekf.y
                 bearing_sum += y[1]
                 if scale == 1.0:
-                    self.health.innovation(mount, stamp_s, y, self.ekf.S)
+                    self.health.innovation(mount, stamp_s, y, self.ekf.S,
+                                           z[match.detection_index])
         nis_sum = float(sum(nis))
         self.last_transition = self.health.record(mount, stamp_s, points.shape[0], len(nis),
                                                   nis_sum, float(bearing_sum), sensor)

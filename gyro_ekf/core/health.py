@@ -73,7 +73,9 @@ long against the scan period (many updates per block, so slow errors add up) and
 against a trip (a 2-minute trip gives 24 blocks); the health window's length."""
 WHITENESS_SIGNIFICANCE = 1e-3
 """Chance that a run of a consistent filter is called degraded by the whiteness tests
-(Bonferroni over the range and bearing tests of every LiDAR)."""
+(Bonferroni over the four component tests of every LiDAR)."""
+WHITENESS_COMPONENTS = ('range', 'bearing', 'x', 'y')
+"""Components of the innovation the whiteness test sums (x, y: a point in the LiDAR frame)."""
 WHITENESS_MIN_BLOCKS = 10
 """Fewest blocks with updates before a LiDAR's innovations are judged (50 s of driving)."""
 
@@ -95,12 +97,16 @@ class WhitenessTest:
 
     A consistent filter's innovations are zero-mean and independent from update to update,
     each with its covariance S, so within a block of ``WHITENESS_BLOCK_S`` the sum Z_b of
-    the normalised innovations z = y / sqrt(S_ii) (range and bearing tested apart) has
-    variance n_b, its number of updates, and Z_b^2 / n_b summed over M blocks is chi-square
-    with M dof. A slow model error (a biased odometry scale, a bias step, coloured gyro
-    noise, a mount offset) makes consecutive innovations alike and that sum large, while
-    the NIS mean hardly moves. Updates at rest are left out: their looks repeat their
-    errors by design (the driver's n R).
+    the normalised innovations z = y / sqrt(S_ii) has variance n_b, its number of updates,
+    and Z_b^2 / n_b summed over M blocks is chi-square with M dof. A slow model error (a
+    biased odometry scale, a bias step, coloured gyro noise, a mount offset) makes
+    consecutive innovations alike and that sum large, while the NIS mean hardly moves.
+    Four components are tested apart: range and bearing, and the innovation as a point in
+    the LiDAR's frame (x forward, y left: J y with J = d(point)/d(range, bearing) at the
+    measurement, its variance from J S J^T). A mount offset or an odometry scale error
+    shifts every detection by about the same vector in that frame, whose range and bearing
+    shares change sign with the pole's bearing and cancel within a block. Updates at rest
+    are left out: their looks repeat their errors by design (the driver's n R).
 
     Only judged with an exact map (``landmark_sigma_m`` 0, as every simulated log states):
     a stated map error is one offset per pole for the whole trip, shared by every look at
@@ -117,9 +123,9 @@ class WhitenessTest:
         """Start empty; ``judged`` is False where the test does not apply (a map error)."""
         self.judged = judged
         self._block_start_s: float | None = None
-        self._sums = [0.0, 0.0]
+        self._sums = [0.0] * len(WHITENESS_COMPONENTS)
         self._counts = 0
-        self.chi2 = [0.0, 0.0]
+        self.chi2 = [0.0] * len(WHITENESS_COMPONENTS)
         self.blocks = 0
         self.updates = 0
 
@@ -131,8 +137,16 @@ class WhitenessTest:
         clone.blocks, clone.updates = self.blocks, self.updates
         return clone
 
-    def add(self, stamp_s: float, y: FloatArray, s: FloatArray) -> None:
-        """Add one applied update: stamp s, innovation [range m, bearing rad], its S (2, 2)."""
+    def add(self, stamp_s: float, y: FloatArray, s: FloatArray, range_m: float,
+            bearing_rad: float) -> None:
+        """Add one applied update.
+
+        Args:
+            stamp_s: scan stamp, s.
+            y: innovation [range m, bearing rad].
+            s: its covariance S, shape (2, 2).
+            range_m, bearing_rad: the measurement (bearing in the LiDAR's frame).
+        """
         if self._block_start_s is None:
             self._block_start_s = stamp_s
         elif stamp_s >= self._block_start_s + WHITENESS_BLOCK_S:
@@ -140,25 +154,33 @@ class WhitenessTest:
             # Blocks follow each other on a fixed grid; an empty stretch opens no block.
             skipped = math.floor((stamp_s - self._block_start_s) / WHITENESS_BLOCK_S)
             self._block_start_s += skipped * WHITENESS_BLOCK_S
-        self._sums[0] += float(y[0]) / math.sqrt(float(s[0, 0]))
-        self._sums[1] += float(y[1]) / math.sqrt(float(s[1, 1]))
+        yr, yb = float(y[0]), float(y[1])
+        srr, srb, sbb = float(s[0, 0]), float(s[0, 1]), float(s[1, 1])
+        c, si = math.cos(bearing_rad), math.sin(bearing_rad)
+        sums = self._sums
+        sums[0] += yr / math.sqrt(srr)
+        sums[1] += yb / math.sqrt(sbb)
+        # The rows of J = [[c, -r si], [si, r c]] give x and y.
+        for k, a, b in ((2, c, -range_m * si), (3, si, range_m * c)):
+            sums[k] += (a * yr + b * yb) / math.sqrt(a * a * srr + 2.0 * a * b * srb
+                                                     + b * b * sbb)
         self._counts += 1
         self.updates += 1
 
     def _close(self) -> None:
         if self._counts:
-            self.chi2[0] += self._sums[0] ** 2 / self._counts
-            self.chi2[1] += self._sums[1] ** 2 / self._counts
+            for k, total in enumerate(self._sums):
+                self.chi2[k] += total * total / self._counts
             self.blocks += 1
-        self._sums, self._counts = [0.0, 0.0], 0
+        self._sums, self._counts = [0.0] * len(WHITENESS_COMPONENTS), 0
 
     def figures(self) -> dict[str, Any]:
         """Chi-square of range and bearing over the closed blocks and the open one."""
         test = self.copy()
         test._close()
         return {'judged': self.judged, 'block_s': WHITENESS_BLOCK_S, 'blocks': test.blocks,
-                'updates': test.updates, 'range_chi2': test.chi2[0],
-                'bearing_chi2': test.chi2[1]}
+                'updates': test.updates,
+                **{f'{name}_chi2': chi2 for name, chi2 in zip(WHITENESS_COMPONENTS, test.chi2)}}
 
 
 @dataclass(slots=True)
@@ -276,7 +298,8 @@ class HealthMonitor:
         self.transitions = deque(transitions, maxlen=MAX_TRANSITIONS)
         self.whiteness = {key: w.copy() for key, w in whiteness.items()}
 
-    def innovation(self, key: Hashable, stamp_s: float, y: FloatArray, s: FloatArray) -> None:
+    def innovation(self, key: Hashable, stamp_s: float, y: FloatArray, s: FloatArray,
+                   z: list[float]) -> None:
         """Add one applied update (not at rest) of this LiDAR to its whiteness test.
 
         Args:
@@ -284,11 +307,12 @@ class HealthMonitor:
             stamp_s: scan stamp, s.
             y: innovation [range m, bearing rad].
             s: its covariance S, shape (2, 2).
+            z: the measurement [range m, bearing rad in the LiDAR frame].
         """
         test = self.whiteness.get(key)
         if test is None:
             test = self.whiteness[key] = WhitenessTest(self.config.landmark_sigma_m == 0.0)
-        test.add(stamp_s, y, s)
+        test.add(stamp_s, y, s, z[0], z[1])
 
     def sensor(self, key: Hashable, name: str | None = None) -> SensorHealth:
         """Return the figures of a LiDAR, created on first use (named after its key by default)."""
@@ -482,17 +506,18 @@ def _whiteness_reasons(sensors: list[dict[str, Any]]) -> list[tuple[str, str]]:
               and s['whiteness']['blocks'] >= WHITENESS_MIN_BLOCKS]
     if not judged:
         return []
-    # Bonferroni: range and bearing of every judged LiDAR share the significance.
-    significance = WHITENESS_SIGNIFICANCE / (2 * len(judged))
+    # Bonferroni: the components of every judged LiDAR share the significance.
+    significance = WHITENESS_SIGNIFICANCE / (len(WHITENESS_COMPONENTS) * len(judged))
     reasons = []
     for sensor in judged:
         test = sensor['whiteness']
         limit = chi_square_upper(significance, test['blocks'])
-        for component in ('range', 'bearing'):
+        for component in WHITENESS_COMPONENTS:
             chi2 = test[f'{component}_chi2']
             if chi2 > limit:
+                what = component if len(component) > 1 else f'sensor-frame {component}'
                 reasons.append((DEGRADED, (
-                    f'LiDAR {sensor["name"]} {component} innovations are not white: '
+                    f'LiDAR {sensor["name"]} {what} innovations are not white: '
                     f'{test["block_s"]:g}-s block sums give chi-square {chi2:.0f} on '
                     f'{test["blocks"]} blocks, above {limit:.0f} (significance '
                     f'{WHITENESS_SIGNIFICANCE:g}): a motion or sensor model error '

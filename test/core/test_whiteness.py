@@ -30,7 +30,7 @@ def _feed(monitor, seconds, bearing_offset=None, seed=0, key='scan'):
             y = rng.normal(0.0, sigma)
             if bearing_offset is not None:
                 y[1] += bearing_offset(stamp)
-            monitor.innovation(key, stamp, y, S)
+            monitor.innovation(key, stamp, y, S, [5.0, 0.3])
         monitor.record(key, stamp, POLES, POLES, 2.0 * POLES, 0.0, name=key)
 
 
@@ -64,10 +64,30 @@ def test_a_slow_bearing_error_of_half_a_sigma_is_named():
     # A heading error wandering with a 20 s period, half the bearing sigma at its peak.
     _feed(monitor, 120.0, bearing_offset=lambda t: 0.001 * math.sin(2.0 * math.pi * t / 20.0))
     reasons = _whiteness_reasons(monitor)
-    assert len(reasons) == 1
     assert reasons[0].startswith('LiDAR scan bearing innovations are not white: 5-s block '
                                  'sums give chi-square ')
     assert 'on 24 blocks, above' in reasons[0] and 'significance 0.001' in reasons[0]
+    assert not any(' range ' in r for r in reasons)
+
+
+def test_a_shift_of_every_detection_in_the_lidar_frame_is_named_as_such():
+    # A 5 mm mount offset (a quarter of the range sigma) seen on poles all around: its
+    # range and bearing shares change sign with the bearing and cancel; x does not.
+    monitor = health.HealthMonitor(EkfConfig(landmark_sigma_m=0.0))
+    rng = np.random.default_rng(3)
+    sigma = np.sqrt(np.diag(S))
+    r, shift = 5.0, np.array([0.005, 0.0])
+    for k in range(1200):
+        for pole in range(POLES):
+            bearing = 2.0 * math.pi * pole / POLES
+            c, s = math.cos(bearing), math.sin(bearing)
+            y = rng.normal(0.0, sigma) + [c * shift[0] + s * shift[1],
+                                          (-s * shift[0] + c * shift[1]) / r]
+            monitor.innovation('scan', k / 10.0, y, S, [r, bearing])
+        monitor.record('scan', k / 10.0, POLES, POLES, 2.0 * POLES, 0.0)
+    reasons = _whiteness_reasons(monitor)
+    assert len(reasons) == 1, reasons
+    assert reasons[0].startswith('LiDAR scan sensor-frame x innovations are not white')
 
 
 def test_too_few_blocks_are_not_judged():
