@@ -130,7 +130,7 @@ class WhitenessTest:
         self.updates = 0
 
     def copy(self) -> 'WhitenessTest':
-        """Return an independent copy (the driver's save/restore)."""
+        """Return an independent copy, for the driver's save and restore."""
         clone = WhitenessTest(self.judged)
         clone._block_start_s, clone._counts = self._block_start_s, self._counts
         clone._sums, clone.chi2 = list(self._sums), list(self.chi2)
