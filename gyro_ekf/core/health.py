@@ -154,16 +154,19 @@ class WhitenessTest:
             # Blocks follow each other on a fixed grid; an empty stretch opens no block.
             skipped = math.floor((stamp_s - self._block_start_s) / WHITENESS_BLOCK_S)
             self._block_start_s += skipped * WHITENESS_BLOCK_S
-        yr, yb = float(y[0]), float(y[1])
-        srr, srb, sbb = float(s[0, 0]), float(s[0, 1]), float(s[1, 1])
+        # Plain floats: this runs for every update (numpy's per-call cost would dominate).
+        yr, yb = y.tolist()
+        (srr, srb), (_, sbb) = s.tolist()
         c, si = math.cos(bearing_rad), math.sin(bearing_rad)
+        # The rows of J = [[c, -r si], [si, r c]] give x and y.
+        ryb, rsrb, r2sbb = range_m * yb, range_m * srb, range_m * range_m * sbb
         sums = self._sums
         sums[0] += yr / math.sqrt(srr)
         sums[1] += yb / math.sqrt(sbb)
-        # The rows of J = [[c, -r si], [si, r c]] give x and y.
-        for k, a, b in ((2, c, -range_m * si), (3, si, range_m * c)):
-            sums[k] += (a * yr + b * yb) / math.sqrt(a * a * srr + 2.0 * a * b * srb
-                                                     + b * b * sbb)
+        sums[2] += (c * yr - si * ryb) / math.sqrt(
+            c * c * srr - 2.0 * c * si * rsrb + si * si * r2sbb)
+        sums[3] += (si * yr + c * ryb) / math.sqrt(
+            si * si * srr + 2.0 * si * c * rsrb + c * c * r2sbb)
         self._counts += 1
         self.updates += 1
 
