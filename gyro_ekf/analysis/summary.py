@@ -8,13 +8,15 @@ Definitions (see `metrics` for the band and the interpolation):
   and standard deviation of the bias state over the second half of the trip's duration;
   the zero-rate updates (gyro samples applied standing still) and stops, and where the
   trip is known to start static, the bias and its sigma at the end of that stretch.
-- *Association*: detected poles, how many were MATCHED (and the other outcomes), the share
-  matched, and the longest time without any applied landmark update, counted from the first
-  to the last estimate (so a trip that starts with no pole in view counts that stretch).
+- *Association*: detected poles, how many were MATCHED (and the other outcomes), how many
+  unmatched ones lay far from every mapped pole (``unmapped``), the share matched, and
+  the longest time without any applied landmark update, counted from the first to the
+  last estimate (so a trip that starts with no pole in view counts that stretch).
 - *NIS*: of every applied update (2 dof): mean and share inside the two-sided 95 % band.
-- *Health*: per LiDAR its association share, NIS mean and mean bearing innovation, and
-  when it was excluded (`core/health.py`); the verdict ok / degraded / failed with one
-  sentence per reason (thresholds in `core/health.py`).
+- *Health*: per LiDAR its association share, NIS mean and mean bearing innovation, when
+  it was excluded, and the whiteness test of its innovations (`core/health.py`); the
+  verdict ok / degraded / failed with one sentence per reason (thresholds in
+  `core/health.py`), which also looks at the longest silence of the gyro and odometry.
 - *Online mounts*: per LiDAR but the first, its mount estimated online
   (`core/mount_online.py`): stated, in use at the end, the last fit with its sigmas and
   residual, when it converged and how often it replaced the mount in use.
@@ -123,6 +125,7 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     gap, gap_start = metrics.longest_gap(association_stamps(run), start, end)
     summary['association'] = {
         'detections': detections, 'outcomes': dict(stats.outcomes),
+        'unmapped': int(stats.unmapped),
         'share_associated': matched / detections if detections else math.nan,
         'longest_gap_s': gap, 'longest_gap_start_s': gap_start}
 
@@ -166,11 +169,21 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         matched=int(stats.outcomes.get('matched', 0)),
         updates=int(stats.updates), nis_mean=summary['nis']['mean'],
         longest_gap_s=longest, start_gap_s=start_gap, sensors=sensors, dropped=dropped,
-        final_bias_rad_s=summary['online_bias']['final_rad_s'])
+        final_bias_rad_s=summary['online_bias']['final_rad_s'],
+        unmapped=int(stats.unmapped),
+        input_gaps_s={'gyro': _longest_interval(run.trip.imu.stamp_s, start, end),
+                      'odometry': _longest_interval(run.trip.speed.stamp_s, start, end)},
+        input_gap_limit_s=run.config.max_prediction_step_s)
     return {**health.verdict(figures), 'lidars': sensors,
             'transitions': [] if monitor is None else [
                 {'stamp_s': t.stamp_s, 'lidar': t.sensor, 'change': t.change,
                  'reason': t.reason} for t in monitor.transitions]}
+
+
+def _longest_interval(stamps: FloatArray, start: float, end: float) -> float:
+    """Longest time between consecutive samples inside [start, end], s (0 with < 2)."""
+    inside = stamps[(stamps >= start) & (stamps <= end)]
+    return float(np.max(np.diff(inside), initial=0.0))
 
 
 def _truth_summary(run: OfflineRun, last_half: np.ndarray) -> dict[str, Any]:

@@ -90,6 +90,9 @@ class DriverStats:
         long_gaps: gaps longer than events.MAX_PREDICTION_STEPS steps (predicted in
             coarser steps).
         excluded: detections of excluded LiDARs (re-checked, not applied; in no outcome).
+        unmapped: UNMATCHED detections farther than ``recovery_max_distance_m`` from every
+            landmark (at the pose before the scan): an object the map does not list, not
+            a pole the filter failed to match.
         zero_rate_updates: gyro samples applied as zero-rate updates (standing still).
         stops: times zero-rate updates began (once per stop unless the stop was shaken).
     """
@@ -108,6 +111,7 @@ class DriverStats:
     longest_gap_s: float = 0.0
     long_gaps: int = 0
     excluded: int = 0
+    unmapped: int = 0
     zero_rate_updates: int = 0
     stops: int = 0
 
@@ -125,5 +129,6 @@ class DriverStats:
                 'first_association_s': self.first_association_s,
                 'last_association_s': self.last_association_s,
                 'longest_gap_s': self.longest_gap_s, 'long_gaps': self.long_gaps,
-                'excluded': self.excluded, 'zero_rate_updates': self.zero_rate_updates,
+                'excluded': self.excluded, 'unmapped': self.unmapped,
+                'zero_rate_updates': self.zero_rate_updates,
                 'stops': self.stops}

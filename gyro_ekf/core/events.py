@@ -45,7 +45,7 @@ from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
-from gyro_ekf.core.models import points_to_range_bearing
+from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
 from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount
 
@@ -337,6 +337,8 @@ class EventDriver:
         base = 1.0 if tracker is None else tracker.noise_scale
         for match in result.associations:
             outcomes[_OUTCOME_KEYS[match.outcome]] += 1
+            if match.outcome is AssociationOutcome.UNMATCHED:
+                self._count_unmapped(prior, points[match.detection_index], mount)
             if match.outcome is AssociationOutcome.MATCHED:
                 scale = base
                 if at_rest:
@@ -347,7 +349,11 @@ class EventDriver:
                 nis.append(self.ekf.update(z[match.detection_index],
                                            landmark_xy[match.landmark_index], mount,
                                            float(scale)))
-                bearing_sum += self.ekf.y[1]
+                y = self.ekf.y
+                bearing_sum += y[1]
+                if scale == base:  # not a repeated look at rest
+                    self.health.innovation(key, stamp_s, y, self.ekf.S,
+                                           z[match.detection_index])
         nis_sum = float(sum(nis))
         self._judged(key, self.health.record(key, stamp_s, points.shape[0], len(nis),
                                              nis_sum, float(bearing_sum), sensor))
@@ -394,6 +400,13 @@ class EventDriver:
         self._judged(key, self.health.record(key, stamp_s, points.shape[0], matched,
                                              nis_sum, bearing_sum, sensor, readmit))
         return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
+
+    def _count_unmapped(self, prior: FloatArray, point: FloatArray, mount: LidarMount) -> None:
+        """Count an unmatched detection that lies far from every landmark of the map."""
+        x, y = sensor_point_to_map(prior, float(point[0]), float(point[1]), mount)
+        limit = self.config.recovery_max_distance_m ** 2
+        if all((lx - x) ** 2 + (ly - y) ** 2 > limit for lx, ly in self._landmark_xy):
+            self.stats.unmapped += 1
 
     def _still(self) -> bool:
         """Whether the platform is known to stand still (speed and turn rate near zero)."""

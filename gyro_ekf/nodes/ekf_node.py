@@ -685,7 +685,7 @@ class EkfNode(Node):
             longest_gap_s=max(stats.longest_gap_s, since or 0.0), start_gap_s=start_gap,
             sensors=self.driver.health.report(), resets=self.resets,
             dropped={k: self.dropped[k] for k in VERDICT_DROP_REASONS},
-            final_bias_rad_s=self.driver.ekf.bias_rad_s)
+            final_bias_rad_s=self.driver.ekf.bias_rad_s, unmapped=stats.unmapped)
         return health.verdict(figures)
 
     def _publish_mounts(self) -> None:

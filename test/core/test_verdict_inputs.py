@@ -1,0 +1,87 @@
+"""Verdict: unmapped objects leave the association share; silent inputs degrade the run."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gyro_ekf.analysis.offline import run_trip
+from gyro_ekf.analysis.summary import summarize
+from gyro_ekf.core import health
+from gyro_ekf.core.events import EventDriver
+from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+from gyro_ekf.core.types import LandmarkMap, LidarMount
+
+
+def _figures(**changes):
+    values = {'detections': 100, 'matched': 80, 'updates': 80, 'nis_mean': 2.0,
+              'longest_gap_s': 0.5, 'start_gap_s': 0.5, 'sensors': []}
+    return health.RunFigures(**{**values, **changes})
+
+
+def test_unmapped_detections_leave_the_share():
+    # 80 of 100 associated: degraded; but 15 of the 20 lay far from every mapped pole.
+    assert health.verdict(_figures())['reasons'] == [
+        '80.0% of detections associated, below 90%']
+    assert health.verdict(_figures(unmapped=15)) == {'verdict': 'ok', 'reasons': []}
+    # Rejected detections near mapped poles still count against it.
+    assert health.verdict(_figures(matched=70, unmapped=15))['reasons'] == [
+        '82.4% of detections near a mapped pole (15 far from every one not counted) '
+        'associated, below 90%']
+
+
+def test_mostly_unmapped_detections_degrade_the_run():
+    verdict = health.verdict(_figures(matched=40, updates=40, unmapped=60))
+    assert verdict['verdict'] == 'degraded'
+    assert verdict['reasons'] == ['60.0% of detections lie far from every mapped pole, more '
+                                  'than 50%: the map or the pose is wrong']
+
+
+def test_a_silent_input_longer_than_a_prediction_step_degrades_the_run():
+    figures = _figures(matched=100, updates=100, input_gaps_s={'gyro': 0.3, 'odometry': 0.01},
+                       input_gap_limit_s=0.1)
+    assert health.verdict(figures)['reasons'] == [
+        'gyro silent for 0.30 s, longer than the longest prediction step 0.1 s: its last '
+        'value was held over the gap with the noise of one sample']
+    exact = _figures(matched=100, updates=100, input_gaps_s={'gyro': 0.1},
+                     input_gap_limit_s=0.1)
+    assert health.verdict(exact)['verdict'] == 'ok'
+
+
+def test_the_driver_counts_only_unmatched_detections_far_from_every_pole():
+    driver = EventDriver(landmarks=LandmarkMap(np.array([[5.0, 0.0], [0.0, 5.0]])),
+                         pose=np.zeros(3))
+    driver.on_speed(0.0, 0.0)
+    driver.on_imu(0.0, 0.0)
+    # One matched pole, one 0.5 m off the other pole (rejected by the gate, but near a
+    # mapped pole) and one 3 m from both.
+    points = np.array([[5.0, 0.0], [0.5, 5.0], [-3.0, -1.0]])
+    driver.on_detections(0.01, points, LidarMount())
+    outcomes = driver.stats.outcomes
+    assert outcomes['matched'] == 1 and outcomes['unmatched'] == 2
+    assert driver.stats.unmapped == 1
+
+
+@pytest.fixture(scope='module')
+def reflector_trip():
+    trip = simulate_trip(SimulationConfig(duration_s=60.0, extra_reflectors=4), seed=4)
+    return summarize(run_trip(trip))
+
+
+def test_reflectors_not_in_the_map_are_unmapped_and_the_run_is_ok(reflector_trip):
+    association = reflector_trip['association']
+    assert association['unmapped'] > 0
+    assert association['outcomes']['unmatched'] >= association['unmapped']
+    assert reflector_trip['health']['verdict'] == 'ok', reflector_trip['health']['reasons']
+
+
+def test_an_imu_gap_is_named_in_the_verdict():
+    config = SimulationConfig(duration_s=40.0, imu_gaps=1, imu_gap_s=0.5)
+    summary = summarize(run_trip(simulate_trip(config, seed=4)))
+    reasons = summary['health']['reasons']
+    gyro = [r for r in reasons if r.startswith('gyro silent for ')]
+    assert len(gyro) == 1 and float(gyro[0].split()[3]) == pytest.approx(0.5, abs=0.01)
+    assert not any(r.startswith('odometry silent') for r in reasons)
+    assert math.isfinite(summary['nis']['mean'])

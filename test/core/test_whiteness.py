@@ -1,0 +1,138 @@
+"""Whiteness test of each LiDAR's innovations: quiet if consistent, loud on a slow error."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gyro_ekf.analysis import metrics
+from gyro_ekf.analysis.offline import run_trip
+from gyro_ekf.analysis.summary import summarize
+from gyro_ekf.core import health
+from gyro_ekf.core.config import EkfConfig
+from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+
+S = np.diag([0.02 ** 2, 0.002 ** 2])
+"""Innovation covariance of the synthetic updates: 2 cm, 0.11 deg."""
+POLES = 6
+SCANS_PER_S = 10.0
+
+
+def _feed(monitor, seconds, bearing_offset=None, seed=0, key='scan'):
+    """Scans of POLES updates each, innovations drawn from S (plus the offset asked for)."""
+    rng = np.random.default_rng(seed)
+    sigma = np.sqrt(np.diag(S))
+    for k in range(int(seconds * SCANS_PER_S)):
+        stamp = k / SCANS_PER_S
+        for _ in range(POLES):
+            y = rng.normal(0.0, sigma)
+            if bearing_offset is not None:
+                y[1] += bearing_offset(stamp)
+            monitor.innovation(key, stamp, y, S, [5.0, 0.3])
+        monitor.record(key, stamp, POLES, POLES, 2.0 * POLES, 0.0, name=key)
+
+
+def _whiteness_reasons(monitor):
+    return [r for r in health.verdict(health.RunFigures(
+        detections=1, matched=1, updates=1, nis_mean=2.0, longest_gap_s=0.0, start_gap_s=0.0,
+        sensors=monitor.report()))['reasons'] if 'not white' in r]
+
+
+@pytest.mark.parametrize('dof', [10, 24, 42, 100, 160])
+@pytest.mark.parametrize('significance', [1e-2, 1e-3, 2.5e-4])
+def test_the_approximate_quantile_is_within_one_percent(dof, significance):
+    exact = metrics.chi_square_quantile(1.0 - significance, dof)
+    assert health.chi_square_upper(significance, dof) == pytest.approx(exact, rel=0.01)
+
+
+@pytest.mark.parametrize('seed', range(5))
+def test_white_innovations_pass_and_their_chi_square_has_its_expected_size(seed):
+    monitor = health.HealthMonitor(EkfConfig(landmark_sigma_m=0.0))
+    _feed(monitor, 120.0, seed=seed)
+    figures = monitor.report()[0]['whiteness']
+    assert figures['blocks'] == 24 and figures['updates'] == 1200 * POLES
+    # chi-square with 24 dof: mean 24, sd 7; 80 is beyond its 1e-7 quantile.
+    for component in ('range_chi2', 'bearing_chi2'):
+        assert 2.0 < figures[component] < 80.0
+    assert _whiteness_reasons(monitor) == []
+
+
+def test_a_slow_bearing_error_of_half_a_sigma_is_named():
+    monitor = health.HealthMonitor(EkfConfig(landmark_sigma_m=0.0))
+    # A heading error wandering with a 20 s period, half the bearing sigma at its peak.
+    _feed(monitor, 120.0, bearing_offset=lambda t: 0.001 * math.sin(2.0 * math.pi * t / 20.0))
+    reasons = _whiteness_reasons(monitor)
+    assert reasons[0].startswith('LiDAR scan bearing innovations are not white: 5-s block '
+                                 'sums give chi-square ')
+    assert 'on 24 blocks, above' in reasons[0] and 'significance 0.001' in reasons[0]
+    assert not any(' range ' in r for r in reasons)
+
+
+def test_a_shift_of_every_detection_in_the_lidar_frame_is_named_as_such():
+    # A 5 mm mount offset (a quarter of the range sigma) seen on poles all around: its
+    # range and bearing shares change sign with the bearing and cancel; x does not.
+    monitor = health.HealthMonitor(EkfConfig(landmark_sigma_m=0.0))
+    rng = np.random.default_rng(3)
+    sigma = np.sqrt(np.diag(S))
+    r, shift = 5.0, np.array([0.005, 0.0])
+    for k in range(1200):
+        for pole in range(POLES):
+            bearing = 2.0 * math.pi * pole / POLES
+            c, s = math.cos(bearing), math.sin(bearing)
+            y = rng.normal(0.0, sigma) + [c * shift[0] + s * shift[1],
+                                          (-s * shift[0] + c * shift[1]) / r]
+            monitor.innovation('scan', k / 10.0, y, S, [r, bearing])
+        monitor.record('scan', k / 10.0, POLES, POLES, 2.0 * POLES, 0.0)
+    reasons = _whiteness_reasons(monitor)
+    assert len(reasons) == 1, reasons
+    assert reasons[0].startswith('LiDAR scan sensor-frame x innovations are not white')
+
+
+def test_too_few_blocks_are_not_judged():
+    monitor = health.HealthMonitor(EkfConfig(landmark_sigma_m=0.0))
+    _feed(monitor, 45.0, bearing_offset=lambda t: 0.002)
+    assert monitor.report()[0]['whiteness']['blocks'] == 9
+    assert _whiteness_reasons(monitor) == []
+
+
+def test_with_a_stated_map_error_the_test_is_not_judged():
+    # Each pole's map error repeats at every look at it: correlated by design.
+    monitor = health.HealthMonitor(EkfConfig(landmark_sigma_m=0.01))
+    _feed(monitor, 120.0, bearing_offset=lambda t: 0.002)
+    figures = monitor.report()[0]['whiteness']
+    assert not figures['judged'] and figures['bearing_chi2'] > 1000.0
+    assert _whiteness_reasons(monitor) == []
+
+
+def test_save_and_restore_keep_the_test_independent():
+    monitor = health.HealthMonitor(EkfConfig(landmark_sigma_m=0.0))
+    _feed(monitor, 30.0)
+    saved = monitor.save()
+    before = monitor.report()[0]['whiteness']
+    _feed(monitor, 30.0, seed=1)
+    assert monitor.report()[0]['whiteness'] != before
+    monitor.restore(saved)
+    assert monitor.report()[0]['whiteness'] == before
+
+
+def _trip_summary(**changes):
+    config = SimulationConfig(duration_s=70.0, **changes)
+    return summarize(run_trip(simulate_trip(config, seed=3)))
+
+
+def test_a_clean_trip_is_white_and_ok():
+    summary = _trip_summary()
+    assert summary['health']['verdict'] == 'ok', summary['health']['reasons']
+    assert summary['health']['lidars'][0]['whiteness']['blocks'] >= health.WHITENESS_MIN_BLOCKS
+
+
+def test_a_bias_step_the_filter_cannot_follow_makes_the_run_degraded():
+    # 0.3 deg/s at 30 s: the bias state, nearly frozen, lags, and the heading innovations
+    # keep one sign scan after scan while the NIS mean stays inside its band.
+    summary = _trip_summary(gyro_bias_step_rad_s=math.radians(0.3), gyro_bias_step_at_s=30.0)
+    section = summary['health']
+    assert section['verdict'] == 'degraded'
+    assert any(r.startswith('LiDAR scan bearing innovations are not white')
+               for r in section['reasons']), section['reasons']
