@@ -10,89 +10,28 @@ import math
 
 import pytest
 
+from ekf_harness import EkfUnderTest as _Harness, stamped, STEP_NS
+
 pytestmark = pytest.mark.ros
 
-STEP_NS = 10_000_000
 
-
-def _stamped(message, stamp_ns):
-    message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp_ns, 10 ** 9)
-    return message
-
-
-class EkfUnderTest:
-    """One ekf_node in namespace `name`, with the probe's publishers and subscriptions."""
+class EkfUnderTest(_Harness):
+    """The harness's node, with an initialpose publisher."""
 
     def __init__(self, ros_processes, diagnostics_of, name: str, *params: str):
-        from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PoseWithCovarianceStamped
-        from nav_msgs.msg import Odometry
-        from sensor_msgs.msg import Imu
 
         from gyro_ekf.nodes import qos
 
-        self.processes, self.probe = ros_processes
-        self.diagnostics_of = diagnostics_of
-        self.name = name
-        self.key = f'/{name}/ekf_node: gyro bias EKF'
-        args = ['-r', f'__ns:=/{name}', '-p', 'reliable_inputs:=true',
-                '-p', 'diagnostics_period_s:=0.1']
-        for param in params:
-            args += ['-p', param]
-        self.processes.node('ekf_node', *args, name=name)
-        node = self.probe.node
-        self.imu = node.create_publisher(Imu, f'/{name}/imu', qos.LOSSLESS)
-        self.odom = node.create_publisher(Odometry, f'/{name}/odom', qos.LOSSLESS)
-        self.pose = node.create_publisher(PoseWithCovarianceStamped, f'/{name}/initialpose',
-                                          qos.OUTPUT)
-        self.odometry = self.probe.subscribe(Odometry, f'/{name}/ekf/odometry', qos.LOSSLESS)
-        self.diagnostics = self.probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
-        self.probe.spin_until(lambda: self.imu.get_subscription_count()
-                              and self.odom.get_subscription_count()
-                              and self.pose.get_subscription_count()
-                              and self.node_publishes(), 20, f'the EKF node {name}')
-
-    def node_publishes(self) -> bool:
-        return self.probe.node.count_subscribers(f'/{self.name}/ekf/odometry') > 0 and \
-            self.probe.node.count_publishers(f'/{self.name}/ekf/odometry') > 0
-
-    def send_imu(self, stamp_ns: int, rate: float = 0.0) -> None:
-        from sensor_msgs.msg import Imu
-        message = Imu()
-        message.angular_velocity.z = rate
-        self._publish(self.imu, _stamped(message, stamp_ns))
-
-    def _publish(self, publisher, message) -> None:
-        # A reliable KEEP_ALL writer blocks while the reader's history is full and gives up
-        # ("cannot publish data") after Fast DDS's max_blocking_time: on a loaded machine a
-        # burst outruns the node. Waiting and sending again keeps every message (the test
-        # counts them all) without asserting how fast they go.
-        from rclpy.impl.implementation_singleton import rclpy_implementation
-        for _ in range(600):
-            try:
-                publisher.publish(message)
-                return
-            except rclpy_implementation.RCLError:
-                self.probe.executor.spin_once(timeout_sec=0.05)
-        publisher.publish(message)
-
-    def send_odom(self, stamp_ns: int, speed: float = 0.0) -> None:
-        from nav_msgs.msg import Odometry
-        message = Odometry()
-        message.twist.twist.linear.x = speed
-        self._publish(self.odom, _stamped(message, stamp_ns))
+        super().__init__(ros_processes, diagnostics_of, name, *params)
+        self.pose = self.probe.node.create_publisher(
+            PoseWithCovarianceStamped, f'/{name}/initialpose', qos.OUTPUT)
+        self.wait_for_node(self.pose)
 
     def send_pairs(self, start_ns: int, first: int, last: int, speed: float = 0.0) -> None:
         for i in range(first, last):
             self.send_odom(start_ns + i * STEP_NS, speed)
             self.send_imu(start_ns + i * STEP_NS)
-
-    def values(self) -> dict[str, str]:
-        return self.diagnostics_of(self.diagnostics, self.key) or {}
-
-    def wait_for(self, condition, what: str, timeout_s: float = 30.0) -> dict[str, str]:
-        self.probe.spin_until(lambda: condition(self.values()), timeout_s, what)
-        return self.values()
 
     def estimates_at(self, stamps_ns) -> list:
         wanted = set(stamps_ns)
@@ -146,10 +85,10 @@ def test_bad_message_covariances_are_ignored_and_counted_and_good_ones_used(star
         ns = start + (20 + i) * STEP_NS
         odom = Odometry()
         odom.twist.covariance[0] = speed_variance
-        ekf.odom.publish(_stamped(odom, ns))
+        ekf.odom.publish(stamped(odom, ns))
         imu = Imu()
         imu.angular_velocity_covariance[8] = rate_variance
-        ekf.imu.publish(_stamped(imu, ns))
+        ekf.imu.publish(stamped(imu, ns))
     ekf.send_pairs(start, 24, 60)
     ekf.probe.spin_until(lambda: len(ekf.estimates_at([start + 59 * STEP_NS])) == 1, 30,
                          'the last estimate')

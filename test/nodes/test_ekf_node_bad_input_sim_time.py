@@ -13,60 +13,26 @@ import subprocess
 
 import pytest
 
+from ekf_harness import EkfUnderTest, NS, STEP_NS
+
 pytestmark = pytest.mark.ros
 
-STEP_NS = 10_000_000
-"""10 ms between samples (100 Hz IMU and odometry)."""
-NS = 10 ** 9
 
-
-class SimTimeEkf:
+class SimTimeEkf(EkfUnderTest):
     """One ekf_node (use_sim_time) in namespace `name`; the probe publishes /clock and data."""
 
     def __init__(self, ros_processes, diagnostics_of, name: str, *params: str):
-        from diagnostic_msgs.msg import DiagnosticArray
-        from nav_msgs.msg import Odometry
         from rclpy.qos import QoSProfile
         from rosgraph_msgs.msg import Clock
-        from sensor_msgs.msg import Imu
 
-        from gyro_ekf.nodes import qos
-
-        self.processes, self.probe = ros_processes
-        self.diagnostics_of = diagnostics_of
-        self.name = name
-        self.key = f'/{name}/ekf_node: gyro bias EKF'
-        args = ['-r', f'__ns:=/{name}', '-p', 'use_sim_time:=true',
-                '-p', 'reliable_inputs:=true', '-p', 'diagnostics_period_s:=0.1']
-        for param in params:
-            args += ['-p', param]
-        self.processes.node('ekf_node', *args, name=name)
-        node = self.probe.node
-        self.imu = node.create_publisher(Imu, f'/{name}/imu', qos.LOSSLESS)
-        self.odom = node.create_publisher(Odometry, f'/{name}/odom', qos.LOSSLESS)
+        super().__init__(ros_processes, diagnostics_of, name, *params,
+                         node_args=('-p', 'use_sim_time:=true'))
         # /clock is global: each test's node is stopped before the next test starts.
-        self.clock = node.create_publisher(Clock, '/clock', QoSProfile(depth=10))
-        self.odometry = self.probe.subscribe(Odometry, f'/{name}/ekf/odometry', qos.LOSSLESS)
-        self.diagnostics = self.probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
-        self.probe.spin_until(
-            lambda: self.imu.get_subscription_count() and self.odom.get_subscription_count()
-            and self.clock.get_subscription_count()
-            and node.count_publishers(f'/{name}/ekf/odometry') > 0, 20, f'the EKF node {name}')
+        self.clock = self.probe.node.create_publisher(Clock, '/clock', QoSProfile(depth=10))
+        self.wait_for_node(self.clock)
         self._ticker = None
         self.clock_ns = 0
         """The last /clock sent, ns."""
-
-    def _publish(self, publisher, message) -> None:
-        # A reliable KEEP_ALL writer gives up ("cannot publish data") while a loaded reader's
-        # history is full: wait and send again (see test_ekf_node_bad_input.py).
-        from rclpy.impl.implementation_singleton import rclpy_implementation
-        for _ in range(600):
-            try:
-                publisher.publish(message)
-                return
-            except rclpy_implementation.RCLError:
-                self.probe.executor.spin_once(timeout_sec=0.05)
-        publisher.publish(message)
 
     def send_clock(self, stamp_ns: int) -> None:
         from rosgraph_msgs.msg import Clock
@@ -74,24 +40,6 @@ class SimTimeEkf:
         from gyro_ekf.nodes.conversions import to_stamp
         self.clock.publish(Clock(clock=to_stamp(stamp_ns)))
         self.clock_ns = stamp_ns
-
-    def send_imu(self, stamp_ns: int, rate: float = 0.0) -> None:
-        from sensor_msgs.msg import Imu
-
-        from gyro_ekf.nodes.conversions import to_stamp
-        message = Imu()
-        message.header.stamp = to_stamp(stamp_ns)
-        message.angular_velocity.z = rate
-        self._publish(self.imu, message)
-
-    def send_odom(self, stamp_ns: int, speed: float = 0.0) -> None:
-        from nav_msgs.msg import Odometry
-
-        from gyro_ekf.nodes.conversions import to_stamp
-        message = Odometry()
-        message.header.stamp = to_stamp(stamp_ns)
-        message.twist.twist.linear.x = speed
-        self._publish(self.odom, message)
 
     def send_steps(self, clock_ns: int, first: int, last: int, imu_ns: int | None = None,
                    odom_ns: int | None = None, speed: float = 0.0) -> None:
@@ -120,20 +68,13 @@ class SimTimeEkf:
             self.probe.node.destroy_timer(self._ticker)
             self._ticker = None
 
-    def values(self) -> dict[str, str]:
-        return self.diagnostics_of(self.diagnostics, self.key) or {}
-
     def wait_for(self, condition, what: str, timeout_s: float = 60.0) -> dict[str, str]:
-        self.probe.spin_until(lambda: condition(self.values()), timeout_s, what)
-        return self.values()
+        return super().wait_for(condition, what, timeout_s)
 
     def estimate_at(self, stamp_ns: int):
         found = [m for m in self.odometry
                  if m.header.stamp.sec * NS + m.header.stamp.nanosec == stamp_ns]
         return found[0] if found else None
-
-    def log(self) -> str:
-        return self.processes.log(self.name)
 
 
 @pytest.fixture
