@@ -227,6 +227,15 @@ class EstimateMessages:
         self._twist_covariance = np.zeros(36)
         self._twist_covariance[0] = self._speed_variance
 
+    @property
+    def bias_frame(self) -> str:
+        """Frame of the bias message (the IMU's)."""
+        return self.bias.header.frame_id
+
+    @bias_frame.setter
+    def bias_frame(self, frame_id: str) -> None:
+        self.bias.header.frame_id = frame_id
+
     def fill(self, estimate: Estimate, stamp_ns: int
              ) -> tuple[PoseWithCovarianceStamped, Odometry, Vector3Stamped]:
         """Write one estimate into the messages and return them.
