@@ -70,7 +70,7 @@ class WireError(ValueError):
 
 
 def node_io() -> str:
-    """The nodes' message path: 'serialized' (default) or 'rclpy' (GYRO_EKF_NODE_IO).
+    """Return the nodes' message path: 'serialized' (default) or 'rclpy' (GYRO_EKF_NODE_IO).
 
     Raises:
         GyroEkfError: the variable holds anything else.
@@ -196,7 +196,7 @@ def decode_imu(data: bytes) -> ImuSample:
 
 def corrected_imu(sample: ImuSample, bias_rad_s: Sequence[float],
                   added_variance: float | None = None) -> bytes:
-    """The Imu message with the bias removed from its rates, as CDR bytes.
+    """Copy an Imu message with the bias removed from its rates, as CDR bytes.
 
     The same values as conversions.corrected_imu (added_variance None) or
     conversions.online_corrected_imu (added_variance = the bias variance, onto
