@@ -2,7 +2,7 @@
 
 The 2016 course log (200 Hz IMU and odometry, so 2 kHz each at 10x) is replayed with
 ``gyro-ekf replay BAG --clock --rate 10`` into calibration_node, landmark_detector_node and
-ekf_node, each a child process with its default QoS (sensor data: best effort, depth 5),
+ekf_node, each a child process with its default QoS (nodes/qos.py SENSOR_INPUT: best effort),
 ``use_sim_time`` and the bag's params sidecar. This process listens to ``gyro_bias`` and
 ``/diagnostics`` only (a 2 kHz subscription here would take CPU from the nodes).
 
@@ -154,6 +154,8 @@ def replay_benchmark(bag: Path, rate: float = 10.0, node_io: str = 'serialized',
                                         if calibrated else None)
     result['calibration_imu_messages'] = int(calibration.get('imu_messages', 0))
     result['calibration_refused_windows'] = calibration.get('refused_windows')
+    result['calibration_dropped'] = {k: int(v) for k, v in calibration.items()
+                                     if k.startswith('dropped_') and v != '0'}
     result['ekf_estimates'] = int(ekf.get('estimates', 0))
     result['ekf_dropped'] = {k: int(v) for k, v in ekf.items()
                              if k.startswith('dropped_') and v != '0'}
