@@ -104,8 +104,8 @@ from gyro_ekf.io import messages
 from gyro_ekf.nodes import qos, visuals, wire
 from gyro_ekf.nodes.conversions import (drop_reason, EstimateMessages, odometry_speed,
                                         online_corrected_imu, points_of, pose_and_covariance,
-                                        pose_problem, stamp_ns, TimeOrigin,
-                                        yaw_quaternion)
+                                        pose_problem, quaternion_yaw, stamp_ns,
+                                        TimeOrigin, yaw_quaternion)
 from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar
 from gyro_ekf.nodes.runtime import run_node
 
@@ -422,9 +422,8 @@ class EkfNode(Node):
         pose = message.pose.pose
         self._take_odom(message.header.stamp, odometry_speed(message),
                         message.twist.covariance[0],
-                        (pose.position.x, pose.position.y, pose.position.z,
-                         pose.orientation.x, pose.orientation.y, pose.orientation.z,
-                         pose.orientation.w))
+                        lambda: (float(pose.position.x), float(pose.position.y),
+                                 quaternion_yaw(pose.orientation)))
 
     def _on_odom_bytes(self, data: bytes) -> None:
         try:
@@ -433,16 +432,18 @@ class EkfNode(Node):
             self._received['odom'] += 1
             self._drop('malformed', f'{topics.ODOM}: {err}')
             return
-        self._take_odom(sample.stamp, sample.speed_m_s, sample.speed_variance, sample.pose)
+        pose = sample.pose
+        self._take_odom(sample.stamp, sample.speed_m_s, sample.speed_variance,
+                        lambda: (pose[0], pose[1], yaw_of_quaternion(*pose[3:])))
 
-    def _take_odom(self, stamp, speed: float, speed_variance: float, pose) -> None:
-        """Check and queue a speed sample (either path); pose: position x y z, quaternion."""
+    def _take_odom(self, stamp, speed: float, speed_variance: float, odom_pose) -> None:
+        """Check and queue a speed sample (either path); odom_pose() is (x m, y m, yaw rad)."""
         self._received['odom'] += 1
         if not -self._max_speed <= speed <= self._max_speed and self._refuse(
                 speed_problem(speed, self._limits), 'odom speed'):
             return
         if self._odom_frame:
-            self._odom_pose = (float(pose[0]), float(pose[1]), yaw_of_quaternion(*pose[3:]))
+            self._odom_pose = odom_pose()
         variance = None
         if self._use_message_covariance:
             variance = self._variance(speed_variance, self._max_speed,
