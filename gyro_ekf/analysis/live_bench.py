@@ -623,6 +623,10 @@ class NodeCase:
         return f'{self.node} {self.rate_hz:g} Hz{io}'
 
 
+class _ChildExited(RuntimeError):
+    """The measured node process ended during the run."""
+
+
 CALIBRATION_WINDOW_S = 2.0
 SCAN_BEAMS = 361
 
@@ -750,15 +754,22 @@ def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float =
                 next_s[0] += 1.0 / case.rate_hz
                 if until():
                     return
+
+        def node_cpu_s() -> float:
+            try:
+                return cpu_seconds(child.pid)
+            except OSError:  # the child is gone: say so, with its log
+                child.wait()
+                raise _ChildExited(f'{case.node} exited with {child.returncode}') from None
         if calibration:
             # The static window: from the first sample to the published bias.
-            cpu_before, wall_before = cpu_seconds(child.pid), _CLOCK()
+            cpu_before, wall_before = node_cpu_s(), _CLOCK()
             send(lambda: bool(bias), round(case.rate_hz * (CALIBRATION_WINDOW_S + 30.0)))
             if not bias:
                 result['error'] = 'calibration_node published no bias'
                 result['node_log_tail'] = _tail(node_log)
                 return result
-            window_cpu = cpu_seconds(child.pid) - cpu_before
+            window_cpu = node_cpu_s() - cpu_before
             result.update({'window_messages': sent[0], 'window_cpu_s': window_cpu,
                            'window_cpu_us_per_message': window_cpu / sent[0] * 1e6,
                            'window_wall_s': _CLOCK() - wall_before})
@@ -768,10 +779,10 @@ def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float =
         first_sent, first_received = sent[0], received[0]
         messages = max(1, round(case.rate_hz * case.duration_s))
         next_s[0] = _CLOCK()  # a new schedule: no burst to catch up after the waits
-        cpu_before, wall_before = cpu_seconds(child.pid), _CLOCK()
+        cpu_before, wall_before = node_cpu_s(), _CLOCK()
         send(lambda: False, messages)
         spin_until(lambda: received[0] - first_received >= messages, 10.0)
-        cpu_s, wall_s = cpu_seconds(child.pid) - cpu_before, _CLOCK() - wall_before
+        cpu_s, wall_s = node_cpu_s() - cpu_before, _CLOCK() - wall_before
         result.update({
             'messages_sent': sent[0] - first_sent,
             'outputs_received': received[0] - first_received,
@@ -784,6 +795,9 @@ def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float =
             result['node_log_tail'] = _tail(node_log)
         result['node_warnings'] = _warnings(node_log)
         result['measured'] = 'error' not in result
+        return result
+    except _ChildExited as err:
+        result.update({'error': str(err), 'node_log_tail': _tail(node_log), 'measured': False})
         return result
     finally:
         if child is not None:

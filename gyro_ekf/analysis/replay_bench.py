@@ -70,12 +70,14 @@ def replay_benchmark(bag: Path, rate: float = 10.0, node_io: str = 'serialized',
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Vector3Stamped
     from rclpy.executors import SingleThreadedExecutor
+    from rosgraph_msgs.msg import Clock
 
     from gyro_ekf import topics
     from gyro_ekf.io import bag_summary
     from gyro_ekf.nodes import qos
 
-    imu_count = next(t.count for t in bag_summary(bag).topics if t.name.lstrip('/') == 'imu')
+    summary = bag_summary(bag)
+    imu_count = next(t.count for t in summary.topics if t.name.lstrip('/') == 'imu')
     result: dict[str, Any] = {'bag': str(bag), 'rate': rate, 'node_io': node_io,
                               'imu_messages_in_bag': imu_count}
     params = _params_files(bag)
@@ -99,6 +101,7 @@ def replay_benchmark(bag: Path, rate: float = 10.0, node_io: str = 'serialized',
                                      qos.LATCHED)
             node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diagnostics,
                                      qos.OUTPUT)
+            clock = node.create_publisher(Clock, '/clock', 10)
             sim = ['-p', 'use_sim_time:=true']
             commands = {
                 'calibration_node': ['gyro_ekf.nodes.calibration_node', '--ros-args',
@@ -125,8 +128,14 @@ def replay_benchmark(bag: Path, rate: float = 10.0, node_io: str = 'serialized',
             result['replay_summary'] = next(
                 (line for line in reversed(live_bench._tail(work / 'replay.log').splitlines())
                  if line.startswith('replayed ')), None)
-            # The EKF's last messages leave with its idle flush; wait until its count of
-            # estimates holds still over three diagnostics periods.
+            # The nodes' diagnostics timers run on /clock, which stopped with the bag: one
+            # more tick 2 s past its end makes each report its final counts. The EKF's last
+            # messages leave with its idle flush; wait until its count of estimates holds
+            # still for 3 s.
+            end = Clock()
+            end.clock.sec, end.clock.nanosec = divmod(
+                summary.start_time_ns + summary.duration_ns + 2_000_000_000, 1_000_000_000)
+            clock.publish(end)
 
             def ekf_estimates() -> str | None:
                 return next((v.get('estimates') for k, v in newest.items()
