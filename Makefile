@@ -15,7 +15,7 @@ export MPLBACKEND := Agg
 
 DEMO_BAG := bags/sim_static_start
 
-.PHONY: venv demo test bags bench fuzz lint docs clean
+.PHONY: venv demo test bags bench stress fuzz lint docs clean
 
 venv: $(STAMP)
 
@@ -37,12 +37,18 @@ bags: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/gyro-ekf bench -o results/bench.json
 
+# Seeded simulated trips per perturbation class (docs/stress.md) through the offline run;
+# prints per class the share within the bounds and the silent failures, writes
+# results/stress.json. A benchmark, never a test: it reports, it does not fail.
+stress: $(STAMP)
+	$(BIN)/gyro-ekf stress -o results/stress.json $(STRESS_ARGS)
+
 # Mutated bags, chunks, CDR payloads, course logs and params files through the readers;
 # bounded (FUZZ_ARGS, e.g. --budget-s 60 --seed 3), writes results/fuzz.json.
 fuzz: $(STAMP)
 	$(BIN)/python -m fuzz $(FUZZ_ARGS)
 
-# docs/parameters.md from the nodes' declarations (a test compares them).
+# docs/parameters.md and config/gyro_ekf.yaml from the nodes' declarations (tests compare them).
 docs: $(STAMP)
 	$(BIN)/python tools/parameters_doc.py docs/parameters.md
 

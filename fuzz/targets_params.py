@@ -25,7 +25,7 @@ def read(path: Path) -> list[str]:
     from gyro_ekf.io.params_file import read_params_file
     params = read_params_file(path)
     out = []
-    for group in ('ekf', 'calibration', 'detector'):
+    for group in ('ekf', 'calibration', 'detector', 'options'):
         config = getattr(params, group)
         for spec in dataclasses.fields(config):
             value = getattr(config, spec.name)
@@ -35,13 +35,10 @@ def read(path: Path) -> list[str]:
             if isinstance(value, (int, float)) and not isinstance(value, bool) and (
                     (low is not None and value < low) or (high is not None and value > high)):
                 out.append(f'{group}.{spec.name} = {value} outside [{low}, {high}]')
-    for name, value in params.options.items():
-        if name in ('use_stated_noise', 'use_calibration', 'use_message_covariance'):
-            if not isinstance(value, bool):
-                out.append(f'option {name} = {value!r} is not a boolean')
-        elif not isinstance(value, (int, float)) or isinstance(value, bool) or not (
-                math.isfinite(value) and value > 0):
-            out.append(f'option {name} = {value!r} is not a positive number')
+    for spec in dataclasses.fields(params.options):
+        value = getattr(params.options, spec.name)
+        if isinstance(spec.default, bool) and not isinstance(value, bool):
+            out.append(f'option {spec.name} = {value!r} is not a boolean')
     return out
 
 

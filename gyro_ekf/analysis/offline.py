@@ -8,6 +8,9 @@ Configuration follows the live nodes: the core defaults, then whatever a params 
 explicitly, then the noise figures the log states, which replace the configured sigmas
 (default or params file alike) while `use_stated_noise` holds, as the EKF node's parameter
 of that name does; a params file that wants its own sigmas sets `use_stated_noise: false`.
+The switches (`use_stated_noise`, `use_message_covariance`, `use_calibration`,
+`calibration_bias_sigma_rad_s`) are core.config.RunOptions, whose defaults the node
+declares too; a caller's argument overrides the params file's value.
 """
 
 from __future__ import annotations
@@ -16,7 +19,6 @@ from collections.abc import Callable
 import dataclasses
 from dataclasses import dataclass
 import logging
-import math
 
 import numpy as np
 
@@ -78,20 +80,23 @@ class OfflineRun:
 
 
 def effective_config(noise: NoiseFigures, params: PipelineParams | None = None,
-                     use_stated_noise: bool = True) -> tuple[EkfConfig, dict[str, str]]:
+                     use_stated_noise: bool | None = None
+                     ) -> tuple[EkfConfig, dict[str, str]]:
     """Return the EKF configuration of a run and where each value came from.
 
     Args:
         noise: the noise figures the log states.
         params: a parsed params file, or None for the defaults.
         use_stated_noise: let the log's stated figures replace the configured sigmas, as
-            the EKF node does (core.config.with_stated_noise); a params file that wants
-            its own sigmas sets use_stated_noise: false.
+            the EKF node does (core.config.with_stated_noise); None takes the params
+            file's option (RunOptions' default: true).
 
     Returns:
         The config and, per field, 'default', 'log' or 'params-file'.
     """
     params = params or PipelineParams()
+    if use_stated_noise is None:
+        use_stated_noise = params.options.use_stated_noise
     config = params.ekf
     explicit = set(params.explicit.get('ekf', ()))
     sources = {f.name: ('params-file' if f.name in explicit else 'default')
@@ -126,12 +131,6 @@ def event_count(trip: Trip) -> int:
             + sum(len(s.stamp_s) for s in trip.scans))
 
 
-# Same defaults as the EKF node's parameters of the same names.
-DEFAULT_USE_CALIBRATION = False
-DEFAULT_CALIBRATION_SIGMA_RAD_S = math.radians(0.05)
-DEFAULT_USE_MESSAGE_COVARIANCE = True
-
-
 def without_message_covariance(trip: Trip) -> Trip:
     """Drop every input message's own variance from a trip (the configured noise applies)."""
     if trip.imu.yaw_rate_variance is None and trip.speed.speed_variance is None:
@@ -141,7 +140,8 @@ def without_message_covariance(trip: Trip) -> Trip:
         speed=dataclasses.replace(trip.speed, speed_variance=None))
 
 
-def run_trip(trip: Trip, params: PipelineParams | None = None, use_stated_noise: bool = True,
+def run_trip(trip: Trip, params: PipelineParams | None = None,
+             use_stated_noise: bool | None = None,
              progress: Callable[[int], None] | None = None,
              use_calibration: bool | None = None,
              use_message_covariance: bool | None = None) -> OfflineRun:
@@ -150,24 +150,24 @@ def run_trip(trip: Trip, params: PipelineParams | None = None, use_stated_noise:
     The filter starts at the trip's initial pose with the configured priors, so by default
     its bias is found online, independently of the static window, and the two can be
     compared. With ``use_calibration`` (as the EKF node's parameter) an accepted window
-    seeds the bias state with its mean and ``calibration_bias_sigma_rad_s``.
+    seeds the bias state with its mean and ``calibration_bias_sigma_rad_s``. Each switch
+    left None takes the params file's option (core.config.RunOptions: its default where the
+    file sets none).
 
     Args:
         trip: the inputs (stamps in s since the bag's first message).
         params: a parsed params file, or None for the defaults.
         use_stated_noise: see effective_config.
         progress: called with the number of events processed since the last call.
-        use_calibration: seed the bias from the static window; None takes the params
-            file's option (default False).
+        use_calibration: seed the bias from the static window.
         use_message_covariance: let each IMU and odometry message's own variance (where
             positive, see core.validation.message_variance) replace the configured gyro or
-            speed noise for that message, as the EKF node's parameter of that name does;
-            None takes the params file's option (default True).
+            speed noise for that message, as the EKF node's parameter of that name does.
     """
     params = params or PipelineParams()
+    options = params.options
     if use_message_covariance is None:
-        use_message_covariance = bool(params.options.get('use_message_covariance',
-                                                         DEFAULT_USE_MESSAGE_COVARIANCE))
+        use_message_covariance = options.use_message_covariance
     if not use_message_covariance:
         trip = without_message_covariance(trip)
     # LiDAR mounts of a params file (e.g. from calibrate-mounts) replace the bag's.
@@ -177,11 +177,10 @@ def run_trip(trip: Trip, params: PipelineParams | None = None, use_stated_noise:
     driver = EventDriver(config, trip.landmarks, trip.initial_pose,
                          detector_config=params.detector)
     if use_calibration is None:
-        use_calibration = bool(params.options.get('use_calibration', DEFAULT_USE_CALIBRATION))
+        use_calibration = options.use_calibration
     if use_calibration and calibration is not None:
-        sigma = float(params.options.get('calibration_bias_sigma_rad_s',
-                                         DEFAULT_CALIBRATION_SIGMA_RAD_S))
-        driver.ekf.set_bias(float(calibration.bias_rad_s[2]), sigma)
+        driver.ekf.set_bias(float(calibration.bias_rad_s[2]),
+                            options.calibration_bias_sigma_rad_s)
     result = drive_trip(trip, driver, progress)
     return OfflineRun(trip=trip, config=config, config_sources=sources,
                       calibration=calibration, calibration_error=reason, result=result)

@@ -170,8 +170,7 @@ def run(args: argparse.Namespace) -> int:
                 *node_args, '-r', f'scan:={topic}', '-r', f'__node:=landmark_detector_{topic}'])
         group.start('ekf_node', *[
             'gyro_ekf.nodes.ekf_node', '--ros-args', *params_files, *node_args,
-            '-p', 'use_calibration:=true', '-p', 'reorder_window_s:=1.0',
-            '-p', f'publish_every_n:={args.publish_every_n}'])
+            '-p', 'use_calibration:=true', '-p', f'publish_every_n:={args.publish_every_n}'])
         recorder = group.start('record', *[
             'gyro_ekf.cli.main', 'record', *RECORDED, '-o', str(output / 'bag'), '--force',
             '--use-sim-time', '--idle-exit-s', '3'])

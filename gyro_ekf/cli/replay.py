@@ -30,6 +30,13 @@ def _rate(text: str) -> float:
     return value
 
 
+def _positive(text: str) -> float:
+    value = float(text)
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f'must be > 0, got {text}')
+    return value
+
+
 def _count(text: str) -> int:
     value = int(text)
     if value < 1:
@@ -62,6 +69,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'matched subscriptions; repeatable')
     parser.add_argument('--wait-timeout-s', type=float, default=10.0,
                         help='give up waiting for subscribers after this long')
+    parser.add_argument('--ack-timeout-s', type=_positive, default=30.0,
+                        help='longest wait for reliable readers to acknowledge: while one '
+                        'holds the replay back (its history full), and at the end for every '
+                        'message; exceeded, the replay fails naming the topic')
 
 
 class BagSource:
@@ -153,6 +164,7 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as err:
             raise GyroEkfError(f'{args.bag}: {err}') from None
         node.stop = stop
+        node.backpressure_timeout_s = args.ack_timeout_s
         needs: dict[str, int] = {}
         for topic, count in args.wait_for:
             names = [t.name for t in source.topics if not t.latched] if topic is None else [
@@ -170,11 +182,16 @@ def run(args: argparse.Namespace) -> int:
                                + ', '.join(f'{k} has {v} of {needs[k]}'
                                            for k, v in short.items()))
         report = node.play(source, args.rate, args.loop or args.loops is not None,
-                           args.clock_hz, max_loops=args.loops)
+                           args.clock_hz, ack_timeout_s=args.ack_timeout_s,
+                           max_loops=args.loops)
         print(report.summary(), flush=True)
         # A stop request is the normal end of --loop; then unacknowledged messages of a
         # reader that was still busy are no failure.
-        return 0 if report.acknowledged or stop else 1
+        if report.acknowledged or stop:
+            return 0
+        raise GyroEkfError(f'reliable readers of {", ".join(report.unacknowledged)} did not '
+                           f'acknowledge every message within --ack-timeout-s '
+                           f'{args.ack_timeout_s:g} s (a stuck or frozen subscriber?)')
     except (KeyboardInterrupt, ExternalShutdownException):
         return 130
     finally:

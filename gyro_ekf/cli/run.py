@@ -127,10 +127,9 @@ def run(args: argparse.Namespace) -> int:
     warn_dropped(report)
     read_s = time.perf_counter() - began
     folder = output_dir.prepare_output_dir(args.output, force=args.force)
-    use_stated = not args.ignore_stated_noise and bool(params.options.get('use_stated_noise',
-                                                                          True))
-    use_message_covariance = not args.ignore_message_covariance and bool(
-        params.options.get('use_message_covariance', True))
+    use_stated = not args.ignore_stated_noise and params.options.use_stated_noise
+    use_message_covariance = (not args.ignore_message_covariance
+                              and params.options.use_message_covariance)
     if not use_message_covariance:
         report.covariances_used.clear()  # read, but not used
     show = not args.no_progress and sys.stderr.isatty()

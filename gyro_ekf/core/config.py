@@ -1,7 +1,9 @@
 """Every tunable of the core, declared once with default, unit, description and bounds.
 
 Nodes turn these fields into ROS parameters (`nodes/params.py`); `gyro-ekf run` reads the
-same ROS 2 params YAML, so offline and live runs share one configuration. Values are SI.
+same ROS 2 params YAML (`io/params_file.py`), so offline and live runs share one
+configuration, and `config/gyro_ekf.yaml` is generated from the nodes' declarations
+(`tools/parameters_doc.py`). A default is written here and nowhere else. Values are SI.
 """
 
 from __future__ import annotations
@@ -220,7 +222,31 @@ class InputLimits:
         1e-9, 0.5)
 
 
-ConfigT = TypeVar('ConfigT', EkfConfig, CalibrationConfig, DetectorConfig, InputLimits)
+@dataclass(frozen=True, slots=True)
+class RunOptions:
+    """The EKF node's switches that `gyro-ekf run` honours too (same names, same defaults).
+
+    What a run takes from the inputs besides the configured noise: the figures a log states
+    about itself, each message's own variance, and a bias from the static window.
+    """
+
+    use_stated_noise: bool = config_field(
+        True, '', 'Replace the noise sigmas by the noise.* figures a bag states (its params '
+        'sidecar).')
+    use_message_covariance: bool = config_field(
+        True, '', 'A positive imu angular_velocity_covariance[8] or odom twist.covariance[0] '
+        'replaces the configured gyro or speed noise for that message (0 or -1: not given; '
+        'NaN, other negatives or beyond the limits.* range: ignored and counted).')
+    use_calibration: bool = config_field(
+        False, '', 'Seed the bias state and its variance from the static-window calibration '
+        '(live: gyro_bias from calibration_node; gyro-ekf run: the trip\'s static start).')
+    calibration_bias_sigma_rad_s: float = config_field(
+        math.radians(0.05), 'rad/s', 'Sigma given to a bias seeded from the calibration.',
+        1e-9, 1.0)
+
+
+ConfigT = TypeVar('ConfigT', EkfConfig, CalibrationConfig, DetectorConfig, InputLimits,
+                  RunOptions)
 
 
 def config_fields(config_type: type) -> list[dataclasses.Field]:
@@ -231,6 +257,9 @@ def config_fields(config_type: type) -> list[dataclasses.Field]:
 def make_config(config_type: type[ConfigT], values: dict[str, Any],
                 source: str = 'parameters') -> ConfigT:
     """Build a config from a name->value mapping, checking names, types and bounds.
+
+    A switch (a field whose default is a bool) takes true or false only: 1 or 0 may be a
+    number meant for another parameter, so it is refused, not read as a truth value.
 
     Raises:
         CoreError: unknown name, wrong type or value out of bounds; the message names
@@ -244,10 +273,17 @@ def make_config(config_type: type[ConfigT], values: dict[str, Any],
                             f'expected one of {sorted(known)}')
         spec = known[name]
         default = spec.default
-        if isinstance(default, bool) or not isinstance(value, (int, float)) or isinstance(
-                value, bool):
+        if isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise CoreError(f'{source}: parameter {name!r} must be true or false, got '
+                                f'{value!r}')
+            checked[name] = value
+            continue
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
             raise CoreError(f'{source}: parameter {name!r} must be a number, got {value!r}')
         value = int(value) if isinstance(default, int) else float(value)
+        if not math.isfinite(value):  # NaN would pass every bounds comparison below
+            raise CoreError(f'{source}: parameter {name!r} = {value} is not finite')
         low, high = spec.metadata['min'], spec.metadata['max']
         if (low is not None and value < low) or (high is not None and value > high):
             raise CoreError(f'{source}: parameter {name!r} = {value} is outside [{low}, {high}] '

@@ -32,8 +32,35 @@ The platform stands still for ``static_s`` (speed exactly 0), then drives a figu
   ``*_x_error_m`` and ``*_y_error_m`` (``lidar_*`` for the first LiDAR, ``lidar2_*`` for the
   second). They are given, not drawn, so a stress suite picks them from its own seeds.
 
+The other perturbations (docs/stress.md lists them with the stress suite's ranges). Sizes
+and counts are given; where and when they happen is drawn from a random stream of the
+seed's own for each kind, so switching one on changes nothing else of the trip:
+
+* **Speed-scale error** (``speed_scale_error``): the encoder reads ``1 + e`` times the
+  true mean speed (plus its white noise), as a wrong wheel radius does.
+* **Bias step** (``gyro_bias_step_rad_s`` at ``gyro_bias_step_at_s``) and **bias ramp**
+  (``gyro_bias_ramp_rad_s2`` from t = 0): the yaw-axis bias is then
+  ``b(t) = gyro_bias_z + ramp t + step [t >= at]`` (``SimulationConfig.gyro_bias_z_at``);
+  ``Trip.true_gyro_bias_rad_s`` states the bias at the end of the trip, the one a final
+  bias error is measured against.
+* **Coloured gyro noise** (``gyro_colored_noise_rad_s``, ``gyro_colored_noise_tau_s``): a
+  first-order Gauss-Markov process (stationary sigma, correlation time) added to the yaw
+  axis on top of its white noise; it starts in its stationary distribution.
+* **Reflectors not in the map** (``extra_reflectors``): poles in the world, placed by the
+  same rules as the map's (clear of the path, spaced from each other and the map's poles),
+  that the map does not list.
+* **Map poles missing in the world** (``missing_poles``): that many of the map's poles,
+  picked at random, are not there to be scanned; the map still lists them.
+* **LiDAR dropouts** (``lidar_dropouts`` of ``lidar_dropout_s`` each): spans in which no
+  LiDAR gives a scan (the scans are removed, as a stalled driver's are).
+* **IMU gaps** (``imu_gaps`` of ``imu_gap_s`` each): spans without IMU samples.
+
+Dropouts and gaps fall after the static window: the time from ``static_s`` to the end is
+cut into equal slots, one per span, and each span starts at a uniform time in its slot
+(so they never overlap; a config whose spans do not fit is refused).
+
 Every perturbation is off by default, and then the trip is bit-identical to one simulated
-before they existed (the extra LiDAR has a random stream of its own).
+before they existed (each perturbation that draws has a random stream of its own).
 
 ``Trip.noise`` states the gyro (z) and speed white-noise sigmas the simulator used and an
 exact map (landmark_m = 0). It states no range or bearing figure: the EKF's are the noise
@@ -150,6 +177,27 @@ class SimulationConfig:
                                      -1.0, 1.0)
     lidar2_y_error_m: float = _param(0.0, 'm', 'True minus stated y of the second LiDAR.',
                                      -1.0, 1.0)
+    speed_scale_error: float = _param(
+        0.0, '1', 'Speed-scale error e: the encoder reads (1 + e) times the true speed.',
+        -0.5, 0.5)
+    gyro_bias_step_rad_s: float = _param(
+        0.0, 'rad/s', 'Step added to the yaw-axis bias at gyro_bias_step_at_s.', -1.0, 1.0)
+    gyro_bias_step_at_s: float = _param(0.0, 's', 'When the yaw-axis bias step happens.',
+                                        0.0, 1e5)
+    gyro_bias_ramp_rad_s2: float = _param(
+        0.0, 'rad/s^2', 'Rate of change of the yaw-axis bias from t = 0.', -0.01, 0.01)
+    gyro_colored_noise_rad_s: float = _param(
+        0.0, 'rad/s', 'Stationary sigma of first-order Gauss-Markov noise on the yaw axis.',
+        0.0, 1.0)
+    gyro_colored_noise_tau_s: float = _param(
+        1.0, 's', 'Correlation time of the coloured yaw-axis noise.', 1e-3, 1e4)
+    extra_reflectors: int = _param(0, '1', 'Reflective poles in the world but not in the map.',
+                                   0, 100)
+    missing_poles: int = _param(0, '1', 'Map poles absent from the world.', 0, 200)
+    lidar_dropouts: int = _param(0, '1', 'Spans without any LiDAR scan.', 0, 100)
+    lidar_dropout_s: float = _param(5.0, 's', 'Length of each LiDAR dropout.', 0.01, 1e4)
+    imu_gaps: int = _param(0, '1', 'Spans without IMU samples.', 0, 100)
+    imu_gap_s: float = _param(0.5, 's', 'Length of each IMU gap.', 0.001, 1e4)
 
     def lidar_mounts(self) -> tuple[tuple[LidarMount, LidarMount], ...]:
         """(stated, true) mount of every simulated LiDAR, the first LiDAR first."""
@@ -160,6 +208,21 @@ class SimulationConfig:
                            self.lidar2_yaw_error_rad, self.lidar2_x_error_m,
                            self.lidar2_y_error_m))
         return tuple((stated, _offset(stated, yaw, x, y)) for stated, yaw, x, y in mounts)
+
+    def gyro_bias_drift_z(self, t_s: FloatArray) -> FloatArray:
+        """Return the yaw-axis bias change since t = 0 at times t_s (n,): ramp plus step, rad/s."""
+        t_s = np.asarray(t_s, dtype=np.float64)
+        return (self.gyro_bias_ramp_rad_s2 * t_s
+                + np.where(t_s >= self.gyro_bias_step_at_s, self.gyro_bias_step_rad_s, 0.0))
+
+    def gyro_bias_z_at(self, t_s: FloatArray) -> FloatArray:
+        """Return the true yaw-axis gyro bias at times t_s (n,), rad/s."""
+        return self.gyro_bias_z_rad_s + self.gyro_bias_drift_z(t_s)
+
+    @property
+    def bias_drifts(self) -> bool:
+        """Whether the yaw-axis bias changes during the trip (a step or a ramp)."""
+        return self.gyro_bias_step_rad_s != 0.0 or self.gyro_bias_ramp_rad_s2 != 0.0
 
 
 def _offset(stated: LidarMount, yaw_rad: float, x_m: float, y_m: float) -> LidarMount:
@@ -184,6 +247,14 @@ def _check(config: SimulationConfig) -> None:
     if config.min_speed_m_s > config.max_speed_m_s:
         raise CoreError(f'simulation: min_speed_m_s {config.min_speed_m_s} exceeds '
                         f'max_speed_m_s {config.max_speed_m_s}')
+    if config.missing_poles > config.pole_count:
+        raise CoreError(f'simulation: missing_poles {config.missing_poles} exceeds '
+                        f'pole_count {config.pole_count}')
+    for count, length, name in ((config.lidar_dropouts, config.lidar_dropout_s, 'lidar_dropout'),
+                                (config.imu_gaps, config.imu_gap_s, 'imu_gap')):
+        if count and (config.duration_s - config.static_s) / count < length:
+            raise CoreError(f'simulation: {count} x {name}_s {length} s do not fit in the '
+                            f'{config.duration_s - config.static_s:g} s after the static window')
 
 
 @dataclass(frozen=True, slots=True)
@@ -258,15 +329,28 @@ def _segments(walls: FloatArray) -> tuple[FloatArray, FloatArray]:
     return starts[ok], (ends - starts)[ok]
 
 
-def _place_poles(config: SimulationConfig, path: _Path, rng: np.random.Generator) -> FloatArray:
-    """Rejection-sample pole centres (path frame) clear of the path, walls and each other."""
+def _place_poles(config: SimulationConfig, path: _Path, rng: np.random.Generator,
+                 count: int | None = None, existing: FloatArray | None = None) -> FloatArray:
+    """Rejection-sample pole centres (path frame) clear of the path, walls and each other.
+
+    Args:
+        count: poles to place (default ``config.pole_count``).
+        existing: poles already there (path frame) that new ones keep their spacing from.
+
+    Returns:
+        The new poles only, shape (count, 2).
+    """
+    if count is None:
+        count = config.pole_count
     hx = path.a + config.wall_margin_m - 0.8
     hy = path.b + config.wall_margin_m - 0.8
     route = np.column_stack(path.path_frame(np.linspace(0.0, path.lap_m, 2000))[:2])
-    poles = np.zeros((0, 2))
+    before = 0 if existing is None else len(existing)
+    poles = np.zeros((0, 2)) if existing is None else np.asarray(existing, dtype=np.float64)
+    target = before + count
     stale = 0
     # Give up after a run of batches that add nothing: the arena is full.
-    while len(poles) < config.pole_count and stale < 20:
+    while len(poles) < target and stale < 20:
         candidates = rng.uniform([-hx, -hy], [hx, hy], size=(256, 2))
         gaps = np.min(np.linalg.norm(candidates[:, None, :] - route[None, :, :], axis=2),
                       axis=1)
@@ -276,12 +360,12 @@ def _place_poles(config: SimulationConfig, path: _Path, rng: np.random.Generator
                 continue
             poles = np.vstack([poles, point])
             stale = 0
-            if len(poles) == config.pole_count:
+            if len(poles) == target:
                 break
-    if len(poles) < config.pole_count:
-        raise CoreError(f'simulation: could place only {len(poles)} of {config.pole_count} '
-                        'poles; lower pole_count, pole_spacing_m or pole_clearance_m')
-    return poles
+    if len(poles) < target:
+        raise CoreError(f'simulation: could place only {len(poles)} of {target} poles; lower '
+                        'pole_count, extra_reflectors, pole_spacing_m or pole_clearance_m')
+    return poles[before:]
 
 
 @dataclass(frozen=True, slots=True)
@@ -346,6 +430,45 @@ class _ArcLength:
         index = np.clip(np.floor(position).astype(np.int64), 0, self.grid_m.size - 2)
         frac = position - index
         return self.grid_m[index] * (1.0 - frac) + self.grid_m[index + 1] * frac
+
+
+# Random streams of the perturbations: children of SeedSequence(seed) after the seven the
+# trip itself uses (spawn_key (k,) is what SeedSequence(seed).spawn(k + 1)[k] gives).
+_COLOURED_STREAM, _REFLECTOR_STREAM, _MISSING_STREAM, _DROPOUT_STREAM, _IMU_GAP_STREAM = (
+    7, 8, 9, 10, 11)
+
+
+def _stream(seed: int, child: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(child,)))
+
+
+def _gauss_markov(count: int, period_s: float, sigma: float, tau_s: float,
+                  rng: np.random.Generator) -> FloatArray:
+    """First-order Gauss-Markov samples (count,), stationary sigma, correlation time tau_s."""
+    decay = math.exp(-period_s / tau_s)
+    # Scaled so the stationary variance is sigma^2; the first sample is drawn from it.
+    drive = rng.standard_normal(count) * (sigma * math.sqrt(1.0 - decay * decay))
+    drive[0] = sigma * rng.standard_normal()
+    out = np.empty(count)
+    value = 0.0
+    for k, kick in enumerate(drive.tolist()):
+        value = decay * value + kick
+        out[k] = value
+    return out
+
+
+def _spans(count: int, length_s: float, start_s: float, end_s: float,
+           rng: np.random.Generator) -> FloatArray:
+    """Non-overlapping spans (count, 2) of length_s in [start_s, end_s], one per equal slot."""
+    slot = (end_s - start_s) / count
+    begin = start_s + slot * np.arange(count) + rng.uniform(0.0, slot - length_s, count)
+    return np.column_stack([begin, begin + length_s])
+
+
+def _outside(stamps: FloatArray, spans: FloatArray) -> FloatArray:
+    """Return which stamps lie outside every [begin, end) span, shape (n,) bool."""
+    inside = (stamps[:, None] >= spans[None, :, 0]) & (stamps[:, None] < spans[None, :, 1])
+    return ~inside.any(axis=1)
 
 
 def _sample_times(duration_s: float, rate_hz: float) -> FloatArray:
@@ -481,6 +604,15 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
                            config.gyro_noise_z_rad_s])
     gyro = bias + gyro_sigma * gyro_rng.standard_normal((imu_t.size, 3))
     gyro[:, 2] += rate_true
+    if config.bias_drifts:
+        gyro[:, 2] += config.gyro_bias_drift_z(imu_t)
+        # The bias a final bias error is measured against: the one at the end.
+        bias = bias.copy()
+        bias[2] = float(config.gyro_bias_z_at(imu_t[-1]))
+    if config.gyro_colored_noise_rad_s > 0.0:
+        gyro[:, 2] += _gauss_markov(imu_t.size, period, config.gyro_colored_noise_rad_s,
+                                    config.gyro_colored_noise_tau_s,
+                                    _stream(seed, _COLOURED_STREAM))
     accel = None
     if config.with_accelerometer:
         speed_mean = np.diff(edge_s) / period
@@ -494,7 +626,9 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
     odo_period = 1.0 / config.speed_rate_hz
     speed_true = (arc(odo_t + odo_period) - arc(odo_t)) / odo_period
     noise = config.speed_noise_m_s * odo_rng.standard_normal(odo_t.size)
-    speed = np.where(speed_true > 0.0, speed_true + noise, 0.0)
+    scale = 1.0 + config.speed_scale_error
+    measured = speed_true if config.speed_scale_error == 0.0 else scale * speed_true
+    speed = np.where(speed_true > 0.0, measured + noise, 0.0)
 
     truth_t = _sample_times(config.duration_s, config.truth_rate_hz)
     truth_pose = path.pose(arc(truth_t))
@@ -502,12 +636,37 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
     scan_t = _sample_times(config.duration_s, config.lidar_rate_hz)
     scan_pose = path.pose(arc(scan_t))
     seg_start, seg_vec = _segments(walls)
+    # What the LiDARs see: the map's poles but the missing ones, and the extra reflectors.
+    world = landmarks
+    if config.missing_poles:
+        gone = _stream(seed, _MISSING_STREAM).choice(len(landmarks), config.missing_poles,
+                                                     replace=False)
+        world = np.delete(world, gone, axis=0)
+    if config.extra_reflectors:
+        extra = _place_poles(config, path, _stream(seed, _REFLECTOR_STREAM),
+                             config.extra_reflectors, poles_path)
+        world = np.vstack([world, path.to_map(extra)])
     names = ((SCAN, LASER_FRAME), (SCAN2, LASER2_FRAME))
     scans = tuple(
-        _scan_series(config, stated, true, scan_t, scan_pose, landmarks, seg_start, seg_vec,
+        _scan_series(config, stated, true, scan_t, scan_pose, world, seg_start, seg_vec,
                      rng, topic, frame_id)
         for (stated, true), rng, (topic, frame_id) in zip(config.lidar_mounts(), lidar_rngs,
                                                           names))
+    # Dropouts and gaps remove samples after everything is drawn, so the samples kept are
+    # the ones the unperturbed trip has.
+    if config.lidar_dropouts:
+        keep = _outside(scan_t, _spans(config.lidar_dropouts, config.lidar_dropout_s,
+                                       config.static_s, config.duration_s,
+                                       _stream(seed, _DROPOUT_STREAM)))
+        scans = tuple(dataclasses.replace(
+            scan, stamp_s=scan.stamp_s[keep], ranges_m=scan.ranges_m[keep],
+            intensities=None if scan.intensities is None else scan.intensities[keep])
+            for scan in scans)
+    if config.imu_gaps:
+        keep = _outside(imu_t, _spans(config.imu_gaps, config.imu_gap_s, config.static_s,
+                                      config.duration_s, _stream(seed, _IMU_GAP_STREAM)))
+        imu_t, gyro = imu_t[keep], gyro[keep]
+        accel = None if accel is None else accel[keep]
     return Trip(
         name=f'sim_seed{seed}',
         imu=ImuSeries(stamp_s=imu_t, angular_velocity_rad_s=gyro,

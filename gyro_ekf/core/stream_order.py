@@ -33,19 +33,31 @@ class StreamMerger:
     queue drains no faster than a 100 Hz odometry queue and the odometry stamps run ahead
     by more than any fixed window. So an event with stamp t is released once
     t <= newest stamp of any stream - window_s and t <= the newest stamp of every active
-    stream. A stream is stale (stops holding the others back: a stopped LiDAR) only when
-    both hold: nothing came from it for ``stale_after_s`` on ``clock``, and the other
-    streams' stamps have moved ``stale_after_s`` past its newest stamp. Either alone fails
-    on a busy machine: a process that was starved for a second wakes to find every stream
-    silent on the clock although their messages wait in the queues (their stamps are close),
-    and a queue that drains slower than it fills lags in stamps although its messages keep
-    coming. Neither depends on how fast the machine is. ``max_events`` bounds what is held.
+    stream.
+
+    A stream is stale (stops holding the others back: a stopped LiDAR) only when nothing of
+    it was received while the newest stamp received on any stream moved ``stale_after_s``
+    on, and ``stale_after_s`` passed on ``clock`` since its last message. The first measure
+    is in the stamps of messages actually received (the data's own time, sim time or not),
+    so it does not depend on how fast the machine is: a stream whose messages wait in its
+    queue is served in every executor round, one message per round like the others (an
+    events executor serves the queues in arrival order, closer still), so the others cannot
+    move far between two of its messages however far behind it drains (its own stamps may
+    lag by seconds). A starved process cannot make a stream stale, nor can
+    ROS time from a /clock that runs ahead of the queued data (not used here). The clock
+    (steady) only delays staleness: a burst of one stream (seconds of stamps received at
+    once), or a stream computed upstream from a fast replay (landmarks from a busy
+    detector) that lags by more than stale_after_s of stamps, is not silent. A stream
+    whose stamps run ahead of the others never holds them back, and it is not stale before
+    the others pass its stamps. ``max_events`` bounds what is held.
+
     An event older than one already released is late: ``push`` returns it in ``late``
     instead of releasing it out of order. Ties release speed, observation, IMU, as
     iter_trip_events orders them, so a live run feeds the EventDriver what an offline run
     does. At the start nothing is released until every expected stream has spoken (or, by
-    the same two measures, stale_after_s has passed): the first messages of two topics
-    reach a subscriber in either order, and releasing the first would make the other late.
+    the same two measures counted from the first message, stale_after_s has passed): the
+    first messages of two topics reach a subscriber in either order, and releasing the
+    first would make the other late.
     """
 
     def __init__(self, window_s: float, max_events: int = 20_000, stale_after_s: float = 1.0,
@@ -56,10 +68,9 @@ class StreamMerger:
         Args:
             window_s: least stamp time an event waits behind the newest stamp, s.
             max_events: the oldest events are released beyond this many.
-            stale_after_s: a stream silent for this long on the clock, and this far
-                behind the other streams' stamps, stops holding events back, s.
-            clock: seconds on the node's clock (monotonic, or ROS time with sim time);
-                replaceable in tests.
+            stale_after_s: a stream silent for this long on the clock, and while the
+                newest stamp received moved this far, stops holding events back, s.
+            clock: steady seconds (monotonic); replaceable in tests.
             expected_streams: streams to wait for before the first release (at most
                 stale_after_s after the first event).
         """
@@ -68,11 +79,13 @@ class StreamMerger:
         self.stale_after_s = stale_after_s
         self.expected_streams = frozenset(expected_streams)
         self._started: float | None = None
-        self._first_s = math.inf
+        self._first_newest_s = -math.inf
         self._clock = clock
         self._heap: list[tuple[float, int, int, Any]] = []
         self._arrival = itertools.count()
-        self._streams: dict[str, tuple[float, float]] = {}
+        # Per stream: its newest stamp, the newest stamp of any stream when its last
+        # message came, and the clock then.
+        self._streams: dict[str, tuple[float, float, float]] = {}
         self._newest_s = -math.inf
         self._released_s = -math.inf
 
@@ -90,36 +103,36 @@ class StreamMerger:
         if stamp_s < self._released_s:
             return [], [payload]
         now = self._clock()
+        newest_s = self._newest_s = max(self._newest_s, stamp_s)
         if self._started is None:
-            self._started = now
-        self._first_s = min(self._first_s, stamp_s)
-        newest_of_stream = self._streams.get(stream, (-math.inf, now))[0]
-        self._streams[stream] = (max(newest_of_stream, stamp_s), now)
-        self._newest_s = max(self._newest_s, stamp_s)
+            self._started, self._first_newest_s = now, newest_s
+        own_s = self._streams.get(stream, (-math.inf,))[0]
+        self._streams[stream] = (max(own_s, stamp_s), newest_s, now)
         heapq.heappush(self._heap, (stamp_s, int(kind), next(self._arrival), payload))
         if (self._released_s == -math.inf and not self.expected_streams <= self._streams.keys()
-                and not self._passed(now, self._started, self._first_s)
+                and not self._passed(now, self._started, self._first_newest_s)
                 and len(self._heap) <= self.max_events):
             return [], []
-        stale_s, newest_s = self.stale_after_s, self._newest_s
-        watermark = min((newest for newest, seen in self._streams.values()
-                         if now - seen <= stale_s or newest_s - newest <= stale_s),
+        stale_s = self.stale_after_s
+        watermark = min((own for own, newest_then, seen in self._streams.values()
+                         if now - seen <= stale_s or newest_s - newest_then <= stale_s),
                         default=math.inf)  # not stale (see _passed), inline: per message
-        return self._release(min(self._newest_s - self.window_s, watermark)), []
+        return self._release(min(newest_s - self.window_s, watermark)), []
 
     def active_streams(self) -> set[str]:
         """Streams seen since the last clear that are not stale."""
         now = self._clock()
-        return {stream for stream, (newest, seen) in self._streams.items()
-                if not self._passed(now, seen, newest)}
+        return {stream for stream, (_, newest_then, seen) in self._streams.items()
+                if not self._passed(now, seen, newest_then)}
 
-    def _passed(self, now: float, seen: float, newest_s: float) -> bool:
-        """Tell whether stale_after_s has passed on the clock and in the stamps.
+    def _passed(self, now: float, seen: float, newest_then_s: float) -> bool:
+        """Tell whether stale_after_s has passed on the clock and in the received stamps.
 
-        On the clock since `seen`, and in the newest stamp of any stream since `newest_s`.
+        On the clock since `seen`, and in the newest stamp received on any stream since it
+        was `newest_then_s`.
         """
         return (now - seen > self.stale_after_s
-                and self._newest_s - newest_s > self.stale_after_s)
+                and self._newest_s - newest_then_s > self.stale_after_s)
 
     def flush(self) -> ReadyEvents:
         """Release everything held."""
@@ -130,7 +143,7 @@ class StreamMerger:
         self._heap.clear()
         self._streams.clear()
         self._started = None
-        self._first_s = math.inf
+        self._first_newest_s = -math.inf
         self._newest_s = -math.inf
         self._released_s = -math.inf
 

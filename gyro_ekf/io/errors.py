@@ -22,3 +22,7 @@ class OutputError(GyroEkfError):
 
 class ParamsFileError(GyroEkfError):
     """A ROS 2 params YAML is unreadable or holds a bad value."""
+
+
+class LandmarksFileError(GyroEkfError):
+    """A landmark map file is missing, unreadable, binary or not a list of (x, y) in m."""

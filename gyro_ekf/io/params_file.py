@@ -13,10 +13,13 @@ The file has the layout `ros2 run ... --ros-args --params-file` takes::
 Sections of the pipeline's nodes (`/**`, `ekf_node`, `calibration_node`,
 `landmark_detector_node`) are read; sections of other nodes are skipped. Inside a read
 section, a name (after an optional `ekf.`, `calibration.` or `detector.` group prefix) that
-is a field of EkfConfig, CalibrationConfig or DetectorConfig sets that field; other names
-(the bag sidecar's `initial_pose.*`, node-level options) belong to someone else and are
-skipped. A value set in a node section overrides the same value under `/**`. Values
-are checked by `core.config.make_config`, and every error names the file and parameter.
+is a field of EkfConfig, CalibrationConfig or DetectorConfig sets that field, and a bare
+name that is a field of RunOptions (`use_stated_noise`, `use_calibration`, ...) sets that
+option; other names (the bag sidecar's `initial_pose.*`, the nodes' own frames, topics
+and QoS) belong to someone else and are skipped. A value set in a node section overrides
+the same value under `/**`. Values are checked by `core.config.make_config` (a switch
+takes true or false only), and every error names the file and parameter. Defaults are
+the dataclasses' own, as for the nodes.
 
 LiDAR mounts are read in the EKF node's (and the bag sidecar's) layout, `lidar.topics` and
 `lidar.<topic>.{frame_id, x_m, y_m, yaw_rad}` (x, y and yaw required, frame_id optional);
@@ -36,7 +39,8 @@ from typing import Any
 import yaml
 
 from gyro_ekf.io.errors import ParamsFileError
-from gyro_ekf.core.config import CalibrationConfig, DetectorConfig, EkfConfig, make_config
+from gyro_ekf.core.config import (CalibrationConfig, DetectorConfig, EkfConfig, make_config,
+                                  RunOptions)
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.types import LidarMount, Trip
 from gyro_ekf.core.validation import mount_problem
@@ -50,10 +54,7 @@ _CONFIG_TYPES: dict[str, type] = {
     'ekf': EkfConfig, 'calibration': CalibrationConfig, 'detector': DetectorConfig}
 _FIELD_OWNER = {f.name: group for group, kind in _CONFIG_TYPES.items()
                 for f in dataclasses.fields(kind)}
-
-OPTIONS = ('use_stated_noise', 'use_calibration', 'calibration_bias_sigma_rad_s',
-           'use_message_covariance')
-"""Node-level options `gyro-ekf run` honours besides the config fields."""
+_OPTIONS = frozenset(f.name for f in dataclasses.fields(RunOptions))
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,8 +66,8 @@ class PipelineParams:
         calibration: static-window calibration.
         detector: pole detection.
         explicit: names of the fields the file set, per group ('ekf', 'calibration',
-            'detector').
-        options: node-level options the file set (see OPTIONS).
+            'detector', 'options').
+        options: the run options (defaults where the file sets none).
         lidars: scan topic (no slash) -> (frame_id or None, mount) the file sets.
     """
 
@@ -74,7 +75,7 @@ class PipelineParams:
     calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     explicit: dict[str, tuple[str, ...]] = field(default_factory=dict)
-    options: dict[str, Any] = field(default_factory=dict)
+    options: RunOptions = field(default_factory=RunOptions)
     lidars: dict[str, tuple[str | None, LidarMount]] = field(default_factory=dict)
 
 
@@ -137,7 +138,7 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
                 lidar_values[name[len('lidar.'):]] = value
                 continue
             group, _, short = name.rpartition('.')
-            if short in OPTIONS and not group:
+            if short in _OPTIONS and not group:
                 options[short] = value
                 continue
             owner = _FIELD_OWNER.get(short)
@@ -148,26 +149,20 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
     for group, named in values.items():
         for short, value in named.items():
             _require_finite(source, f'{group}.{short}', value)
-    if 'calibration_bias_sigma_rad_s' in options:
-        sigma = options['calibration_bias_sigma_rad_s']
-        _require_finite(source, 'calibration_bias_sigma_rad_s', sigma)
-        if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or sigma <= 0.0:
-            raise ParamsFileError(f"{source}: parameter 'calibration_bias_sigma_rad_s' must be "
-                                  f'a positive number, got {sigma!r}')
+    for name, value in options.items():
+        _require_finite(source, name, value)
     built: dict[str, Any] = {}
-    for group, kind in _CONFIG_TYPES.items():
-        try:
+    try:
+        for group, kind in _CONFIG_TYPES.items():
             built[group] = make_config(kind, values[group], source=source)
-        except CoreError as err:
-            raise ParamsFileError(str(err)) from None
-    for name in ('use_stated_noise', 'use_message_covariance', 'use_calibration'):
-        if name in options and not isinstance(options[name], bool):
-            raise ParamsFileError(f"{source}: parameter '{name}' must be true or false, "
-                                  f'got {options[name]!r}')
+        run_options = make_config(RunOptions, options, source=source)
+    except CoreError as err:
+        raise ParamsFileError(str(err)) from None
     return PipelineParams(
         ekf=built['ekf'], calibration=built['calibration'], detector=built['detector'],
-        explicit={group: tuple(sorted(v)) for group, v in values.items()}, options=options,
-        lidars=_lidar_mounts(lidar_values, source))
+        explicit={**{group: tuple(sorted(v)) for group, v in values.items()},
+                  'options': tuple(sorted(options))},
+        options=run_options, lidars=_lidar_mounts(lidar_values, source))
 
 
 def _lidar_mounts(values: dict[str, Any], source: str

@@ -13,9 +13,10 @@ Bad input is dropped and counted per reason in /diagnostics: `zero_stamp`, `non_
 `out_of_range` (a rate or speed beyond the `limits.*` parameters, core.config.InputLimits),
 `malformed` (bytes that are not the topic's type: the inputs are read serialized,
 nodes/wire.py) and, while collecting, `stamp_jump`: a stamp more than
-`limits.max_stamp_jump_s` ahead of the inputs is held until odom confirms it or
-`confirm_jump_after` IMU messages go on from it (core StampGate), so a lone message far ahead
-can neither end a window nor set where the next one starts.
+`limits.max_stamp_jump_s` ahead of the inputs is held until odom confirms it or ten IMU
+messages (StampGate's default) go on from it, so a lone message far ahead can neither end a
+window nor set where the next one starts. A former parameter still given is warned about
+once and ignored (REMOVED_PARAMETERS).
 """
 
 from __future__ import annotations
@@ -41,10 +42,21 @@ from gyro_ekf.nodes import qos, wire
 from gyro_ekf.nodes.conversions import (axes_known, bias_message, corrected_imu, drop_reason,
                                         imu_rates, odometry_speed, stamp_ns, TimeOrigin,
                                         to_stamp)
-from gyro_ekf.nodes.params import declare, declare_config
+from gyro_ekf.nodes.params import declare, declare_config, report_removed
 from gyro_ekf.nodes.runtime import run_node
 
 _AXES = 'xyz'
+
+LIMITS_USED = ('max_yaw_rate_rad_s', 'max_speed_m_s', 'max_stamp_jump_s')
+"""The InputLimits fields this node checks (declared as limits.*)."""
+
+REMOVED_PARAMETERS = {
+    'confirm_jump_after': 'now StampGate\'s default, 10 messages',
+    **{f'limits.{name}': 'this node never checked it' for name in (
+        'max_coordinate_m', 'max_mount_offset_m', 'max_angle_rad', 'max_duration_s',
+        'quaternion_norm_tolerance')},
+}
+"""Former parameters -> what became of them (a user still giving one is warned once)."""
 
 
 class CalibrationNode(Node):
@@ -60,12 +72,7 @@ class CalibrationNode(Node):
         """Declare parameters, create the calibrator, topics, service and timer."""
         super().__init__('calibration_node', **kwargs)
         self.config = declare_config(self, CalibrationConfig)
-        self._limits = declare_config(self, InputLimits, prefix='limits.')
-        confirm_after = declare(self, 'confirm_jump_after', 10,
-                                'Consecutive IMU messages, each within '
-                                'limits.max_stamp_jump_s of the last, that confirm a jump of '
-                                'the stamps ahead while odom is silent (odom at the new time '
-                                'confirms it at once)', '', 1, 100_000)
+        self._limits = declare_config(self, InputLimits, prefix='limits.', names=LIMITS_USED)
         use_odom = declare(self, 'use_odom', True,
                            'Subscribe odom and refuse a window in which the platform moves')
         lossless = declare(self, 'reliable_inputs', False,
@@ -73,12 +80,13 @@ class CalibrationNode(Node):
                            'data QoS (lossless replay, tests)')
         period = declare(self, 'diagnostics_period_s', 1.0,
                          'Period of the /diagnostics status', 's', 0.01, 3600.0)
+        report_removed(self, REMOVED_PARAMETERS)
         self.calibrator = StaticWindowCalibrator(self.config)
         self.result: BiasEstimate | None = None
         self.dropped = {'non_finite': 0, 'out_of_range': 0, 'zero_stamp': 0,
                         'stamp_jump': 0, 'malformed': 0}
         self._origin = TimeOrigin()
-        self._gate = StampGate(self._limits.max_stamp_jump_s, confirm_after)
+        self._gate = StampGate(self._limits.max_stamp_jump_s)
         self._window_from_s: float | None = None
         self._axes_known: tuple[bool, bool, bool] | None = None
         self._imu_count = 0

@@ -40,37 +40,44 @@ LiDAR mounts in use (`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file f
 entry in that order.
 
 Robustness: every value is checked where it enters, with core.validation and the
-`limits.*` parameters (core.config.InputLimits), and a bad message is dropped and counted per
-reason in /diagnostics with a throttled warning: `non_finite` (NaN/inf), `out_of_range` (a
-yaw rate, speed or coordinate beyond its limit), `bad_pose` (an initialpose whose quaternion
-is not of unit norm or whose covariance is not symmetric positive semi-definite),
-`zero_stamp`, `late` (older than what the filter already processed), `stamp_jump`, and
-`empty_map`, `unknown_frame`, `filter_error`.
+`limits.*` parameters (the core.config.InputLimits this node uses), and a bad message is
+dropped and counted per reason in /diagnostics with a throttled warning: `non_finite`
+(NaN/inf), `out_of_range` (a yaw rate, speed or coordinate beyond its limit), `bad_pose` (an
+initialpose whose quaternion is not of unit norm or whose covariance is not symmetric
+positive semi-definite), `zero_stamp`, `late` (older than what the filter already
+processed), `stamp_jump`, and `empty_map`, `unknown_frame`, `filter_error`.
 
 Time: a message stamped more than `limits.max_stamp_jump_s` ahead of the inputs' common time
 is held, not predicted through (core StampGate). It is taken, with the gap, when another
 input confirms the new time (every input paused and resumed together: a real gap), or after
-`confirm_jump_after` consecutive messages of its input, each close to the last, while no
+ten consecutive messages of its input (StampGate's default), each close to the last, while no
 other input spoke; if its input goes on near the common time instead, it was an outlier and
 is dropped as `stamp_jump`. There is no common time until the first such confirmation, so
-a lone first message far from the others cannot wedge the node. Which input is silent
-(`stale_input_s`) is judged on the node clock (ROS time with use_sim_time) and in the stamps
-of the other inputs together, so a busy or starved machine does not make an input stale.
-The filter resets only for a reason it logs: ROS time jumping back (/clock going backwards,
-a looped bag with /clock), stamps that restart (`restart_after_late` messages in a row, from
-every active input, `loop_jump_s` behind the filter: a looped bag without /clock), or
-`~/reset` (std_srvs/Trigger). One input whose stamps fall behind only has its messages
-dropped as late. The node never dies on input.
+a lone first message far from the others cannot wedge the node. An input is silent
+(STALE_INPUT_S, core StreamMerger) only when nothing of it was received while the newest
+stamp received on any input moved that far on (the data's own ROS time, with or without
+use_sim_time) and as long passed on the steady clock: an input whose messages wait in its
+queue is served in every executor round, so a busy or starved machine, a /clock that runs
+ahead of the queued messages, a burst of one input or a detector upstream that lags does
+not make it stale, and its messages are not dropped as late. The filter resets only for a
+reason it logs: ROS time jumping back (/clock going backwards, a looped bag with /clock),
+stamps that restart (RESTART_AFTER_LATE messages in a row, from every active input,
+LOOP_JUMP_S behind the filter: a looped bag without /clock), or `~/reset`
+(std_srvs/Trigger). One input whose stamps fall behind only has its messages dropped as
+late. The node never dies on input.
+
+Parameters are what a user tunes (noise, priors, gate, map source, frames, calibration use,
+observation history, QoS, visuals, TF; docs/parameters.md); the merger's internals are the
+module constants below. A former parameter still given is warned about once and ignored
+(REMOVED_PARAMETERS).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from pathlib import Path
 
 import numpy as np
-import yaml
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseArray, PoseWithCovarianceStamped, Vector3Stamped
@@ -88,7 +95,7 @@ from gyro_ekf import topics
 from gyro_ekf.io.visual_bag import MARKERS_PERIOD_S, PATH_LENGTH, PATH_PERIOD_S, \
     PATH_SPACING_S
 from gyro_ekf.core.angles import yaw_of_quaternion
-from gyro_ekf.core.config import EkfConfig, InputLimits, with_stated_noise
+from gyro_ekf.core.config import EkfConfig, InputLimits, RunOptions, with_stated_noise
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core import health
 from gyro_ekf.core.event_records import Estimate, EventKind
@@ -101,12 +108,13 @@ from gyro_ekf.core.validation import coordinate_problem, initial_pose_problem, m
     mount_problem, rate_problem, speed_problem
 from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.io import messages
+from gyro_ekf.io.landmarks_file import read_landmarks_file
 from gyro_ekf.nodes import qos, visuals, wire
 from gyro_ekf.nodes.conversions import (drop_reason, EstimateMessages, odometry_speed,
                                         online_corrected_imu, points_of, pose_and_covariance,
-                                        pose_problem, quaternion_yaw, stamp_ns,
-                                        TimeOrigin, yaw_quaternion)
-from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar
+                                        pose_problem, quaternion_yaw, stamp_ns, TimeOrigin,
+                                        yaw_quaternion)
+from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar, report_removed
 from gyro_ekf.nodes.runtime import run_node
 
 DROP_REASONS = ('non_finite', 'out_of_range', 'bad_pose', 'zero_stamp', 'late', 'stamp_jump',
@@ -118,34 +126,44 @@ _LEVELS = {health.OK: DiagnosticStatus.OK, health.DEGRADED: DiagnosticStatus.WAR
            health.FAILED: DiagnosticStatus.ERROR}
 
 
-def load_landmarks_file(path: str, limits: InputLimits = InputLimits()) -> LandmarkMap:
-    """Read a landmark map: YAML `landmarks: [[x, y], ...]` or text with x y per line (m).
+STALE_INPUT_S = 1.0
+"""An input of which nothing arrived while the newest stamp received on any input moved this
+far on, and for this long on the steady clock, stops holding the others back, s: ten periods
+of a 10 Hz LiDAR, so a late scan is waited for, and a sensor that stopped costs the others
+one second of latency once."""
 
-    Raises:
-        GyroEkfError: unreadable file, or not a non-empty list of finite (x, y) pairs.
-    """
-    file = Path(path)
-    try:
-        text = file.read_text(encoding='utf-8')
-    except OSError as err:
-        raise GyroEkfError(f'landmarks_file {file}: cannot read: {err}') from None
-    try:
-        if file.suffix in ('.yaml', '.yml'):
-            rows = (yaml.safe_load(text) or {}).get('landmarks')
-        else:
-            rows = [line.replace(',', ' ').split() for line in text.splitlines()
-                    if line.strip() and not line.lstrip().startswith('#')]
-        xy = np.array(rows, dtype=np.float64)
-    except (yaml.YAMLError, AttributeError, TypeError, ValueError) as err:
-        raise GyroEkfError(f'landmarks_file {file}: expected (x, y) pairs in m: {err}') from None
-    if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] == 0 or not np.all(np.isfinite(xy)):
-        raise GyroEkfError(f'landmarks_file {file}: expected a non-empty list of finite (x, y) '
-                           f'pairs, got shape {xy.shape}')
-    for row, point in enumerate(xy.tolist()):
-        problem = coordinate_problem(point, limits)
-        if problem:
-            raise GyroEkfError(f'landmarks_file {file}: landmark {row}: {problem}')
-    return LandmarkMap(xy)
+MAX_BUFFERED_EVENTS = 20_000
+"""Most messages the merger (and the late-observation history) holds: bounds memory when an
+input stalls without going stale; the oldest are released beyond it."""
+
+IDLE_FLUSH_S = 0.5
+"""Wall time without input after which held messages are processed, s: at the end of the
+data nothing else releases them (the check runs every 0.25 s and needs two idle ticks)."""
+
+LOOP_JUMP_S = 1.0
+"""A message this far behind the filter counts towards a restart of the data (a looped bag
+without /clock), s; inputs that are merely out of step are far closer than that."""
+
+RESTART_AFTER_LATE = 20
+"""Consecutive messages LOOP_JUMP_S behind the filter, from every active input, that reset
+it: one input that lags only loses its late messages."""
+
+LIMITS_USED = ('max_yaw_rate_rad_s', 'max_speed_m_s', 'max_stamp_jump_s', 'max_coordinate_m',
+               'max_mount_offset_m', 'max_angle_rad', 'quaternion_norm_tolerance')
+"""The InputLimits fields this node checks (declared as limits.*)."""
+
+REMOVED_PARAMETERS = {
+    'reorder_window_s': 'the merger waits until every active input has passed a stamp; a '
+                        'window on top only added latency',
+    'stale_input_s': f'now the constant STALE_INPUT_S = {STALE_INPUT_S:g} s',
+    'max_buffered_events': f'now the constant MAX_BUFFERED_EVENTS = {MAX_BUFFERED_EVENTS}',
+    'idle_flush_s': f'now the constant IDLE_FLUSH_S = {IDLE_FLUSH_S:g} s',
+    'loop_jump_s': f'now the constant LOOP_JUMP_S = {LOOP_JUMP_S:g} s',
+    'restart_after_late': f'now the constant RESTART_AFTER_LATE = {RESTART_AFTER_LATE}',
+    'confirm_jump_after': 'now StampGate\'s default, 10 messages',
+    'limits.max_duration_s': 'this node states no durations',
+}
+"""Former parameters -> what became of them (a user still giving one is warned once)."""
 
 
 class EkfNode(Node):
@@ -163,8 +181,10 @@ class EkfNode(Node):
         """Declare parameters, build the driver, create topics, services and timers."""
         super().__init__('ekf_node', **kwargs)
         config = declare_config(self, EkfConfig)
-        self._limits = limits = declare_config(self, InputLimits, prefix='limits.')
+        self._limits = limits = declare_config(self, InputLimits, prefix='limits.',
+                                               names=LIMITS_USED)
         self._max_rate, self._max_speed = limits.max_yaw_rate_rad_s, limits.max_speed_m_s
+        options = declare_config(self, RunOptions)
         sidecar = declare_sidecar(self)
         # Parameters enter the core too: a NaN mount or start pose is a configuration error.
         for topic, (frame, mount) in sidecar.lidars.items():
@@ -177,68 +197,30 @@ class EkfNode(Node):
         if problem:
             raise GyroEkfError(f'node {self.get_fully_qualified_name()}: parameter '
                                f'initial_pose: {problem}')
-        if declare(self, 'use_stated_noise', True,
-                   'Replace the noise sigmas by the noise.* figures a bag states (its params '
-                   'sidecar)'):
+        if options.use_stated_noise:
             config = with_stated_noise(config, sidecar.noise)
         self.config = config
         self._sidecar = sidecar
-        self._use_message_covariance = declare(
-            self, 'use_message_covariance', True,
-            'A positive imu angular_velocity_covariance[8] or odom twist.covariance[0] '
-            'replaces the configured gyro or speed noise for that message (0 or -1: not '
-            'given; NaN, other negatives or beyond the limits.* range: ignored and counted)')
-        self._use_calibration = declare(
-            self, 'use_calibration', False,
-            'Seed the bias state and its variance from gyro_bias (calibration_node)')
-        self._calibration_sigma = declare(
-            self, 'calibration_bias_sigma_rad_s', math.radians(0.05),
-            'Sigma given to a bias seeded from gyro_bias', 'rad/s', 1e-9, 1.0)
+        self._use_message_covariance = options.use_message_covariance
+        self._use_calibration = options.use_calibration
+        self._calibration_sigma = options.calibration_bias_sigma_rad_s
         landmarks_file = declare(self, 'landmarks_file', '',
                                  'Landmark map file (YAML landmarks: [[x, y], ...] or x y '
                                  'text); empty = wait for landmark_map')
         landmark_topics = declare(self, 'landmark_topics', [topics.LANDMARKS],
                                   'Observation topics (PoseArray of poles in a LiDAR frame)')
-        # The watermark (every active input past a stamp) already restores the order
-        # across topics; a window on top only adds latency (0.1 s cost 100 ms per pose).
-        window_s = declare(self, 'reorder_window_s', 0.0,
-                           'Extra stamp time a message is held behind the newest input, on '
-                           'top of waiting until every active input has caught up',
-                           's', 0.0, 60.0)
         history_s = declare(self, 'late_observation_history_s', 0.0,
                             '0: every input waits in stamp order (poses equal an offline run '
                             'but wait for the slowest input); > 0: speed and IMU are used at '
                             'once and observations up to this much stamp time late are '
                             'replayed into the filter (poses at IMU latency; each late scan '
                             'costs a replay of the inputs after it)', 's', 0.0, 5.0)
-        stale_s = declare(self, 'stale_input_s', 1.0,
-                          'An input silent for this long on the node clock (ROS time with '
-                          'use_sim_time), while the other inputs\' stamps move this far past '
-                          'its own, stops holding the others back', 's', 0.01, 3600.0)
-        confirm_after = declare(self, 'confirm_jump_after', 10,
-                                'Consecutive messages of one input, each within '
-                                'limits.max_stamp_jump_s of the last, that confirm a jump of '
-                                'its stamps ahead while no other input speaks (another input '
-                                'at the new time confirms it at once)', '', 1, 100_000)
-        max_events = declare(self, 'max_buffered_events', 20_000,
-                             'Most messages held in the reorder buffer', '', 1, 10_000_000)
         self._publish_every = declare(self, 'publish_every_n', 1,
                                       'Publish every n-th estimate (one per IMU sample)', '',
                                       1, 100_000)
         lossless = declare(self, 'reliable_inputs', False,
                            'Reliable keep-all QoS on the inputs instead of sensor data QoS '
                            '(lossless replay, tests)')
-        self._loop_jump_s = declare(self, 'loop_jump_s', 1.0,
-                                    'A message this far behind the filter counts towards a '
-                                    'restart of the data (looped bag)', 's', 0.0, 1e6)
-        self._restart_after = declare(self, 'restart_after_late', 20,
-                                      'Consecutive messages loop_jump_s behind the filter, '
-                                      'from every active input, that reset it (stamps that '
-                                      'restart: a looped bag without /clock)', '', 1,
-                                      1_000_000)
-        self._idle_flush_s = declare(self, 'idle_flush_s', 0.5,
-                                     'Wall time without input after which held messages are '
-                                     'processed (end of data)', 's', 0.01, 3600.0)
         period = declare(self, 'diagnostics_period_s', 1.0,
                          'Period of the /diagnostics status (node clock)', 's', 0.01, 3600.0)
         self._max_gap_s = declare(self, 'max_association_gap_s', 5.0,
@@ -257,8 +239,9 @@ class EkfNode(Node):
         path_length = declare(self, 'path_length', PATH_LENGTH,
                               'Most poses in ekf/path (one every '
                               f'{PATH_SPACING_S:g} s)', '', 1, 1_000_000)
+        report_removed(self, REMOVED_PARAMETERS)
 
-        landmarks = load_landmarks_file(landmarks_file, limits) if landmarks_file else None
+        landmarks = read_landmarks_file(landmarks_file, limits) if landmarks_file else None
         self.driver = EventDriver(self.config, landmarks=landmarks, pose=sidecar.initial_pose)
         # Health reports name each LiDAR by its scan topic, as summary.json does.
         self.driver.sensor_names = {mount: topic for topic, (_, mount) in sidecar.lidars.items()}
@@ -267,18 +250,17 @@ class EkfNode(Node):
         self._initial_pose = sidecar.initial_pose
         # The first landmarks come later than the first IMU and odometry messages (the
         # detector works on each scan first), so wait for every configured LiDAR frame too,
-        # or its first scans would be late; stale_input_s bounds the wait.
+        # or its first scans would be late; STALE_INPUT_S bounds the wait.
         expected = ['imu', 'odom']
         if history_s == 0.0:  # replayed observations do not pass the merger
             expected += [frame for frame, _ in sidecar.lidars.values()]
-        # Silence is judged on the node clock: with use_sim_time that is /clock, which stops
-        # with the data (a paused replay is not a stale input); else the steady clock.
-        clock = (self._ros_seconds if self.get_parameter('use_sim_time').value
-                 else time.monotonic)
-        self._buffer = StreamMerger(window_s, max_events, stale_s, clock=clock,
-                                    expected_streams=expected)
-        self._gate = StampGate(limits.max_stamp_jump_s, confirm_after)
-        self._lagged = (LaggedObservations(self.driver, history_s, max_events,
+        # Silence is judged in the stamps received (the data's own ROS time: a paused
+        # replay is no silence), and, so that a burst or a busy detector upstream is none
+        # either, on the steady clock; never on /clock, which runs ahead of queued messages.
+        self._buffer = StreamMerger(0.0, MAX_BUFFERED_EVENTS, STALE_INPUT_S,
+                                    clock=time.monotonic, expected_streams=expected)
+        self._gate = StampGate(limits.max_stamp_jump_s)
+        self._lagged = (LaggedObservations(self.driver, history_s, MAX_BUFFERED_EVENTS,
                                            on_refused=self._observation_refused)
                         if history_s > 0.0 else None)
         self._origin = TimeOrigin(sidecar.time_zero_ns)
@@ -351,7 +333,7 @@ class EkfNode(Node):
         self.create_timer(period, self._publish_diagnostics)
         self.create_timer(PATH_PERIOD_S, self._publish_path)
         self.create_timer(MARKERS_PERIOD_S, self._publish_markers)
-        self.create_timer(min(self._idle_flush_s / 2.0, 0.25), self._flush_when_idle,
+        self.create_timer(min(IDLE_FLUSH_S / 2.0, 0.25), self._flush_when_idle,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._jump_handle = self.get_clock().create_jump_callback(
             JumpThreshold(min_forward=None, min_backward=Duration(nanoseconds=-1_000_000),
@@ -376,9 +358,6 @@ class EkfNode(Node):
             return False
         self._drop(drop_reason(problem, otherwise), f'{what}: {problem}')
         return True
-
-    def _ros_seconds(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
 
     def _on_imu(self, message: Imu) -> None:
         self._take_imu(message.header.stamp, message.header.frame_id,
@@ -543,7 +522,7 @@ class EkfNode(Node):
         ready, late = self._buffer.push(stream, stamp_s, kind, (ns, value))
         if late:
             behind_s = self._buffer.released_s - stamp_s  # finite: something was released
-            if behind_s > self._loop_jump_s:
+            if behind_s > LOOP_JUMP_S:
                 self._late_streak += 1
                 self._late_streams.add(stream)
             else:
@@ -551,7 +530,7 @@ class EkfNode(Node):
             # Stamps restart only when every input goes back: one input that lags (a
             # starved queue, a clock behind) only loses its late messages.
             active = self._buffer.active_streams()
-            if self._late_streak >= self._restart_after and self._late_streams >= active:
+            if self._late_streak >= RESTART_AFTER_LATE and self._late_streams >= active:
                 self.reset(f'stamps restarted: {self._late_streak} messages in a row from '
                            f'every input ({", ".join(sorted(self._late_streams))}) went back '
                            f'about {behind_s:.1f} s (looped data without /clock?)')
@@ -702,7 +681,7 @@ class EkfNode(Node):
 
     def _flush_when_idle(self) -> None:
         held = len(self._buffer) + (self._lagged.held if self._lagged is not None else 0)
-        idle = held and time.monotonic() - self._last_input > self._idle_flush_s
+        idle = held and time.monotonic() - self._last_input > IDLE_FLUSH_S
         # Idle on two ticks in a row: a process that was starved finds its timer due and its
         # queues full; the executor serves those queues before the next tick.
         self._idle_ticks = self._idle_ticks + 1 if idle else 0

@@ -10,11 +10,15 @@ from them once) and builds the config back from the values the node received
 The bag sidecar (`gyro_ekf.io.sidecar`) is a params file too: `declare_sidecar` declares
 its entries (initial pose, LiDAR mounts per scan topic, stated noise, time zero) so a node
 started with `--params-file BAG.params.yaml` gets them with no hand-typed flags.
+
+A parameter a node no longer declares would be ignored by rclpy without a word;
+`report_removed` warns once for each former parameter the node is still given.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -76,13 +80,17 @@ def declare(node: Node, name: str, default: Any, description: str, unit: str = '
     return value
 
 
-def declare_config(node: Node, config_type: type[ConfigT], prefix: str = '') -> ConfigT:
+def declare_config(node: Node, config_type: type[ConfigT], prefix: str = '',
+                   names: Iterable[str] | None = None) -> ConfigT:
     """Declare one parameter per field of a core config dataclass and build the config.
 
     Args:
         node: the node.
-        config_type: EkfConfig, CalibrationConfig or DetectorConfig.
-        prefix: prepended to every field name (e.g. 'detector.').
+        config_type: EkfConfig, CalibrationConfig, DetectorConfig, InputLimits or
+            RunOptions.
+        prefix: prepended to every field name (e.g. 'limits.').
+        names: the fields to declare (those the node uses); None: all. The others keep
+            their defaults.
 
     Returns:
         The config built from the received values.
@@ -90,13 +98,38 @@ def declare_config(node: Node, config_type: type[ConfigT], prefix: str = '') -> 
     Raises:
         CoreError: a value of the wrong type or out of bounds (named in the message).
     """
+    wanted = None if names is None else set(names)
     values = {}
     for spec in config_fields(config_type):
+        if wanted is not None and spec.name not in wanted:
+            continue
         meta = spec.metadata
         values[spec.name] = declare(
             node, prefix + spec.name, spec.default, meta['description'], meta['unit'],
             meta['min'], meta['max'], read_only=True)
     return make_config(config_type, values, source=f'node {node.get_fully_qualified_name()}')
+
+
+def report_removed(node: Node, removed: Mapping[str, str]) -> list[str]:
+    """Warn once for each former parameter the node was given; return their names.
+
+    rclpy drops a parameter nobody declares without a word, so a user who still sets one
+    (an old params file, a script) would never learn that it does nothing now.
+
+    Args:
+        node: the node, after its declarations.
+        removed: former parameter name -> what became of it (shown in the warning).
+
+    Returns:
+        The former parameters given, in the order of ``removed``.
+    """
+    # rclpy keeps the -p and --params-file values for this node here and has no public
+    # getter for them (undeclared ones never become parameters).
+    given = [name for name in removed if name in node._parameter_overrides]
+    for name in given:
+        node.get_logger().warn(f'parameter {name!r} was removed after gyro_ekf 0.1.0 '
+                               f'({removed[name]}); ignored')
+    return given
 
 
 @dataclass(frozen=True, slots=True)

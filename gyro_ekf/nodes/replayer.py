@@ -11,6 +11,11 @@ delays the replay rather than losing data), and best-effort readers still match.
 Timing jitter (publish time minus the scheduled time) is measured for every message and
 reported at the end, in constant memory (a histogram), so `--loop` can run for days.
 A stop request (SIGINT/SIGTERM, see cli/signals.py) ends the replay between two messages.
+
+Waiting on reliable readers is bounded by ``ack_timeout_s`` (`gyro-ekf replay
+--ack-timeout-s`): a reader that takes no message for that long while the writer's history
+is full raises ``AckTimeoutError`` naming the topic, and at the end the topics not
+acknowledged in time are listed in the report (``unacknowledged``).
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from rosgraph_msgs.msg import Clock
 
 from gyro_ekf import topics
 from gyro_ekf.core.stamps import NS_PER_S, seconds_since
+from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.nodes import qos
 from gyro_ekf.nodes.conversions import to_stamp
 
@@ -43,6 +49,12 @@ _JITTER_DECADES = (-6, 3)
 
 RawMessage = tuple[str, int, bytes]
 """(topic as recorded, stamp ns since the epoch, serialized CDR)."""
+ACK_TIMEOUT_S = 30.0
+"""Default longest wait for reliable readers to acknowledge, s (`replay --ack-timeout-s`)."""
+
+
+class AckTimeoutError(GyroEkfError):
+    """A reliable reader acknowledged nothing for ack_timeout_s while the replay waited."""
 
 
 def message_class(type_name: str) -> Any:
@@ -93,6 +105,7 @@ class ReplayReport:
             replay by about 2 ms).
         acknowledged: every reliable reader acknowledged every message at the end.
         stopped_by: the signal that stopped the replay early ('SIGINT', 'SIGTERM'), or None.
+        unacknowledged: topics whose readers had not acknowledged every message at the end.
     """
 
     messages: int
@@ -105,6 +118,7 @@ class ReplayReport:
     backpressure_waits: int
     acknowledged: bool
     stopped_by: str | None = None
+    unacknowledged: tuple[str, ...] = ()
 
     def summary(self) -> str:
         """One line for humans."""
@@ -180,28 +194,37 @@ class Replayer(Node):
             self.publishers_by_topic[topic.name] = self.create_publisher(
                 message_class(topic.msgtype), topic.name.lstrip('/'), profile)
         self._clock_pub = self.create_publisher(Clock, topics.CLOCK, 10) if clock else None
-        self.backpressure_timeout_s = 30.0
+        self.backpressure_timeout_s = ACK_TIMEOUT_S
         self.backpressure_waits = 0
         self.stop: Callable[[], bool] = lambda: False
 
     def _running(self) -> bool:
         return rclpy.ok() and not self.stop()
 
-    def _publish(self, publisher: Any, data: bytes) -> None:
+    def _publish(self, publisher: Any, data: bytes, topic: str) -> None:
         """Publish, waiting while a reliable keep-all reader is behind (backpressure).
 
         Fast DDS refuses a write when the writer's history is full of samples a reliable
         reader has not acknowledged yet; waiting and retrying slows the replay down to that
         reader instead of losing the message.
+
+        Raises:
+            AckTimeoutError: the write was refused for backpressure_timeout_s.
         """
         deadline = time.monotonic() + self.backpressure_timeout_s
         while True:
             try:
                 publisher.publish(data)
                 return
-            except Exception:  # rclpy's RCLError: 'cannot publish data' (history full)
-                if not self._running() or time.monotonic() > deadline:
+            except Exception as err:  # rclpy's RCLError: 'cannot publish data' (history full)
+                if not self._running():
                     raise
+                if time.monotonic() > deadline:
+                    raise AckTimeoutError(
+                        f'{topic}: a reliable reader acknowledged nothing for '
+                        f'{self.backpressure_timeout_s:g} s while the writer\'s history was '
+                        f'full ({err}); is a subscriber stuck? Raise --ack-timeout-s for a '
+                        'slow one') from None
                 self.backpressure_waits += 1
                 time.sleep(0.002)
 
@@ -233,7 +256,7 @@ class Replayer(Node):
             time.sleep(min(delay, _STOP_POLL_S))
 
     def play(self, messages: Callable[[], Iterator[RawMessage]], rate: float, loop: bool,
-             clock_hz: float = 100.0, ack_timeout_s: float = 30.0,
+             clock_hz: float = 100.0, ack_timeout_s: float = ACK_TIMEOUT_S,
              latch_ack_timeout_s: float = 2.0, max_loops: int | None = None) -> ReplayReport:
         """Publish every message at its stamp / rate (rate 0 = as fast as possible).
 
@@ -282,7 +305,7 @@ class Replayer(Node):
                     publisher = self.publishers_by_topic.get(name)
                     if publisher is None:
                         continue
-                    self._publish(publisher, data)
+                    self._publish(publisher, data, name)
                     published += 1
                     now = time.perf_counter()
                     if rate > 0:
@@ -301,9 +324,12 @@ class Replayer(Node):
                 break
         stopped = self.stop()
         timeout = min(ack_timeout_s, _STOPPED_ACK_S) if stopped else ack_timeout_s
-        acknowledged = all(
-            p.wait_for_all_acked(Duration(seconds=timeout))
-            for p in self.publishers_by_topic.values()) if rclpy.ok() else False
+        # One deadline for all: each topic waits for what is left of it.
+        deadline = time.monotonic() + timeout
+        unacknowledged = tuple(
+            name for name, p in self.publishers_by_topic.items()
+            if not rclpy.ok() or not p.wait_for_all_acked(
+                Duration(seconds=max(0.0, deadline - time.monotonic()))))
         return ReplayReport(
             messages=published,
             loops=loops,
@@ -313,5 +339,6 @@ class Replayer(Node):
             jitter_p95_ms=1e3 * jitter.quantile(0.95),
             jitter_max_ms=1e3 * jitter.max_s,
             backpressure_waits=self.backpressure_waits,
-            acknowledged=acknowledged,
-            stopped_by=getattr(self.stop, 'requested', None) if stopped else None)
+            acknowledged=not unacknowledged,
+            stopped_by=getattr(self.stop, 'requested', None) if stopped else None,
+            unacknowledged=unacknowledged)

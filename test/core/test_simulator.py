@@ -1,4 +1,8 @@
-"""The trip simulator: determinism, static start, gyro bias, LiDAR geometry, truth."""
+"""The trip simulator: determinism, static start, gyro bias, LiDAR geometry, truth.
+
+Each perturbation (see the simulator's docstring and docs/stress.md) is checked against
+the unperturbed trip of the same seed: it does what it says, and nothing else changes.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +13,7 @@ import numpy as np
 import pytest
 
 from gyro_ekf.core.angles import wrap_angle
-from gyro_ekf.core.detection import detect_poles
+from gyro_ekf.core.detection import detect_poles, detect_poles_in_scans
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.models import observe, points_to_range_bearing, predict_state, sensor_to_map
 from gyro_ekf.core.simulator import GRAVITY_M_S2, SimulationConfig, simulate_trip
@@ -206,8 +210,242 @@ def test_options():
     ({'duration_s': -1.0}, 'duration_s'),
     ({'min_speed_m_s': 0.9, 'max_speed_m_s': 0.5}, 'min_speed_m_s'),
     ({'pole_count': 200}, 'could place only'),
+    ({'pole_count': 14, 'extra_reflectors': 60}, 'could place only'),
+    ({'missing_poles': 15}, 'missing_poles'),
+    ({'lidar_dropouts': 2, 'lidar_dropout_s': 3.0}, 'lidar_dropout_s'),
+    ({'imu_gaps': 3, 'imu_gap_s': 2.0}, 'imu_gap_s'),
+    ({'speed_scale_error': 0.6}, 'speed_scale_error'),
 ])
 def test_bad_configs_are_refused(changes, match):
     config = dataclasses.replace(SimulationConfig(duration_s=5.0), **changes)
     with pytest.raises(CoreError, match=match):
         simulate_trip(config)
+
+
+# --- perturbations -----------------------------------------------------------------------
+
+SHORT = SimulationConfig(duration_s=30.0, static_s=2.0)
+
+
+def _short(seed: int = 2, **changes) -> Trip:
+    return simulate_trip(dataclasses.replace(SHORT, **changes), seed)
+
+
+@pytest.fixture(scope='module')
+def clean() -> Trip:
+    return _short()
+
+
+def _map_points(trip: Trip, series: int = 0, mount: LidarMount | None = None) -> np.ndarray:
+    """Every detected pole of one LiDAR placed in the map under the true pose, (k, 2)."""
+    scans = trip.scans[series]
+    mount = scans.mount if mount is None else mount
+    poses = _truth_at(trip, scans.stamp_s)
+    found = detect_poles_in_scans(scans.ranges_m, scans.angles_rad, scans.intensities)
+    points = [sensor_to_map(np.append(pose, 0.0), f.points_sensor_m, mount)
+              for pose, f in zip(poses, found) if len(f)]
+    return np.concatenate(points)
+
+
+def _gaps(points: np.ndarray, poles: np.ndarray) -> np.ndarray:
+    """Distance of each point to its nearest pole, (k,)."""
+    return np.linalg.norm(points[:, None] - poles[None], axis=2).min(axis=1)
+
+
+def _bound(trip: Trip) -> float:
+    # A detected centre lies within a radius plus half a beam (at 12 m) of the pole.
+    scans = trip.scans[0]
+    return 0.05 + 0.5 * scans.angle_increment_rad * 12.0 + 4 * SHORT.range_noise_m
+
+
+def _assert_same_except(trip: Trip, clean: Trip, *, imu=True, speed=True, scans=True):
+    np.testing.assert_array_equal(trip.landmarks.xy_m, clean.landmarks.xy_m)
+    np.testing.assert_array_equal(trip.ground_truth.pose, clean.ground_truth.pose)
+    if imu:
+        np.testing.assert_array_equal(trip.imu.angular_velocity_rad_s,
+                                      clean.imu.angular_velocity_rad_s)
+    if speed:
+        np.testing.assert_array_equal(trip.speed.speed_m_s, clean.speed.speed_m_s)
+    if scans:
+        np.testing.assert_array_equal(trip.scans[0].ranges_m, clean.scans[0].ranges_m)
+
+
+def test_second_lidar_faces_backwards_and_sees_the_map(clean):
+    trip = _short(second_lidar=True)
+    front, rear = trip.scans
+    assert (rear.topic, rear.frame_id) == ('scan2', 'laser2')
+    assert rear.mount == LidarMount(0.46, 0.0, math.pi)
+    np.testing.assert_array_equal(rear.stamp_s, front.stamp_s)
+    np.testing.assert_array_equal(front.ranges_m, clean.scans[0].ranges_m)
+    assert not np.array_equal(rear.ranges_m, front.ranges_m)
+    points = _map_points(trip, 1)
+    assert len(points) > 100
+    assert np.all(_gaps(points, trip.landmarks.xy_m) < _bound(trip))
+    _assert_same_except(trip, clean)
+
+
+@pytest.mark.parametrize('series, yaw_deg, offset_m', [
+    (0, 7.0, (0.0, 0.0)), (1, -10.0, (0.0, 0.0)), (0, 0.0, (0.08, -0.06)),
+    (1, 3.0, (-0.05, 0.05))])
+def test_mount_errors_scan_from_the_true_mount_and_state_the_nominal(series, yaw_deg, offset_m):
+    prefix = ('lidar', 'lidar2')[series]
+    trip = _short(second_lidar=True, **{f'{prefix}_yaw_error_rad': math.radians(yaw_deg),
+                                        f'{prefix}_x_error_m': offset_m[0],
+                                        f'{prefix}_y_error_m': offset_m[1]})
+    stated = trip.scans[series].mount
+    assert stated == (LidarMount(0.46, 0.0, 0.0), LidarMount(0.46, 0.0, math.pi))[series]
+    true = LidarMount(stated.x_m + offset_m[0], stated.y_m + offset_m[1],
+                      stated.yaw_rad + math.radians(yaw_deg))
+    on_true = _gaps(_map_points(trip, series, true), trip.landmarks.xy_m)
+    on_stated = _gaps(_map_points(trip, series, stated), trip.landmarks.xy_m)
+    assert np.all(on_true < _bound(trip))
+    # A yaw error of d moves a pole at range r by about r d; an offset moves it by itself.
+    size = max(math.hypot(*offset_m), 3.0 * math.radians(abs(yaw_deg)))
+    assert np.median(on_stated) > 0.8 * size
+    other = _gaps(_map_points(trip, 1 - series), trip.landmarks.xy_m)
+    assert np.all(other < _bound(trip))
+
+
+def test_speed_scale_error_scales_the_encoder():
+    config = dict(speed_noise_m_s=0.0)
+    clean = _short(**config)
+    for error in (0.05, -0.05):
+        trip = _short(speed_scale_error=error, **config)
+        moving = clean.speed.speed_m_s > 0.0
+        assert moving.sum() > 0.8 * moving.size
+        np.testing.assert_allclose(trip.speed.speed_m_s[moving],
+                                   (1.0 + error) * clean.speed.speed_m_s[moving], rtol=1e-12)
+        assert np.all(trip.speed.speed_m_s[~moving] == 0.0)
+        _assert_same_except(trip, clean, speed=False)
+
+
+def test_bias_step_changes_the_yaw_bias_once(clean):
+    step, at = math.radians(0.5), 12.0
+    trip = _short(gyro_bias_step_rad_s=step, gyro_bias_step_at_s=at)
+    change = trip.imu.angular_velocity_rad_s - clean.imu.angular_velocity_rad_s
+    after = trip.imu.stamp_s >= at
+    np.testing.assert_allclose(change[after, 2], step, atol=1e-12)
+    np.testing.assert_allclose(change[~after, 2], 0.0, atol=1e-12)
+    np.testing.assert_array_equal(change[:, :2], 0.0)
+    assert trip.true_gyro_bias_rad_s[2] == pytest.approx(math.radians(-0.9) + step)
+    np.testing.assert_array_equal(trip.true_gyro_bias_rad_s[:2], clean.true_gyro_bias_rad_s[:2])
+    _assert_same_except(trip, clean, imu=False)
+
+
+def test_bias_ramp_drifts_the_yaw_bias_linearly(clean):
+    ramp = math.radians(1.0) / 60.0              # 1 deg/s per minute
+    trip = _short(gyro_bias_ramp_rad_s2=ramp)
+    change = trip.imu.angular_velocity_rad_s - clean.imu.angular_velocity_rad_s
+    np.testing.assert_allclose(change[:, 2], ramp * trip.imu.stamp_s, atol=1e-12)
+    np.testing.assert_array_equal(change[:, :2], 0.0)
+    end = trip.imu.stamp_s[-1]
+    assert math.degrees(trip.true_gyro_bias_rad_s[2]) == pytest.approx(-0.9 + end / 60.0)
+    config = dataclasses.replace(SHORT, gyro_bias_ramp_rad_s2=ramp)
+    assert config.gyro_bias_z_at(end) == pytest.approx(trip.true_gyro_bias_rad_s[2])
+
+
+def test_coloured_gyro_noise_has_its_sigma_and_correlation_time():
+    sigma, tau = math.radians(0.1), 0.5
+    config = dict(duration_s=120.0, static_s=2.0)
+    clean = simulate_trip(dataclasses.replace(SHORT, **config), 4)
+    trip = simulate_trip(dataclasses.replace(SHORT, gyro_colored_noise_rad_s=sigma,
+                                             gyro_colored_noise_tau_s=tau, **config), 4)
+    added = trip.imu.angular_velocity_rad_s[:, 2] - clean.imu.angular_velocity_rad_s[:, 2]
+    np.testing.assert_array_equal(trip.imu.angular_velocity_rad_s[:, :2],
+                                  clean.imu.angular_velocity_rad_s[:, :2])
+    # 240 correlation times: the sample sigma is within about 10 % of the stationary one.
+    assert np.std(added) == pytest.approx(sigma, rel=0.2)
+    lag = int(round(tau * SHORT.imu_rate_hz))
+    centred = added - added.mean()
+    correlation = np.mean(centred[lag:] * centred[:-lag]) / np.var(centred)
+    assert correlation == pytest.approx(math.exp(-1.0), abs=0.15)
+    # White noise would be uncorrelated from one sample to the next; this is nearly 1.
+    assert np.corrcoef(added[1:], added[:-1])[0, 1] > 0.98
+    _assert_same_except(trip, clean, imu=False)
+
+
+def test_extra_reflectors_are_seen_but_not_in_the_map():
+    # On seed 3 all three come into view within the 30 s (on seed 2 only one does).
+    count = 3
+    clean = _short(seed=3)
+    trip = _short(seed=3, extra_reflectors=count)
+    _assert_same_except(trip, clean, scans=False)
+    for scan_trip, expected in ((clean, 0), (trip, count)):
+        points = _map_points(scan_trip)
+        strays = points[_gaps(points, trip.landmarks.xy_m) > 0.3]
+        # Group the stray detections by position: one group per reflector in view.
+        groups: list[np.ndarray] = []
+        for point in strays:
+            if not any(np.hypot(*(point - g)) < 0.3 for g in groups):
+                groups.append(point)
+        assert len(groups) == expected
+        for centre in groups:
+            assert _gaps(centre[None], trip.landmarks.xy_m)[0] > 0.9 * SHORT.pole_spacing_m
+
+
+def test_missing_poles_are_in_the_map_but_never_seen():
+    count = 3
+    # 45 s: long enough for the LiDAR to see every pole of the map (30 s is not).
+    clean = _short(duration_s=45.0)
+    trip = _short(duration_s=45.0, missing_poles=count)
+    _assert_same_except(trip, clean, scans=False)
+
+    def seen(scan_trip):
+        points = _map_points(scan_trip)
+        near = np.linalg.norm(points[:, None] - trip.landmarks.xy_m[None], axis=2)
+        return set(np.unique(near.argmin(axis=1)[near.min(axis=1) < _bound(trip)]).tolist())
+
+    before, after = seen(clean), seen(trip)
+    assert len(before) == len(trip.landmarks)
+    assert after < before and len(before - after) == count
+    assert np.all(_gaps(_map_points(trip), trip.landmarks.xy_m) < _bound(trip))
+
+
+def _removed_runs(kept: np.ndarray, full: np.ndarray) -> list[tuple[float, float]]:
+    """Runs of consecutive samples of full missing from kept: (first, last) stamps."""
+    missing = ~np.isin(full, kept)
+    runs, start = [], None
+    for k, gone in enumerate(missing.tolist() + [False]):
+        if gone and start is None:
+            start = k
+        elif not gone and start is not None:
+            runs.append((float(full[start]), float(full[k - 1])))
+            start = None
+    return runs
+
+
+def test_lidar_dropouts_remove_every_lidars_scans_in_their_spans():
+    config = dict(second_lidar=True)
+    clean = _short(**config)
+    length = 4.0
+    trip = _short(lidar_dropouts=2, lidar_dropout_s=length, **config)
+    _assert_same_except(trip, clean, scans=False)
+    full = clean.scans[0].stamp_s
+    runs = _removed_runs(trip.scans[0].stamp_s, full)
+    assert len(runs) == 2
+    period = 1.0 / SHORT.lidar_rate_hz
+    for first, last in runs:
+        assert first >= SHORT.static_s
+        assert last - first == pytest.approx(length - period, abs=period + 1e-9)
+    for k in range(2):
+        np.testing.assert_array_equal(trip.scans[k].stamp_s, trip.scans[0].stamp_s)
+        kept = np.isin(full, trip.scans[k].stamp_s)
+        np.testing.assert_array_equal(trip.scans[k].ranges_m, clean.scans[k].ranges_m[kept])
+
+
+def test_imu_gaps_remove_imu_samples_in_their_spans(clean):
+    length = 1.5
+    trip = _short(imu_gaps=3, imu_gap_s=length)
+    _assert_same_except(trip, clean, imu=False)
+    full = clean.imu.stamp_s
+    runs = _removed_runs(trip.imu.stamp_s, full)
+    assert len(runs) == 3
+    period = 1.0 / SHORT.imu_rate_hz
+    for first, last in runs:
+        assert first >= SHORT.static_s
+        assert last - first == pytest.approx(length - period, abs=period + 1e-9)
+    kept = np.isin(full, trip.imu.stamp_s)
+    np.testing.assert_array_equal(trip.imu.angular_velocity_rad_s,
+                                  clean.imu.angular_velocity_rad_s[kept])
+    np.testing.assert_array_equal(trip.imu.linear_acceleration_m_s2,
+                                  clean.imu.linear_acceleration_m_s2[kept])

@@ -108,3 +108,74 @@ def test_a_stopped_stream_goes_stale_on_the_clock_and_in_the_stamps():
         buffer.push('imu', 0.01 * k, EventKind.IMU, k)
     assert buffer.active_streams() == {'imu'}
     assert len(buffer) < 5
+
+
+def _drain(buffer, now, rounds, clock_step_s, streams):
+    """Serve each stream's queue one message per round, as the executor does; return late.
+
+    streams: name -> (first stamp, period, kind); the clock moves clock_step_s per round.
+    """
+    late = []
+    for k in range(rounds):
+        now[0] += clock_step_s
+        for name, (first, period, kind) in streams.items():
+            late += buffer.push(name, first + period * k, kind, (name, k))[1]
+    return late
+
+
+def test_a_clock_running_ahead_of_the_queues_makes_no_stream_stale():
+    # A starved node under use_sim_time: /clock (depth 1) is always the newest and moves
+    # 2 s between two executor rounds, while the queues drain one message per round: the
+    # 200 Hz IMU falls 5 s behind the 100 Hz odometry in stamps. It keeps coming, so none
+    # of it is late.
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0],
+                          expected_streams=('imu', 'odom'))
+    late = _drain(buffer, now, 1000, 2.0, {'odom': (0.0, 0.01, EventKind.SPEED),
+                                           'imu': (0.0, 0.005, EventKind.IMU)})
+    assert late == []
+    assert buffer.active_streams() == {'imu', 'odom'}
+    assert buffer.released_s <= 0.005 * 999
+
+
+def test_an_input_whose_stamps_run_5_s_ahead_holds_nothing_back_and_loses_nothing():
+    # Odometry stamped 5 s ahead of the IMU, first to arrive: the IMU is not stale while
+    # the newest stamp stands at the odometry's, and odometry waits for the IMU to pass it.
+    for first in ('odom', 'imu'):
+        now = [0.0]
+        buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0],
+                              expected_streams=('imu', 'odom', 'laser'))
+        streams = {'odom': (5.0, 0.01, EventKind.SPEED), 'imu': (0.0, 0.01, EventKind.IMU)}
+        if first == 'imu':
+            streams = dict(reversed(streams.items()))
+        late = _drain(buffer, now, 1000, 0.01, streams)
+        assert late == [], first
+        assert buffer.released_s == 9.99  # the last IMU sample; odometry after it waits
+        assert buffer.active_streams() == {'imu', 'odom'}
+
+
+def test_a_burst_of_one_stream_does_not_make_the_others_stale():
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0])
+    late = _drain(buffer, now, 100, 0.01, {'odom': (0.0, 0.01, EventKind.SPEED),
+                                           'imu': (0.0, 0.01, EventKind.IMU)})
+    # 5 s of IMU stamps arrive at once (no time on the clock): odometry still holds them.
+    late += _drain(buffer, now, 500, 0.0, {'imu': (1.0, 0.01, EventKind.IMU)})
+    assert buffer.active_streams() == {'imu', 'odom'}
+    late += _drain(buffer, now, 500, 0.0, {'odom': (1.0, 0.01, EventKind.SPEED)})
+    assert late == [] and buffer.released_s == 5.99
+
+
+def test_a_stream_that_stops_goes_stale_and_holds_back_again_when_it_resumes():
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0])
+    both = {'odom': (0.0, 0.01, EventKind.SPEED), 'imu': (0.0, 0.01, EventKind.IMU)}
+    late = _drain(buffer, now, 100, 0.01, both)
+    # Odometry stops for 10 s of stamps and clock: the IMU goes on without it.
+    late += _drain(buffer, now, 1000, 0.01, {'imu': (1.0, 0.01, EventKind.IMU)})
+    assert buffer.active_streams() == {'imu'}
+    assert buffer.released_s == 10.99
+    late += _drain(buffer, now, 100, 0.01, {'odom': (11.0, 0.01, EventKind.SPEED),
+                                            'imu': (11.0, 0.01, EventKind.IMU)})
+    assert late == []
+    assert buffer.active_streams() == {'imu', 'odom'}

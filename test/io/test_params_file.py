@@ -8,7 +8,7 @@ import pytest
 
 from gyro_ekf.io.errors import ParamsFileError
 from gyro_ekf.io.params_file import read_params_file, read_params_text
-from gyro_ekf.core.config import EkfConfig
+from gyro_ekf.core.config import EkfConfig, RunOptions
 
 TEXT = """
 /**:
@@ -45,7 +45,8 @@ def test_node_sections_override_the_wildcard_and_other_nodes_are_ignored():
     assert params.ekf.speed_noise_m_s == EkfConfig().speed_noise_m_s
     assert params.detector.max_width_m == 0.3
     assert params.calibration.window_length_s == 4.0
-    assert params.options == {'use_stated_noise': False}
+    assert params.options == RunOptions(use_stated_noise=False)
+    assert params.explicit['options'] == ('use_stated_noise',)
     assert params.explicit['ekf'] == ('gate_probability', 'gyro_noise_rad_s')
 
 
@@ -81,7 +82,7 @@ def test_a_bag_sidecar_is_a_valid_params_file_with_no_filter_values():
     ('ekf: {speed_noise_m_s: .inf}', "'ekf.speed_noise_m_s' = inf is not finite"),
     ('detector: {max_width_m: -.inf}', "'detector.max_width_m' = -inf is not finite"),
     ('calibration_bias_sigma_rad_s: .nan', "'calibration_bias_sigma_rad_s' = nan is not"),
-    ('calibration_bias_sigma_rad_s: -0.1', "'calibration_bias_sigma_rad_s' must be a positive"),
+    ('calibration_bias_sigma_rad_s: -0.1', "'calibration_bias_sigma_rad_s' = -0.1 is outside"),
 ])
 def test_non_finite_values_are_refused_naming_file_and_key(tmp_path, line, message):
     path = tmp_path / 'bad.yaml'
@@ -99,5 +100,5 @@ def test_a_switch_that_is_not_true_or_false_is_refused(name, value):
     with pytest.raises(ParamsFileError,
                        match=f"p.yaml: parameter '{name}' must be true or false, got"):
         read_params_text(f'/**:\n  ros__parameters:\n    {name}: {value}\n', 'p.yaml')
-    assert read_params_text(f'/**:\n  ros__parameters:\n    {name}: true\n').options == {
-        name: True}
+    options = read_params_text(f'/**:\n  ros__parameters:\n    {name}: true\n').options
+    assert getattr(options, name) is True

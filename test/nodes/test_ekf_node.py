@@ -30,7 +30,7 @@ def _offline(bag):
 
 
 def _pipeline(ros_processes, bag, rate: float, publish_every: int,
-              ekf_args: tuple[str, ...] = ('-p', 'reorder_window_s:=1.0')):
+              ekf_args: tuple[str, ...] = ()):
     """Run detector + EKF on a replayed bag; return the probe's odometry, bias, diagnostics."""
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Vector3Stamped
@@ -153,8 +153,7 @@ def test_bad_messages_are_dropped_and_a_looped_stream_resets(ros_processes, diag
     processes, probe = ros_processes
     name = 'robust'
     processes.node('ekf_node', '-r', f'__ns:=/{name}', '-p', 'reliable_inputs:=true',
-                   '-p', 'reorder_window_s:=0.05', '-p', 'diagnostics_period_s:=0.1',
-                   '-p', 'idle_flush_s:=0.2', name=name)
+                   '-p', 'diagnostics_period_s:=0.1', name=name)
     imu = probe.node.create_publisher(Imu, f'/{name}/imu', qos.LOSSLESS)
     odom = probe.node.create_publisher(Odometry, f'/{name}/odom', qos.LOSSLESS)
     latched_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,

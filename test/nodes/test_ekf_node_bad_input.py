@@ -36,7 +36,7 @@ class EkfUnderTest:
         self.name = name
         self.key = f'/{name}/ekf_node: gyro bias EKF'
         args = ['-r', f'__ns:=/{name}', '-p', 'reliable_inputs:=true',
-                '-p', 'diagnostics_period_s:=0.1', '-p', 'idle_flush_s:=0.2']
+                '-p', 'diagnostics_period_s:=0.1']
         for param in params:
             args += ['-p', param]
         self.processes.node('ekf_node', *args, name=name)

@@ -49,7 +49,7 @@ def mis_mounted_run(ros_processes, tmp_path_factory):
     processes.node('landmark_detector_node', *lossless, '-r', 'scan:=scan2',
                    '-r', '__node:=landmark_detector_scan2', name='detector_scan2')
     processes.node('ekf_node', '--params-file', f'{bag}.params.yaml', *lossless,
-                   '-p', 'reorder_window_s:=1.0', '-p', 'diagnostics_period_s:=0.2')
+                   '-p', 'diagnostics_period_s:=0.2')
     probe.spin_until(lambda: probe.node.count_publishers('/landmarks') == 2
                      and probe.node.count_subscribers('/landmarks') == 1
                      and probe.node.count_publishers('/ekf/odometry') == 1, 20,

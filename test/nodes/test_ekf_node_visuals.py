@@ -47,7 +47,7 @@ def visual_run(ros_processes, diagnostics_of, tmp_path_factory):
     processes.node('ekf_node', '-r', f'__ns:=/{NS}', '-p', 'reliable_inputs:=true',
                    '-p', f'landmarks_file:={landmarks}', '-p', 'use_calibration:=true',
                    '-p', 'calibration_bias_sigma_rad_s:=1e-9', '-p', 'path_length:=5',
-                   '-p', 'diagnostics_period_s:=0.1', '-p', 'idle_flush_s:=0.2', name=NS)
+                   '-p', 'diagnostics_period_s:=0.1', name=NS)
     node = probe.node
     imu = node.create_publisher(Imu, f'/{NS}/imu', qos.LOSSLESS)
     odom = node.create_publisher(Odometry, f'/{NS}/odom', qos.LOSSLESS)

@@ -57,9 +57,62 @@ def test_config_file_sets_only_declared_parameters_with_descriptions(ros_env):
         context.try_shutdown()
 
 
+def _params_file_entries(text: str) -> dict[str, dict[str, str]]:
+    """Node -> parameter -> the comment lines above it, joined (a params file's layout)."""
+    entries: dict[str, dict[str, str]] = {}
+    node, comment = None, []
+    for line in text.splitlines():
+        if re.fullmatch(r'[a-z_]+:', line):
+            node, comment = line[:-1], []
+            entries[node] = {}
+        elif line.startswith('    # '):
+            comment.append(line[len('    # '):])
+        elif node is not None and re.match(r'    [a-z0-9_.]+: ', line):
+            entries[node][line.split(':')[0].strip()] = ' '.join(comment)
+            comment = []
+    return entries
+
+
+@pytest.mark.ros
+def test_config_file_comments_and_values_are_the_declared_descriptions_and_defaults(ros_env):
+    import rclpy
+
+    from gyro_ekf.nodes.calibration_node import CalibrationNode
+    from gyro_ekf.nodes.ekf_node import EkfNode
+    from gyro_ekf.nodes.landmark_detector_node import LandmarkDetectorNode
+
+    text = CONFIG.read_text()
+    values = yaml.safe_load(text)
+    comments = _params_file_entries(text)
+    context = rclpy.Context()
+    rclpy.init(context=context, args=['--ros-args'])  # no file: the declared defaults
+    try:
+        for node_class in (CalibrationNode, LandmarkDetectorNode, EkfNode):
+            node = node_class(context=context)
+            try:
+                name = node.get_name()
+                declared = [n for n in node._parameters
+                            if n not in ('use_sim_time', 'start_type_description_service')
+                            and not n.startswith(('trip.', 'initial_pose.', 'lidar.',
+                                                  'noise.'))]
+                # Every parameter a user sets, in declaration order, and nothing else.
+                assert list(comments[name]) == declared, name
+                assert list(values[name]['ros__parameters']) == declared, name
+                for parameter in declared:
+                    default = node.get_parameter(parameter).value
+                    value = values[name]['ros__parameters'][parameter]
+                    assert value == default and type(value) is type(default), parameter
+                    assert comments[name][parameter] == \
+                        node.describe_parameter(parameter).description, parameter
+            finally:
+                node.destroy_node()
+    finally:
+        context.try_shutdown()
+
+
 @pytest.mark.parametrize('node, config_name', [
-    ('ekf_node', 'EkfConfig'), ('landmark_detector_node', 'DetectorConfig'),
-    ('calibration_node', 'CalibrationConfig')])
+    ('ekf_node', 'EkfConfig'), ('ekf_node', 'RunOptions'),
+    ('landmark_detector_node', 'DetectorConfig'), ('calibration_node', 'CalibrationConfig')])
 def test_config_file_holds_the_core_defaults(node, config_name):
     import dataclasses
 
@@ -68,17 +121,33 @@ def test_config_file_holds_the_core_defaults(node, config_name):
     values = yaml.safe_load(CONFIG.read_text())[node]['ros__parameters']
     defaults = config_type()
     for field in dataclasses.fields(config_type):
-        assert values.get(field.name) == getattr(defaults, field.name), field.name
+        assert values[field.name] == getattr(defaults, field.name), field.name
 
 
 @pytest.mark.parametrize('node', ['ekf_node', 'calibration_node'])
-def test_config_file_holds_the_input_limits_defaults(node):
-    import dataclasses
+def test_config_file_holds_the_input_limits_the_node_checks(node):
+    import importlib
 
     from gyro_ekf.core.config import InputLimits
+    used = importlib.import_module(f'gyro_ekf.nodes.{node}').LIMITS_USED
     values = yaml.safe_load(CONFIG.read_text())[node]['ros__parameters']
-    for field in dataclasses.fields(InputLimits):
-        assert values.get(f'limits.{field.name}') == field.default, field.name
+    assert sorted(k for k in values if k.startswith('limits.')) == sorted(
+        f'limits.{name}' for name in used)
+    for name in used:
+        assert values[f'limits.{name}'] == getattr(InputLimits(), name), name
+
+
+@pytest.mark.ros
+def test_the_config_file_is_what_the_generator_writes(ros_env):
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, str(REPO / 'tools' / 'parameters_doc.py'),
+                             '--yaml', '-'], env=ros_env, capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert 'path_length: 600\n' in result.stdout
+    assert result.stdout == CONFIG.read_text(), 'config/gyro_ekf.yaml is stale: run `make docs`'
 
 
 @pytest.mark.ros
@@ -135,6 +204,9 @@ def test_a_mount_or_start_pose_out_of_its_limits_is_a_configuration_error(ros_en
 @pytest.mark.parametrize('param, match', [
     ('path_length:=0', r'path_length out of range'),
     ('publish_tf:=7', r"'publish_tf' to '7' of type 'INTEGER', expecting type 'BOOL'"),
+    # A switch given as a number is refused, not read as a truth value (as offline).
+    ('use_calibration:=1', r"'use_calibration' to '1' of type 'INTEGER', expecting type "
+                           "'BOOL'"),
 ])
 def test_a_parameter_rclpy_refuses_is_one_line_and_exit_1(ros_env, param, match):
     import re
@@ -162,3 +234,87 @@ def test_the_parameters_doc_is_what_the_nodes_declare(ros_env):
     assert '| `path_length` | `600` |' in result.stdout
     assert result.stdout == (REPO / 'docs' / 'parameters.md').read_text(), (
         'docs/parameters.md is stale: run `make docs`')
+
+
+def _run_until_logged(ros_env, tmp_path, module: str, args: list[str], ready: str) -> str:
+    """Start a node, wait until its log says ready, stop it; return its stderr."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    log = tmp_path / f'{module}.stderr'
+    with open(log, 'w') as stderr:
+        process = subprocess.Popen([sys.executable, '-m', f'gyro_ekf.nodes.{module}',
+                                    '--ros-args', *args], env=ros_env, cwd=REPO,
+                                   stdout=subprocess.DEVNULL, stderr=stderr)
+        try:
+            deadline = time.monotonic() + 120.0
+            while ready not in log.read_text() and process.poll() is None:
+                assert time.monotonic() < deadline, f'{module} never logged {ready!r}'
+                time.sleep(0.05)  # polling its log file, not waiting for discovery
+            assert process.poll() is None, f'{module} exited:\n{log.read_text()}'
+        finally:
+            process.send_signal(signal.SIGINT)
+            try:
+                process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+    return log.read_text()
+
+
+@pytest.mark.ros
+def test_a_former_parameter_is_warned_about_once_by_name_and_ignored(ros_env, tmp_path):
+    from gyro_ekf.nodes.ekf_node import REMOVED_PARAMETERS
+
+    old = tmp_path / 'old.yaml'
+    old.write_text('/**:\n  ros__parameters:\n    reorder_window_s: 1.0\n'
+                   '    limits.max_duration_s: 10.0\nekf_node:\n  ros__parameters:\n'
+                   '    stale_input_s: 2.0\n    publish_every_n: 2\n')
+    stderr = _run_until_logged(ros_env, tmp_path, 'ekf_node', [
+        '--params-file', str(old), '-p', 'idle_flush_s:=0.2', '-p', 'reorder_window_s:=0.5'],
+        'EKF ready')
+    for name in ('reorder_window_s', 'limits.max_duration_s', 'stale_input_s',
+                 'idle_flush_s'):
+        warning = f"parameter '{name}' was removed after gyro_ekf 0.1.0 ("
+        assert stderr.count(warning) == 1, (name, stderr)
+        assert f'{REMOVED_PARAMETERS[name]}); ignored' in stderr
+    # Parameters that remain are not reported, and nothing but these four is.
+    assert stderr.count('was removed after') == 4, stderr
+    assert 'publish_every_n' not in stderr
+    assert 'Traceback' not in stderr
+
+
+@pytest.mark.ros
+def test_the_calibration_node_warns_about_its_former_parameters_too(ros_env, tmp_path):
+    stderr = _run_until_logged(ros_env, tmp_path, 'calibration_node', [
+        '-p', 'confirm_jump_after:=5', '-p', 'limits.max_coordinate_m:=10.0',
+        '-p', 'limits.max_speed_m_s:=10.0'], 'collecting a')
+    assert stderr.count("parameter 'confirm_jump_after' was removed") == 1, stderr
+    assert stderr.count("parameter 'limits.max_coordinate_m' was removed") == 1, stderr
+    assert stderr.count('was removed after') == 2, stderr
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('content, match', [
+    (None, r'missing\.yaml: cannot read the landmarks file: No such file'),
+    (b'\x89PNG\r\n\x1a\n\x00\x00', r'map\.yaml: binary data \(NUL byte at offset 8\)'),
+    (b'landmarks: [[1.0, 2.0], [3.0]]\n', r'map\.yaml: landmark 1: expected two numbers x y'),
+])
+def test_a_bad_or_missing_landmarks_file_stops_the_node_with_one_line(
+        ros_env, tmp_path, content, match):
+    import subprocess
+    import sys
+
+    path = tmp_path / ('missing.yaml' if content is None else 'map.yaml')
+    if content is not None:
+        path.write_bytes(content)
+    result = subprocess.run([sys.executable, '-m', 'gyro_ekf.nodes.ekf_node', '--ros-args',
+                             '-p', f'landmarks_file:={path}'], env=ros_env,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 1
+    fatal = [line for line in result.stderr.splitlines() if line.startswith('[FATAL]')]
+    assert len(fatal) == 1 and re.search(match, fatal[0]), result.stderr
+    assert str(path) in fatal[0]
+    assert 'Traceback' not in result.stderr + result.stdout

@@ -1,0 +1,319 @@
+"""The stress suite of `make stress` (a benchmark, never a test): seeded trips per class.
+
+Each class is one kind of perturbation of the simulator (docs/stress.md; the simulator's
+docstring says what each does), drawn per trip from ranges fixed here. Every trip goes
+through what `gyro-ekf run` does between reading a bag and writing its products: the
+validation boundary, `analysis.offline.run_trip` with the default parameters (the EventDriver
+over every event) and `analysis.summary.summarize`, whose health verdict is the one the run
+would print. A trip *passes* when it meets all the bounds; it *failed silently* when it
+misses one while the verdict says ok.
+
+Seeds: trip k of every class is simulated with seed ``seed * 10_000 + k``, so all classes
+share the same scenes (the clean class is the control of each); a class's perturbation is
+drawn from ``np.random.default_rng([seed, crc32(class name), k])``.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+import logging
+import math
+import multiprocessing
+import time
+from typing import Any
+import zlib
+
+import numpy as np
+
+from gyro_ekf.core.simulator import SimulationConfig
+
+__all__ = ['BOUNDS', 'CLASSES', 'StressClass', 'run_suite', 'table', 'trip_jobs']
+
+DEG = math.pi / 180.0
+
+POSITION_RMSE_BOUND_M = 0.02
+"""Position RMSE against the truth, m (issue 12's bounds)."""
+BIAS_ERROR_BOUND_DEG_S = 0.02
+"""|Final bias estimate minus the true bias at the end|, deg/s."""
+NEES_SHARE_BOUND = 0.9
+"""Least share of pose NEES samples inside the two-sided 95 % chi-square band."""
+BOUNDS = {'position_rmse_m': POSITION_RMSE_BOUND_M,
+          'bias_error_final_deg_s': BIAS_ERROR_BOUND_DEG_S,
+          'nees_share_in_band': NEES_SHARE_BOUND}
+
+DEFAULT_DURATION_S = 120.0
+"""Trip length: the simulator's default (a 2016-like trip: 8 s static, then driving)."""
+
+Draw = Callable[[np.random.Generator, SimulationConfig], dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class StressClass:
+    """One kind of perturbation: its name, what it draws, and the draw itself.
+
+    ``draw(rng, base)`` returns the SimulationConfig fields to change for one trip.
+    """
+
+    name: str
+    description: str
+    draw: Draw
+
+
+def _sign(rng: np.random.Generator) -> float:
+    return 1.0 if rng.random() < 0.5 else -1.0
+
+
+def _mount_yaw(rng: np.random.Generator, base: SimulationConfig) -> dict[str, Any]:
+    prefix = ('lidar', 'lidar2')[int(rng.integers(2))]
+    return {'second_lidar': True,
+            f'{prefix}_yaw_error_rad': _sign(rng) * rng.uniform(0.0, 10.0) * DEG}
+
+
+def _mount_offset(rng: np.random.Generator, base: SimulationConfig) -> dict[str, Any]:
+    prefix = ('lidar', 'lidar2')[int(rng.integers(2))]
+    size, direction = rng.uniform(0.0, 0.10), rng.uniform(0.0, 2.0 * math.pi)
+    return {'second_lidar': True, f'{prefix}_x_error_m': size * math.cos(direction),
+            f'{prefix}_y_error_m': size * math.sin(direction)}
+
+
+def _bias_step(rng: np.random.Generator, base: SimulationConfig) -> dict[str, Any]:
+    # While driving, and early enough that a quarter of the trip follows it.
+    at = rng.uniform(base.static_s, 0.75 * base.duration_s)
+    return {'gyro_bias_step_rad_s': _sign(rng) * rng.uniform(0.0, 0.5) * DEG,
+            'gyro_bias_step_at_s': at}
+
+
+def _coloured(rng: np.random.Generator, base: SimulationConfig) -> dict[str, Any]:
+    return {'gyro_colored_noise_rad_s': rng.uniform(0.01, 0.04) * DEG,
+            'gyro_colored_noise_tau_s': rng.uniform(0.5, 5.0)}
+
+
+CLASSES: tuple[StressClass, ...] = (
+    StressClass('clean', 'no perturbation (the control)', lambda rng, base: {}),
+    StressClass('second_lidar', 'a second, rear-facing LiDAR, both mounts exact',
+                lambda rng, base: {'second_lidar': True}),
+    StressClass('mount_yaw', 'two LiDARs; one (either) off its stated yaw by 0-10 deg, '
+                'either sign', _mount_yaw),
+    StressClass('mount_offset', 'two LiDARs; one (either) off its stated x/y by 0-10 cm, '
+                'any direction', _mount_offset),
+    StressClass('speed_scale', 'odometry speed-scale error of -5 % to +5 %',
+                lambda rng, base: {'speed_scale_error': rng.uniform(-0.05, 0.05)}),
+    StressClass('bias_step', 'yaw-rate bias step of up to +-0.5 deg/s while driving, at '
+                'least a quarter of the trip before its end', _bias_step),
+    StressClass('bias_ramp', 'yaw-rate bias ramp of up to +-1 deg/s per minute from the start',
+                lambda rng, base: {'gyro_bias_ramp_rad_s2':
+                                   _sign(rng) * rng.uniform(0.0, 1.0) * DEG / 60.0}),
+    StressClass('coloured_gyro', 'Gauss-Markov yaw-rate noise, sigma 0.01-0.04 deg/s, '
+                'correlation time 0.5-5 s, on top of the white noise', _coloured),
+    StressClass('extra_reflectors', '1-4 reflective poles in the world but not in the map',
+                lambda rng, base: {'extra_reflectors': int(rng.integers(1, 5))}),
+    StressClass('missing_poles', '1-4 map poles missing in the world',
+                lambda rng, base: {'missing_poles': int(rng.integers(1, 5))}),
+    StressClass('lidar_dropout', 'one LiDAR dropout of 2-10 s while driving',
+                lambda rng, base: {'lidar_dropouts': 1,
+                                   'lidar_dropout_s': rng.uniform(2.0, 10.0)}),
+    StressClass('imu_gaps', '1-3 IMU gaps of 0.1-1 s each while driving',
+                lambda rng, base: {'imu_gaps': int(rng.integers(1, 4)),
+                                   'imu_gap_s': rng.uniform(0.1, 1.0)}),
+)
+
+
+@dataclass(frozen=True)
+class TripJob:
+    """One trip of the suite: its class, index, simulator seed and config changes."""
+
+    stress_class: str
+    index: int
+    seed: int
+    changes: dict[str, Any]
+    duration_s: float
+
+
+def base_config(duration_s: float) -> SimulationConfig:
+    """Return the unperturbed config of the suite's trips: the defaults at this length.
+
+    The static start stays the default 8 s, or a quarter of a short trip.
+    """
+    return SimulationConfig(duration_s=duration_s,
+                            static_s=min(SimulationConfig().static_s, 0.25 * duration_s))
+
+
+def trip_jobs(trips_per_class: int, seed: int, duration_s: float = DEFAULT_DURATION_S,
+              classes: tuple[StressClass, ...] = CLASSES) -> list[TripJob]:
+    """Return every trip of the suite, class by class (see the module docstring for seeds)."""
+    base = base_config(duration_s)
+    jobs = []
+    for stress_class in classes:
+        key = zlib.crc32(stress_class.name.encode())
+        for k in range(trips_per_class):
+            rng = np.random.default_rng([seed, key, k])
+            changes = {name: (value if isinstance(value, (bool, int)) else float(value))
+                       for name, value in stress_class.draw(rng, base).items()}
+            jobs.append(TripJob(stress_class.name, k, seed * 10_000 + k, changes, duration_s))
+    return jobs
+
+
+def _finite(value: Any) -> float | None:
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+def run_job(job: TripJob) -> dict[str, Any]:
+    """Simulate one trip and run it as `gyro-ekf run` does; return its record."""
+    # Imported here: a worker process needs them, the parent only to build the jobs.
+    import dataclasses
+    from gyro_ekf.analysis.offline import run_trip
+    from gyro_ekf.analysis.summary import summarize
+    from gyro_ekf.core.simulator import simulate_trip
+    from gyro_ekf.core.validation import validate_trip
+    from gyro_ekf.errors import GyroEkfError
+
+    # One info line per trip from the offline calibration would bury the table.
+    logging.getLogger('gyro_ekf.analysis.offline').setLevel(logging.WARNING)
+    record: dict[str, Any] = {'class': job.stress_class, 'index': job.index, 'seed': job.seed,
+                              'changes': job.changes}
+    began = time.perf_counter()
+    try:
+        trip = simulate_trip(dataclasses.replace(base_config(job.duration_s), **job.changes),
+                             job.seed)
+        trip, report = validate_trip(trip, trip.name)
+        summary = summarize(run_trip(trip), report)
+    except GyroEkfError as err:
+        # Loud, not silent: the run stopped with an error a user would see.
+        record.update({'error': str(err), 'passed': False, 'silent': False,
+                       'verdict': None, 'elapsed_s': time.perf_counter() - began})
+        return record
+    truth = summary['ground_truth']
+    figures = {'position_rmse_m': _finite(truth['position_rmse_m']),
+               'position_max_error_m': _finite(truth['position_max_error_m']),
+               'bias_error_final_deg_s': _finite(truth['bias_error_final_deg_s']),
+               'nees_share_in_band': _finite(truth['nees_share_in_band']),
+               'share_associated': _finite(summary['association']['share_associated']),
+               'nis_mean': _finite(summary['nis']['mean'])}
+    # A figure that could not be computed (None) misses its bound.
+    rmse, bias_error, nees = (figures[name] for name in BOUNDS)
+    missed = [name for name, ok in (
+        ('position_rmse_m', rmse is not None and rmse <= POSITION_RMSE_BOUND_M),
+        ('bias_error_final_deg_s',
+         bias_error is not None and abs(bias_error) <= BIAS_ERROR_BOUND_DEG_S),
+        ('nees_share_in_band', nees is not None and nees >= NEES_SHARE_BOUND)) if not ok]
+    verdict = summary['health']['verdict']
+    record.update(figures)
+    record.update({'verdict': verdict, 'reasons': summary['health']['reasons'],
+                   'missed': missed, 'passed': not missed,
+                   'silent': bool(missed) and verdict == 'ok',
+                   'elapsed_s': time.perf_counter() - began})
+    return record
+
+
+def _records(jobs: list[TripJob], workers: int) -> Iterator[dict[str, Any]]:
+    if workers <= 1:
+        yield from map(run_job, jobs)
+        return
+    with multiprocessing.get_context().Pool(workers) as pool:
+        yield from pool.imap_unordered(run_job, jobs, chunksize=1)
+
+
+def _median(values: list[float | None]) -> float | None:
+    kept = [v for v in values if v is not None]
+    return float(np.median(kept)) if kept else None
+
+
+def _class_summary(stress_class: StressClass, records: list[dict[str, Any]]
+                   ) -> dict[str, Any]:
+    n = len(records)
+    passed = sum(r['passed'] for r in records)
+    silent = [r for r in records if r['silent']]
+    return {
+        'description': stress_class.description, 'trips': n,
+        'passed': passed, 'pass_rate': passed / n if n else None,
+        'silent_failures': len(silent), 'silent_rate': len(silent) / n if n else None,
+        'errors': sum('error' in r for r in records),
+        'verdicts': dict(Counter(str(r['verdict']) for r in records)),
+        # Verdict not ok on a trip within the bounds: a false alarm on clean data, a fair
+        # warning where a sensor is off (an excluded LiDAR is a reason to be degraded).
+        'flagged_within_bounds': sum(r['passed'] and r['verdict'] != 'ok' for r in records),
+        'missed': dict(Counter(b for r in records for b in r.get('missed', ()))),
+        'silent_missed': dict(Counter(b for r in silent for b in r['missed'])),
+        'median_position_rmse_m': _median([r.get('position_rmse_m') for r in records]),
+        'worst_position_rmse_m': max((r['position_rmse_m'] for r in records
+                                      if r.get('position_rmse_m') is not None), default=None),
+        'median_abs_bias_error_deg_s': _median([
+            None if r.get('bias_error_final_deg_s') is None else abs(r['bias_error_final_deg_s'])
+            for r in records]),
+        'median_nees_share_in_band': _median([r.get('nees_share_in_band') for r in records]),
+    }
+
+
+def run_suite(trips_per_class: int, seed: int = 0, workers: int = 2,
+              duration_s: float = DEFAULT_DURATION_S,
+              progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+    """Run every trip of every class; return the JSON-ready results.
+
+    Args:
+        trips_per_class: trips simulated per class (>= 1).
+        seed: base seed of the suite (>= 0).
+        workers: processes (1: in this process).
+        duration_s: length of each trip, s.
+        progress: called with 1 after each trip.
+    """
+    jobs = trip_jobs(trips_per_class, seed, duration_s)
+    began = time.perf_counter()
+    records = []
+    for record in _records(jobs, workers):
+        records.append(record)
+        if progress is not None:
+            progress(1)
+    elapsed = time.perf_counter() - began
+    records.sort(key=lambda r: ([c.name for c in CLASSES].index(r['class']), r['index']))
+    classes = {c.name: _class_summary(c, [r for r in records if r['class'] == c.name])
+               for c in CLASSES}
+    total = len(records)
+    return {
+        'suite': {'trips_per_class': trips_per_class, 'seed': seed, 'workers': workers,
+                  'duration_s': duration_s, 'trips': total, 'elapsed_s': elapsed,
+                  'trip_seconds_per_second': total * duration_s / elapsed if elapsed else None},
+        'bounds': BOUNDS,
+        'totals': {'passed': sum(r['passed'] for r in records),
+                   'pass_rate': sum(r['passed'] for r in records) / total if total else None,
+                   'silent_failures': sum(r['silent'] for r in records),
+                   'errors': sum('error' in r for r in records)},
+        'classes': classes,
+        'trips': records,
+    }
+
+
+def _percent(value: float | None) -> str:
+    return 'n/a' if value is None else f'{100.0 * value:.0f} %'
+
+
+def table(results: dict[str, Any]) -> str:
+    """Return the per-class figures, pass and silent-failure shares first, as text."""
+    header = ('class', 'trips', 'pass', 'silent', 'verdict ok/deg/fail', 'RMSE med (cm)',
+              '|bias err| med (deg/s)', 'NEES med')
+    rows = []
+    for name, c in results['classes'].items():
+        verdicts = c['verdicts']
+        rmse = c['median_position_rmse_m']
+        bias = c['median_abs_bias_error_deg_s']
+        nees = c['median_nees_share_in_band']
+        rows.append((name, str(c['trips']), _percent(c['pass_rate']),
+                     _percent(c['silent_rate']),
+                     '/'.join(str(verdicts.get(v, 0)) for v in ('ok', 'degraded', 'failed')),
+                     'n/a' if rmse is None else f'{100.0 * rmse:.2f}',
+                     'n/a' if bias is None else f'{bias:.4f}',
+                     'n/a' if nees is None else f'{nees:.3f}'))
+    widths = [max(len(row[i]) for row in rows + [header]) for i in range(len(header))]
+    lines = ['  '.join(cell.ljust(w) if i == 0 else cell.rjust(w)
+                       for i, (cell, w) in enumerate(zip(row, widths)))
+             for row in [header] + rows]
+    suite, totals = results['suite'], results['totals']
+    lines.append(f"{suite['trips']} trips of {suite['duration_s']:g} s, seed {suite['seed']}: "
+                 f"{_percent(totals['pass_rate'])} within the bounds (RMSE <= "
+                 f"{100 * POSITION_RMSE_BOUND_M:g} cm, |final bias error| <= "
+                 f"{BIAS_ERROR_BOUND_DEG_S:g} deg/s, NEES share in band >= "
+                 f"{NEES_SHARE_BOUND:g}); {totals['silent_failures']} silent failure(s); "
+                 f"{totals['errors']} error(s); {suite['elapsed_s']:.0f} s on "
+                 f"{suite['workers']} worker(s)")
+    return '\n'.join(lines)

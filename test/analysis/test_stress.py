@@ -1,0 +1,67 @@
+"""`gyro-ekf stress` end to end on one short trip per class (no figures asserted)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from gyro_ekf.analysis.stress import BOUNDS, CLASSES, trip_jobs
+from gyro_ekf.cli.main import main
+
+
+def test_stress_runs_one_trip_per_class_and_writes_json(tmp_path, capsys):
+    output = tmp_path / 'out' / 'stress.json'
+    code = main(['-q', 'stress', '--trips-per-class', '1', '--workers', '2', '--duration-s',
+                 '30', '--seed', '3', '-o', str(output)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    results = json.loads(output.read_text())
+    names = [c.name for c in CLASSES]
+    assert list(results['classes']) == names
+    assert results['suite']['trips'] == len(names) == len(results['trips'])
+    assert results['bounds'] == BOUNDS
+    for name in names:
+        assert name in printed
+        assert results['classes'][name]['trips'] == 1
+    assert [r['class'] for r in results['trips']] == names
+    for record in results['trips']:
+        assert 'error' not in record, record
+        assert record['seed'] == 30_000
+        assert record['verdict'] in ('ok', 'degraded', 'failed')
+        # The classification follows the figures and the verdict.
+        expected = [name for name, bound in BOUNDS.items()
+                    if record[name] is None
+                    or (abs(record[name]) > bound if name != 'nees_share_in_band'
+                        else record[name] < bound)]
+        assert record['missed'] == expected
+        assert record['passed'] == (not expected)
+        assert record['silent'] == (bool(expected) and record['verdict'] == 'ok')
+        summary = results['classes'][record['class']]
+        assert summary['passed'] == int(record['passed'])
+        assert summary['silent_failures'] == int(record['silent'])
+    changes = {r['class']: r['changes'] for r in results['trips']}
+    assert changes['clean'] == {}
+    yaw = [v for k, v in changes['mount_yaw'].items() if k.endswith('yaw_error_rad')]
+    assert len(yaw) == 1 and 0.0 < abs(yaw[0]) <= math.radians(10.0)
+    assert 1 <= changes['extra_reflectors']['extra_reflectors'] <= 4
+    assert 2.0 <= changes['lidar_dropout']['lidar_dropout_s'] <= 10.0
+
+
+def test_jobs_are_seeded():
+    first, again, other = (trip_jobs(3, seed) for seed in (1, 1, 2))
+    assert first == again
+    assert len(first) == 3 * len(CLASSES)
+    assert [j.changes for j in first] != [j.changes for j in other]
+    # Every class drives the same scenes: trip k has seed 10_000 * seed + k in each.
+    assert {j.seed for j in first} == {10_000, 10_001, 10_002}
+
+
+@pytest.mark.parametrize('argument', [['--trips-per-class', '0'], ['--workers', 'x'],
+                                      ['--duration-s', '5']])
+def test_bad_arguments_are_usage_errors(argument, tmp_path):
+    with pytest.raises(SystemExit) as exit_info:
+        main(['stress', '-o', str(tmp_path / 'x.json'), *argument])
+    assert exit_info.value.code == 2
+    assert not (tmp_path / 'x.json').exists()
