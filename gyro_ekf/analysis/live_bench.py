@@ -609,18 +609,22 @@ class NodeCase:
         duration_s: measured length after the warm-up (for calibration_node: after the
             static window), s.
         node_io: the node's message path (GYRO_EKF_NODE_IO).
+        reliable_inputs: the node's reliable_inputs parameter (reliable keep-all inputs and
+            outputs, so every message sent is processed; default: the node's default QoS).
     """
 
     node: str
     rate_hz: float
     duration_s: float
     node_io: str = 'serialized'
+    reliable_inputs: bool = False
 
     @property
     def name(self) -> str:
         """Short label of the case."""
         io = '' if self.node_io == 'serialized' else f', {self.node_io} messages'
-        return f'{self.node} {self.rate_hz:g} Hz{io}'
+        reliable = ', reliable' if self.reliable_inputs else ''
+        return f'{self.node} {self.rate_hz:g} Hz{io}{reliable}'
 
 
 class _ChildExited(RuntimeError):
@@ -655,8 +659,9 @@ def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float =
                  ) -> dict[str, Any]:
     """Run calibration_node or landmark_detector_node in a child; CPU per input message.
 
-    The inputs are reliable keep-all (`reliable_inputs`), so every message sent is processed
-    and the output count checks it. For calibration_node the static window
+    With `reliable_inputs` every message sent is processed and the output count checks it;
+    with the default QoS (best effort in) a message the node lost shows as a missing output.
+    For calibration_node the static window
     (CALIBRATION_WINDOW_S of still IMU samples) is timed on its own
     (`window_cpu_us_per_message`), then `duration_s` of corrected IMU messages.
 
@@ -688,7 +693,8 @@ def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float =
         def count(_: bytes) -> None:
             received[0] += 1
         if calibration:
-            publisher = node.create_publisher(Imu, topics.IMU, qos.LOSSLESS)
+            publisher = node.create_publisher(Imu, topics.IMU,
+                                              qos.sensor_input(case.reliable_inputs))
             node.create_subscription(Imu, topics.IMU_CORRECTED, count, qos.LOSSLESS, raw=True)
             node.create_subscription(Vector3Stamped, topics.GYRO_BIAS, bias.append, qos.LATCHED,
                                      raw=True)
@@ -706,7 +712,8 @@ def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float =
         else:
             from sensor_msgs.msg import LaserScan
 
-            publisher = node.create_publisher(LaserScan, topics.SCAN, qos.LOSSLESS)
+            publisher = node.create_publisher(LaserScan, topics.SCAN,
+                                              qos.sensor_input(case.reliable_inputs))
             node.create_subscription(PoseArray, topics.LANDMARKS, count, qos.LOSSLESS,
                                      raw=True)
             params, outputs = {}, (topics.LANDMARKS,)
@@ -715,7 +722,7 @@ def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float =
             def fill(ns: int) -> Any:
                 scan.header.stamp.sec, scan.header.stamp.nanosec = divmod(ns, 1_000_000_000)
                 return scan
-        params['reliable_inputs'] = 'true'
+        params['reliable_inputs'] = 'true' if case.reliable_inputs else 'false'
         command = [sys.executable, '-m', f'gyro_ekf.nodes.{case.node}', '--ros-args']
         for name, value in params.items():
             command += ['-p', f'{name}:={value}']

@@ -145,7 +145,8 @@ def test_both_message_paths_publish_pose_odometry_and_bias_for_every_step(ros_en
 def test_calibration_and_detector_cases_count_every_output(ros_env, node, node_io):
     from gyro_ekf.analysis.live_bench import live_suite, NodeCase
 
-    case = NodeCase(node, 200.0 if node == 'calibration_node' else 20.0, 1.0, node_io)
+    case = NodeCase(node, 200.0 if node == 'calibration_node' else 20.0, 1.0, node_io,
+                    reliable_inputs=True)
     results = live_suite((), domain_id=int(ros_env['ROS_DOMAIN_ID']), node_cases=(case,))
     run = results['node_runs'][0]
     assert results['measured'], run.get('error', '') + run.get('node_log_tail', '')
