@@ -274,6 +274,7 @@ class EkfNode(Node):
         self._late_streams: set[str] = set()
         self._last_input = time.monotonic()
         self._idle_ticks = 0
+        self._idle_reported = 0  # estimates counted in the last report made when input stopped
         self._reported_drops = dict(self.dropped)
         self._received = dict.fromkeys(['imu', 'odom', 'landmarks'], 0)
         self._rate_base = (self.get_clock().now(), dict(self._received))
@@ -681,7 +682,8 @@ class EkfNode(Node):
 
     def _flush_when_idle(self) -> None:
         held = len(self._buffer) + (self._lagged.held if self._lagged is not None else 0)
-        idle = held and time.monotonic() - self._last_input > IDLE_FLUSH_S
+        quiet = time.monotonic() - self._last_input > IDLE_FLUSH_S
+        idle = held and quiet
         # Idle on two ticks in a row: a process that was starved finds its timer due and its
         # queues full; the executor serves those queues before the next tick.
         self._idle_ticks = self._idle_ticks + 1 if idle else 0
@@ -691,6 +693,12 @@ class EkfNode(Node):
             if self._lagged is not None:
                 self._lagged.flush()
             self._publish_diagnostics()
+            self._idle_reported = self._estimates
+        elif quiet and not held and self._estimates != self._idle_reported:
+            # The input stopped with nothing held (a node that kept up): report the final
+            # counts now, as the periodic report on /clock stops with the data in sim time.
+            self._publish_diagnostics()
+            self._idle_reported = self._estimates
 
     def _log_health_changes(self) -> None:
         """Log every LiDAR exclusion or readmission not logged yet."""
