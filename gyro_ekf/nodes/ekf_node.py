@@ -274,7 +274,9 @@ class EkfNode(Node):
         self._late_streams: set[str] = set()
         self._last_input = time.monotonic()
         self._idle_ticks = 0
-        self._idle_reported = 0  # estimates counted in the last report made when input stopped
+        # Whether the diagnostics went out since the inputs last went quiet: with use_sim_time
+        # the diagnostics timer stops with /clock, so the final counts need their own report.
+        self._reported_quiet = True
         self._reported_drops = dict(self.dropped)
         self._received = dict.fromkeys(['imu', 'odom', 'landmarks'], 0)
         self._rate_base = (self.get_clock().now(), dict(self._received))
@@ -495,6 +497,7 @@ class EkfNode(Node):
     def _push(self, stamp: Time, kind: EventKind, value, what: str, stream: str) -> None:
         if kind is not EventKind.OBSERVATION or self._lagged is None:
             self._last_input = time.monotonic()
+        self._reported_quiet = False
         ns = self._stamp_ns(stamp, what)
         if ns is None:
             return
@@ -683,7 +686,7 @@ class EkfNode(Node):
     def _flush_when_idle(self) -> None:
         held = len(self._buffer) + (self._lagged.held if self._lagged is not None else 0)
         quiet = time.monotonic() - self._last_input > IDLE_FLUSH_S
-        idle = held and quiet
+        idle = quiet and (held or not self._reported_quiet)
         # Idle on two ticks in a row: a process that was starved finds its timer due and its
         # queues full; the executor serves those queues before the next tick.
         self._idle_ticks = self._idle_ticks + 1 if idle else 0
@@ -693,12 +696,7 @@ class EkfNode(Node):
             if self._lagged is not None:
                 self._lagged.flush()
             self._publish_diagnostics()
-            self._idle_reported = self._estimates
-        elif quiet and not held and self._estimates != self._idle_reported:
-            # The input stopped with nothing held (a node that kept up): report the final
-            # counts now, as the periodic report on /clock stops with the data in sim time.
-            self._publish_diagnostics()
-            self._idle_reported = self._estimates
+            self._reported_quiet = True
 
     def _log_health_changes(self) -> None:
         """Log every LiDAR exclusion or readmission not logged yet."""

@@ -37,8 +37,7 @@ class SimTimeEkf:
         self.name = name
         self.key = f'/{name}/ekf_node: gyro bias EKF'
         args = ['-r', f'__ns:=/{name}', '-p', 'use_sim_time:=true',
-                '-p', 'reliable_inputs:=true', '-p', 'diagnostics_period_s:=0.1',
-                '-p', 'idle_flush_s:=0.2']
+                '-p', 'reliable_inputs:=true', '-p', 'diagnostics_period_s:=0.1']
         for param in params:
             args += ['-p', param]
         self.processes.node('ekf_node', *args, name=name)
@@ -172,7 +171,7 @@ def test_odometry_that_stops_for_10_s_of_clock_and_resumes_costs_nothing(start_e
     ekf = start_ekf('odom_pause')
     start = 1_700_010_000 * NS
     ekf.send_steps(start, 0, 100, imu_ns=start, odom_ns=start, speed=1.0)
-    # Odometry stops for 10 s of /clock; the IMU goes on. After stale_input_s of received
+    # Odometry stops for 10 s of /clock; the IMU goes on. After STALE_INPUT_S of received
     # stamps (and as long on the steady clock) the odometry no longer holds the IMU back.
     ekf.send_steps(start, 100, 1100, imu_ns=start)
     ekf.wait_for(_at_least('estimates', 1000), 'the IMU samples of the pause processed')
@@ -225,7 +224,7 @@ def test_clock_going_back_or_stamps_restarting_reset_with_the_reason_logged(star
     assert 'filter reset: ROS time jumped back 5' in ekf.log()
     assert values['resets'] == '1' and _no_drops(values), values
     # /clock runs on, but the stamps start over 30 s back (a looped bag without --clock):
-    # the messages are dropped as late until every input has gone back restart_after_late
+    # the messages are dropped as late until every input has gone back RESTART_AFTER_LATE
     # times in a row, then one reset, saying it was the stamps.
     again = back - 30 * NS
     ekf.send_steps(ekf.clock_ns + STEP_NS, 0, 100, imu_ns=again, odom_ns=again)

@@ -107,8 +107,7 @@ def _demo_pipeline(ros_harness, diagnostics_of, tmp_path, reliable: bool, hogs_p
         processes.node('landmark_detector_node', *params)
         # cli/demo.py's ekf_node, without use_calibration: the offline run seeds no bias
         # either (where a seed lands in the stream depends on when gyro_bias arrives).
-        processes.node('ekf_node', *params, '-p', 'reorder_window_s:=1.0',
-                       '-p', f'publish_every_n:={PUBLISH_EVERY}')
+        processes.node('ekf_node', *params, '-p', f'publish_every_n:={PUBLISH_EVERY}')
         probe.spin_until(lambda: probe.node.count_publishers('/ekf/odometry') > 0
                          and probe.node.count_publishers('/diagnostics') > 0, 60,
                          'the EKF node')
