@@ -14,7 +14,13 @@
   growth is the last sample minus the first one of the third pass (goal < 5 MB).
 - *live*: ekf_node in a child process over Fast DDS on loopback, fed odom + imu at 200 Hz
   and 1 kHz: latency from an IMU message in to its pose out (p50/p99/max, matched by header
-  stamp), poses missing and the node's CPU per message (`live_bench.py`).
+  stamp), poses missing and the node's CPU per step, publishing pose, odometry and bias
+  (`live_bench.py`); calibration_node's CPU per IMU message and landmark_detector_node's per
+  361-beam scan. Each on the serialized path (nodes/wire.py, the default) and on the
+  rclpy-message path (GYRO_EKF_NODE_IO=rclpy, the nodes before it), in the same run.
+- *replay*: the 2016 log replayed at 10x into the three nodes with their default QoS: the
+  calibration and EKF biases against their goals and the share of IMU messages processed
+  (`replay_bench.py`).
 """
 
 from __future__ import annotations
@@ -231,7 +237,29 @@ def live_benchmark(duration_s: float = 10.0) -> dict[str, Any]:
         return {'measured': False, 'reason': f'rclpy or the ROS messages are missing: {err}'}
     cases = tuple(dataclasses.replace(case, duration_s=duration_s)
                   for case in live_bench.DEFAULT_CASES)
-    return live_bench.live_suite(cases)
+    node_cases = tuple(dataclasses.replace(case, duration_s=duration_s)
+                       for case in live_bench.NODE_CASES)
+    return live_bench.live_suite(cases, node_cases=node_cases)
+
+
+def replay_suite(bag: Path | None, rate: float = 10.0) -> dict[str, Any]:
+    """Replay the 2016 log at 10x into the nodes on both message paths (replay_bench.py)."""
+    if bag is None:
+        return {'measured': False, 'reason': 'the 2016 log is missing'}
+    try:
+        from gyro_ekf.analysis import replay_bench
+    except ImportError as err:
+        return {'measured': False, 'reason': f'rclpy or the ROS messages are missing: {err}'}
+    runs = []
+    for node_io in ('serialized', 'rclpy'):
+        log.info('replay of %s at x%g into the nodes (%s path)', bag, rate, node_io)
+        try:
+            runs.append(replay_bench.replay_benchmark(bag, rate, node_io))
+        except Exception as err:  # noqa: BLE001 - one failed case must not end the bench
+            log.warning('replay on the %s path failed: %s', node_io, err)
+            runs.append({'rate': rate, 'node_io': node_io, 'measured': False,
+                         'error': f'{type(err).__name__}: {err}'})
+    return {'measured': all(run.get('measured') for run in runs), 'runs': runs}
 
 
 REPO = Path(__file__).resolve().parents[2]
@@ -355,10 +383,11 @@ def loop_memory_benchmark(bag: Path = LOOP_BAG, loops: int = 30, rate: float = 2
 
 def run_all(data_dir: Path, long_trip_s: float = 3600.0, core_steps: int = 20_000,
             work: Path | None = None, live_s: float = 10.0, loop_count: int = 30,
-            loop_rate: float = 20.0) -> dict[str, Any]:
+            loop_rate: float = 20.0, replay_rate: float = 10.0) -> dict[str, Any]:
     """Run every benchmark; returns the JSON-ready results.
 
-    live_s is the length of each live case; loop_count 0 skips the loop memory case.
+    live_s is the length of each live case; loop_count 0 skips the loop memory case;
+    replay_rate 0 skips the replay of the 2016 log.
     """
     own = work is None
     work = Path(tempfile.mkdtemp(prefix='gyro_ekf_bench_')) if own else work
@@ -369,6 +398,8 @@ def run_all(data_dir: Path, long_trip_s: float = 3600.0, core_steps: int = 20_00
     log.info('gyro-ekf run on the 2016 log')
     results['run_2016'] = run_benchmark(bag, work) if bag is not None else None
     results['live'] = live_benchmark(live_s)
+    if replay_rate > 0:
+        results['replay'] = replay_suite(bag, replay_rate)
     if loop_count > 0:
         log.info('memory of replay --loops %d and the nodes it feeds', loop_count)
         results['loop_memory'] = loop_memory_benchmark(loops=loop_count, rate=loop_rate)
@@ -402,6 +433,9 @@ def table(results: dict[str, Any]) -> str:
                   f'start-up{spread})'),
                  ('run on 2016 log: peak RSS (MB)', f"{run['peak_rss_mb']:.0f}")]
     rows += live_rows(results['live'])
+    if results.get('replay'):
+        from gyro_ekf.analysis.replay_bench import replay_rows
+        rows += replay_rows(results['replay'])
     rows += loop_memory_rows(results.get('loop_memory'))
     memory = results['memory']
     for step in ('convert', 'run'):
@@ -438,7 +472,7 @@ def _ms(values: dict[str, Any] | None) -> str:
 
 def live_rows(live: dict[str, Any]) -> list[tuple[str, str]]:
     """Table rows of the live benchmark: latency, completion latency, drops and CPU per case."""
-    if not live.get('runs'):
+    if not live.get('runs') and not live.get('node_runs'):
         return [('live latency', f"not measured ({live.get('reason', 'no runs')})")]
     rows = []
     for run in live['runs']:
@@ -459,4 +493,17 @@ def live_rows(live: dict[str, Any]) -> list[tuple[str, str]]:
                      f" ({100.0 * run['node_cpu_share']:.0f}% of a core)"))
         if run.get('error'):
             rows.append((f'{name}: error', run['error']))
+    for run in live.get('node_runs', []):
+        name = f"live {run['name']}"
+        if 'node_cpu_us_per_message' not in run:
+            rows.append((name, f"FAILED: {run.get('error', 'unknown error')}"))
+            continue
+        what = 'scan' if 'detector' in run['name'] else 'msg'
+        lost = run['messages_sent'] - run['outputs_received']
+        rows.append((f'{name}: node CPU (us/{what})',
+                     f"{run['node_cpu_us_per_message']:.0f} ({100.0 * run['node_cpu_share']:.0f}%"
+                     f" of a core{f', {lost} outputs missing' if lost else ''})"))
+        if 'window_cpu_us_per_message' in run:
+            rows.append((f'{name}: static window CPU (us/msg)',
+                         f"{run['window_cpu_us_per_message']:.0f}"))
     return rows

@@ -4,7 +4,13 @@ The node runs as a child process (``python -m gyro_ekf.nodes.ekf_node``) with a 
 initial pose and a small landmark map (``landmarks_file``); this process is an rclpy node
 that publishes ``odom`` then ``imu`` with the same header stamp every step, at a fixed rate,
 optionally pole observations on ``landmarks`` (so the filter also updates), and listens to
-``ekf/pose`` (raw CDR, only the stamp is read, so the listener costs little).
+``ekf/pose`` (raw CDR, only the stamp is read, so the listener costs little) and counts
+``ekf/odometry`` and ``ekf/bias`` (so the node publishes all three for every step: it skips
+outputs nobody reads).
+
+Message path: each case runs the node with GYRO_EKF_NODE_IO set to its ``node_io``
+(``serialized``: CDR bytes and the EventsExecutor, the default; ``rclpy``: rclpy messages and
+the SingleThreadedExecutor, the path before nodes/wire.py), so both are measured in one run.
 
 Latency. ekf_node holds every message in its reorder buffer until each active input has
 delivered a stamp at least as new and ``reorder_window_s`` of stamp time has passed, so the
@@ -25,6 +31,10 @@ flush at the end (their completing message was never sent) are counted, not time
 
 CPU: utime + stime of the child from /proc/<pid>/stat over the measured phase (first
 measured send to the end of the drain), per step (one imu + one odom) and per input message.
+
+`measure_node` does the same for calibration_node (IMU messages in, imu/corrected out, after
+its static window; the window itself is timed too) and landmark_detector_node (361-beam
+scans in, landmarks out), with reliable inputs so that every message sent is processed.
 
 Every rclpy process here runs with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, an explicit
 ROS_DOMAIN_ID (unless given, one claimed through gyro_ekf.ros_env, so no concurrent test or
@@ -51,7 +61,11 @@ from typing import Any
 
 import numpy as np
 
+from gyro_ekf import topics
 from gyro_ekf.ros_env import claim_domain, ros_env_values
+
+NODE_IO_VARIABLE = 'GYRO_EKF_NODE_IO'
+"""The nodes' message-path switch (gyro_ekf.nodes.wire; not imported: it needs rclpy)."""
 
 log = logging.getLogger(__name__)
 
@@ -76,6 +90,7 @@ class LiveCase:
             come back), s.
         late_observation_history_s: the node's late_observation_history_s parameter, s (> 0:
             observations no longer hold the other inputs back, they are replayed).
+        node_io: the node's message path (GYRO_EKF_NODE_IO): 'serialized' or 'rclpy'.
     """
 
     rate_hz: float
@@ -85,11 +100,14 @@ class LiveCase:
     reliable_inputs: bool = False
     warmup_s: float = 1.0
     late_observation_history_s: float = 0.0
+    node_io: str = 'serialized'
 
     @property
     def name(self) -> str:
         """Short label of the case."""
         parts = [f'{self.rate_hz:g} Hz']
+        if self.node_io != 'serialized':
+            parts.append(f'{self.node_io} messages')
         if self.reorder_window_s:
             parts.append(f'window {self.reorder_window_s:g} s')
         if self.landmarks_hz:
@@ -209,7 +227,7 @@ class _Session:
     def _create(self, case: LiveCase) -> None:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from geometry_msgs.msg import Pose, PoseArray, PoseWithCovarianceStamped
+        from geometry_msgs.msg import Pose, PoseArray, PoseWithCovarianceStamped, Vector3Stamped
         from nav_msgs.msg import Odometry
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -233,6 +251,12 @@ class _Session:
         self.received: list[tuple[int, float]] = []
         self.node.create_subscription(PoseWithCovarianceStamped, topics.EKF_POSE,
                                       self._on_pose, keep_all, raw=True)
+        # The node publishes odometry and bias only to subscribers: count them, unread.
+        self.outputs = {topics.EKF_ODOMETRY: 0, topics.EKF_BIAS: 0}
+        for msg_type, topic in ((Odometry, topics.EKF_ODOMETRY),
+                                (Vector3Stamped, topics.EKF_BIAS)):
+            self.node.create_subscription(msg_type, topic, self._counter(topic), keep_all,
+                                          raw=True)
         self.diagnostics: list[tuple[float, dict[str, str]]] = []
         self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS,
                                       self._on_diagnostics, qos.OUTPUT)
@@ -247,6 +271,11 @@ class _Session:
             pose = Pose()
             pose.position.x, pose.position.y = x, y
             self.observations.poses.append(pose)
+
+    def _counter(self, topic: str) -> Callable[[bytes], None]:
+        def count(_: bytes) -> None:
+            self.outputs[topic] += 1
+        return count
 
     def _on_pose(self, data: bytes) -> None:
         now = _CLOCK()
@@ -342,11 +371,13 @@ def _node_command(case: LiveCase, map_file: Path) -> list[str]:
     params = {
         'initial_pose.x_m': '0.0', 'initial_pose.y_m': '0.0', 'initial_pose.yaw_rad': '0.0',
         'initial_position_sigma_m': '0.05', 'initial_yaw_sigma_rad': '0.01',
-        'landmarks_file': str(map_file), 'reorder_window_s': f'{case.reorder_window_s:g}',
+        'landmarks_file': str(map_file),
         'reliable_inputs': 'true' if case.reliable_inputs else 'false',
         'diagnostics_period_s': '0.5', 'publish_every_n': '1',
         'late_observation_history_s': f'{case.late_observation_history_s:g}',
     }
+    if case.reorder_window_s:  # a removed parameter (the node warns and ignores it)
+        params['reorder_window_s'] = f'{case.reorder_window_s:g}'
     args = [sys.executable, '-m', 'gyro_ekf.nodes.ekf_node', '--ros-args']
     for name, value in params.items():
         args += ['-p', f'{name}:={value}']
@@ -402,7 +433,8 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
     child = None
     try:
         with node_log.open('w') as output:
-            child = subprocess.Popen(_node_command(case, map_file), env=env, cwd=work,
+            child = subprocess.Popen(_node_command(case, map_file),
+                                     env={**env, NODE_IO_VARIABLE: case.node_io}, cwd=work,
                                      stdout=output, stderr=subprocess.STDOUT)
         result['node_pid'] = child.pid
         publishers = [session.imu_pub, session.odom_pub]
@@ -411,7 +443,8 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
         matched = session.spin_until(
             lambda: child.poll() is not None
             or (all(p.get_subscription_count() > 0 for p in publishers)
-                and session.node.count_publishers('/ekf/pose') > 0), startup_timeout_s)
+                and all(session.node.count_publishers('/' + topic) > 0
+                        for topic in (topics.EKF_POSE, *session.outputs))), startup_timeout_s)
         if not matched or child.poll() is not None:
             result['error'] = (f'ekf_node exited with {child.returncode}'
                                if child.poll() is not None else
@@ -447,6 +480,7 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
 
         cpu_before, wall_before = cpu_seconds(child.pid), _CLOCK()
         own_before = time.process_time()
+        outputs_before = dict(session.outputs)
         sender.lateness_s.clear()
         sender.run(steps)
         send_end = _CLOCK()
@@ -474,6 +508,8 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
         cpu_s = cpu_after - cpu_before
         messages = len(sender.streams) - first_measured
         result.update({
+            'outputs_received': {topic: session.outputs[topic] - outputs_before[topic]
+                                 for topic in session.outputs},
             'node_cpu_s': cpu_s, 'wall_s': wall_after - wall_before,
             'node_cpu_share': cpu_s / (wall_after - wall_before),
             'node_cpu_us_per_step': cpu_s / steps * 1e6,
@@ -550,27 +586,256 @@ def _summarize(case: LiveCase, sender: _Sender, session: _Session, measured: lis
 
 DEFAULT_CASES = (
     LiveCase(200.0, 10.0),
+    LiveCase(200.0, 10.0, node_io='rclpy'),
     LiveCase(1000.0, 10.0),
+    LiveCase(1000.0, 10.0, node_io='rclpy'),
     LiveCase(1000.0, 10.0, reliable_inputs=True),
-    LiveCase(200.0, 10.0, reorder_window_s=0.1),
     LiveCase(200.0, 10.0, landmarks_hz=10.0),
     LiveCase(200.0, 10.0, landmarks_hz=10.0, late_observation_history_s=0.5),
 )
 """The cases of `make bench`: the two rates with no reorder window (the pure pipeline; sensor
-data QoS, and reliable keep-all inputs at 1 kHz), a 0.1 s reorder window, and 10 Hz pole
-observations as a third input stream, held in stamp order (the default) or replayed when late."""
+data QoS, on the serialized path and on the rclpy-message path, and reliable keep-all inputs at
+1 kHz), and 10 Hz pole observations as a third input stream, held in stamp order (the
+default) or replayed when late. (ekf_node no longer has a reorder window: main removed
+reorder_window_s.)"""
 
 
-def live_suite(cases: tuple[LiveCase, ...] = DEFAULT_CASES, domain_id: int | None = None
-               ) -> dict[str, Any]:
+@dataclass(frozen=True, slots=True)
+class NodeCase:
+    """CPU of calibration_node or landmark_detector_node per input message.
+
+    Attributes:
+        node: 'calibration_node' (IMU in, imu/corrected out after its static window) or
+            'landmark_detector_node' (361-beam LaserScan in, landmarks out).
+        rate_hz: input messages per second.
+        duration_s: measured length after the warm-up (for calibration_node: after the
+            static window), s.
+        node_io: the node's message path (GYRO_EKF_NODE_IO).
+        reliable_inputs: the node's reliable_inputs parameter (reliable keep-all inputs and
+            outputs, so every message sent is processed; default: the node's default QoS).
+    """
+
+    node: str
+    rate_hz: float
+    duration_s: float
+    node_io: str = 'serialized'
+    reliable_inputs: bool = False
+
+    @property
+    def name(self) -> str:
+        """Short label of the case."""
+        io = '' if self.node_io == 'serialized' else f', {self.node_io} messages'
+        reliable = ', reliable' if self.reliable_inputs else ''
+        return f'{self.node} {self.rate_hz:g} Hz{io}{reliable}'
+
+
+class _ChildExited(RuntimeError):
+    """The measured node process ended during the run."""
+
+
+CALIBRATION_WINDOW_S = 2.0
+SCAN_BEAMS = 361
+
+
+def _scan_message(stamp_ns: int) -> Any:
+    """Build a 361-beam half-turn scan of a wall at 8 m with three reflective poles at 4-6 m."""
+    from sensor_msgs.msg import LaserScan
+
+    scan = LaserScan()
+    scan.header.frame_id = 'laser'
+    scan.header.stamp.sec, scan.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    scan.angle_min, scan.angle_max = -np.pi / 2, np.pi / 2
+    scan.angle_increment = np.pi / (SCAN_BEAMS - 1)
+    scan.range_min, scan.range_max = 0.1, 80.0
+    ranges = np.full(SCAN_BEAMS, 8.0, dtype=np.float32)
+    intensities = np.zeros(SCAN_BEAMS, dtype=np.float32)
+    for beam, distance in ((60, 4.0), (180, 5.0), (300, 6.0)):
+        ranges[beam - 1:beam + 2] = distance
+        intensities[beam - 1:beam + 2] = 2.0
+    scan.ranges = ranges.tolist()
+    scan.intensities = intensities.tolist()
+    return scan
+
+
+def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float = 30.0
+                 ) -> dict[str, Any]:
+    """Run calibration_node or landmark_detector_node in a child; CPU per input message.
+
+    With `reliable_inputs` every message sent is processed and the output count checks it;
+    with the default QoS (best effort in) a message the node lost shows as a missing output.
+    For calibration_node the static window
+    (CALIBRATION_WINDOW_S of still IMU samples) is timed on its own
+    (`window_cpu_us_per_message`), then `duration_s` of corrected IMU messages.
+
+    Returns:
+        JSON-ready results: the case, messages sent and outputs received, node CPU (s, us
+        per message, share of a core); 'error' when the run could not be measured.
+    """
+    import rclpy
+    from geometry_msgs.msg import PoseArray, Vector3Stamped
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import Imu
+
+    from gyro_ekf.nodes import qos
+
+    work = Path(env['GYRO_EKF_LIVE_WORK'])
+    result: dict[str, Any] = {'case': asdict(case), 'name': case.name}
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=int(env['ROS_DOMAIN_ID']))
+    child = None
+    node_log = work / f'{case.node}_{os.getpid()}_{time.time_ns()}.log'
+    try:
+        node = rclpy.create_node('live_bench_nodes', context=context)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        calibration = case.node == 'calibration_node'
+        received = [0]
+        bias: list[bytes] = []
+
+        def count(_: bytes) -> None:
+            received[0] += 1
+        if calibration:
+            publisher = node.create_publisher(Imu, topics.IMU,
+                                              qos.sensor_input(case.reliable_inputs))
+            node.create_subscription(Imu, topics.IMU_CORRECTED, count, qos.LOSSLESS, raw=True)
+            node.create_subscription(Vector3Stamped, topics.GYRO_BIAS, bias.append, qos.LATCHED,
+                                     raw=True)
+            params = {'use_odom': 'false', 'window_length_s': f'{CALIBRATION_WINDOW_S:g}'}
+            outputs = (topics.IMU_CORRECTED, topics.GYRO_BIAS)
+            rng = np.random.default_rng(0)
+            message = Imu()
+            message.header.frame_id = topics.IMU_FRAME
+
+            def fill(ns: int) -> Any:
+                message.header.stamp.sec, message.header.stamp.nanosec = divmod(
+                    ns, 1_000_000_000)
+                message.angular_velocity.z = float(-0.017 + 0.001 * rng.standard_normal())
+                return message
+        else:
+            from sensor_msgs.msg import LaserScan
+
+            publisher = node.create_publisher(LaserScan, topics.SCAN,
+                                              qos.sensor_input(case.reliable_inputs))
+            node.create_subscription(PoseArray, topics.LANDMARKS, count, qos.LOSSLESS,
+                                     raw=True)
+            params, outputs = {}, (topics.LANDMARKS,)
+            scan = _scan_message(STAMP_ZERO_NS)
+
+            def fill(ns: int) -> Any:
+                scan.header.stamp.sec, scan.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+                return scan
+        params['reliable_inputs'] = 'true' if case.reliable_inputs else 'false'
+        command = [sys.executable, '-m', f'gyro_ekf.nodes.{case.node}', '--ros-args']
+        for name, value in params.items():
+            command += ['-p', f'{name}:={value}']
+        with node_log.open('w') as output:
+            child = subprocess.Popen(command, env={**env, NODE_IO_VARIABLE: case.node_io},
+                                     cwd=work, stdout=output, stderr=subprocess.STDOUT)
+        result['node_pid'] = child.pid
+
+        def spin_until(condition: Callable[[], bool], timeout_s: float) -> bool:
+            deadline = _CLOCK() + timeout_s
+            while not condition() and child.poll() is None:
+                if _CLOCK() > deadline:
+                    return False
+                executor.spin_once(timeout_sec=0.01)
+            return condition()
+        if not spin_until(lambda: publisher.get_subscription_count() > 0 and all(
+                node.count_publishers('/' + topic) > 0 for topic in outputs),
+                startup_timeout_s):
+            result['error'] = f'{case.node}: no matched endpoints within {startup_timeout_s} s'
+            result['node_log_tail'] = _tail(node_log)
+            return result
+        period_ns = round(1e9 / case.rate_hz)
+        sent = [0]
+        next_s = [_CLOCK()]
+
+        def send(until: Callable[[], bool], most: int) -> None:
+            """Publish at the rate until until() holds or `most` messages went out."""
+            for _ in range(most):
+                remaining = next_s[0] - _CLOCK()
+                if remaining > 0.0:
+                    executor.spin_once(timeout_sec=remaining)
+                    while _CLOCK() < next_s[0]:
+                        executor.spin_once(timeout_sec=max(next_s[0] - _CLOCK(), 0.0))
+                publisher.publish(fill(STAMP_ZERO_NS + sent[0] * period_ns))
+                sent[0] += 1
+                next_s[0] += 1.0 / case.rate_hz
+                if until():
+                    return
+
+        def node_cpu_s() -> float:
+            try:
+                return cpu_seconds(child.pid)
+            except OSError:  # the child is gone: say so, with its log
+                child.wait()
+                raise _ChildExited(f'{case.node} exited with {child.returncode}') from None
+        if calibration:
+            # The static window: from the first sample to the published bias.
+            cpu_before, wall_before = node_cpu_s(), _CLOCK()
+            send(lambda: bool(bias), round(case.rate_hz * (CALIBRATION_WINDOW_S + 30.0)))
+            if not bias:
+                result['error'] = 'calibration_node published no bias'
+                result['node_log_tail'] = _tail(node_log)
+                return result
+            window_cpu = node_cpu_s() - cpu_before
+            result.update({'window_messages': sent[0], 'window_cpu_s': window_cpu,
+                           'window_cpu_us_per_message': window_cpu / sent[0] * 1e6,
+                           'window_wall_s': _CLOCK() - wall_before})
+        else:  # warm-up: the first scans load code and fill caches
+            send(lambda: False, max(10, round(case.rate_hz)))
+        spin_until(lambda: received[0] >= sent[0] - (1 if calibration else 0), 5.0)
+        first_sent, first_received = sent[0], received[0]
+        messages = max(1, round(case.rate_hz * case.duration_s))
+        next_s[0] = _CLOCK()  # a new schedule: no burst to catch up after the waits
+        cpu_before, wall_before = node_cpu_s(), _CLOCK()
+        send(lambda: False, messages)
+        spin_until(lambda: received[0] - first_received >= messages, 10.0)
+        cpu_s, wall_s = node_cpu_s() - cpu_before, _CLOCK() - wall_before
+        result.update({
+            'messages_sent': sent[0] - first_sent,
+            'outputs_received': received[0] - first_received,
+            'node_cpu_s': cpu_s, 'wall_s': wall_s, 'node_cpu_share': cpu_s / wall_s,
+            'node_cpu_us_per_message': cpu_s / messages * 1e6,
+            'cpu_clock_tick_s': 1.0 / os.sysconf('SC_CLK_TCK'),
+        })
+        if child.poll() is not None:
+            result['error'] = f'{case.node} exited with {child.returncode} during the run'
+            result['node_log_tail'] = _tail(node_log)
+        result['node_warnings'] = _warnings(node_log)
+        result['measured'] = 'error' not in result
+        return result
+    except _ChildExited as err:
+        result.update({'error': str(err), 'node_log_tail': _tail(node_log), 'measured': False})
+        return result
+    finally:
+        if child is not None:
+            _stop(child)
+        context.try_shutdown()
+
+
+NODE_CASES = (
+    NodeCase('calibration_node', 1000.0, 10.0),
+    NodeCase('calibration_node', 1000.0, 10.0, node_io='rclpy'),
+    NodeCase('landmark_detector_node', 40.0, 10.0),
+    NodeCase('landmark_detector_node', 40.0, 10.0, node_io='rclpy'),
+)
+"""calibration_node at 1 kHz and landmark_detector_node at 40 scans/s, on both message
+paths."""
+
+
+def live_suite(cases: tuple[LiveCase, ...] = DEFAULT_CASES, domain_id: int | None = None,
+               node_cases: tuple[NodeCase, ...] = ()) -> dict[str, Any]:
     """Measure every case, each with a fresh ekf_node child, in one ROS environment.
 
     Args:
         cases: what to measure.
         domain_id: ROS domain; None claims a free one (gyro_ekf.ros_env).
+        node_cases: calibration_node and landmark_detector_node cases (measure_node).
 
     Returns:
-        {'measured': True when every case was, 'domain_id', 'runs': [per-case results]}.
+        {'measured': True when every case was, 'domain_id', 'runs': [per-case results],
+        'node_runs': [per node case]}.
     """
     with ros_environment(domain_id) as env:
         runs = []
@@ -582,5 +847,14 @@ def live_suite(cases: tuple[LiveCase, ...] = DEFAULT_CASES, domain_id: int | Non
                 log.warning('live case %s failed: %s', case.name, err)
                 runs.append({'case': asdict(case), 'name': case.name, 'measured': False,
                              'error': f'{type(err).__name__}: {err}'})
-        return {'measured': all(run.get('measured') for run in runs),
-                'domain_id': int(env['ROS_DOMAIN_ID']), 'runs': runs}
+        node_runs = []
+        for node_case in node_cases:
+            log.info('live %s for %.0f s', node_case.name, node_case.duration_s)
+            try:
+                node_runs.append(measure_node(node_case, env))
+            except Exception as err:  # noqa: BLE001 - one failed case must not end the bench
+                log.warning('live case %s failed: %s', node_case.name, err)
+                node_runs.append({'case': asdict(node_case), 'name': node_case.name,
+                                  'measured': False, 'error': f'{type(err).__name__}: {err}'})
+        return {'measured': all(run.get('measured') for run in runs + node_runs),
+                'domain_id': int(env['ROS_DOMAIN_ID']), 'runs': runs, 'node_runs': node_runs}

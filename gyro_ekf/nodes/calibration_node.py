@@ -10,11 +10,13 @@ window is logged with the reason and a new window starts. `~/recalibrate` (std_s
 starts a new window on demand. Status goes to `/diagnostics` once per diagnostics_period_s.
 
 Bad input is dropped and counted per reason in /diagnostics: `zero_stamp`, `non_finite`,
-`out_of_range` (a rate or speed beyond the `limits.*` parameters, core.config.InputLimits)
-and, while collecting, `stamp_jump`: a stamp more than `limits.max_stamp_jump_s` ahead of the
-inputs is held until odom confirms it or ten IMU messages (StampGate's default) go on from
-it, so a lone message far ahead can neither end a window nor set where the next one starts.
-A former parameter still given is warned about once and ignored (REMOVED_PARAMETERS).
+`out_of_range` (a rate or speed beyond the `limits.*` parameters, core.config.InputLimits),
+`malformed` (bytes that are not the topic's type: the inputs are read serialized,
+nodes/wire.py) and, while collecting, `stamp_jump`: a stamp more than
+`limits.max_stamp_jump_s` ahead of the inputs is held until odom confirms it or ten IMU
+messages (StampGate's default) go on from it, so a lone message far ahead can neither end a
+window nor set where the next one starts. A former parameter still given is warned about
+once and ignored (REMOVED_PARAMETERS).
 """
 
 from __future__ import annotations
@@ -36,10 +38,10 @@ from gyro_ekf.core.errors import CalibrationError
 from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import BiasEstimate
 from gyro_ekf.core.validation import rate_problem, speed_problem
-from gyro_ekf.nodes import qos
-from gyro_ekf.nodes.conversions import (bias_message, corrected_imu, drop_reason,
-                                        imu_axes_known, imu_rates, odometry_speed, stamp_ns,
-                                        TimeOrigin)
+from gyro_ekf.nodes import qos, wire
+from gyro_ekf.nodes.conversions import (axes_known, bias_message, corrected_imu, drop_reason,
+                                        imu_rates, odometry_speed, stamp_ns, TimeOrigin,
+                                        to_stamp)
 from gyro_ekf.nodes.params import declare, declare_config, report_removed
 from gyro_ekf.nodes.runtime import run_node
 
@@ -82,7 +84,7 @@ class CalibrationNode(Node):
         self.calibrator = StaticWindowCalibrator(self.config)
         self.result: BiasEstimate | None = None
         self.dropped = {'non_finite': 0, 'out_of_range': 0, 'zero_stamp': 0,
-                        'stamp_jump': 0}
+                        'stamp_jump': 0, 'malformed': 0}
         self._origin = TimeOrigin()
         self._gate = StampGate(self._limits.max_stamp_jump_s)
         self._window_from_s: float | None = None
@@ -96,7 +98,14 @@ class CalibrationNode(Node):
                                                     qos.stream_output(lossless))
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
                                                       qos.OUTPUT)
-        self.create_subscription(Imu, topics.IMU, self._on_imu, qos.sensor_input(lossless))
+        # Serialized I/O (nodes/wire.py): the IMU read from its bytes and imu/corrected
+        # patched into them; the same numbers as rclpy messages, a fraction of the CPU.
+        self._serialized = wire.serialized_io()
+        if self._serialized:
+            self.create_subscription(Imu, topics.IMU, self._on_imu_bytes,
+                                     qos.sensor_input(lossless), raw=True)
+        else:
+            self.create_subscription(Imu, topics.IMU, self._on_imu, qos.sensor_input(lossless))
         self._use_odom = use_odom
         self._odom_qos = qos.sensor_input(lossless)
         self._odom_sub = None
@@ -109,8 +118,10 @@ class CalibrationNode(Node):
 
     def _subscribe_odom(self) -> None:
         if self._use_odom and self._odom_sub is None:
-            self._odom_sub = self.create_subscription(Odometry, topics.ODOM, self._on_odom,
-                                                      self._odom_qos)
+            self._odom_sub = self.create_subscription(
+                Odometry, topics.ODOM,
+                self._on_odom_bytes if self._serialized else self._on_odom, self._odom_qos,
+                raw=self._serialized)
 
     def _usable(self, ns: int, problem: str | None) -> bool:
         if ns == 0:
@@ -127,14 +138,42 @@ class CalibrationNode(Node):
                                throttle_duration_sec=5.0)
 
     def _on_odom(self, message: Odometry) -> None:
-        ns = stamp_ns(message.header.stamp)
-        speed = odometry_speed(message)
+        self._take_speed(stamp_ns(message.header.stamp), odometry_speed(message))
+
+    def _on_odom_bytes(self, data: bytes) -> None:
+        try:
+            sample = wire.decode_odometry(data)
+        except wire.WireError as err:
+            self._drop('malformed', f'{topics.ODOM}: {err}')
+            return
+        self._take_speed(stamp_ns(sample.stamp), sample.speed_m_s)
+
+    def _take_speed(self, ns: int, speed: float) -> None:
         if self.calibrator.collecting and self._usable(ns, speed_problem(speed, self._limits)):
             self._offer('odom', ns, speed)
 
     def _on_imu(self, message: Imu) -> None:
-        ns = stamp_ns(message.header.stamp)
-        rates = imu_rates(message)
+        covariance = message.angular_velocity_covariance
+        self._take_imu(message.header.stamp, message.header.frame_id, imu_rates(message),
+                       (covariance[0], covariance[4], covariance[8]),
+                       lambda bias: corrected_imu(message, bias))
+
+    def _on_imu_bytes(self, data: bytes) -> None:
+        try:
+            sample = wire.decode_imu(data)
+        except wire.WireError as err:
+            self._drop('malformed', f'{topics.IMU}: {err}')
+            return
+        self._take_imu(sample.stamp, sample.frame_id, sample.rates, sample.covariance,
+                       lambda bias: wire.corrected_imu(sample, bias))
+
+    def _take_imu(self, stamp, frame_id: str, rates: tuple[float, float, float],
+                  covariance: tuple[float, float, float], corrected) -> None:
+        """Check an IMU sample (either path); corrected(bias) is its imu/corrected copy.
+
+        covariance: angular_velocity_covariance[0], [4], [8].
+        """
+        ns = stamp_ns(stamp)
         problem = next((p for p in (rate_problem(r, self._limits) for r in rates) if p), None)
         if not self._usable(ns, problem):
             return
@@ -142,10 +181,10 @@ class CalibrationNode(Node):
         if self.result is not None:
             # Building the corrected copy costs more than the callback; skip it unheard.
             if self._corrected_pub.get_subscription_count():
-                self._corrected_pub.publish(corrected_imu(message, self.result.bias_rad_s))
+                self._corrected_pub.publish(corrected(self.result.bias_rad_s))
                 self._corrected_count += 1
             return
-        self._offer('imu', ns, (rates, message))
+        self._offer('imu', ns, (rates, (stamp, frame_id, covariance)))
 
     def _offer(self, stream: str, ns: int, payload) -> None:
         """Pass a sample through the stamp gate to the calibrator."""
@@ -162,10 +201,11 @@ class CalibrationNode(Node):
                 self._collect(stamp_s, *value)
 
     def _collect(self, stamp_s: float, rates: tuple[float, float, float],
-                 message: Imu) -> None:
+                 message: tuple) -> None:
+        """Add a sample to the window; message: (stamp, frame_id, covariance diagonal)."""
         if self._window_from_s is None:
             self._window_from_s = stamp_s + self.config.window_start_s
-            self._axes_known = imu_axes_known(message)
+            self._axes_known = axes_known(*message[2])
         if stamp_s < self._window_from_s:
             return
         try:
@@ -177,13 +217,14 @@ class CalibrationNode(Node):
         if result is not None:
             self._accept(result, message)
 
-    def _accept(self, result: BiasEstimate, message: Imu) -> None:
+    def _accept(self, result: BiasEstimate, message: tuple) -> None:
         self.result = result
         if self._odom_sub is not None:
             # Speed only matters while collecting; stop paying for its callbacks.
             self.destroy_subscription(self._odom_sub)
             self._odom_sub = None
-        self._bias_pub.publish(bias_message(message.header.stamp, message.header.frame_id,
+        stamp, frame_id, _ = message
+        self._bias_pub.publish(bias_message(to_stamp(stamp_ns(stamp)), frame_id,
                                             result.bias_rad_s))
         known = self._axes_known or (True, True, True)
         text = ', '.join(

@@ -105,9 +105,14 @@ def imu_rates(message: Imu) -> tuple[float, float, float]:
 def imu_axes_known(message: Imu) -> tuple[bool, bool, bool]:
     """Which angular-velocity axes an Imu message's covariance marks as measured."""
     covariance = message.angular_velocity_covariance
-    if covariance[0] == -1.0:
+    return axes_known(covariance[0], covariance[4], covariance[8])
+
+
+def axes_known(xx: float, yy: float, zz: float) -> tuple[bool, bool, bool]:
+    """Which axes the diagonal of an angular_velocity_covariance marks as measured."""
+    if xx == -1.0:
         return (False, False, False)
-    return tuple(bool(covariance[i] < UNKNOWN_AXIS_VARIANCE) for i in (0, 4, 8))
+    return tuple(bool(v < UNKNOWN_AXIS_VARIANCE) for v in (xx, yy, zz))
 
 
 def corrected_imu(message: Imu, bias_rad_s: Sequence[float]) -> Imu:
@@ -143,6 +148,11 @@ def odometry_speed(message: Odometry) -> float:
     return float(message.twist.twist.linear.x)
 
 
+def beam_bearings(angle_min_rad: float, angle_increment_rad: float, beams: int) -> FloatArray:
+    """Bearing of every beam of a scan, rad, float64 (as ScanSeries.angles_rad has them)."""
+    return angle_min_rad + angle_increment_rad * np.arange(beams, dtype=np.float64)
+
+
 def scan_arrays(message: LaserScan) -> tuple[np.ndarray, FloatArray, np.ndarray | None]:
     """Ranges (float32, m), beam bearings (float64, rad) and intensities (or None) of a scan.
 
@@ -150,8 +160,8 @@ def scan_arrays(message: LaserScan) -> tuple[np.ndarray, FloatArray, np.ndarray 
     increment times the beam index, in float64), so detections match an offline run.
     """
     ranges = np.asarray(message.ranges, dtype=np.float32)
-    angles = float(message.angle_min) + float(message.angle_increment) * np.arange(
-        ranges.size, dtype=np.float64)
+    angles = beam_bearings(float(message.angle_min), float(message.angle_increment),
+                           ranges.size)
     intensities = None
     if len(message.intensities) == ranges.size and ranges.size:
         intensities = np.asarray(message.intensities, dtype=np.float32)
@@ -226,6 +236,15 @@ class EstimateMessages:
         self._pose_covariance = np.zeros((6, 6))
         self._twist_covariance = np.zeros(36)
         self._twist_covariance[0] = self._speed_variance
+
+    @property
+    def bias_frame(self) -> str:
+        """Frame of the bias message (the IMU's)."""
+        return self.bias.header.frame_id
+
+    @bias_frame.setter
+    def bias_frame(self, frame_id: str) -> None:
+        self.bias.header.frame_id = frame_id
 
     def fill(self, estimate: Estimate, stamp_ns: int
              ) -> tuple[PoseWithCovarianceStamped, Odometry, Vector3Stamped]:

@@ -10,7 +10,8 @@ A scan whose beam geometry is not one (angle_increment 0, angles not finite, a r
 that disagrees with angle_min/max/increment, more than one turn, bad range limits:
 core.validation's scan check) would place poles at made-up bearings: it is dropped and
 counted as `dropped_bad_scan` in /diagnostics, as is a scan with a zero stamp
-(`dropped_zero_stamp`). Ranges themselves may be inf or NaN (REP-117: no return).
+(`dropped_zero_stamp`) and bytes that are not a LaserScan (`dropped_malformed`: scans are read
+serialized, nodes/wire.py). Ranges themselves may be inf or NaN (REP-117: no return).
 """
 
 from __future__ import annotations
@@ -25,8 +26,10 @@ from gyro_ekf import topics
 from gyro_ekf.core.config import DetectorConfig
 from gyro_ekf.core.detection import detect_poles
 from gyro_ekf.core.errors import CoreError
-from gyro_ekf.nodes import qos
-from gyro_ekf.nodes.conversions import points_message, scan_arrays, scan_problem, stamp_ns
+from gyro_ekf.core.validation import scan_geometry_problem
+from gyro_ekf.nodes import qos, wire
+from gyro_ekf.nodes.conversions import (beam_bearings, points_message, scan_arrays,
+                                        scan_problem, stamp_ns)
 from gyro_ekf.nodes.params import declare, declare_config
 from gyro_ekf.nodes.runtime import run_node
 
@@ -52,24 +55,50 @@ class LandmarkDetectorNode(Node):
                          'Period of the /diagnostics status', 's', 0.01, 3600.0)
         self.scans = 0
         self.poles = 0
-        self.dropped = {'zero_stamp': 0, 'bad_scan': 0}
+        self.dropped = {'zero_stamp': 0, 'bad_scan': 0, 'malformed': 0}
         self._publisher = self.create_publisher(PoseArray, topics.LANDMARKS,
                                                 qos.stream_output(lossless))
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
                                                       qos.OUTPUT)
-        self.create_subscription(LaserScan, topics.SCAN, self._on_scan,
-                                 qos.sensor_input(lossless))
+        # Serialized I/O (nodes/wire.py): ranges read in place from the scan's bytes and the
+        # poles written as PoseArray bytes; the same numbers as rclpy messages.
+        serialized = wire.serialized_io()
+        self.create_subscription(LaserScan, topics.SCAN,
+                                 self._on_scan_bytes if serialized else self._on_scan,
+                                 qos.sensor_input(lossless), raw=serialized)
         self.create_timer(period, self._publish_diagnostics)
 
     def _on_scan(self, message: LaserScan) -> None:
-        if stamp_ns(message.header.stamp) == 0:
+        if self._usable(stamp_ns(message.header.stamp), scan_problem(message)):
+            self._detect(*scan_arrays(message),
+                         lambda points: points_message(message.header, points))
+
+    def _on_scan_bytes(self, data: bytes) -> None:
+        try:
+            scan = wire.decode_scan(data)
+        except wire.WireError as err:
+            self._drop('malformed', f'{topics.SCAN}: {err}')
+            return
+        beams = len(scan.ranges)
+        if self._usable(stamp_ns(scan.stamp), scan_geometry_problem(
+                scan.angle_min, scan.angle_max, scan.angle_increment, beams, scan.range_min,
+                scan.range_max)):
+            intensities = scan.intensities if beams and len(scan.intensities) == beams else None
+            self._detect(scan.ranges, beam_bearings(scan.angle_min, scan.angle_increment, beams),
+                         intensities, lambda points: wire.points_bytes(scan.header, points))
+
+    def _usable(self, ns: int, problem: str | None) -> bool:
+        """Tell whether a scan can be used; count it dropped if not."""
+        if ns == 0:
             self._drop('zero_stamp', 'scan with a zero stamp')
-            return
-        problem = scan_problem(message)
-        if problem is not None:
+        elif problem is not None:
             self._drop('bad_scan', problem)
-            return
-        ranges, angles, intensities = scan_arrays(message)
+        else:
+            return True
+        return False
+
+    def _detect(self, ranges, angles, intensities, landmarks) -> None:
+        """Detect poles and publish landmarks(points) (a PoseArray or its bytes)."""
         try:
             detections = detect_poles(ranges, angles, intensities, self.config)
         except CoreError as err:
@@ -77,7 +106,7 @@ class LandmarkDetectorNode(Node):
             return
         self.scans += 1
         self.poles += len(detections)
-        self._publisher.publish(points_message(message.header, detections.points_sensor_m))
+        self._publisher.publish(landmarks(detections.points_sensor_m))
 
     def _drop(self, reason: str, why: str) -> None:
         self.dropped[reason] += 1

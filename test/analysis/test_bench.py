@@ -27,3 +27,30 @@ def test_core_benchmark_gives_filterpy_the_same_estimates():
     assert result['max_abs_state_difference'] < 1e-9
     assert result['max_abs_covariance_difference'] < 1e-9
     assert result['core_predict_us'] > 0.0 and result['filterpy_predict_us'] > 0.0
+
+
+def test_the_table_shows_both_message_paths_and_the_replay():
+    from gyro_ekf.analysis.bench import live_rows
+    from gyro_ekf.analysis.replay_bench import replay_rows
+
+    node_run = {'name': 'calibration_node 1000 Hz, rclpy messages', 'messages_sent': 10,
+                'outputs_received': 9, 'node_cpu_us_per_message': 259.0,
+                'node_cpu_share': 0.26, 'window_cpu_us_per_message': 199.6}
+    rows = dict(live_rows({'runs': [], 'node_runs': [node_run]}))
+    assert rows['live calibration_node 1000 Hz, rclpy messages: node CPU (us/msg)'] == (
+        '259 (26% of a core, 1 outputs missing)')
+    assert rows['live calibration_node 1000 Hz, rclpy messages: static window CPU (us/msg)'] \
+        == '200'
+    replay = {'rate': 10.0, 'node_io': 'serialized', 'measured': True,
+              'calibration_bias_deg_s': -0.9707, 'offline_final_bias_deg_s': -0.9774,
+              'ekf_final_bias_deg_s': -0.9762, 'ekf_minus_offline_deg_s': 0.0012,
+              'calibration_processed_share': 0.975, 'ekf_processed_share': 0.995,
+              'imu_messages_in_bag': 44578,
+              'goals': {'calibration_bias': False, 'ekf_bias': True,
+                        'calibration_processed': False, 'ekf_processed': True}}
+    rows = dict(replay_rows({'runs': [replay]}))
+    name = 'replay x10, serialized nodes'
+    assert rows[f'{name}: calibration bias (deg/s)'].endswith('MISSED)')
+    assert rows[f'{name}: EKF final bias - run (deg/s)'] == '+0.0012 (-0.9762 vs -0.9774)'
+    assert rows[f'{name}: IMU processed (calibration, EKF)'] == (
+        '97.5 %, 99.5 % of 44578, MISSED')

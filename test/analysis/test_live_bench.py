@@ -120,3 +120,40 @@ def test_the_bench_claims_a_domain_of_its_own_and_gives_it_back(monkeypatch):
     assert again is not None
     again.release()
     assert os.environ['ROS_DOMAIN_ID'] == '42'  # the caller's environment is restored
+
+
+def test_both_message_paths_publish_pose_odometry_and_bias_for_every_step(ros_env):
+    from gyro_ekf.analysis.live_bench import LiveCase, live_suite
+
+    cases = tuple(LiveCase(200.0, 1.0, warmup_s=0.5, node_io=io)
+                  for io in ('serialized', 'rclpy'))
+    results = live_suite(cases, domain_id=int(ros_env['ROS_DOMAIN_ID']))
+    assert results['measured'], [r.get('error', '') + r.get('node_log_tail', '')
+                                 for r in results['runs']]
+    for run in results['runs']:
+        _check_measured(run)
+        # The bench subscribes to odometry and bias, so the node publishes them too (it
+        # skips outputs nobody reads); each is one message per estimate, like the pose.
+        outputs = run['outputs_received']
+        assert set(outputs) == {'ekf/odometry', 'ekf/bias'}
+        assert all(0 < count <= run['node']['estimates'] for count in outputs.values())
+    assert [run['name'] for run in results['runs']] == ['200 Hz', '200 Hz, rclpy messages']
+
+
+@pytest.mark.parametrize('node', ['calibration_node', 'landmark_detector_node'])
+@pytest.mark.parametrize('node_io', ['serialized', 'rclpy'])
+def test_calibration_and_detector_cases_count_every_output(ros_env, node, node_io):
+    from gyro_ekf.analysis.live_bench import live_suite, NodeCase
+
+    case = NodeCase(node, 200.0 if node == 'calibration_node' else 20.0, 1.0, node_io,
+                    reliable_inputs=True)
+    results = live_suite((), domain_id=int(ros_env['ROS_DOMAIN_ID']), node_cases=(case,))
+    run = results['node_runs'][0]
+    assert results['measured'], run.get('error', '') + run.get('node_log_tail', '')
+    # Reliable keep-all inputs: every message sent is processed, one output each.
+    assert run['messages_sent'] == round(case.rate_hz * case.duration_s)
+    assert run['outputs_received'] == run['messages_sent']
+    ticks = run['node_cpu_s'] / run['cpu_clock_tick_s']
+    assert ticks >= 0 and ticks == pytest.approx(round(ticks), abs=1e-6)
+    if node == 'calibration_node':
+        assert run['window_messages'] >= 2.0 * case.rate_hz  # the static window came first
