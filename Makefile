@@ -35,7 +35,7 @@ bags: $(STAMP)
 	$(BIN)/gyro-ekf make-bags bags --force
 
 bench: $(STAMP)
-	$(BIN)/gyro-ekf bench -o results/bench.json
+	$(BIN)/python -m benchmarks -o results/bench.json
 
 # Seeded simulated trips per perturbation class (docs/stress.md) through the offline run;
 # prints per class the share within the bounds and the silent failures, writes

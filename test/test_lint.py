@@ -7,7 +7,8 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-SOURCES = [str(REPO / 'gyro_ekf'), str(REPO / 'test'), str(REPO / 'setup.py')]
+SOURCES = [str(REPO / 'gyro_ekf'), str(REPO / 'benchmarks'), str(REPO / 'test'),
+           str(REPO / 'setup.py')]
 # ament_pep257's default ignores: presence of docstrings is not enforced, their form is.
 PEP257_IGNORE = 'D100,D101,D102,D103,D104,D105,D106,D107,D203,D212,D404'
 

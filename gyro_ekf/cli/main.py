@@ -14,7 +14,7 @@ import sys
 from gyro_ekf.errors import GyroEkfError
 
 COMMANDS = ('convert', 'info', 'simulate', 'calibrate', 'calibrate_mounts', 'run', 'demo',
-            'replay', 'record', 'reindex', 'make_bags', 'bench', 'stress')
+            'replay', 'record', 'reindex', 'make_bags', 'stress')
 
 log = logging.getLogger('gyro_ekf')
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gyro_ekf.analysis.bench import core_benchmark, run_benchmark
+from benchmarks.bench import core_benchmark, run_benchmark
 
 BUNDLED = Path(__file__).resolve().parents[2] / 'bags' / 'sim_moving_start'
 
@@ -30,8 +30,8 @@ def test_core_benchmark_gives_filterpy_the_same_estimates():
 
 
 def test_the_table_shows_both_message_paths_and_the_replay():
-    from gyro_ekf.analysis.bench import live_rows
-    from gyro_ekf.analysis.replay_bench import replay_rows
+    from benchmarks.bench import live_rows
+    from benchmarks.replay_bench import replay_rows
 
     node_run = {'name': 'calibration_node 1000 Hz, rclpy messages', 'messages_sent': 10,
                 'outputs_received': 9, 'node_cpu_us_per_message': 259.0,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from gyro_ekf.analysis.bench import loop_memory_rows, rss_growth, vm_rss_mb
+from benchmarks.bench import loop_memory_rows, rss_growth, vm_rss_mb
 
 
 def test_vm_rss_reads_this_process_and_none_for_a_missing_one():

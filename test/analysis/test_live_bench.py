@@ -16,7 +16,7 @@ pytestmark = pytest.mark.ros
 
 
 def test_completion_follows_the_release_rule():
-    from gyro_ekf.analysis.live_bench import completion_indices
+    from benchmarks.live_bench import completion_indices
 
     period = 10_000_000
     streams = ['odom', 'imu'] * 6
@@ -31,7 +31,7 @@ def test_completion_follows_the_release_rule():
 
 
 def test_observations_in_stamp_order_hold_each_step_until_the_next_scan():
-    from gyro_ekf.analysis.live_bench import completion_indices
+    from benchmarks.live_bench import completion_indices
 
     period = 10_000_000
     # Observations at steps 0 and 3, sent before that step's odom and imu (as the bench does).
@@ -73,7 +73,7 @@ def _check_measured(run):
 
 
 def test_a_short_live_run_matches_poses_to_the_steps_sent(ros_env):
-    from gyro_ekf.analysis.live_bench import LiveCase, live_suite
+    from benchmarks.live_bench import LiveCase, live_suite
 
     results = live_suite((LiveCase(200.0, 1.0, warmup_s=0.5),),
                          domain_id=int(ros_env['ROS_DOMAIN_ID']))
@@ -88,7 +88,7 @@ def test_a_short_live_run_matches_poses_to_the_steps_sent(ros_env):
 
 
 def test_observations_reach_the_filter_in_both_release_modes(ros_env):
-    from gyro_ekf.analysis.live_bench import LiveCase, live_suite
+    from benchmarks.live_bench import LiveCase, live_suite
 
     # How long poses wait in either mode is a `make bench` figure (the two landmark cases).
     cases = (LiveCase(200.0, 1.0, landmarks_hz=10.0, warmup_s=0.5),
@@ -108,7 +108,7 @@ def test_observations_reach_the_filter_in_both_release_modes(ros_env):
 
 
 def test_the_bench_claims_a_domain_of_its_own_and_gives_it_back(monkeypatch):
-    from gyro_ekf.analysis.live_bench import ros_environment
+    from benchmarks.live_bench import ros_environment
     from gyro_ekf.ros_env import try_claim
 
     monkeypatch.setenv('ROS_DOMAIN_ID', '42')
@@ -123,7 +123,7 @@ def test_the_bench_claims_a_domain_of_its_own_and_gives_it_back(monkeypatch):
 
 
 def test_both_message_paths_publish_pose_odometry_and_bias_for_every_step(ros_env):
-    from gyro_ekf.analysis.live_bench import LiveCase, live_suite
+    from benchmarks.live_bench import LiveCase, live_suite
 
     cases = tuple(LiveCase(200.0, 1.0, warmup_s=0.5, node_io=io)
                   for io in ('serialized', 'rclpy'))
@@ -143,7 +143,7 @@ def test_both_message_paths_publish_pose_odometry_and_bias_for_every_step(ros_en
 @pytest.mark.parametrize('node', ['calibration_node', 'landmark_detector_node'])
 @pytest.mark.parametrize('node_io', ['serialized', 'rclpy'])
 def test_calibration_and_detector_cases_count_every_output(ros_env, node, node_io):
-    from gyro_ekf.analysis.live_bench import live_suite, NodeCase
+    from benchmarks.live_bench import live_suite, NodeCase
 
     case = NodeCase(node, 200.0 if node == 'calibration_node' else 20.0, 1.0, node_io,
                     reliable_inputs=True)

@@ -1,17 +1,18 @@
-"""`gyro-ekf bench -o results/bench.json`: the benchmarks of `make bench` (never a test)."""
+"""`python -m benchmarks -o results/bench.json`: the benchmarks of `make bench` (never a test)."""
 
 from __future__ import annotations
 
 import argparse
 import logging
 from pathlib import Path
+import sys
 
-HELP = ('benchmark the core against filterpy, `run` speed, peak memory and live ekf_node '
-        'latency; write JSON')
+DESCRIPTION = ('benchmark the core against filterpy, `run` speed, peak memory, the live nodes '
+               'and a 10x replay; write JSON')
 
 log = logging.getLogger(__name__)
 
-DEFAULT_DATA = Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'mtrn4010'
+DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'mtrn4010'
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
-    from gyro_ekf.analysis.bench import run_all, table
+    from benchmarks.bench import run_all, table
     from gyro_ekf.io.results import write_summary_json
 
     results = run_all(args.data, args.long_trip_s, args.core_steps, live_s=args.live_s)
@@ -40,3 +41,21 @@ def run(args: argparse.Namespace) -> int:
     log.info('wrote %s', args.output)
     print(table(results))
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse the arguments, run the benchmarks, write the JSON; returns the exit code."""
+    parser = argparse.ArgumentParser(prog='python -m benchmarks', description=DESCRIPTION)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
+    from gyro_ekf.errors import GyroEkfError
+    try:
+        return run(args)
+    except GyroEkfError as error:  # one line, no traceback (as the gyro-ekf commands do)
+        print(f'error: {error}', file=sys.stderr)
+        return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

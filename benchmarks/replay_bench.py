@@ -23,7 +23,7 @@ import sys
 import time
 from typing import Any
 
-from gyro_ekf.analysis import live_bench
+from benchmarks import live_bench
 
 log = logging.getLogger(__name__)
 

@@ -232,7 +232,7 @@ def live_benchmark(duration_s: float = 10.0) -> dict[str, Any]:
     if duration_s <= 0.0:
         return {'measured': False, 'reason': 'skipped (--live-s 0)'}
     try:
-        from gyro_ekf.analysis import live_bench
+        from benchmarks import live_bench
     except ImportError as err:
         return {'measured': False, 'reason': f'rclpy or the ROS messages are missing: {err}'}
     cases = tuple(dataclasses.replace(case, duration_s=duration_s)
@@ -247,7 +247,7 @@ def replay_suite(bag: Path | None, rate: float = 10.0) -> dict[str, Any]:
     if bag is None:
         return {'measured': False, 'reason': 'the 2016 log is missing'}
     try:
-        from gyro_ekf.analysis import replay_bench
+        from benchmarks import replay_bench
     except ImportError as err:
         return {'measured': False, 'reason': f'rclpy or the ROS messages are missing: {err}'}
     runs = []
@@ -262,7 +262,7 @@ def replay_suite(bag: Path | None, rate: float = 10.0) -> dict[str, Any]:
     return {'measured': all(run.get('measured') for run in runs), 'runs': runs}
 
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 LOOP_BAG = REPO / 'bags' / 'sim_static_start'
 LOOP_GOAL_MB = 5.0
 
@@ -317,7 +317,7 @@ def loop_memory_benchmark(bag: Path = LOOP_BAG, loops: int = 30, rate: float = 2
         domain_id: ROS domain of the children (default: live_bench's choice).
         timeout_s: give up (and report it) after this long.
     """
-    from gyro_ekf.analysis import live_bench
+    from benchmarks import live_bench
     from gyro_ekf.cli.demo import _config_file
 
     params = [str(f) for f in (_config_file(), bag.parent / (bag.name + '.params.yaml'))
@@ -434,7 +434,7 @@ def table(results: dict[str, Any]) -> str:
                  ('run on 2016 log: peak RSS (MB)', f"{run['peak_rss_mb']:.0f}")]
     rows += live_rows(results['live'])
     if results.get('replay'):
-        from gyro_ekf.analysis.replay_bench import replay_rows
+        from benchmarks.replay_bench import replay_rows
         rows += replay_rows(results['replay'])
     rows += loop_memory_rows(results.get('loop_memory'))
     memory = results['memory']

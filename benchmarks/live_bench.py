@@ -69,7 +69,7 @@ NODE_IO_VARIABLE = 'GYRO_EKF_NODE_IO'
 
 log = logging.getLogger(__name__)
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 LANDMARKS_XY_M = ((5.0, 0.0), (0.0, 5.0), (-5.0, 0.0), (0.0, -5.0), (7.0, 7.0))
 STAMP_ZERO_NS = 1_800_000_000 * 1_000_000_000
 _CLOCK = time.perf_counter
