@@ -66,6 +66,10 @@ class Processes(ChildProcesses):
         return output
 
 
+MIN_WAIT_S = 90.0
+"""Shortest wait for a message or a state before a test fails (see Probe.spin_until)."""
+
+
 class Probe:
     """The test process's rclpy node in its own context and domain."""
 
@@ -86,7 +90,12 @@ class Probe:
         return received
 
     def spin_until(self, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
-        """Spin until condition() holds; fail after timeout_s saying what was awaited."""
+        """Spin until condition() holds; fail after timeout_s saying what was awaited.
+
+        A timeout only says "stuck", never "slow": it is at least MIN_WAIT_S, since with a
+        second copy of the suite on the same two cores a message can take tens of seconds.
+        """
+        timeout_s = max(timeout_s, MIN_WAIT_S)
         deadline = time.monotonic() + timeout_s
         while not condition():
             if time.monotonic() > deadline:
