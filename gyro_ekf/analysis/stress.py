@@ -190,7 +190,8 @@ def run_job(job: TripJob) -> dict[str, Any]:
                'bias_error_final_deg_s': _finite(truth['bias_error_final_deg_s']),
                'nees_share_in_band': _finite(truth['nees_share_in_band']),
                'share_associated': _finite(summary['association']['share_associated']),
-               'nis_mean': _finite(summary['nis']['mean'])}
+               'nis_mean': _finite(summary['nis']['mean']),
+               'bias_reopened': summary['online_bias']['reopened']}
     # A figure that could not be computed (None) misses its bound.
     rmse, bias_error, nees = (figures[name] for name in BOUNDS)
     missed = [name for name, ok in (

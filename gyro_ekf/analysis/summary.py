@@ -106,7 +106,9 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'last_half_mean_sigma_rad_s': float(bias_sigma[last_half].mean())
         if last_half.any() else math.nan,
         'zero_rate_updates': int(run.result.stats.zero_rate_updates),
-        'stops': int(run.result.stats.stops)}
+        'stops': int(run.result.stats.stops),
+        'reopened': int(run.result.stats.bias_openings),
+        'largest_reopening_deg_s': _deg(float(run.result.stats.bias_largest_opening_rad_s))}
     # Where the trip is known to start static, the bias the zero-rate updates learned there.
     static_end = trip.start_s + trip.static_duration_s
     at_static_end = int(np.searchsorted(stamps, static_end, side='right')) - 1
@@ -173,7 +175,9 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         unmapped=int(stats.unmapped),
         input_gaps_s={'gyro': _longest_interval(run.trip.imu.stamp_s, start, end),
                       'odometry': _longest_interval(run.trip.speed.stamp_s, start, end)},
-        input_gap_limit_s=run.config.max_prediction_step_s)
+        input_gap_limit_s=run.config.max_prediction_step_s,
+        bias_openings=int(stats.bias_openings),
+        bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s))
     return {**health.verdict(figures), 'lidars': sensors,
             'transitions': [] if monitor is None else [
                 {'stamp_s': t.stamp_s, 'lidar': t.sensor, 'change': t.change,

@@ -233,6 +233,9 @@ class GyroBiasEkf:
         self._sigma_w2 = self.config.gyro_noise_rad_s ** 2
         self._q_pos2 = self.config.position_random_walk_m_sqrt_s ** 2
         self._q_b2 = self.config.bias_random_walk_rad_s2 ** 2
+        # A random walk of the bias found in the data ((rad/s)^2 per s, core/bias_watch.py):
+        # Q2 adds it times T to the bias, on top of the configured (q_b T)^2.
+        self.bias_walk_found = 0.0
         self.reset(pose, bias_rad_s, covariance)
 
     # State: _s, a list of plain floats; covariance: _p, P's upper triangle (see _UPPER).
@@ -346,6 +349,13 @@ class GyroBiasEkf:
             self._p[_PACKED[i, BIAS]] = 0.0
         self._p[_PACKED[BIAS, BIAS]] = float(sigma_rad_s) ** 2
 
+    def open_bias(self, variance: float) -> None:
+        """Add ``variance`` ((rad/s)^2) to the bias variance: the bias is less known than P says.
+
+        Only P_bb grows (P stays positive definite); the next updates move the bias again.
+        """
+        self._p[_PACKED[BIAS, BIAS]] += float(variance)
+
     def predict(self, speed_m_s: float, rate_rad_s: float, dt_s: float,
                 speed_variance: float | None = None, rate_variance: float | None = None,
                 hold_position: bool = False) -> None:
@@ -364,7 +374,7 @@ class GyroBiasEkf:
             self._s, self._p, float(speed_m_s), float(rate_rad_s), float(dt_s),
             self._sigma_v2 if speed_variance is None else speed_variance,
             self._sigma_w2 if rate_variance is None else rate_variance,
-            self._q_pos2, self._q_b2, hold_position)
+            self._q_pos2, self._q_b2 + self.bias_walk_found / dt_s, hold_position)
 
     def update_zero_rate(self, rate_rad_s: float, variance: float) -> float:
         """Correct with a gyro sample taken standing still: z = w = b + noise.

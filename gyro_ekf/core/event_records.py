@@ -95,6 +95,9 @@ class DriverStats:
             a pole the filter failed to match.
         zero_rate_updates: gyro samples applied as zero-rate updates (standing still).
         stops: times zero-rate updates began (once per stop unless the stop was shaken).
+        bias_openings: blocks of landmark updates whose heading drift re-opened the bias
+            (core/bias_watch.py).
+        bias_largest_opening_rad_s: the largest bias error such a drift implied, rad/s.
     """
 
     imu: int = 0
@@ -114,6 +117,8 @@ class DriverStats:
     unmapped: int = 0
     zero_rate_updates: int = 0
     stops: int = 0
+    bias_openings: int = 0
+    bias_largest_opening_rad_s: float = 0.0
 
     @property
     def mean_nis(self) -> float:
@@ -131,4 +136,5 @@ class DriverStats:
                 'longest_gap_s': self.longest_gap_s, 'long_gaps': self.long_gaps,
                 'excluded': self.excluded, 'unmapped': self.unmapped,
                 'zero_rate_updates': self.zero_rate_updates,
-                'stops': self.stops}
+                'stops': self.stops, 'bias_openings': self.bias_openings,
+                'bias_largest_opening_rad_s': self.bias_largest_opening_rad_s}

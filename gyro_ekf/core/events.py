@@ -38,8 +38,10 @@ import math
 
 import numpy as np
 
+from gyro_ekf.core.angles import wrap_scalar
 from gyro_ekf.core.association import (AssociationOutcome, AssociationResult, associate,
                                        associate_by_distance)
+from gyro_ekf.core.bias_watch import BiasWatch
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
@@ -47,7 +49,7 @@ from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
-from gyro_ekf.core.types import FloatArray, LandmarkMap, LidarMount
+from gyro_ekf.core.types import YAW, FloatArray, LandmarkMap, LidarMount
 
 
 _NO_NIS = np.zeros(0)
@@ -88,6 +90,7 @@ class EventDriver:
         self.landmarks = landmarks
         self.stats = DriverStats()
         self.health = HealthMonitor(self.config)
+        self.bias_watch = BiasWatch()
         self.mounts = OnlineMounts(OnlineMountSettings(
             converged_yaw_sigma_rad=self.config.mount_online_yaw_sigma_rad))
         self.last_transition: Transition | None = None
@@ -126,6 +129,7 @@ class EventDriver:
         self.ekf.reset(pose, bias_rad_s)
         self.stats = DriverStats()
         self.health = HealthMonitor(self.config)
+        self.bias_watch = BiasWatch()
         self.mounts.reset()
         self.stamp_s = None
         self.speed_m_s = 0.0
@@ -151,12 +155,15 @@ class EventDriver:
                 self.speed_variance, self.rate_variance, self._first_scan_s,
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
-                 self.zero_rate), self.mounts.save())
+                 self.zero_rate), self.mounts.save(), self.bias_watch.copy())
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
         (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self.speed_variance,
-         self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts) = saved
+         self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
+         watch) = saved
+        self.bias_watch = watch.copy()
+        self.ekf.bias_walk_found = self.bias_watch.walk
         self.mounts.restore(mounts)
         (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
          self.zero_rate) = stop
@@ -333,6 +340,7 @@ class EventDriver:
         # landmark by one LiDAR during a stop uses n R, so a stop adds about ln N scans'
         # worth, and the yaw drift is still tracked (that is how the bias is found at rest).
         at_rest = self._still()
+        self._close_bias_block(stamp_s, at_rest)
         # A mount estimated online weighs less (core/mount_online.py, its item 6).
         base = 1.0 if tracker is None else tracker.noise_scale
         for match in result.associations:
@@ -352,8 +360,15 @@ class EventDriver:
                 y = self.ekf.y
                 bearing_sum += y[1]
                 if scale == base:  # not a repeated look at rest
-                    self.health.innovation(key, stamp_s, y, self.ekf.S,
-                                           z[match.detection_index])
+                    S = self.ekf.S
+                    self.health.innovation(key, stamp_s, y, S, z[match.detection_index])
+                    if not at_rest:
+                        r = z[match.detection_index][0]
+                        self.bias_watch.add(stamp_s, float(y[1]), float(S[1, 1]),
+                                            match.landmark_index,
+                                            self.ekf.landmark_var_m2 / (r * r) * scale)
+        if nis and not at_rest:
+            self.bias_watch.corrected(wrap_scalar(float(self.ekf.x[YAW] - prior[YAW])))
         nis_sum = float(sum(nis))
         self._judged(key, self.health.record(key, stamp_s, points.shape[0], len(nis),
                                              nis_sum, float(bearing_sum), sensor))
@@ -367,6 +382,21 @@ class EventDriver:
                 self.stats.first_association_s = stamp_s
             self.stats.last_association_s = stamp_s
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
+
+    def _close_bias_block(self, stamp_s: float, at_rest: bool) -> None:
+        """Before a scan's updates: judge the bias watch's block; re-open the bias on a drift."""
+        watch = self.bias_watch
+        if at_rest:
+            # Zero-rate updates learn the bias at rest; repeated looks are not a drift.
+            watch.pause()
+            return
+        variance = watch.close(stamp_s)
+        self.ekf.bias_walk_found = watch.walk
+        if variance is not None:
+            self.ekf.open_bias(variance)
+            self.stats.bias_openings += 1
+            self.stats.bias_largest_opening_rad_s = max(
+                self.stats.bias_largest_opening_rad_s, math.sqrt(variance))
 
     def _judged(self, key: LidarMount, transition: Transition | None) -> None:
         """Keep the health monitor's decision; re-estimate a newly excluded LiDAR's mount."""

@@ -514,6 +514,9 @@ class RunFigures:
             'odometry'), s.
         input_gap_limit_s: the longest prediction step (``max_prediction_step_s``): a
             stream silent for longer had its last value held over a gap.
+        bias_openings: times the LiDARs saw the heading drift and the bias was re-opened
+            (DriverStats.bias_openings, core/bias_watch.py).
+        bias_largest_opening_rad_s: the largest bias change such a drift implied, rad/s.
     """
 
     detections: int
@@ -529,6 +532,8 @@ class RunFigures:
     unmapped: int = 0
     input_gaps_s: dict[str, float] = field(default_factory=dict)
     input_gap_limit_s: float = math.inf
+    bias_openings: int = 0
+    bias_largest_opening_rad_s: float = 0.0
 
 
 def _whiteness_reasons(sensors: list[dict[str, Any]]) -> list[tuple[str, str]]:
@@ -617,6 +622,12 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
             add(DEGRADED, f'{stream} silent for {gap:.2f} s, longer than the longest '
                 f'prediction step {figures.input_gap_limit_s:g} s: its last value was held '
                 f'over the gap with the noise of one sample')
+    if figures.bias_openings:
+        # The filter followed it, but its bias is then only as old as the last change: a
+        # gyro whose bias moves is worth knowing about, and the final figure is less sure.
+        add(DEGRADED, f'the gyro bias changed during the run: the LiDARs saw the heading '
+            f'drift and the bias was re-opened {figures.bias_openings} time(s), by up to '
+            f'{math.degrees(figures.bias_largest_opening_rad_s):.3f} deg/s')
     dropped = {k: v for k, v in figures.dropped.items() if v}
     if dropped:
         add(DEGRADED, f'input dropped by validation: {sum(dropped.values())} ('

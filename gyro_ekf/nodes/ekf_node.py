@@ -733,7 +733,9 @@ class EkfNode(Node):
             longest_gap_s=max(stats.longest_gap_s, since or 0.0), start_gap_s=start_gap,
             sensors=self.driver.health.report(), resets=self.resets,
             dropped={k: self.dropped[k] for k in VERDICT_DROP_REASONS},
-            final_bias_rad_s=self.driver.ekf.bias_rad_s, unmapped=stats.unmapped)
+            final_bias_rad_s=self.driver.ekf.bias_rad_s, unmapped=stats.unmapped,
+            bias_openings=stats.bias_openings,
+            bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s)
         return health.verdict(figures)
 
     def _publish_mounts(self) -> None:
@@ -801,6 +803,7 @@ class EkfNode(Node):
                     else f'{online["converged_s"]:.3f}'))},
             'excluded_detections': str(stats.excluded),
             'zero_rate_updates': str(stats.zero_rate_updates),
+            'bias_reopened': str(stats.bias_openings),
             'standing_still': str(self.driver.zero_rate).lower(),
         }
         verdict = self._verdict(since)

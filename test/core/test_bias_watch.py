@@ -1,0 +1,131 @@
+"""The bias watch: quiet on white innovations, opens the bias on a drift the filter lags."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from gyro_ekf.analysis.offline import run_trip
+from gyro_ekf.analysis.summary import summarize
+from gyro_ekf.core import bias_watch
+from gyro_ekf.core.bias_watch import BiasWatch
+from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+from gyro_ekf.core.validation import validate_trip
+
+SCANS_PER_S = 10.0
+POLES = 5
+S_BB = math.radians(0.12) ** 2
+
+
+YAW_SIGMA = math.radians(0.03)
+"""Yaw error of the filter after a scan's updates (what its corrections carry)."""
+
+
+def _feed(watch, seconds, bearing_mean_rad=0.0, drift_rad_s=0.0, seed=0, start_s=0.0):
+    """Scans of POLES updates; each scan's yaw correction takes back drift_rad_s / scan rate
+    and moves the yaw error from one draw of YAW_SIGMA to the next."""
+    rng = np.random.default_rng(seed)
+    openings = []
+    error = rng.normal(0.0, YAW_SIGMA)
+    for k in range(int(seconds * SCANS_PER_S)):
+        stamp = start_s + k / SCANS_PER_S
+        variance = watch.close(stamp)
+        if variance is not None:
+            openings.append((stamp, variance))
+        for _ in range(POLES):
+            watch.add(stamp, bearing_mean_rad + rng.normal(0.0, math.sqrt(S_BB)), S_BB)
+        new_error = rng.normal(0.0, YAW_SIGMA)
+        watch.corrected(-drift_rad_s / SCANS_PER_S + new_error - error)
+        error = new_error
+    return openings
+
+
+def test_white_innovations_open_nothing_in_an_hour():
+    watch = BiasWatch()
+    assert _feed(watch, 3600.0) == []
+    assert watch.openings == 0 and watch.walk == 0.0
+
+
+def test_a_drift_opens_the_bias_by_the_error_its_corrections_imply():
+    # A bias 0.2 deg/s too small: the prediction runs ahead 0.2 deg/s, the updates take it
+    # back, and their bearing innovations share one sign.
+    error = math.radians(0.2)
+    watch = BiasWatch()
+    openings = _feed(watch, 10.0, bearing_mean_rad=-0.5 * math.sqrt(S_BB), drift_rad_s=error)
+    assert openings, 'a drift of 0.2 deg/s was not seen'
+    assert openings[0][1] == pytest.approx(error ** 2, rel=0.25)
+    assert watch.last_error_rad_s == pytest.approx(error, rel=0.25)
+    # Drifts make the bias a random walk while they last, then it is forgotten.
+    assert watch.walk > 0.0
+    _feed(watch, bias_watch.WALK_WINDOW_S + 2.0 * bias_watch.BLOCK_S, start_s=10.0)
+    assert watch.walk == 0.0
+
+
+def test_alike_innovations_without_a_drift_open_the_bias_by_almost_nothing():
+    # A constant bearing offset (a mount yaw error) is absorbed once: no drift to take back.
+    watch = BiasWatch()
+    openings = _feed(watch, 10.0, bearing_mean_rad=-0.5 * math.sqrt(S_BB))
+    assert openings, 'alike innovations were not seen'
+    assert all(variance < math.radians(0.1) ** 2 for _, variance in openings)
+
+
+def _map_error_feed(watch, map_variance, seconds=600.0):
+    """Scans of 3 poles whose map errors (one draw per pole per 20 s) repeat at every look."""
+    rng = np.random.default_rng(4)
+    sensor = S_BB - 0.8 * S_BB
+    openings = 0
+    for k in range(int(seconds * SCANS_PER_S)):
+        stamp = k / SCANS_PER_S
+        if k % int(20 * SCANS_PER_S) == 0:
+            offsets = rng.normal(0.0, math.sqrt(0.8 * S_BB), 3)
+        openings += watch.close(stamp) is not None
+        for pole in range(3):
+            watch.add(stamp, offsets[pole] + rng.normal(0.0, math.sqrt(sensor)), S_BB,
+                      pole, map_variance)
+    return openings
+
+
+def test_a_stated_map_error_is_no_drift():
+    # 80 % of S_bb is the map's: a pole's looks share it, and are alike by design.
+    assert _map_error_feed(BiasWatch(), map_variance=0.8 * S_BB) == 0
+    # Taken as independent, those same innovations look like drifts.
+    assert _map_error_feed(BiasWatch(), map_variance=0.0) > 0
+
+
+def test_a_block_across_a_dropout_is_not_judged():
+    watch = BiasWatch()
+    for stamp in (0.0, 0.1):
+        assert watch.close(stamp) is None
+        watch.add(stamp, 10.0 * math.sqrt(S_BB), S_BB)
+        watch.corrected(-0.1)
+    assert watch.close(3.0 * bias_watch.BLOCK_S) is None
+    assert watch.openings == 0
+
+
+def _run(**changes):
+    config = dataclasses.replace(SimulationConfig(duration_s=90.0), **changes)
+    trip = simulate_trip(config, 3)
+    trip, report = validate_trip(trip, trip.name)
+    run = run_trip(trip)
+    return trip, run, summarize(run, report)
+
+
+def test_a_bias_step_is_followed_and_said():
+    trip, run, summary = _run(gyro_bias_step_rad_s=math.radians(0.4), gyro_bias_step_at_s=30.0)
+    assert run.result.stats.bias_openings >= 1
+    error = abs(math.degrees(run.result.estimates.state[-1, 3] - trip.true_gyro_bias_rad_s[2]))
+    assert error < 0.02, f'final bias {error:.4f} deg/s off after a 0.4 deg/s step'
+    assert summary['online_bias']['reopened'] == run.result.stats.bias_openings
+    # Followed, but not silently: a gyro whose bias jumps is worth a warning.
+    assert summary['health']['verdict'] == 'degraded'
+    assert any(r.startswith('the gyro bias changed during the run')
+               for r in summary['health']['reasons']), summary['health']['reasons']
+
+
+def test_a_clean_trip_never_opens_the_bias():
+    _, run, summary = _run()
+    assert run.result.stats.bias_openings == 0
+    assert summary['health']['verdict'] == 'ok', summary['health']['reasons']
