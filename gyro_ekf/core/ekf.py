@@ -349,6 +349,10 @@ class GyroBiasEkf:
             self._p[_PACKED[i, BIAS]] = 0.0
         self._p[_PACKED[BIAS, BIAS]] = float(sigma_rad_s) ** 2
 
+    def add_heading_variance(self, variance: float) -> None:
+        """Add ``variance`` (rad^2) to the heading's: an error the prediction did not model."""
+        self._p[_PACKED[YAW, YAW]] += float(variance)
+
     def open_bias(self, variance: float) -> None:
         """Add ``variance`` ((rad/s)^2) to the bias variance: the bias is less known than P says.
 

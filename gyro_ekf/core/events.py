@@ -47,6 +47,7 @@ from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
+from gyro_ekf.core.held_rate import HeldRate
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
 from gyro_ekf.core.types import YAW, FloatArray, LandmarkMap, LidarMount
@@ -91,6 +92,7 @@ class EventDriver:
         self.stats = DriverStats()
         self.health = HealthMonitor(self.config)
         self.bias_watch = BiasWatch()
+        self.held_rate = HeldRate()
         self.mounts = OnlineMounts(OnlineMountSettings(
             converged_yaw_sigma_rad=self.config.mount_online_yaw_sigma_rad))
         self.last_transition: Transition | None = None
@@ -101,6 +103,8 @@ class EventDriver:
         # The held inputs' own variances (None: the configured noise).
         self.speed_variance: float | None = None
         self.rate_variance: float | None = None
+        # Stamp of the held yaw rate's sample: its age is what a gap may have changed.
+        self._rate_stamp_s: float | None = None
         self._first_scan_s: float | None = None
         self._end_stop()
 
@@ -130,6 +134,8 @@ class EventDriver:
         self.stats = DriverStats()
         self.health = HealthMonitor(self.config)
         self.bias_watch = BiasWatch()
+        self.held_rate = HeldRate()
+        self._rate_stamp_s = None
         self.mounts.reset()
         self.stamp_s = None
         self.speed_m_s = 0.0
@@ -155,13 +161,15 @@ class EventDriver:
                 self.speed_variance, self.rate_variance, self._first_scan_s,
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
-                 self.zero_rate), self.mounts.save(), self.bias_watch.copy())
+                 self.zero_rate), self.mounts.save(), self.bias_watch.copy(),
+                self.held_rate.save(), self._rate_stamp_s)
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
         (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self.speed_variance,
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
-         watch) = saved
+         watch, held, self._rate_stamp_s) = saved
+        self.held_rate.restore(held)
         self.bias_watch = watch.copy()
         self.ekf.bias_walk_found = self.bias_watch.walk
         self.mounts.restore(mounts)
@@ -196,6 +204,12 @@ class EventDriver:
             self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance, hold)
             dt_s -= step
         self.ekf.predict(self.speed_m_s, rate, dt_s, speed_variance, rate_variance, hold)
+        if self._rate_stamp_s is not None:
+            # The held rate grows stale: what the platform may have turned meanwhile.
+            variance = self.held_rate.heading_variance(self.stamp_s - self._rate_stamp_s,
+                                                       stamp_s - self._rate_stamp_s)
+            if variance:
+                self.ekf.add_heading_variance(variance)
         self.stamp_s = stamp_s
 
     def on_speed(self, stamp_s: float, speed_m_s: float, variance: float | None = None
@@ -233,6 +247,8 @@ class EventDriver:
         self._advance(stamp_s, 'imu')
         self.rate_rad_s = yaw_rate_rad_s
         self.rate_variance = variance
+        self._rate_stamp_s = stamp_s
+        self.held_rate.sample(stamp_s, yaw_rate_rad_s)
         self.stats.imu += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
