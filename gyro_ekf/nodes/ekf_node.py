@@ -804,6 +804,7 @@ class EkfNode(Node):
             'excluded_detections': str(stats.excluded),
             'zero_rate_updates': str(stats.zero_rate_updates),
             'bias_reopened': str(stats.bias_openings),
+            'gyro_noise_scale': f'{stats.gyro_noise_scale:.3f}',
             'standing_still': str(self.driver.zero_rate).lower(),
         }
         verdict = self._verdict(since)
