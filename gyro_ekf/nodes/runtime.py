@@ -26,13 +26,19 @@ FASTDDS_WRITER_PROFILE = Path(__file__).with_name('fastdds_writer.xml')
 """The node processes' default writer profile: NACK suppression 10 ms (see the file)."""
 
 
-def use_writer_profile(environ=os.environ) -> bool:
-    """Point Fast DDS at FASTDDS_WRITER_PROFILE unless the user chose a profiles file.
+def use_writer_profile(environ=os.environ, cwd: Path | None = None) -> bool:
+    """Point Fast DDS at FASTDDS_WRITER_PROFILE unless the user configures Fast DDS.
 
-    Must run before rclpy.init (Fast DDS reads the file when it creates the participant).
-    Returns whether the variable was set here.
+    The user does when FASTRTPS_DEFAULT_PROFILES_FILE is set, when the working directory
+    holds a DEFAULT_FASTRTPS_PROFILES.xml (Fast DDS loads that one too), or when
+    RMW_FASTRTPS_USE_QOS_FROM_XML is set (rmw would then take the QoS from the XML
+    profiles, which this file leaves out). Must run before rclpy.init (Fast DDS reads the
+    file when it creates the participant). Returns whether the variable was set here.
     """
-    if environ.get(FASTDDS_PROFILES_VARIABLE) or not FASTDDS_WRITER_PROFILE.is_file():
+    cwd = Path.cwd() if cwd is None else cwd
+    if (environ.get(FASTDDS_PROFILES_VARIABLE) or environ.get('RMW_FASTRTPS_USE_QOS_FROM_XML')
+            or (cwd / 'DEFAULT_FASTRTPS_PROFILES.xml').exists()
+            or not FASTDDS_WRITER_PROFILE.is_file()):
         return False
     environ[FASTDDS_PROFILES_VARIABLE] = str(FASTDDS_WRITER_PROFILE)
     return True

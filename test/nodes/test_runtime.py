@@ -17,13 +17,18 @@ from gyro_ekf.nodes import qos, runtime, wire  # noqa: E402
 _NS = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'
 
 
-def test_the_writer_profile_is_used_unless_the_user_chose_one():
+def test_the_writer_profile_is_used_unless_the_user_configures_fast_dds(tmp_path):
     environ: dict[str, str] = {}
-    assert runtime.use_writer_profile(environ)
+    assert runtime.use_writer_profile(environ, cwd=tmp_path)
     assert environ == {runtime.FASTDDS_PROFILES_VARIABLE: str(runtime.FASTDDS_WRITER_PROFILE)}
-    mine = {runtime.FASTDDS_PROFILES_VARIABLE: '/etc/my_profiles.xml'}
-    assert not runtime.use_writer_profile(mine)
-    assert mine == {runtime.FASTDDS_PROFILES_VARIABLE: '/etc/my_profiles.xml'}
+    for mine in ({runtime.FASTDDS_PROFILES_VARIABLE: '/etc/my_profiles.xml'},
+                 {'RMW_FASTRTPS_USE_QOS_FROM_XML': '1'}):
+        before = dict(mine)
+        assert not runtime.use_writer_profile(mine, cwd=tmp_path)
+        assert mine == before
+    (tmp_path / 'DEFAULT_FASTRTPS_PROFILES.xml').write_text('<dds/>')
+    environ = {}
+    assert not runtime.use_writer_profile(environ, cwd=tmp_path) and environ == {}
 
 
 def test_the_writer_profile_sets_only_the_nack_suppression():
