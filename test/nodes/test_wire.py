@@ -70,16 +70,22 @@ def test_imu_fields_are_rclpys(frame):
         assert sample.covariance == (covariance[0], covariance[4], covariance[8])
 
 
+def _imu_to_correct(rng, frame, unknown):
+    """An IMU message whose covariance is unknown (-1) or has an odd yaw entry, x = -0.0."""
+    message = _imu(rng, frame)
+    if unknown:
+        message.angular_velocity_covariance[0] = -1.0
+    message.angular_velocity_covariance[8] = float(rng.choice([-2.0, 0.0, 3e-5]))
+    message.angular_velocity.x = -0.0
+    return message
+
+
 @pytest.mark.parametrize('frame', FRAMES)
 @pytest.mark.parametrize('unknown', [False, True])
 def test_corrected_imu_bytes_are_the_rclpy_paths_message(frame, unknown):
     rng = np.random.default_rng(7)
     for _ in range(10):
-        message = _imu(rng, frame)
-        if unknown:
-            message.angular_velocity_covariance[0] = -1.0
-        message.angular_velocity_covariance[8] = float(rng.choice([-2.0, 0.0, 3e-5]))
-        message.angular_velocity.x = -0.0
+        message = _imu_to_correct(rng, frame, unknown)
         sample = wire.decode_imu(serialize_message(message))
         bias = rng.standard_normal(3).tolist()
         got = deserialize_message(wire.corrected_imu(sample, bias), Imu)
@@ -114,11 +120,7 @@ def test_patched_imu_bytes_are_the_rclpy_paths_message(frame, unknown):
     """The nodes' corrected IMU copies (rates patched in the input's bytes) are rclpy's."""
     rng = np.random.default_rng(8)
     for _ in range(10):
-        message = _imu(rng, frame)
-        if unknown:
-            message.angular_velocity_covariance[0] = -1.0
-        message.angular_velocity_covariance[8] = float(rng.choice([-2.0, 0.0, 3e-5]))
-        message.angular_velocity.x = -0.0
+        message = _imu_to_correct(rng, frame, unknown)
         data = serialize_message(message)
         bias = rng.standard_normal(3).tolist()
         # calibration_node: imu/corrected
