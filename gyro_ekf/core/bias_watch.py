@@ -133,10 +133,13 @@ class BiasWatch:
         """
         if self._start_s is None:
             self._start_s = stamp_s
-        self._z_sum += bearing_innovation_rad / math.sqrt(bearing_variance)
-        share = map_variance / bearing_variance
+        scale = 1.0 / math.sqrt(bearing_variance)
+        self._z_sum += bearing_innovation_rad * scale
+        if map_variance <= 0.0:
+            self._variance += 1.0
+            return
         # Var(sum z) = n + sum over landmarks of ((sum sqrt share)^2 - sum share).
-        root = math.sqrt(share)
+        root = math.sqrt(map_variance) * scale
         before = self._shared.get(landmark, 0.0)
         self._shared[landmark] = before + root
         self._variance += 1.0 + 2.0 * before * root

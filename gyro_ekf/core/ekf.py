@@ -284,6 +284,10 @@ class GyroBiasEkf:
         s00, s01, s11 = self._S
         return np.array([[s00, s01], [s01, s11]])
 
+    def bearing_innovation(self) -> tuple[float, float]:
+        """Return the last update's bearing innovation (rad) and its S_bb, plain floats."""
+        return self._y[1], self._S[2]
+
     @property
     def K(self) -> FloatArray:
         """Last Kalman gain, shape (4, 2)."""

@@ -47,7 +47,7 @@ from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
-from gyro_ekf.core.held_rate import HeldRate
+from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
 from gyro_ekf.core.types import BIAS, YAW, FloatArray, LandmarkMap, LidarMount
@@ -105,7 +105,7 @@ class EventDriver:
         self.rate_variance: float | None = None
         # Stamp of the held yaw rate's sample: its age is what a gap may have changed.
         self._rate_stamp_s: float | None = None
-        self._heading_noise = 0.0
+        self._heading_dt2 = 0.0
         self._first_scan_s: float | None = None
         self._end_stop()
 
@@ -137,7 +137,7 @@ class EventDriver:
         self.bias_watch = BiasWatch()
         self.held_rate = HeldRate()
         self._rate_stamp_s = None
-        self._heading_noise = 0.0
+        self._heading_dt2 = 0.0
         self.mounts.reset()
         self.stamp_s = None
         self.speed_m_s = 0.0
@@ -164,13 +164,13 @@ class EventDriver:
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
                  self.zero_rate), self.mounts.save(), self.bias_watch.copy(),
-                self.held_rate.save(), self._rate_stamp_s, self._heading_noise)
+                self.held_rate.save(), self._rate_stamp_s, self._heading_dt2)
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
         (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self.speed_variance,
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
-         watch, held, self._rate_stamp_s, self._heading_noise) = saved
+         watch, held, self._rate_stamp_s, self._heading_dt2) = saved
         self.held_rate.restore(held)
         self.bias_watch = watch.copy()
         self.ekf.bias_walk_found = self.bias_watch.walk
@@ -203,22 +203,19 @@ class EventDriver:
             self.stats.long_gaps += 1
         speed_variance, rate_variance = self.speed_variance, self.rate_variance
         hold = self.zero_rate
-        # The heading noise the predictions add, sum of T^2 sigma_w^2 (the bias watch weighs
-        # a slow drift against it).
-        noise = self.ekf.rate_noise_scale * (self.ekf.gyro_variance if rate_variance is None
-                                             else rate_variance)
         while dt_s > step:
             self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance, hold)
-            self._heading_noise += step * step * noise
+            # Sum of T^2 over the predictions: times sigma_w^2, the heading noise they added
+            # (the bias watch weighs a slow drift against it).
+            self._heading_dt2 += step * step
             dt_s -= step
         self.ekf.predict(self.speed_m_s, rate, dt_s, speed_variance, rate_variance, hold)
-        self._heading_noise += dt_s * dt_s * noise
-        if self._rate_stamp_s is not None:
+        self._heading_dt2 += dt_s * dt_s
+        rate_stamp = self._rate_stamp_s
+        if rate_stamp is not None and stamp_s - rate_stamp > MIN_AGE_S:
             # The held rate grows stale: what the platform may have turned meanwhile.
-            variance = self.held_rate.heading_variance(self.stamp_s - self._rate_stamp_s,
-                                                       stamp_s - self._rate_stamp_s)
-            if variance:
-                self.ekf.add_heading_variance(variance)
+            self.ekf.add_heading_variance(self.held_rate.heading_variance(
+                self.stamp_s - rate_stamp, stamp_s - rate_stamp))
         self.stamp_s = stamp_s
 
     def on_speed(self, stamp_s: float, speed_m_s: float, variance: float | None = None
@@ -257,7 +254,9 @@ class EventDriver:
         self.rate_rad_s = yaw_rate_rad_s
         self.rate_variance = variance
         self._rate_stamp_s = stamp_s
-        self.held_rate.sample(stamp_s, yaw_rate_rad_s)
+        held = self.held_rate
+        if stamp_s >= held.next_check_s:
+            held.sample(stamp_s, yaw_rate_rad_s)
         self.stats.imu += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
@@ -385,11 +384,11 @@ class EventDriver:
                 y = self.ekf.y
                 bearing_sum += y[1]
                 if scale == base:  # not a repeated look at rest
-                    S = self.ekf.S
-                    self.health.innovation(key, stamp_s, y, S, z[match.detection_index])
+                    self.health.innovation(key, stamp_s, y, self.ekf.S,
+                                           z[match.detection_index])
                     if not at_rest:
                         r = z[match.detection_index][0]
-                        self.bias_watch.add(stamp_s, float(y[1]), float(S[1, 1]),
+                        self.bias_watch.add(stamp_s, *self.ekf.bearing_innovation(),
                                             match.landmark_index,
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
         if nis and not at_rest:
@@ -414,14 +413,16 @@ class EventDriver:
         if at_rest:
             # Zero-rate updates learn the bias at rest; repeated looks are not a drift.
             watch.pause()
-            self._heading_noise = 0.0
+            self._heading_dt2 = 0.0
             return
         if not watch.due(stamp_s):
             return
-        P = self.ekf.P
+        ekf = self.ekf
+        P = ekf.P
+        rate_variance = ekf.gyro_variance if self.rate_variance is None else self.rate_variance
         variance = watch.close(stamp_s, float(P[BIAS, BIAS]), float(P[YAW, YAW]),
-                               self._heading_noise)
-        self._heading_noise = 0.0
+                               self._heading_dt2 * rate_variance * ekf.rate_noise_scale)
+        self._heading_dt2 = 0.0
         self.ekf.bias_walk_found = watch.walk
         self.ekf.rate_noise_scale = self.stats.gyro_noise_scale = watch.noise_scale
         if variance is not None:

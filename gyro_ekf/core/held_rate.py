@@ -37,9 +37,11 @@ class HeldRate:
 
     Attributes:
         acceleration2: alpha^2, (rad/s^2)^2 (0 until the first check).
+        next_check_s: the earliest stamp whose sample ``sample`` uses (callers at the IMU's
+            rate may skip the call before it).
     """
 
-    __slots__ = ('_check_s', '_check_rate', 'acceleration2', '_weight')
+    __slots__ = ('_check_s', '_check_rate', 'acceleration2', '_weight', 'next_check_s')
 
     def __init__(self) -> None:
         """Start with no sample."""
@@ -48,20 +50,24 @@ class HeldRate:
         self.acceleration2 = 0.0
         # Weight gathered so far (the average starts unbiased, not from 0).
         self._weight = 0.0
+        self.next_check_s = -math.inf
 
     def save(self) -> tuple:
         """Return what ``restore`` needs."""
-        return self._check_s, self._check_rate, self.acceleration2, self._weight
+        return (self._check_s, self._check_rate, self.acceleration2, self._weight,
+                self.next_check_s)
 
     def restore(self, saved: tuple) -> None:
         """Put back a state returned by ``save``."""
-        self._check_s, self._check_rate, self.acceleration2, self._weight = saved
+        (self._check_s, self._check_rate, self.acceleration2, self._weight,
+         self.next_check_s) = saved
 
     def sample(self, stamp_s: float, rate_rad_s: float) -> None:
         """Take a gyro sample, rad/s, bias included (the bias cancels in a change)."""
         last = self._check_s
         if last is None:
             self._check_s, self._check_rate = stamp_s, rate_rad_s
+            self.next_check_s = stamp_s + CHECK_S
             return
         dt = stamp_s - last
         if dt < CHECK_S:
@@ -74,6 +80,7 @@ class HeldRate:
                                                        - self.acceleration2)
         self._weight = weight
         self._check_s, self._check_rate = stamp_s, rate_rad_s
+        self.next_check_s = stamp_s + CHECK_S
 
     def heading_variance(self, age_from_s: float, age_to_s: float) -> float:
         """Variance (rad^2) the heading gains while a hold ages from one age to another (s)."""
