@@ -142,6 +142,8 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     mounts = run.result.mounts
     summary['online_mounts'] = {} if mounts is None else {
         tracker['name']: tracker for tracker in mounts.report()}
+    odometry = run.result.odometry
+    summary['online_odometry'] = None if odometry is None else odometry.report()
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)
@@ -177,7 +179,9 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
                       'odometry': _longest_interval(run.trip.speed.stamp_s, start, end)},
         input_gap_limit_s=run.config.max_prediction_step_s,
         bias_openings=int(stats.bias_openings),
-        bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s))
+        bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s),
+        mounts=[] if run.result.mounts is None else run.result.mounts.report(),
+        odometry=None if run.result.odometry is None else run.result.odometry.report())
     return {**health.verdict(figures), 'lidars': sensors,
             'transitions': [] if monitor is None else [
                 {'stamp_s': t.stamp_s, 'lidar': t.sensor, 'change': t.change,

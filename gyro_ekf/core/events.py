@@ -49,6 +49,7 @@ from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
+from gyro_ekf.core.odometry_online import OdometryTracker, midpoint_yaw
 from gyro_ekf.core.types import YAW, FloatArray, LandmarkMap, LidarMount
 
 
@@ -93,6 +94,9 @@ class EventDriver:
         self.bias_watch = BiasWatch()
         self.mounts = OnlineMounts(OnlineMountSettings(
             converged_yaw_sigma_rad=self.config.mount_online_yaw_sigma_rad))
+        # The odometry's speed scale, estimated online (core/odometry_online.py).
+        self.odometry = OdometryTracker()
+        self._measured_speed_m_s = 0.0
         self.last_transition: Transition | None = None
         self.sensor_names: dict[LidarMount, str] = {}
         self.stamp_s: float | None = None
@@ -131,6 +135,8 @@ class EventDriver:
         self.health = HealthMonitor(self.config)
         self.bias_watch = BiasWatch()
         self.mounts.reset()
+        self.odometry.reset()
+        self._measured_speed_m_s = 0.0
         self.stamp_s = None
         self.speed_m_s = 0.0
         self.rate_rad_s = None
@@ -155,13 +161,15 @@ class EventDriver:
                 self.speed_variance, self.rate_variance, self._first_scan_s,
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
-                 self.zero_rate), self.mounts.save(), self.bias_watch.copy())
+                 self.zero_rate), self.mounts.save(), self.bias_watch.copy(),
+                (self.odometry.save(), self._measured_speed_m_s))
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
         (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self.speed_variance,
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
-         watch) = saved
+         watch, (odometry, self._measured_speed_m_s)) = saved
+        self.odometry.restore(odometry)
         self.bias_watch = watch.copy()
         self.ekf.bias_walk_found = self.bias_watch.walk
         self.mounts.restore(mounts)
@@ -192,11 +200,15 @@ class EventDriver:
             self.stats.long_gaps += 1
         speed_variance, rate_variance = self.speed_variance, self.rate_variance
         hold = self.zero_rate
+        yaw, total_s = float(self.ekf.x[YAW]), dt_s
         while dt_s > step:
             self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance, hold)
             dt_s -= step
         self.ekf.predict(self.speed_m_s, rate, dt_s, speed_variance, rate_variance, hold)
         self.stamp_s = stamp_s
+        if self._measured_speed_m_s and not hold:
+            self.odometry.advance(total_s, self._measured_speed_m_s,
+                                  midpoint_yaw(yaw, float(self.ekf.x[YAW])))
 
     def on_speed(self, stamp_s: float, speed_m_s: float, variance: float | None = None
                  ) -> None:
@@ -206,8 +218,11 @@ class EventDriver:
         means the configured speed noise.
         """
         self._advance(stamp_s, 'speed')
-        self.speed_m_s = speed_m_s
-        self.speed_variance = variance
+        # Divided by the speed scale estimated online (1 until one is applied).
+        self._measured_speed_m_s = speed_m_s
+        self.speed_m_s = self.odometry.corrected(speed_m_s)
+        self.speed_variance = self.odometry.variance(speed_m_s, variance,
+                                                     self.config.speed_noise_m_s ** 2)
         self.stats.speed += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
@@ -369,6 +384,7 @@ class EventDriver:
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
         if nis and not at_rest:
             self.bias_watch.corrected(wrap_scalar(float(self.ekf.x[YAW] - prior[YAW])))
+            self.odometry.observe(stamp_s, self.ekf.x.tolist())
         nis_sum = float(sum(nis))
         self._judged(key, self.health.record(key, stamp_s, points.shape[0], len(nis),
                                              nis_sum, float(bearing_sum), sensor))

@@ -735,7 +735,8 @@ class EkfNode(Node):
             dropped={k: self.dropped[k] for k in VERDICT_DROP_REASONS},
             final_bias_rad_s=self.driver.ekf.bias_rad_s, unmapped=stats.unmapped,
             bias_openings=stats.bias_openings,
-            bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s)
+            bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s,
+            mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report())
         return health.verdict(figures)
 
     def _publish_mounts(self) -> None:
@@ -801,6 +802,10 @@ class EkfNode(Node):
                     else f'{online["estimate"]["yaw_sigma_deg"]:.4f}'),
                    ('online_converged_s', '' if online['converged_s'] is None
                     else f'{online["converged_s"]:.3f}'))},
+            # The odometry's speed scale in use and its last online fit
+            # (core/odometry_online.py).
+            **{f'odometry_{key}': value for key, value in _odometry_values(
+                self.driver.odometry.report()).items()},
             'excluded_detections': str(stats.excluded),
             'zero_rate_updates': str(stats.zero_rate_updates),
             'bias_reopened': str(stats.bias_openings),
@@ -855,3 +860,18 @@ def main(args: list[str] | None = None) -> int:
 
 if __name__ == '__main__':
     raise SystemExit(main())
+
+
+def _odometry_values(report: dict) -> dict[str, str]:
+    """The online odometry estimate as /diagnostics values (empty strings before a fit)."""
+    estimate = report['estimate'] or {}
+
+    def figure(key: str, digits: int) -> str:
+        value = estimate.get(key)
+        return '' if value is None else f'{value:.{digits}f}'
+
+    return {'scale': f'{report["scale"]:.5f}', 'scale_applied': str(report['applied']),
+            'scale_estimate': figure('scale', 5), 'scale_sigma': figure('scale_sigma', 5),
+            'first_lidar_offset_x_m': figure('first_lidar_offset_x_m', 4),
+            'first_lidar_offset_y_m': figure('first_lidar_offset_y_m', 4),
+            'first_lidar_offset_found': str(report['first_lidar_offset_found']).lower()}

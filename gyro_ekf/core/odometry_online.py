@@ -1,0 +1,331 @@
+"""Online odometry calibration: the speed scale, from the filter's LiDAR-held path.
+
+A wheel encoder whose radius is off reads ``k`` times the true speed (``k`` = 1 + e). The
+filter's motion model takes the speed as it comes, so every prediction moves the pose by
+``k`` times the true step, and the LiDARs pull it back scan after scan: the position
+innovations are alike from scan to scan (the whiteness test's sensor-frame x), the
+covariance is too small for the error it carries, and the pose NEES leaves its band.
+
+The estimator, outside the filter's state as the online mount estimator is
+(``core/mount_online.py``), compares two paths over a sliding window of
+``window_s`` seconds:
+
+- ``D(t)``, the odometry path: the *measured* speed integrated along the filter's heading
+  (the midpoint of each prediction step), never corrected, so that a fit does not depend
+  on the scale in use;
+- ``p(t)``, the filter's position after each scan's landmark updates (while moving): held
+  by the map to a few millimetres however wrong the odometry is.
+
+Over the window, ``p(t) = c + D(t) / k + R(yaw(t)) d``: ``c`` is where the window starts
+and ``d`` is where the first LiDAR, which with the odometry defines the body frame, sits
+off its stated mount (a first LiDAR mounted off by ``d`` draws the pose along with it:
+the pose follows the LiDAR, the odometry moves the body origin, and their difference turns
+with the heading). Both are fitted, by linear least squares, with a weak prior on ``d``
+(``offset_prior_m``: while the heading hardly changes it is not observable), so that a
+mount offset is not taken for a scale error. The fit's sigma of ``k`` comes from its
+residuals, inflated for their correlation from scan to scan (the filter's positions are a
+smoothed series, not independent draws; ``_lag_one_correlation``).
+
+A fit whose sigma of ``k`` is at most ``max_sigma`` and whose ``k`` differs from the
+scale in use by more than ``change_sigmas`` sigmas and ``min_change`` replaces it: the
+driver divides every later speed by it (and adds the fit's uncertainty to the speed
+variance). Changes below ``min_change`` (0.5 %) are not made: on the shared course logs,
+whose odometry is within that, fits of 60 s scatter by 0.1-0.3 %. The estimate is reported
+(summary.json ``online_odometry``, /diagnostics ``odometry_scale*``); an applied scale
+makes the run degraded (a wheel radius off is worth knowing, and the figures before the
+correction carried it), as does a first-LiDAR offset ``d`` beyond ``offset_limit_m``
+(``verdict_reasons``).
+
+The state is a handful of scalars and an append-only list, so ``save`` and ``restore``
+(called on every event by ``core/lagged.py``) cost O(1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import Any
+
+import numpy as np
+
+from gyro_ekf.core.angles import wrap_scalar
+
+
+@dataclass(frozen=True, slots=True)
+class OdometrySettings:
+    """How the online odometry estimator collects, fits and decides.
+
+    Attributes:
+        window_s: the fit uses the samples of the last this many seconds, s.
+        fit_every_s: time between two fits, s.
+        min_distance_m: fewest metres driven in the window before a fit.
+        offset_prior_m: prior sigma of the first LiDAR's offset d, m.
+        max_sigma: a fit whose sigma of k is above this is not used.
+        change_sigmas: a fit replaces the scale in use only when it differs by more than
+            this many sigmas ...
+        min_change: ... and by more than this (relative) ...
+        min_refinement: ... or, once a scale was applied, than this.
+        offset_sigmas: the verdict names a first-LiDAR offset beyond this many sigmas ...
+        offset_limit_m: ... and beyond this, m.
+    """
+
+    window_s: float = 60.0
+    fit_every_s: float = 2.0
+    min_distance_m: float = 20.0
+    offset_prior_m: float = 0.1
+    max_sigma: float = 0.002
+    change_sigmas: float = 3.0
+    min_change: float = 0.01
+    min_refinement: float = 0.0005
+    offset_sigmas: float = 3.0
+    offset_limit_m: float = 0.015
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryFit:
+    """One fit of the window.
+
+    Attributes:
+        stamp_s: stamp of the scan that completed the window, s.
+        scale: k, the odometry's reading over the true speed.
+        scale_sigma: 1-sigma of k.
+        offset_m: d, where the first LiDAR sits off its stated mount (x, y in the body
+            frame), m.
+        offset_sigma_m: 1-sigma of d's x and y, m.
+        rms_m: RMS residual of the positions, m.
+        samples: positions in the window.
+        distance_m: metres driven in the window (odometry as measured).
+    """
+
+    stamp_s: float
+    scale: float
+    scale_sigma: float
+    offset_m: tuple[float, float]
+    offset_sigma_m: tuple[float, float]
+    rms_m: float
+    samples: int
+    distance_m: float
+
+
+class OdometryTracker:
+    """The online speed-scale estimator (see the module docstring).
+
+    Attributes:
+        scale: the scale in use (speeds are divided by it), 1 until a fit is applied.
+        scale_sigma: sigma of the scale in use (0 until applied).
+        fit: the last fit, or None.
+        applied: times a fit replaced the scale in use.
+        fits: fits made.
+    """
+
+    def __init__(self, settings: OdometrySettings | None = None):
+        """Start with the odometry taken as it reads, and an empty window."""
+        self.settings = settings or OdometrySettings()
+        # Samples (stamp, D x, D y, distance, pose x, y, yaw), append-only; the first
+        # _dropped were deleted.
+        self._entries: list[tuple[float, float, float, float, float, float, float]] = []
+        self._dropped = 0
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything (a filter reset)."""
+        self._entries.clear()
+        self._dropped = 0
+        self._dx = self._dy = self._distance = 0.0
+        self._last_fit_s: float | None = None
+        self.scale = 1.0
+        self.scale_sigma = 0.0
+        self.fit: OdometryFit | None = None
+        self.applied = 0
+        self.fits = 0
+
+    def corrected(self, speed_m_s: float) -> float:
+        """Return a measured speed divided by the scale in use."""
+        return speed_m_s if self.scale == 1.0 else speed_m_s / self.scale
+
+    def variance(self, speed_m_s: float, variance: float | None, configured: float
+                 ) -> float | None:
+        """Return the variance of a corrected speed: the scale's uncertainty added.
+
+        ``variance`` is the message's own (None: ``configured``, the configured noise).
+        """
+        if not self.applied:
+            return variance
+        base = configured if variance is None else variance
+        relative = self.scale_sigma / self.scale
+        return base / (self.scale * self.scale) + (speed_m_s * relative) ** 2
+
+    def advance(self, dt_s: float, measured_speed_m_s: float, yaw_rad: float) -> None:
+        """Add one prediction step to the odometry path: the measured speed along yaw."""
+        step = measured_speed_m_s * dt_s
+        if step:
+            self._dx += step * math.cos(yaw_rad)
+            self._dy += step * math.sin(yaw_rad)
+            self._distance += abs(step)
+
+    def save(self) -> tuple:
+        """Return the state (O(1): the entries list is append-only)."""
+        return (self._dropped + len(self._entries), self._dx, self._dy, self._distance,
+                self._last_fit_s, self.scale, self.scale_sigma, self.fit, self.applied,
+                self.fits)
+
+    def restore(self, saved: tuple) -> None:
+        """Put back a state from ``save``."""
+        (end, self._dx, self._dy, self._distance, self._last_fit_s, self.scale,
+         self.scale_sigma, self.fit, self.applied, self.fits) = saved
+        if end < self._dropped:
+            self._entries.clear()
+            self._dropped = end
+        else:
+            del self._entries[end - self._dropped:]
+
+    def observe(self, stamp_s: float, pose: list[float]) -> bool:
+        """Add the filter's pose after a scan's updates (moving); fit when due.
+
+        Returns True when a fit replaced the scale in use.
+        """
+        self._entries.append((stamp_s, self._dx, self._dy, self._distance,
+                              pose[0], pose[1], pose[2]))
+        settings = self.settings
+        if self._last_fit_s is None:
+            self._last_fit_s = stamp_s
+        if stamp_s - self._last_fit_s < settings.fit_every_s:
+            return False
+        self._last_fit_s = stamp_s
+        # Keep a window's worth before the window: a replay may restore to it.
+        old = stamp_s - 2.0 * settings.window_s
+        entries = self._entries
+        if len(entries) > 64 and entries[len(entries) // 2][0] < old:
+            drop = len(entries) // 2
+            del entries[:drop]
+            self._dropped += drop
+        return self._fit(stamp_s)
+
+    def _fit(self, stamp_s: float) -> bool:
+        settings = self.settings
+        first = stamp_s - settings.window_s
+        rows = [e for e in self._entries if e[0] >= first]
+        if len(rows) < 10:
+            return False
+        window = np.array(rows)
+        distance = float(window[-1, 3] - window[0, 3])
+        if distance < settings.min_distance_m:
+            return False
+        n = len(window)
+        d = window[:, 1:3] - window[0, 1:3]
+        p = window[:, 4:6] - window[0, 4:6]
+        c, s = np.cos(window[:, 6]), np.sin(window[:, 6])
+        # Unknowns: 1/k, d x, d y, c x, c y; rows x then y of every sample.
+        A = np.zeros((2 * n, 5))
+        A[:n, 0], A[n:, 0] = d[:, 0], d[:, 1]
+        A[:n, 1], A[:n, 2], A[n:, 1], A[n:, 2] = c, -s, s, c
+        A[:n, 3], A[n:, 4] = 1.0, 1.0
+        b = np.concatenate([p[:, 0], p[:, 1]])
+        # The prior on d, in units of the residual once known; first a plain solve for it.
+        normal = A.T @ A
+        prior = np.zeros(5)
+        theta = np.linalg.lstsq(A, b, rcond=None)[0]
+        residual = b - A @ theta
+        dof = max(2 * n - 5, 1)
+        variance = max(float(residual @ residual) / dof, 1e-8)
+        prior[1] = prior[2] = variance / settings.offset_prior_m ** 2
+        try:
+            covariance = np.linalg.inv(normal + np.diag(prior))
+        except np.linalg.LinAlgError:
+            return False
+        theta = covariance @ (A.T @ b)
+        residual = b - A @ theta
+        rms = float(np.sqrt(np.mean(residual ** 2)))
+        # The filter's positions are a smoothed series: residuals of consecutive scans
+        # are alike. As an AR(1) series with lag-1 correlation rho, n of them are worth
+        # n (1 - rho) / (1 + rho) independent ones, which scales the covariance.
+        rho = max(_lag_one_correlation(residual[:n]), _lag_one_correlation(residual[n:]),
+                  0.0)
+        inflation = (1.0 + rho) / max(1.0 - rho, 1.0 / n)
+        covariance = covariance * variance * inflation
+        inverse = float(theta[0])
+        if not math.isfinite(inverse) or inverse <= 0.0:
+            return False
+        scale = 1.0 / inverse
+        sigma = math.sqrt(max(covariance[0, 0], 0.0)) / (inverse * inverse)
+        self.fits += 1
+        self.fit = OdometryFit(stamp_s, scale, sigma, (float(theta[1]), float(theta[2])),
+                               (math.sqrt(max(covariance[1, 1], 0.0)),
+                                math.sqrt(max(covariance[2, 2], 0.0))), rms, n, distance)
+        if sigma > settings.max_sigma:
+            return False
+        change = abs(scale - self.scale)
+        # Once the odometry is known to be off, every clear change refines the scale.
+        least = settings.min_refinement if self.applied else settings.min_change
+        if change <= max(settings.change_sigmas * sigma, least):
+            return False
+        self.scale, self.scale_sigma = scale, sigma
+        self.applied += 1
+        return True
+
+    def offset_found(self) -> bool:
+        """Whether the last fit places the first LiDAR clearly off its stated mount."""
+        fit, settings = self.fit, self.settings
+        if fit is None or fit.scale_sigma > settings.max_sigma:
+            return False
+        return any(abs(v) > max(settings.offset_limit_m, settings.offset_sigmas * s)
+                   for v, s in zip(fit.offset_m, fit.offset_sigma_m))
+
+    def report(self) -> dict[str, Any]:
+        """JSON-ready figures for summary.json and /diagnostics."""
+        fit = self.fit
+        return {
+            'scale': self.scale, 'scale_sigma': self.scale_sigma, 'applied': self.applied,
+            'fits': self.fits,
+            'estimate': None if fit is None else {
+                'stamp_s': fit.stamp_s, 'scale': fit.scale, 'scale_sigma': fit.scale_sigma,
+                'first_lidar_offset_x_m': fit.offset_m[0],
+                'first_lidar_offset_y_m': fit.offset_m[1],
+                'first_lidar_offset_x_sigma_m': fit.offset_sigma_m[0],
+                'first_lidar_offset_y_sigma_m': fit.offset_sigma_m[1],
+                'rms_residual_m': fit.rms_m, 'samples': fit.samples,
+                'distance_m': fit.distance_m},
+            'first_lidar_offset_found': self.offset_found()}
+
+
+def _lag_one_correlation(residual: np.ndarray) -> float:
+    """Lag-1 autocorrelation of a residual series (0 when it has no spread)."""
+    centred = residual - residual.mean()
+    energy = float(centred @ centred)
+    return float(centred[1:] @ centred[:-1]) / energy if energy > 0.0 else 0.0
+
+
+def midpoint_yaw(before_rad: float, after_rad: float) -> float:
+    """Return the heading halfway between two (wrapped) headings, rad."""
+    return before_rad + 0.5 * wrap_scalar(after_rad - before_rad)
+
+
+def verdict_reasons(report: dict[str, Any] | None, first: list[str],
+                    settings: OdometrySettings | None = None) -> list[str]:
+    """Return a sentence for a speed scale in use off 1, and one for a first-LiDAR offset.
+
+    Args:
+        report: ``OdometryTracker.report()`` (summary.json's online_odometry), or None.
+        first: names of the LiDARs not tracked by the online mount estimator (the first).
+        settings: the limits (the defaults when None).
+    """
+    settings = settings or OdometrySettings()
+    if report is None:
+        return []
+    reasons = []
+    if abs(report['scale'] - 1.0) > settings.min_change:
+        reasons.append(
+            f'the odometry reads {100.0 * (report["scale"] - 1.0):+.2f} % off the path the '
+            f'LiDARs hold (sigma {100.0 * report["scale_sigma"]:.2f} %, limit '
+            f'{100.0 * settings.min_change:g} %): its speeds were divided by '
+            f'{report["scale"]:.4f} from the first fit on, a wheel radius is off')
+    estimate = report['estimate']
+    if report['first_lidar_offset_found'] and estimate is not None:
+        name = ' or '.join(first) if first else 'the first LiDAR'
+        reasons.append(
+            f'LiDAR {name} sits off its stated mount against the odometry by x '
+            f'{100.0 * estimate["first_lidar_offset_x_m"]:+.1f} cm, y '
+            f'{100.0 * estimate["first_lidar_offset_y_m"]:+.1f} cm (limit '
+            f'{100.0 * settings.offset_limit_m:g} cm and {settings.offset_sigmas:g} sigmas): '
+            f'the pose follows it and is off by as much')
+    return reasons
