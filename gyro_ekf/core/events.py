@@ -317,6 +317,9 @@ class EventDriver:
         tracker = self.mounts.trackers.get(key)
         if tracker is not None:
             mount = tracker.used
+        else:
+            # Where the odometry places the LiDARs that define the body frame.
+            mount = self.odometry.first_mount(mount)
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
             return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
         # Plain floats from here: a scan has a handful of poles, and numpy's per-call cost
@@ -384,7 +387,9 @@ class EventDriver:
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
         if nis and not at_rest:
             self.bias_watch.corrected(wrap_scalar(float(self.ekf.x[YAW] - prior[YAW])))
-            self.odometry.observe(stamp_s, self.ekf.x.tolist())
+            moved = self.odometry.observe(stamp_s, self.ekf.x.tolist())
+            if moved is not None:
+                self._first_lidar_moved(key, moved)
         nis_sum = float(sum(nis))
         self._judged(key, self.health.record(key, stamp_s, points.shape[0], len(nis),
                                              nis_sum, float(bearing_sum), sensor))
@@ -398,6 +403,25 @@ class EventDriver:
                 self.stats.first_association_s = stamp_s
             self.stats.last_association_s = stamp_s
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
+
+    def _first_lidar_moved(self, key: LidarMount, moved: tuple[float, float, float]) -> None:
+        """Move the pose back by (x, y, sigma): the first LiDAR's mount in use moved so.
+
+        The pose followed the LiDAR: move it back by as much, with that uncertainty; every
+        other LiDAR's mount, estimated against the old pose, is estimated again, and the
+        LiDAR's health is judged on new figures (core/odometry_online.py).
+        """
+        dx, dy, sigma = moved
+        x = self.ekf.x
+        c, s = math.cos(x[YAW]), math.sin(x[YAW])
+        P = self.ekf.P
+        P[0, 0] += sigma * sigma
+        P[1, 1] += sigma * sigma
+        self.ekf.reset(np.array([x[0] - c * dx + s * dy, x[1] - s * dx - c * dy, x[YAW]]),
+                       float(x[3]), P)
+        for other in self.mounts.trackers:
+            self.mounts.restart(other)
+        self.health.mount_changed(key, self.stamp_s)
 
     def _close_bias_block(self, stamp_s: float, at_rest: bool) -> None:
         """Before a scan's updates: judge the bias watch's block; re-open the bias on a drift."""

@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from gyro_ekf.core.angles import wrap_scalar
+from gyro_ekf.core.types import LidarMount
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,13 +61,19 @@ class OdometrySettings:
         fit_every_s: time between two fits, s.
         min_distance_m: fewest metres driven in the window before a fit.
         offset_prior_m: prior sigma of the first LiDAR's offset d, m.
-        max_sigma: a fit whose sigma of k is above this is not used.
+        max_sigma: a fit whose sigma of k is above this is not used ...
+        max_rms_m: ... nor one whose positions lie farther from the fitted path (RMS), m:
+            the map holds the filter's positions to a few millimetres, so a larger residual
+            is an error the model does not describe (the filter's heading error integrated
+            into the odometry path), which k and d would absorb.
         change_sigmas: a fit replaces the scale in use only when it differs by more than
             this many sigmas ...
         min_change: ... and by more than this (relative) ...
         min_refinement: ... or, once a scale was applied, than this.
         offset_sigmas: the verdict names a first-LiDAR offset beyond this many sigmas ...
-        offset_limit_m: ... and beyond this, m.
+        offset_limit_m: ... and beyond this, m; such an offset is applied to the first
+            LiDAR's mount in use ...
+        offset_refinement_m: ... as is, once one was, a further offset beyond this, m.
     """
 
     window_s: float = 60.0
@@ -74,11 +81,13 @@ class OdometrySettings:
     min_distance_m: float = 20.0
     offset_prior_m: float = 0.1
     max_sigma: float = 0.002
+    max_rms_m: float = 0.006
     change_sigmas: float = 3.0
     min_change: float = 0.01
     min_refinement: float = 0.0005
     offset_sigmas: float = 3.0
     offset_limit_m: float = 0.015
+    offset_refinement_m: float = 0.005
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,6 +142,9 @@ class OdometryTracker:
         self._dropped = 0
         self._dx = self._dy = self._distance = 0.0
         self._last_fit_s: float | None = None
+        self._window_start_s = -math.inf
+        self.offset_m = (0.0, 0.0)
+        self.offset_applied = 0
         self.scale = 1.0
         self.scale_sigma = 0.0
         self.fit: OdometryFit | None = None
@@ -142,6 +154,13 @@ class OdometryTracker:
     def corrected(self, speed_m_s: float) -> float:
         """Return a measured speed divided by the scale in use."""
         return speed_m_s if self.scale == 1.0 else speed_m_s / self.scale
+
+    def first_mount(self, stated: LidarMount) -> LidarMount:
+        """Return the mount in use of a LiDAR that defines the body frame (stated + offset)."""
+        dx, dy = self.offset_m
+        if not self.offset_applied:
+            return stated
+        return LidarMount(stated.x_m + dx, stated.y_m + dy, stated.yaw_rad)
 
     def variance(self, speed_m_s: float, variance: float | None, configured: float
                  ) -> float | None:
@@ -167,22 +186,24 @@ class OdometryTracker:
         """Return the state (O(1): the entries list is append-only)."""
         return (self._dropped + len(self._entries), self._dx, self._dy, self._distance,
                 self._last_fit_s, self.scale, self.scale_sigma, self.fit, self.applied,
-                self.fits)
+                self.fits, self._window_start_s, self.offset_m, self.offset_applied)
 
     def restore(self, saved: tuple) -> None:
         """Put back a state from ``save``."""
         (end, self._dx, self._dy, self._distance, self._last_fit_s, self.scale,
-         self.scale_sigma, self.fit, self.applied, self.fits) = saved
+         self.scale_sigma, self.fit, self.applied, self.fits, self._window_start_s,
+         self.offset_m, self.offset_applied) = saved
         if end < self._dropped:
             self._entries.clear()
             self._dropped = end
         else:
             del self._entries[end - self._dropped:]
 
-    def observe(self, stamp_s: float, pose: list[float]) -> bool:
+    def observe(self, stamp_s: float, pose: list[float]) -> tuple[float, float, float] | None:
         """Add the filter's pose after a scan's updates (moving); fit when due.
 
-        Returns True when a fit replaced the scale in use.
+        Returns (x m, y m, sigma m) when a fit moved the first LiDAR's mount in use by x, y
+        (body frame): the pose, drawn along with the LiDAR, is to move back by as much.
         """
         self._entries.append((stamp_s, self._dx, self._dy, self._distance,
                               pose[0], pose[1], pose[2]))
@@ -190,7 +211,7 @@ class OdometryTracker:
         if self._last_fit_s is None:
             self._last_fit_s = stamp_s
         if stamp_s - self._last_fit_s < settings.fit_every_s:
-            return False
+            return None
         self._last_fit_s = stamp_s
         # Keep a window's worth before the window: a replay may restore to it.
         old = stamp_s - 2.0 * settings.window_s
@@ -201,16 +222,16 @@ class OdometryTracker:
             self._dropped += drop
         return self._fit(stamp_s)
 
-    def _fit(self, stamp_s: float) -> bool:
+    def _fit(self, stamp_s: float) -> tuple[float, float, float] | None:
         settings = self.settings
-        first = stamp_s - settings.window_s
+        first = max(stamp_s - settings.window_s, self._window_start_s)
         rows = [e for e in self._entries if e[0] >= first]
         if len(rows) < 10:
-            return False
+            return None
         window = np.array(rows)
         distance = float(window[-1, 3] - window[0, 3])
         if distance < settings.min_distance_m:
-            return False
+            return None
         n = len(window)
         d = window[:, 1:3] - window[0, 1:3]
         p = window[:, 4:6] - window[0, 4:6]
@@ -232,7 +253,7 @@ class OdometryTracker:
         try:
             covariance = np.linalg.inv(normal + np.diag(prior))
         except np.linalg.LinAlgError:
-            return False
+            return None
         theta = covariance @ (A.T @ b)
         residual = b - A @ theta
         rms = float(np.sqrt(np.mean(residual ** 2)))
@@ -245,30 +266,40 @@ class OdometryTracker:
         covariance = covariance * variance * inflation
         inverse = float(theta[0])
         if not math.isfinite(inverse) or inverse <= 0.0:
-            return False
+            return None
         scale = 1.0 / inverse
         sigma = math.sqrt(max(covariance[0, 0], 0.0)) / (inverse * inverse)
         self.fits += 1
         self.fit = OdometryFit(stamp_s, scale, sigma, (float(theta[1]), float(theta[2])),
                                (math.sqrt(max(covariance[1, 1], 0.0)),
                                 math.sqrt(max(covariance[2, 2], 0.0))), rms, n, distance)
-        if sigma > settings.max_sigma:
-            return False
+        if sigma > settings.max_sigma or rms > settings.max_rms_m:
+            return None
         change = abs(scale - self.scale)
         # Once the odometry is known to be off, every clear change refines the scale.
         least = settings.min_refinement if self.applied else settings.min_change
-        if change <= max(settings.change_sigmas * sigma, least):
-            return False
-        self.scale, self.scale_sigma = scale, sigma
-        self.applied += 1
-        return True
+        if change > max(settings.change_sigmas * sigma, least):
+            self.scale, self.scale_sigma = scale, sigma
+            self.applied += 1
+        if not self.offset_found():
+            return None
+        # The first LiDAR sits off its mount in use by d: take it there. The window
+        # starts again (the poses so far were drawn along with the LiDAR).
+        dx, dy = self.fit.offset_m
+        self.offset_m = (self.offset_m[0] + dx, self.offset_m[1] + dy)
+        self.offset_applied += 1
+        self._window_start_s = stamp_s
+        return dx, dy, max(self.fit.offset_sigma_m)
 
     def offset_found(self) -> bool:
         """Whether the last fit places the first LiDAR clearly off its stated mount."""
         fit, settings = self.fit, self.settings
-        if fit is None or fit.scale_sigma > settings.max_sigma:
+        if (fit is None or fit.scale_sigma > settings.max_sigma
+                or fit.rms_m > settings.max_rms_m):
             return False
-        return any(abs(v) > max(settings.offset_limit_m, settings.offset_sigmas * s)
+        limit = settings.offset_refinement_m if self.offset_applied else (
+            settings.offset_limit_m)
+        return any(abs(v) > max(limit, settings.offset_sigmas * s)
                    for v, s in zip(fit.offset_m, fit.offset_sigma_m))
 
     def report(self) -> dict[str, Any]:
@@ -276,7 +307,9 @@ class OdometryTracker:
         fit = self.fit
         return {
             'scale': self.scale, 'scale_sigma': self.scale_sigma, 'applied': self.applied,
-            'fits': self.fits,
+            'fits': self.fits, 'first_lidar_offset_in_use_x_m': self.offset_m[0],
+            'first_lidar_offset_in_use_y_m': self.offset_m[1],
+            'first_lidar_offset_applied': self.offset_applied,
             'estimate': None if fit is None else {
                 'stamp_s': fit.stamp_s, 'scale': fit.scale, 'scale_sigma': fit.scale_sigma,
                 'first_lidar_offset_x_m': fit.offset_m[0],
@@ -320,8 +353,15 @@ def verdict_reasons(report: dict[str, Any] | None, first: list[str],
             f'{100.0 * settings.min_change:g} %): its speeds were divided by '
             f'{report["scale"]:.4f} from the first fit on, a wheel radius is off')
     estimate = report['estimate']
-    if report['first_lidar_offset_found'] and estimate is not None:
-        name = ' or '.join(first) if first else 'the first LiDAR'
+    name = ' or '.join(first) if first else 'the first LiDAR'
+    if report['first_lidar_offset_applied']:
+        reasons.append(
+            f'LiDAR {name} sits off its stated mount against the odometry: its mount in use '
+            f'was moved by x {100.0 * report["first_lidar_offset_in_use_x_m"]:+.1f} cm, y '
+            f'{100.0 * report["first_lidar_offset_in_use_y_m"]:+.1f} cm (limit '
+            f'{100.0 * settings.offset_limit_m:g} cm and {settings.offset_sigmas:g} sigmas); '
+            f'until then the pose followed it and was off by as much')
+    elif report['first_lidar_offset_found'] and estimate is not None:
         reasons.append(
             f'LiDAR {name} sits off its stated mount against the odometry by x '
             f'{100.0 * estimate["first_lidar_offset_x_m"]:+.1f} cm, y '

@@ -863,7 +863,7 @@ if __name__ == '__main__':
 
 
 def _odometry_values(report: dict) -> dict[str, str]:
-    """The online odometry estimate as /diagnostics values (empty strings before a fit)."""
+    """Return the online odometry estimate as /diagnostics values (empty before a fit)."""
     estimate = report['estimate'] or {}
 
     def figure(key: str, digits: int) -> str:
