@@ -96,6 +96,7 @@ class EventDriver:
             converged_yaw_sigma_rad=self.config.mount_online_yaw_sigma_rad))
         # The odometry's speed scale, estimated online (core/odometry_online.py).
         self.odometry = OdometryTracker()
+        self.odometry.start_at(self._trusted(pose))
         self._measured_speed_m_s = 0.0
         self.last_transition: Transition | None = None
         self.sensor_names: dict[LidarMount, str] = {}
@@ -136,6 +137,7 @@ class EventDriver:
         self.bias_watch = BiasWatch()
         self.mounts.reset()
         self.odometry.reset()
+        self.odometry.start_at(self._trusted(pose))
         self._measured_speed_m_s = 0.0
         self.stamp_s = None
         self.speed_m_s = 0.0
@@ -144,6 +146,13 @@ class EventDriver:
         self._first_scan_s = None
         self._rest_updates = {}
         self._end_stop()
+
+    def _trusted(self, pose: FloatArray | None) -> FloatArray | None:
+        """Return the start pose when the filter trusts it exactly (P0 of the pose 0)."""
+        config = self.config
+        if pose is None or config.initial_position_sigma_m or config.initial_yaw_sigma_rad:
+            return None
+        return pose
 
     def track_mounts(self, mounts: Iterable[tuple[LidarMount, str]]) -> None:
         """Estimate these LiDARs' mounts online, (stated mount, name) each.
@@ -320,6 +329,14 @@ class EventDriver:
         else:
             # Where the odometry places the LiDARs that define the body frame.
             mount = self.odometry.first_mount(mount)
+            if self.landmarks is not None and len(points):
+                # Moving by the odometry (the bias is not known yet to judge the gyro).
+                moved = self.odometry.observe_start(
+                    stamp_s, points, mount, self.landmarks.xy_m,
+                    abs(self._measured_speed_m_s) > self.config.rest_speed_m_s)
+                if moved is not None:
+                    self._first_lidar_moved(key, moved)
+                    mount = self.odometry.first_mount(key)
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
             return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
         # Plain floats from here: a scan has a handful of poles, and numpy's per-call cost

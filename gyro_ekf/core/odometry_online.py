@@ -49,7 +49,9 @@ from typing import Any
 import numpy as np
 
 from gyro_ekf.core.angles import wrap_scalar
-from gyro_ekf.core.types import LidarMount
+from gyro_ekf.core.mount_calibration import MIN_DETECTIONS, MountSettings
+from gyro_ekf.core.mount_online import fit_window
+from gyro_ekf.core.types import FloatArray, LidarMount
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,6 +79,9 @@ class OdometrySettings:
         offset_limit_m: ... and beyond this, m; such an offset is applied to the first
             LiDAR's mount in use ...
         offset_refinement_m: ... as is, once one was, a further offset beyond this, m.
+        start_check_s: standing still at a start pose the filter trusts exactly, the first
+            LiDAR's detections of this long are fitted against that pose (or of the
+            whole stop, when the platform moves off sooner), s.
     """
 
     window_s: float = 60.0
@@ -92,6 +97,7 @@ class OdometrySettings:
     offset_sigmas: float = 3.0
     offset_limit_m: float = 0.01
     offset_refinement_m: float = 0.005
+    start_check_s: float = 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,6 +150,13 @@ class OdometryTracker:
         """Forget everything (a filter reset)."""
         self._entries.clear()
         self._dropped = 0
+        # The start check: the first LiDAR's detections (sensor x, y) while standing
+        # still at the start pose; append-only. None: no check (not trusted, or done).
+        self._start_pose: tuple[float, float, float] | None = None
+        self._start_points: list[tuple[float, float]] = []
+        self._start_scans = 0
+        self._start_first_s: float | None = None
+        self.start_fit: dict[str, float] | None = None
         self._dx = self._dy = self._distance = 0.0
         self._last_fit_s: float | None = None
         self._window_start_s = -math.inf
@@ -190,18 +203,86 @@ class OdometryTracker:
         """Return the state (O(1): the entries list is append-only)."""
         return (self._dropped + len(self._entries), self._dx, self._dy, self._distance,
                 self._last_fit_s, self.scale, self.scale_sigma, self.fit, self.applied,
-                self.fits, self._window_start_s, self.offset_m, self.offset_applied)
+                self.fits, self._window_start_s, self.offset_m, self.offset_applied,
+                (self._start_pose, len(self._start_points), self._start_scans,
+                 self._start_first_s, self.start_fit))
 
     def restore(self, saved: tuple) -> None:
         """Put back a state from ``save``."""
         (end, self._dx, self._dy, self._distance, self._last_fit_s, self.scale,
          self.scale_sigma, self.fit, self.applied, self.fits, self._window_start_s,
-         self.offset_m, self.offset_applied) = saved
+         self.offset_m, self.offset_applied, start) = saved
+        (self._start_pose, points, self._start_scans, self._start_first_s,
+         self.start_fit) = start
+        del self._start_points[points:]
         if end < self._dropped:
             self._entries.clear()
             self._dropped = end
         else:
             del self._entries[end - self._dropped:]
+
+    def start_at(self, pose: FloatArray | None) -> None:
+        """Check the first LiDAR against this start pose (None: the pose is not trusted)."""
+        self._start_pose = None if pose is None else (
+            float(pose[0]), float(pose[1]), float(pose[2]))
+        self._start_points.clear()
+        self._start_scans = 0
+        self._start_first_s = None
+
+    def observe_start(self, stamp_s: float, points_sensor_m: FloatArray, mount: LidarMount,
+                      poles: FloatArray, moving: bool
+                      ) -> tuple[float, float, float] | None:
+        """Add a first-LiDAR scan while the start check is open; fit when it closes.
+
+        The check is open while the platform has not moved since a start pose the filter
+        trusts exactly: the detections, placed with that pose, measure the LiDAR's mount
+        as the online mount fit does with moving poses. It closes after ``start_check_s``
+        of scans, or at the first scan once the platform moved. Returns (x m, y m, sigma m)
+        when the fit moved the first LiDAR's mount in use (as ``observe`` does).
+
+        Args:
+            stamp_s: scan stamp, s.
+            points_sensor_m: the scan's detections in the sensor frame, shape (k, 2), m.
+            mount: the LiDAR's mount in use.
+            poles: map pole centres, shape (m, 2), m.
+            moving: whether the platform is known to move now.
+        """
+        if self._start_pose is None:
+            return None
+        moved = self._distance > 0.0 or moving
+        if not moved:
+            if self._start_first_s is None:
+                self._start_first_s = stamp_s
+            self._start_points.extend(map(tuple, points_sensor_m.tolist()))
+            self._start_scans += 1
+            if stamp_s - self._start_first_s < self.settings.start_check_s:
+                return None
+        pose, self._start_pose = self._start_pose, None
+        return self._fit_start(pose, mount, poles)
+
+    def _fit_start(self, pose: tuple[float, float, float], mount: LidarMount,
+                   poles: FloatArray) -> tuple[float, float, float] | None:
+        if len(self._start_points) < MIN_DETECTIONS:
+            return None
+        points = np.array(self._start_points)
+        result = fit_window(points, np.tile(pose, (len(points), 1)), poles, mount,
+                            MountSettings(), search=False)
+        if result is None or not result[3]:
+            return None
+        theta, covariance, used, _ = result
+        # Every scan of a stop sees the same poles with the same beams: its errors repeat,
+        # so the scans are worth one scan, not many.
+        sigma = math.sqrt(max(covariance[1, 1], covariance[2, 2], 0.0) * self._start_scans)
+        dx, dy = float(theta[1]) - mount.x_m, float(theta[2]) - mount.y_m
+        settings = self.settings
+        self.start_fit = {'x_m': dx, 'y_m': dy, 'sigma_m': sigma, 'scans': self._start_scans,
+                          'detections_used': used}
+        if max(abs(dx), abs(dy)) <= max(settings.offset_limit_m,
+                                        settings.offset_sigmas * sigma):
+            return None
+        self.offset_m = (self.offset_m[0] + dx, self.offset_m[1] + dy)
+        self.offset_applied += 1
+        return dx, dy, sigma
 
     def observe(self, stamp_s: float, pose: list[float]) -> tuple[float, float, float] | None:
         """Add the filter's pose after a scan's updates (moving); fit when due.
@@ -314,6 +395,7 @@ class OdometryTracker:
             'fits': self.fits, 'first_lidar_offset_in_use_x_m': self.offset_m[0],
             'first_lidar_offset_in_use_y_m': self.offset_m[1],
             'first_lidar_offset_applied': self.offset_applied,
+            'first_lidar_start_check': self.start_fit,
             'estimate': None if fit is None else {
                 'stamp_s': fit.stamp_s, 'scale': fit.scale, 'scale_sigma': fit.scale_sigma,
                 'first_lidar_offset_x_m': fit.offset_m[0],
