@@ -96,7 +96,7 @@ class OdometrySettings:
     min_refinement: float = 0.0005
     offset_sigmas: float = 3.0
     offset_limit_m: float = 0.01
-    offset_refinement_m: float = 0.005
+    offset_refinement_m: float = 0.002
     start_check_s: float = 2.0
 
 
