@@ -26,17 +26,35 @@ mount offset is not taken for a scale error. The fit's sigma of ``k`` comes from
 residuals, inflated for their correlation from scan to scan (the filter's positions are a
 smoothed series, not independent draws; ``_lag_one_correlation``).
 
-A fit whose sigma of ``k`` is at most ``max_sigma`` and whose ``k`` differs from the
-scale in use by more than ``change_sigmas`` sigmas and ``min_change`` replaces it: the
+A fit (at least ``min_distance_m`` driven in the window) whose sigma of ``k`` is at most
+``max_sigma``, whose residual RMS is at most ``max_rms_m`` and whose ``k`` differs from
+the scale in use by more than ``change_sigmas`` sigmas and ``min_change`` replaces it: the
 driver divides every later speed by it (and adds the fit's uncertainty to the speed
-variance). Changes below ``min_change`` (0.5 %) are not made: on the shared course logs,
-whose odometry is within that, fits of 60 s scatter by 0.1-0.3 %. The estimate is reported
+variance); once one was applied, changes beyond ``min_refinement`` refine it. Changes
+below ``min_change`` (1 %) are not made: on the 2022 course log, whose odometry is exact,
+fits of the first 10-20 m come out 0.4-0.5 % off. The estimate is reported
 (summary.json ``online_odometry``, /diagnostics ``odometry_scale*``); an applied scale
 makes the run degraded (a wheel radius off is worth knowing, and the figures before the
 correction carried it), as does a first-LiDAR offset ``d`` beyond ``offset_limit_m``
 (``verdict_reasons``).
 
-The state is a handful of scalars and an append-only list, so ``save`` and ``restore``
+A ``d`` beyond ``offset_limit_m`` (1 cm, the online mount estimator's offset limit) and
+``offset_sigmas`` sigmas, in a window of at least ``min_offset_distance_m`` driven, moves
+the first LiDAR's mount in use by ``d``: the driver moves the pose back by ``d`` (with its
+sigma added to P), estimates the other LiDARs' mounts again (they were fitted against the
+old pose) and judges the LiDAR's health afresh; the window starts again, and later fits
+refine the mount by ``offset_refinement_m`` steps.
+
+**Start check.** A first LiDAR off its mount drags the pose from the first scan on, well
+before the path above says so. Standing still at a start pose the filter trusts exactly
+(P0 of the pose 0, as every course log and simulated trip states it), the LiDAR's
+detections of ``start_check_s`` are fitted against that pose, by the online mount fit
+(``mount_online.fit_window``, no yaw search); the scans of a stop repeat their errors, so
+the fit's covariance is multiplied by their count (they are worth one scan). An offset
+beyond the limits above moves the mount in use as a path fit does. The check closes when
+the odometry reads a speed, so a trip that starts moving has none.
+
+The state is a handful of scalars and append-only lists, so ``save`` and ``restore``
 (called on every event by ``core/lagged.py``) cost O(1).
 """
 

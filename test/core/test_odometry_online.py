@@ -46,10 +46,12 @@ def test_a_right_odometry_is_left_as_it_reads():
 @pytest.mark.parametrize('offset', [(0.005, -0.026), (-0.02, 0.025)])
 def test_a_first_lidar_off_its_mount_is_found_moved_and_named(offset):
     # Two LiDARs: without the odometry the rear one's online mount would absorb the
-    # difference (stress seed 0, mount_offset trip 5: RMSE 2.6 cm, verdict ok).
+    # difference (stress seed 0, mount_offset trip 5: RMSE 2.6 cm, verdict ok). Moving
+    # from the start (no start check): found by the fit of the odometry path.
     summary = _summary(second_lidar=True, lidar_x_error_m=offset[0],
-                       lidar_y_error_m=offset[1])
+                       lidar_y_error_m=offset[1], static_s=0.0)
     odometry = summary['online_odometry']
+    assert odometry['first_lidar_start_check'] is None
     assert odometry['first_lidar_offset_applied'] >= 1
     assert (odometry['first_lidar_offset_in_use_x_m'],
             odometry['first_lidar_offset_in_use_y_m']) == pytest.approx(offset, abs=0.005)
@@ -60,6 +62,42 @@ def test_a_first_lidar_off_its_mount_is_found_moved_and_named(offset):
     assert summary['health']['verdict'] == 'degraded'
     assert any('LiDAR scan sits off its stated mount' in r
                for r in summary['health']['reasons'])
+
+
+def test_the_start_check_moves_a_first_lidar_off_its_mount_before_the_trip_begins():
+    # 8 s standing still at the trusted start pose: 2 s of scans place the LiDAR.
+    trip = simulate_trip(SimulationConfig(second_lidar=True, lidar_x_error_m=0.06), 3)
+    run = run_trip(trip)
+    check = run.result.odometry.report()['first_lidar_start_check']
+    assert check['scans'] >= 20
+    assert (check['x_m'], check['y_m']) == pytest.approx((0.06, 0.0), abs=0.01)
+    summary = summarize(run)
+    assert summary['online_odometry']['first_lidar_offset_in_use_x_m'] == pytest.approx(
+        0.06, abs=0.005)
+    # Moved at 2 s: the pose is right for the rest of the static start and the trip.
+    estimates = run.result.estimates
+    truth = trip.ground_truth
+    late = estimates.stamp_s > 3.0
+    error = np.hypot(*(estimates.state[late, i] - np.interp(
+        estimates.stamp_s[late], truth.stamp_s, truth.pose[:, i]) for i in (0, 1)))
+    assert np.sqrt(np.mean(error ** 2)) <= 0.01
+    assert summary['ground_truth']['nees_share_in_band'] >= 0.9
+    assert summary['health']['verdict'] == 'degraded'
+
+
+def test_the_start_check_needs_a_trusted_start_and_keeps_an_exact_mount():
+    from gyro_ekf.core.config import EkfConfig
+    from gyro_ekf.core.events import EventDriver
+    trusted = EventDriver(EkfConfig(), pose=np.zeros(3))
+    assert trusted.odometry._start_pose == (0.0, 0.0, 0.0)
+    loose = EventDriver(EkfConfig(initial_position_sigma_m=0.1), pose=np.zeros(3))
+    assert loose.odometry._start_pose is None
+    # Exact mounts: the check's offset stays within its 3 sigmas and nothing moves.
+    run = run_trip(simulate_trip(SimulationConfig(second_lidar=True), 3))
+    report = run.result.odometry.report()
+    check = report['first_lidar_start_check']
+    assert max(abs(check['x_m']), abs(check['y_m'])) <= 3.0 * check['sigma_m']
+    assert report['first_lidar_offset_applied'] == 0
 
 
 def test_a_mount_moved_online_is_named_with_the_first_lidar():
