@@ -853,15 +853,6 @@ class EkfNode(Node):
                                                       status=[status]))
 
 
-def main(args: list[str] | None = None) -> int:
-    """Entry point of the ekf_node executable."""
-    return run_node(EkfNode, args)
-
-
-if __name__ == '__main__':
-    raise SystemExit(main())
-
-
 def _odometry_values(report: dict) -> dict[str, str]:
     """Return the online odometry estimate as /diagnostics values (empty before a fit)."""
     estimate = report['estimate'] or {}
@@ -874,4 +865,16 @@ def _odometry_values(report: dict) -> dict[str, str]:
             'scale_estimate': figure('scale', 5), 'scale_sigma': figure('scale_sigma', 5),
             'first_lidar_offset_x_m': figure('first_lidar_offset_x_m', 4),
             'first_lidar_offset_y_m': figure('first_lidar_offset_y_m', 4),
-            'first_lidar_offset_found': str(report['first_lidar_offset_found']).lower()}
+            'first_lidar_offset_found': str(report['first_lidar_offset_found']).lower(),
+            'first_lidar_offset_in_use_x_m': f'{report["first_lidar_offset_in_use_x_m"]:.4f}',
+            'first_lidar_offset_in_use_y_m': f'{report["first_lidar_offset_in_use_y_m"]:.4f}',
+            'first_lidar_offset_applied': str(report['first_lidar_offset_applied'])}
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of the ekf_node executable."""
+    return run_node(EkfNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
