@@ -20,6 +20,9 @@ Definitions (see `metrics` for the band and the interpolation):
 - *Online mounts*: per LiDAR but the first, its mount estimated online
   (`core/mount_online.py`): stated, in use at the end, the last fit with its sigmas and
   residual, when it converged and how often it replaced the mount in use.
+- *Online odometry*: the odometry's speed scale in use and the first LiDAR's offset in
+  use, estimated online (`core/odometry_online.py`), with the start check and the last
+  fit of the odometry path against the filter's positions.
 - *Input*: what the validation boundary dropped (with --skip-bad): samples per stream,
   counts per field and reason with the first index, and how often a stream's time went back.
 - *Ground truth* (only when the trip has it): position RMSE and max error, heading RMSE

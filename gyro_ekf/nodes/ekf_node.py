@@ -37,7 +37,11 @@ observations are kept out of the filter; each exclusion and readmission is logge
 LiDAR mounts in use (`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file from
 `gyro-ekf calibrate-mounts` given after the bag's overrides the bag's mounts, and every
 LiDAR but the first has its mount estimated online, core/mount_online.py:
-`mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`); `ekf/mounts` (PoseArray in
+`mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`), and the odometry's speed scale and
+the first LiDAR's offset estimated online (core/odometry_online.py: `odometry_scale` in use,
+`odometry_scale_{applied,estimate,sigma}`, `odometry_first_lidar_offset_{x_m,y_m,found}`
+of the last fit, `odometry_first_lidar_offset_{in_use_x_m,in_use_y_m,applied}`);
+`ekf/mounts` (PoseArray in
 `base_link`, latched) holds the same mounts, one pose per `lidar.topics` entry in that
 order, published again when an online estimate replaces one.
 
