@@ -404,9 +404,12 @@ class EventDriver:
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
         if nis and not at_rest:
             self.bias_watch.corrected(wrap_scalar(float(self.ekf.x[YAW] - prior[YAW])))
-            moved = self.odometry.observe(stamp_s, self.ekf.x.tolist())
-            if moved is not None:
-                self._first_lidar_moved(key, moved)
+            if tracker is None:
+                # The poses the first LiDAR holds (a second one's could carry its own
+                # mount error, which would be taken for the first's).
+                moved = self.odometry.observe(stamp_s, self.ekf.x.tolist())
+                if moved is not None:
+                    self._first_lidar_moved(key, moved)
         nis_sum = float(sum(nis))
         self._judged(key, self.health.record(key, stamp_s, points.shape[0], len(nis),
                                              nis_sum, float(bearing_sum), sensor))
