@@ -49,7 +49,7 @@ from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
-from gyro_ekf.core.odometry_online import OdometryTracker, midpoint_yaw
+from gyro_ekf.core.odometry_online import OdometrySettings, OdometryTracker, midpoint_yaw
 from gyro_ekf.core.types import YAW, FloatArray, LandmarkMap, LidarMount
 
 
@@ -95,7 +95,8 @@ class EventDriver:
         self.mounts = OnlineMounts(OnlineMountSettings(
             converged_yaw_sigma_rad=self.config.mount_online_yaw_sigma_rad))
         # The odometry's speed scale, estimated online (core/odometry_online.py).
-        self.odometry = OdometryTracker()
+        self.odometry = OdometryTracker(OdometrySettings(
+            min_change=self.config.odometry_online_min_change))
         self.odometry.start_at(self._trusted(pose))
         self._measured_speed_m_s = 0.0
         self.last_transition: Transition | None = None

@@ -91,7 +91,7 @@ class OdometrySettings:
             into the odometry path), which k and d would absorb.
         change_sigmas: a fit replaces the scale in use only when it differs by more than
             this many sigmas ...
-        min_change: ... and by more than this (relative) ...
+        min_change: ... and by more than this (relative) ... (0: the estimator is off)
         min_refinement: ... or, once a scale was applied, than this.
         offset_sigmas: the verdict names a first-LiDAR offset beyond this many sigmas ...
         offset_limit_m: ... and beyond this, m; such an offset is applied to the first
@@ -212,7 +212,7 @@ class OdometryTracker:
     def advance(self, dt_s: float, measured_speed_m_s: float, yaw_rad: float) -> None:
         """Add one prediction step to the odometry path: the measured speed along yaw."""
         step = measured_speed_m_s * dt_s
-        if step:
+        if step and self.enabled:
             self._dx += step * math.cos(yaw_rad)
             self._dy += step * math.sin(yaw_rad)
             self._distance += abs(step)
@@ -239,9 +239,14 @@ class OdometryTracker:
         else:
             del self._entries[end - self._dropped:]
 
+    @property
+    def enabled(self) -> bool:
+        """Whether the estimator runs (``min_change`` above 0)."""
+        return self.settings.min_change > 0.0
+
     def start_at(self, pose: FloatArray | None) -> None:
         """Check the first LiDAR against this start pose (None: the pose is not trusted)."""
-        self._start_pose = None if pose is None else (
+        self._start_pose = None if pose is None or not self.enabled else (
             float(pose[0]), float(pose[1]), float(pose[2]))
         self._start_points.clear()
         self._start_scans = 0
@@ -308,6 +313,8 @@ class OdometryTracker:
         Returns (x m, y m, sigma m) when a fit moved the first LiDAR's mount in use by x, y
         (body frame): the pose, drawn along with the LiDAR, is to move back by as much.
         """
+        if not self.enabled:
+            return None
         self._entries.append((stamp_s, self._dx, self._dy, self._distance,
                               pose[0], pose[1], pose[2]))
         settings = self.settings

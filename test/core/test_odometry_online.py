@@ -140,3 +140,17 @@ def test_save_and_restore_put_the_estimator_back_exactly():
     tracker.restore(saved)
     assert (feed(rows[1200:]), tracker.report()) == first
     assert tracker.scale == pytest.approx(1.03, abs=0.001)
+
+
+def test_the_estimator_is_off_at_zero():
+    import dataclasses
+
+    from gyro_ekf.core.config import EkfConfig
+    from gyro_ekf.io.params_file import PipelineParams
+    off = dataclasses.replace(PipelineParams(), ekf=dataclasses.replace(
+        EkfConfig(), odometry_online_min_change=0.0))
+    trip = simulate_trip(SimulationConfig(speed_scale_error=0.03, lidar_x_error_m=0.05), 3)
+    report = run_trip(trip, off).result.odometry.report()
+    assert report['applied'] == 0 and report['scale'] == 1.0 and report['fits'] == 0
+    assert report['first_lidar_offset_applied'] == 0
+    assert report['first_lidar_start_check'] is None
