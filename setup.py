@@ -43,6 +43,8 @@ setup(
                  'colcon-test-result', 'colcon-common-extensions'],
         'bench': ['filterpy'],
     },
+    # The Fast DDS writer profile of the node processes (nodes/runtime.py).
+    package_data={PACKAGE + '.nodes': ['fastdds_writer.xml']},
     zip_safe=True,
     maintainer='gyro_ekf developers',
     maintainer_email='dev@gyro-ekf.local',

@@ -50,6 +50,9 @@ def test_colcon_build_installs_the_ros_layout(workspace):
     assert (share / 'ament_index' / 'resource_index' / 'packages' / 'gyro_ekf').is_file()
     assert (share / 'gyro_ekf' / 'package.xml').is_file()
     assert list((share / 'gyro_ekf' / 'config').glob('*.yaml')), 'config/*.yaml not installed'
+    # The nodes' Fast DDS writer profile (nodes/runtime.py) is package data.
+    assert list(prefix.glob('lib/python*/site-packages/gyro_ekf/nodes/fastdds_writer.xml')), \
+        'gyro_ekf/nodes/fastdds_writer.xml not installed'
 
 
 def test_colcon_test_runs_the_package_tests(workspace):

@@ -191,7 +191,8 @@ def run_job(job: TripJob) -> dict[str, Any]:
                'nees_share_in_band': _finite(truth['nees_share_in_band']),
                'share_associated': _finite(summary['association']['share_associated']),
                'nis_mean': _finite(summary['nis']['mean']),
-               'bias_reopened': summary['online_bias']['reopened']}
+               'bias_reopened': summary['online_bias']['reopened'],
+               'gyro_noise_scale': summary['online_bias']['gyro_noise_scale']}
     # A figure that could not be computed (None) misses its bound.
     rmse, bias_error, nees = (figures[name] for name in BOUNDS)
     missed = [name for name, ok in (

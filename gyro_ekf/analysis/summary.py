@@ -111,7 +111,8 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'zero_rate_updates': int(run.result.stats.zero_rate_updates),
         'stops': int(run.result.stats.stops),
         'reopened': int(run.result.stats.bias_openings),
-        'largest_reopening_deg_s': _deg(float(run.result.stats.bias_largest_opening_rad_s))}
+        'largest_reopening_deg_s': _deg(float(run.result.stats.bias_largest_opening_rad_s)),
+        'gyro_noise_scale': float(run.result.stats.gyro_noise_scale)}
     # Where the trip is known to start static, the bias the zero-rate updates learned there.
     static_end = trip.start_s + trip.static_duration_s
     at_static_end = int(np.searchsorted(stamps, static_end, side='right')) - 1

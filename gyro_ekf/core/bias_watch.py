@@ -35,6 +35,8 @@ from __future__ import annotations
 import math
 from statistics import NormalDist
 
+from gyro_ekf.core.health import chi_square_upper
+
 BLOCK_S = 2.0
 """Length of a block of updates, s: long enough for a dozen scans' corrections to add up,
 short enough that a step in the bias is opened within a few seconds."""
@@ -43,11 +45,24 @@ WALK_WINDOW_S = 60.0
 """How far back the drifts found make the bias a random walk, s: a step opens it once and
 is forgotten after this long; a ramp opens it again and again and keeps it walking."""
 
+NOISE_BLOCKS = 10
+"""Blocks (20 s of driving) judged together: a slow drift, or a gyro noisier than stated."""
+
+NOISE_SIGNIFICANCE = 1e-3
+"""Chance that a window of a consistent filter's blocks is taken for a noisier gyro."""
+
+MAX_NOISE_SCALE = 100.0
+"""Largest factor on the gyro's stated noise variance (10 times its sigma)."""
+
 SIGNIFICANCE = 1e-5
 """Chance that a block of a consistent filter is taken for a drift (a 1-hour trip has 1800
 blocks: 0.02 false openings, each adding only the tiny db^2 of its block)."""
 
 _Z_LIMIT = NormalDist().inv_cdf(1.0 - SIGNIFICANCE / 2.0)
+_NOISE_HIGH = chi_square_upper(NOISE_SIGNIFICANCE, NOISE_BLOCKS) / NOISE_BLOCKS
+_NOISE_LOW = chi_square_upper(1.0 - NOISE_SIGNIFICANCE, NOISE_BLOCKS) / NOISE_BLOCKS
+_T_LIMIT = 4.781
+"""Student's t, 9 dof (NOISE_BLOCKS - 1), two-sided NOISE_SIGNIFICANCE."""
 
 
 class BiasWatch:
@@ -59,7 +74,8 @@ class BiasWatch:
     """
 
     __slots__ = ('_start_s', '_z_sum', '_variance', '_shared', '_correction_sum',
-                 'openings', 'last_error_rad_s', '_drifts', 'walk')
+                 'openings', 'last_error_rad_s', '_drifts', 'walk', '_blocks', 'noise_scale',
+                 '_start_yaw_variance')
 
     def __init__(self) -> None:
         """Start with no block open."""
@@ -74,6 +90,13 @@ class BiasWatch:
         # (stamp s, db^2) of the drifts of the last WALK_WINDOW_S.
         self._drifts: list[tuple[float, float]] = []
         self.walk = 0.0
+        # Z^2 of the last blocks that were no drift, and the factor they set on the gyro's
+        # noise variance.
+        # (Z^2, db, length, heading variance at its start, heading noise added) of the
+        # last blocks.
+        self._blocks: list[tuple[float, float, float, float, float]] = []
+        self._start_yaw_variance = 0.0
+        self.noise_scale = 1.0
 
     def copy(self) -> 'BiasWatch':
         """Return an independent duplicate, for the driver's save and restore."""
@@ -84,6 +107,8 @@ class BiasWatch:
         clone._correction_sum = self._correction_sum
         clone.openings, clone.last_error_rad_s = self.openings, self.last_error_rad_s
         clone._drifts, clone.walk = list(self._drifts), self.walk
+        clone._blocks, clone.noise_scale = list(self._blocks), self.noise_scale
+        clone._start_yaw_variance = self._start_yaw_variance
         return clone
 
     def pause(self) -> None:
@@ -121,7 +146,12 @@ class BiasWatch:
         if self._start_s is not None:
             self._correction_sum += yaw_correction_rad
 
-    def close(self, stamp_s: float) -> float | None:
+    def due(self, stamp_s: float) -> bool:
+        """Whether a scan at stamp_s closes the open block (``close`` would judge it)."""
+        return self._start_s is not None and stamp_s >= self._start_s + BLOCK_S
+
+    def close(self, stamp_s: float, bias_variance: float = 0.0, yaw_variance: float = 0.0,
+              heading_noise: float = 0.0) -> float | None:
         """Before a scan's updates: close the block if it is BLOCK_S old; return db^2 on a drift.
 
         The closed block holds the scans before this one; their corrections took back the
@@ -135,13 +165,69 @@ class BiasWatch:
         z = self._z_sum / math.sqrt(self._variance)
         error = -self._correction_sum / length
         self.pause()
-        drifted = length <= 2.0 * BLOCK_S and abs(z) > _Z_LIMIT
+        judged = length <= 2.0 * BLOCK_S
+        drifted = judged and abs(z) > _Z_LIMIT
+        if judged and not drifted:
+            # Not a drift of its own: maybe one of a slow drift's blocks, or a noisier gyro.
+            drifted = self._window(z, error, length, bias_variance, yaw_variance,
+                                   heading_noise)
+            if drifted:
+                error = self.last_error_rad_s
+        elif drifted:
+            self.last_error_rad_s = error
+            self._blocks.clear()
+        # The heading's variance where the next block starts (a window's first block).
+        self._start_yaw_variance = yaw_variance
         if drifted:
             self.openings += 1
-            self.last_error_rad_s = error
             self._drifts.append((stamp_s, error * error))
         # The bias moved by about db at each drift: sum(db^2) over the window is the
         # variance a random walk gains in that time.
         self._drifts = [d for d in self._drifts if d[0] > stamp_s - WALK_WINDOW_S]
         self.walk = sum(d[1] for d in self._drifts) / WALK_WINDOW_S
         return error * error if drifted else None
+
+    def _window(self, z: float, error: float, length: float, bias_variance: float,
+                yaw_variance: float, heading_noise: float) -> bool:
+        """Judge the last NOISE_BLOCKS blocks together; return True on a slow drift.
+
+        A bias that ramps, or steps by too little for one block to show, leaves blocks whose
+        implied errors db share a sign: their mean, against their own scatter (Student's t
+        with NOISE_BLOCKS - 1 dof), is a drift, of that mean, when it also lies beyond three
+        sigmas of what the filter already allows for: its bias error, its heading error at
+        the window's ends (the corrections take back the heading error's change too) and
+        the heading noise its predictions added over the window (the gyro's white noise).
+        Otherwise a window whose
+        mean Z^2 lies far from 1 scales the gyro's noise (covariance matching, Mehra): a
+        consistent filter's Z^2 has mean 1, and a gyro noisier at low frequencies than its
+        stated white noise (a bias that wanders over seconds) leaves blocks alike inside,
+        so their Z^2 is larger by about the factor by which the filter's heading noise is
+        too small. The stated rate variance is multiplied by it; a window below the lower
+        bound takes a factor back (never under 1). The window starts afresh at each change.
+        """
+        blocks = self._blocks
+        blocks.append((z * z, error, length, self._start_yaw_variance, heading_noise))
+        if len(blocks) < NOISE_BLOCKS:
+            return False
+        n = len(blocks)
+        mean_error = sum(b[1] for b in blocks) / n
+        spread = math.sqrt(sum((b[1] - mean_error) ** 2 for b in blocks) / (n - 1))
+        span = sum(b[2] for b in blocks)
+        allowed = bias_variance + (blocks[0][3] + yaw_variance
+                                   + sum(b[4] for b in blocks)) / (span * span)
+        if (abs(mean_error) > _T_LIMIT * spread / math.sqrt(n)
+                and mean_error * mean_error > 9.0 * allowed):
+            self.last_error_rad_s = mean_error
+            blocks.clear()
+            return True
+        mean = sum(b[0] for b in blocks) / n
+        blocks.pop(0)
+        if mean > _NOISE_HIGH:
+            scale = min(self.noise_scale * mean, MAX_NOISE_SCALE)
+        elif mean < _NOISE_LOW and self.noise_scale > 1.0:
+            scale = max(self.noise_scale * mean, 1.0)
+        else:
+            return False
+        self.noise_scale = scale
+        blocks.clear()
+        return False

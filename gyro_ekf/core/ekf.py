@@ -236,6 +236,8 @@ class GyroBiasEkf:
         # A random walk of the bias found in the data ((rad/s)^2 per s, core/bias_watch.py):
         # Q2 adds it times T to the bias, on top of the configured (q_b T)^2.
         self.bias_walk_found = 0.0
+        # A factor on the gyro's noise variance found in the data (core/bias_watch.py).
+        self.rate_noise_scale = 1.0
         self.reset(pose, bias_rad_s, covariance)
 
     # State: _s, a list of plain floats; covariance: _p, P's upper triangle (see _UPPER).
@@ -349,6 +351,15 @@ class GyroBiasEkf:
             self._p[_PACKED[i, BIAS]] = 0.0
         self._p[_PACKED[BIAS, BIAS]] = float(sigma_rad_s) ** 2
 
+    @property
+    def gyro_variance(self) -> float:
+        """The configured gyro noise variance sigma_w^2, (rad/s)^2."""
+        return self._sigma_w2
+
+    def add_heading_variance(self, variance: float) -> None:
+        """Add ``variance`` (rad^2) to the heading's: an error the prediction did not model."""
+        self._p[_PACKED[YAW, YAW]] += float(variance)
+
     def open_bias(self, variance: float) -> None:
         """Add ``variance`` ((rad/s)^2) to the bias variance: the bias is less known than P says.
 
@@ -373,7 +384,8 @@ class GyroBiasEkf:
         self._s, self._p = self._maths.predict(
             self._s, self._p, float(speed_m_s), float(rate_rad_s), float(dt_s),
             self._sigma_v2 if speed_variance is None else speed_variance,
-            self._sigma_w2 if rate_variance is None else rate_variance,
+            (self._sigma_w2 if rate_variance is None else rate_variance)
+            * self.rate_noise_scale,
             self._q_pos2, self._q_b2 + self.bias_walk_found / dt_s, hold_position)
 
     def update_zero_rate(self, rate_rad_s: float, variance: float) -> float:

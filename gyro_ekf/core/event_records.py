@@ -98,6 +98,8 @@ class DriverStats:
         bias_openings: blocks of landmark updates whose heading drift re-opened the bias
             (core/bias_watch.py).
         bias_largest_opening_rad_s: the largest bias error such a drift implied, rad/s.
+        gyro_noise_scale: the factor on the gyro's noise variance the innovations asked for
+            (1: as stated).
     """
 
     imu: int = 0
@@ -119,6 +121,7 @@ class DriverStats:
     stops: int = 0
     bias_openings: int = 0
     bias_largest_opening_rad_s: float = 0.0
+    gyro_noise_scale: float = 1.0
 
     @property
     def mean_nis(self) -> float:
@@ -137,4 +140,5 @@ class DriverStats:
                 'excluded': self.excluded, 'unmapped': self.unmapped,
                 'zero_rate_updates': self.zero_rate_updates,
                 'stops': self.stops, 'bias_openings': self.bias_openings,
-                'bias_largest_opening_rad_s': self.bias_largest_opening_rad_s}
+                'bias_largest_opening_rad_s': self.bias_largest_opening_rad_s,
+                'gyro_noise_scale': self.gyro_noise_scale}

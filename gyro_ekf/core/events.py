@@ -47,10 +47,11 @@ from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
+from gyro_ekf.core.held_rate import HeldRate
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
 from gyro_ekf.core.odometry_online import OdometrySettings, OdometryTracker, midpoint_yaw
-from gyro_ekf.core.types import YAW, FloatArray, LandmarkMap, LidarMount
+from gyro_ekf.core.types import BIAS, YAW, FloatArray, LandmarkMap, LidarMount
 
 
 _NO_NIS = np.zeros(0)
@@ -92,6 +93,7 @@ class EventDriver:
         self.stats = DriverStats()
         self.health = HealthMonitor(self.config)
         self.bias_watch = BiasWatch()
+        self.held_rate = HeldRate()
         self.mounts = OnlineMounts(OnlineMountSettings(
             converged_yaw_sigma_rad=self.config.mount_online_yaw_sigma_rad))
         # The odometry's speed scale, estimated online (core/odometry_online.py).
@@ -107,6 +109,9 @@ class EventDriver:
         # The held inputs' own variances (None: the configured noise).
         self.speed_variance: float | None = None
         self.rate_variance: float | None = None
+        # Stamp of the held yaw rate's sample: its age is what a gap may have changed.
+        self._rate_stamp_s: float | None = None
+        self._heading_noise = 0.0
         self._first_scan_s: float | None = None
         self._end_stop()
 
@@ -136,6 +141,9 @@ class EventDriver:
         self.stats = DriverStats()
         self.health = HealthMonitor(self.config)
         self.bias_watch = BiasWatch()
+        self.held_rate = HeldRate()
+        self._rate_stamp_s = None
+        self._heading_noise = 0.0
         self.mounts.reset()
         self.odometry.reset()
         self.odometry.start_at(self._trusted(pose))
@@ -172,16 +180,20 @@ class EventDriver:
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
                  self.zero_rate), self.mounts.save(), self.bias_watch.copy(),
+                self.held_rate.save(), self._rate_stamp_s, self._heading_noise,
                 (self.odometry.save(), self._measured_speed_m_s))
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
         (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self.speed_variance,
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
-         watch, (odometry, self._measured_speed_m_s)) = saved
+         watch, held, self._rate_stamp_s, self._heading_noise,
+         (odometry, self._measured_speed_m_s)) = saved
+        self.held_rate.restore(held)
         self.odometry.restore(odometry)
         self.bias_watch = watch.copy()
         self.ekf.bias_walk_found = self.bias_watch.walk
+        self.ekf.rate_noise_scale = self.bias_watch.noise_scale
         self.mounts.restore(mounts)
         (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
          self.zero_rate) = stop
@@ -211,10 +223,22 @@ class EventDriver:
         speed_variance, rate_variance = self.speed_variance, self.rate_variance
         hold = self.zero_rate
         yaw, total_s = float(self.ekf.x[YAW]), dt_s
+        # The heading noise the predictions add, sum of T^2 sigma_w^2 (the bias watch weighs
+        # a slow drift against it).
+        noise = self.ekf.rate_noise_scale * (self.ekf.gyro_variance if rate_variance is None
+                                             else rate_variance)
         while dt_s > step:
             self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance, hold)
+            self._heading_noise += step * step * noise
             dt_s -= step
         self.ekf.predict(self.speed_m_s, rate, dt_s, speed_variance, rate_variance, hold)
+        self._heading_noise += dt_s * dt_s * noise
+        if self._rate_stamp_s is not None:
+            # The held rate grows stale: what the platform may have turned meanwhile.
+            variance = self.held_rate.heading_variance(self.stamp_s - self._rate_stamp_s,
+                                                       stamp_s - self._rate_stamp_s)
+            if variance:
+                self.ekf.add_heading_variance(variance)
         self.stamp_s = stamp_s
         if self._measured_speed_m_s and not hold:
             self.odometry.advance(total_s, self._measured_speed_m_s,
@@ -258,6 +282,8 @@ class EventDriver:
         self._advance(stamp_s, 'imu')
         self.rate_rad_s = yaw_rate_rad_s
         self.rate_variance = variance
+        self._rate_stamp_s = stamp_s
+        self.held_rate.sample(stamp_s, yaw_rate_rad_s)
         self.stats.imu += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
@@ -450,9 +476,16 @@ class EventDriver:
         if at_rest:
             # Zero-rate updates learn the bias at rest; repeated looks are not a drift.
             watch.pause()
+            self._heading_noise = 0.0
             return
-        variance = watch.close(stamp_s)
+        if not watch.due(stamp_s):
+            return
+        P = self.ekf.P
+        variance = watch.close(stamp_s, float(P[BIAS, BIAS]), float(P[YAW, YAW]),
+                               self._heading_noise)
+        self._heading_noise = 0.0
         self.ekf.bias_walk_found = watch.walk
+        self.ekf.rate_noise_scale = self.stats.gyro_noise_scale = watch.noise_scale
         if variance is not None:
             self.ekf.open_bias(variance)
             self.stats.bias_openings += 1

@@ -631,9 +631,13 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
         add(DEGRADED, f'the filter was reset {figures.resets} time(s)')
     for stream, gap in figures.input_gaps_s.items():
         if gap > figures.input_gap_limit_s:
+            # The gyro's hold grows the heading variance by the yaw acceleration it has
+            # seen (core/held_rate.py); the odometry's keeps the noise of one sample.
+            held = ('its last value was held over the gap, the heading variance grown by '
+                    'the yaw acceleration seen' if stream == 'gyro' else
+                    'its last value was held over the gap with the noise of one sample')
             add(DEGRADED, f'{stream} silent for {gap:.2f} s, longer than the longest '
-                f'prediction step {figures.input_gap_limit_s:g} s: its last value was held '
-                f'over the gap with the noise of one sample')
+                f'prediction step {figures.input_gap_limit_s:g} s: {held}')
     if figures.bias_openings:
         # The filter followed it, but its bias is then only as old as the last change: a
         # gyro whose bias moves is worth knowing about, and the final figure is less sure.

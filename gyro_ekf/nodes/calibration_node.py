@@ -101,6 +101,11 @@ class CalibrationNode(Node):
         # Serialized I/O (nodes/wire.py): the IMU read from its bytes and imu/corrected
         # patched into them; the same numbers as rclpy messages, a fraction of the CPU.
         self._serialized = wire.serialized_io()
+        self._send_corrected, self._corrected_readers = (
+            wire.raw_publisher(self._corrected_pub) if self._serialized else
+            (self._corrected_pub.publish, self._corrected_pub.get_subscription_count))
+        self._max_rate = self._limits.max_yaw_rate_rad_s
+        self._bias_floats = (0.0, 0.0, 0.0)  # result.bias_rad_s as floats, once calibrated
         if self._serialized:
             self.create_subscription(Imu, topics.IMU, self._on_imu_bytes,
                                      qos.sensor_input(lossless), raw=True)
@@ -159,6 +164,9 @@ class CalibrationNode(Node):
                        lambda bias: corrected_imu(message, bias))
 
     def _on_imu_bytes(self, data: bytes) -> None:
+        if self.result is not None:
+            self._correct_imu_bytes(data)
+            return
         try:
             sample = wire.decode_imu(data)
         except wire.WireError as err:
@@ -166,6 +174,32 @@ class CalibrationNode(Node):
             return
         self._take_imu(sample.stamp, sample.frame_id, sample.rates, sample.covariance,
                        lambda bias: wire.corrected_imu(sample, bias))
+
+    def _correct_imu_bytes(self, data: bytes) -> None:
+        """After the window: check an IMU message and publish it corrected, from its bytes.
+
+        _take_imu's checks and counts without its objects: the message is read with
+        wire.imu_rates and imu/corrected is a copy of its bytes with the rates patched.
+        """
+        try:
+            data, sec, nanosec, at, x, y, z = wire.imu_rates(data)
+        except wire.WireError as err:
+            self._drop('malformed', f'{topics.IMU}: {err}')
+            return
+        ns = sec * 1_000_000_000 + nanosec  # conversions.stamp_ns
+        limit = self._max_rate
+        # The comparisons are the fast path (NaN fails them too); _usable says why.
+        if not (ns and -limit <= x <= limit and -limit <= y <= limit and -limit <= z <= limit):
+            problem = next((p for p in (rate_problem(r, self._limits) for r in (x, y, z)) if p),
+                           None)
+            if not self._usable(ns, problem):
+                return
+        self._imu_count += 1
+        # Building the corrected copy costs more than the callback; skip it unheard.
+        if self._corrected_readers():
+            bx, by, bz = self._bias_floats
+            self._send_corrected(wire.patched_imu(data, at, x - bx, y - by, z - bz))
+            self._corrected_count += 1
 
     def _take_imu(self, stamp, frame_id: str, rates: tuple[float, float, float],
                   covariance: tuple[float, float, float], corrected) -> None:
@@ -180,8 +214,8 @@ class CalibrationNode(Node):
         self._imu_count += 1
         if self.result is not None:
             # Building the corrected copy costs more than the callback; skip it unheard.
-            if self._corrected_pub.get_subscription_count():
-                self._corrected_pub.publish(corrected(self.result.bias_rad_s))
+            if self._corrected_readers():
+                self._send_corrected(corrected(self.result.bias_rad_s))
                 self._corrected_count += 1
             return
         self._offer('imu', ns, (rates, (stamp, frame_id, covariance)))
@@ -219,6 +253,7 @@ class CalibrationNode(Node):
 
     def _accept(self, result: BiasEstimate, message: tuple) -> None:
         self.result = result
+        self._bias_floats = tuple(float(b) for b in result.bias_rad_s)
         if self._odom_sub is not None:
             # Speed only matters while collecting; stop paying for its callbacks.
             self.destroy_subscription(self._odom_sub)

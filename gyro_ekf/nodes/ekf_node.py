@@ -84,7 +84,6 @@ import math
 import time
 
 import numpy as np
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseArray, PoseWithCovarianceStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
@@ -314,6 +313,15 @@ class EkfNode(Node):
         self._landmark_markers_pub = self.create_publisher(
             MarkerArray, topics.LANDMARK_MARKERS, qos.LATCHED)
         self._tf_pub = self._tf_publisher() if publish_tf else None
+        # Per estimate: the publishers' C++ methods on the serialized path (wire.raw_publisher).
+        senders = (wire.raw_publisher if self._serialized
+                   else lambda p: (p.publish, p.get_subscription_count))
+        self._send_pose, _ = senders(self._pose_pub)
+        self._send_odometry, self._odometry_readers = senders(self._odometry_pub)
+        self._send_bias, self._bias_readers = senders(self._bias_pub)
+        self._send_imu, self._imu_readers = senders(self._imu_pub)
+        # write() hands out its reused buffers (published before the next estimate).
+        self._fill = self._messages.write if self._serialized else self._messages.fill
         if landmarks is not None:
             self._publish_landmark_markers(landmarks)
         # The LiDAR mounts in use, latched: one pose in base_link per lidar.topics entry,
@@ -370,46 +378,57 @@ class EkfNode(Node):
         return True
 
     def _on_imu(self, message: Imu) -> None:
-        self._take_imu(message.header.stamp, message.header.frame_id,
-                       float(message.angular_velocity.z), message.angular_velocity_covariance[8],
-                       lambda bias, variance: online_corrected_imu(message, bias, variance))
+        if not self._imu_usable(float(message.angular_velocity.z), message.header.frame_id):
+            return
+        # Corrected at once with the newest bias (it moves slowly), not after the merger.
+        estimate = self._last_estimate
+        if estimate is not None and self._imu_readers():
+            self._send_imu(online_corrected_imu(message, float(estimate.state[3]),
+                                                float(estimate.covariance[3, 3])))
+        self._queue_imu(stamp_ns(message.header.stamp), float(message.angular_velocity.z),
+                        message.angular_velocity_covariance[8])
 
     def _on_imu_bytes(self, data: bytes) -> None:
+        # Plain tuples and no closure: this runs for every IMU message (nodes/wire.py).
         try:
-            sample = wire.decode_imu(data)
+            data, sec, nanosec, frame_id, at, rate, covariance0, covariance8 = \
+                wire.imu_yaw(data)
         except wire.WireError as err:
             self._received['imu'] += 1
             self._drop('malformed', f'{topics.IMU}: {err}')
             return
-        self._take_imu(sample.stamp, sample.frame_id, sample.rates[2], sample.covariance[2],
-                       lambda bias, variance: wire.corrected_imu(sample, (0.0, 0.0, bias),
-                                                                 variance))
+        if not self._imu_usable(rate, frame_id):
+            return
+        estimate = self._last_estimate
+        if estimate is not None and self._imu_readers():
+            bias, variance = float(estimate.state[3]), float(estimate.covariance[3, 3])
+            self._send_imu(wire.patched_yaw_rate(
+                data, at, rate - bias, wire.online_variance(covariance0, covariance8, variance)))
+        self._queue_imu(sec * 1_000_000_000 + nanosec, rate, covariance8)
 
-    def _take_imu(self, stamp, frame_id: str, rate: float, rate_variance: float,
-                  corrected) -> None:
-        """Check and queue an IMU sample (either path); corrected(bias, variance) is ekf/imu."""
+    def _imu_usable(self, rate: float, frame_id: str) -> bool:
+        """Count an IMU sample (either path), check its yaw rate, follow its frame."""
         self._received['imu'] += 1
         # The comparison is the fast path (NaN fails it too); the check says why.
         if not -self._max_rate <= rate <= self._max_rate and self._refuse(
                 rate_problem(rate, self._limits), 'imu yaw rate'):
-            return
+            return False
         if self._messages.bias_frame != frame_id:
             # The bias is the IMU's: ekf/bias is in its frame, live and offline.
             self._messages.bias_frame = frame_id or topics.IMU_FRAME
-        # Corrected at once with the newest bias (it moves slowly), not after the merger.
-        estimate = self._last_estimate
-        if estimate is not None and self._imu_pub.get_subscription_count():
-            self._imu_pub.publish(corrected(float(estimate.state[3]),
-                                            float(estimate.covariance[3, 3])))
+        return True
+
+    def _queue_imu(self, ns: int, rate: float, rate_variance: float) -> None:
+        """Queue a checked IMU sample (either path); rate_variance: covariance[8]."""
         variance = None
         if self._use_message_covariance:
             variance = self._variance(rate_variance, self._max_rate,
                                       'imu angular_velocity_covariance[8]')
-        self._push(stamp, EventKind.IMU, (rate, variance), 'imu', 'imu')
+        self._push(ns, EventKind.IMU, (rate, variance), 'imu', 'imu')
 
     def _on_odom(self, message: Odometry) -> None:
         pose = message.pose.pose
-        self._take_odom(message.header.stamp, odometry_speed(message),
+        self._take_odom(stamp_ns(message.header.stamp), odometry_speed(message),
                         message.twist.covariance[0],
                         lambda: (float(pose.position.x), float(pose.position.y),
                                  quaternion_yaw(pose.orientation)))
@@ -422,10 +441,10 @@ class EkfNode(Node):
             self._drop('malformed', f'{topics.ODOM}: {err}')
             return
         pose = sample.pose
-        self._take_odom(sample.stamp, sample.speed_m_s, sample.speed_variance,
+        self._take_odom(stamp_ns(sample.stamp), sample.speed_m_s, sample.speed_variance,
                         lambda: (pose[0], pose[1], yaw_of_quaternion(*pose[3:])))
 
-    def _take_odom(self, stamp, speed: float, speed_variance: float, odom_pose) -> None:
+    def _take_odom(self, ns: int, speed: float, speed_variance: float, odom_pose) -> None:
         """Check and queue a speed sample (either path); odom_pose() is (x m, y m, yaw rad)."""
         self._received['odom'] += 1
         if not -self._max_speed <= speed <= self._max_speed and self._refuse(
@@ -437,7 +456,7 @@ class EkfNode(Node):
         if self._use_message_covariance:
             variance = self._variance(speed_variance, self._max_speed,
                                       'odom twist.covariance[0]')
-        self._push(stamp, EventKind.SPEED, (speed, variance), 'odom', 'odom')
+        self._push(ns, EventKind.SPEED, (speed, variance), 'odom', 'odom')
 
     def _variance(self, value: float, limit: float, what: str) -> float | None:
         """Return the message's own variance, or None (the configured noise); count a bad one."""
@@ -459,8 +478,8 @@ class EkfNode(Node):
         if self._refuse(coordinate_problem(points.ravel().tolist(), self._limits),
                         'landmarks hold a bad point'):
             return
-        self._push(message.header.stamp, EventKind.OBSERVATION, (points, mount), 'landmarks',
-                   message.header.frame_id)
+        self._push(stamp_ns(message.header.stamp), EventKind.OBSERVATION, (points, mount),
+                   'landmarks', message.header.frame_id)
 
     def _observe_lagged(self, stamp_s: float, points: np.ndarray, mount: LidarMount) -> None:
         # Not an input that ends the idle wait: held scans wait for the speed and IMU
@@ -475,14 +494,6 @@ class EkfNode(Node):
             behind_s = 0.0 if filter_s is None else filter_s - stamp_s
             self._drop('late', f'landmarks stamp {behind_s:.3f} s behind the filter, older '
                        'than late_observation_history_s or than a pose, bias or map change')
-
-    def _stamp_ns(self, stamp: Time, what: str) -> int | None:
-        """Return the stamp in ns, or None (dropped and counted) when it is zero."""
-        ns = stamp_ns(stamp)
-        if ns == 0:
-            self._drop('zero_stamp', f'{what} message with a zero stamp')
-            return None
-        return ns
 
     def _observation_refused(self, stamp_s: float, err: CoreError) -> None:
         self._drop('filter_error', f'the filter refused the observation at {stamp_s:.3f} s: '
@@ -501,12 +512,13 @@ class EkfNode(Node):
                        f'are {known}')
         return mount
 
-    def _push(self, stamp: Time, kind: EventKind, value, what: str, stream: str) -> None:
+    def _push(self, ns: int, kind: EventKind, value, what: str, stream: str) -> None:
+        """Queue a checked message of stamp ns (dropped and counted when the stamp is 0)."""
         if kind is not EventKind.OBSERVATION or self._lagged is None:
             self._last_input = time.monotonic()
         self._reported_quiet = False
-        ns = self._stamp_ns(stamp, what)
-        if ns is None:
+        if ns == 0:
+            self._drop('zero_stamp', f'{what} message with a zero stamp')
             return
         self._offer(stream, self._origin.seconds(ns), (kind, ns, value, what))
 
@@ -576,14 +588,14 @@ class EkfNode(Node):
                            f'{err}')
 
     def _publish(self, estimate: Estimate, ns: int) -> None:
-        pose, odometry, bias = self._messages.fill(estimate, ns)
-        self._pose_pub.publish(pose)
+        pose, odometry, bias = self._fill(estimate, ns)
+        self._send_pose(pose)
         # Publishing costs more CPU than the filter step: skip outputs nobody reads.
-        if self._odometry_pub.get_subscription_count():
-            self._odometry_pub.publish(odometry)
-        if self._bias_pub.get_subscription_count():
-            self._bias_pub.publish(bias)
-        x, y, yaw = (float(v) for v in estimate.state[:3])
+        if self._odometry_readers():
+            self._send_odometry(odometry)
+        if self._bias_readers():
+            self._send_bias(bias)
+        x, y, yaw, _ = estimate.state.tolist()
         self._path.add(ns, x, y, yaw)
         if self._tf_pub is not None and self._tf_pub.get_subscription_count():
             t = visuals.tf_transform((x, y, yaw), self._map_frame, self._base_frame,
@@ -813,6 +825,7 @@ class EkfNode(Node):
             'excluded_detections': str(stats.excluded),
             'zero_rate_updates': str(stats.zero_rate_updates),
             'bias_reopened': str(stats.bias_openings),
+            'gyro_noise_scale': f'{stats.gyro_noise_scale:.3f}',
             'standing_still': str(self.driver.zero_rate).lower(),
         }
         verdict = self._verdict(since)

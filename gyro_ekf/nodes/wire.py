@@ -34,7 +34,6 @@ from sensor_msgs.msg import Imu, LaserScan
 
 from gyro_ekf.core.angles import quaternion_of_yaw
 from gyro_ekf.core.event_records import Estimate
-from gyro_ekf.core.stamps import split_ns
 from gyro_ekf.errors import GyroEkfError
 
 NODE_IO_VARIABLE = 'GYRO_EKF_NODE_IO'
@@ -50,13 +49,27 @@ _3D = struct.Struct('<3d')
 _STAMP = struct.Struct('<iI')
 _IMU_RATES = struct.Struct('<12d')  # angular_velocity, angular_velocity_covariance
 _SCAN_FIELDS = struct.Struct('<7fI')  # angle_min .. range_max, ranges count
-_POSE_BODY = struct.Struct('<43d')  # position, orientation, 6x6 covariance
 _ODOM_POSE = struct.Struct('<7d')  # position, orientation
-_TWIST_BODY = struct.Struct('<42d')  # linear, angular, 6x6 covariance
 _POSE_BYTES = 8 * 43
 # Flat indices of x, y, yaw rows and columns in a ROS 6x6 pose covariance.
 _POSE_COVARIANCE_INDEX = (0, 1, 5, 6, 7, 11, 30, 31, 35)
+
+
+def _sparse(count: int, written: tuple[int, ...]) -> struct.Struct:
+    """Struct of `count` doubles that writes those at `written` and zero bytes elsewhere.
+
+    The outputs' other covariance entries are always zero, so writing zeros over them
+    packs one message with one call instead of building a list of every entry.
+    """
+    return struct.Struct('<' + ''.join('d' if i in written else '8x' for i in range(count)))
+
+
+# position, orientation and the x, y, yaw block of the 6x6 pose covariance
+_POSE_SPARSE = _sparse(43, tuple(range(7)) + tuple(7 + i for i in _POSE_COVARIANCE_INDEX))
+# twist linear.x, angular.z and the covariance's linear.x and angular.z variances
+_TWIST_SPARSE = _sparse(42, (0, 5, 6, 41))
 _IMU_AV = 8 * 13  # angular_velocity after orientation (4) and its covariance (9)
+_IMU_COVARIANCE8 = 8 * 3 + 8 * 8  # angular_velocity_covariance[8] after angular_velocity
 
 
 def _ends_at(data: bytes, end: int) -> None:
@@ -96,6 +109,18 @@ def executor(context: Any = None) -> Any:
         return None
     from rclpy.experimental import EventsExecutor
     return EventsExecutor(context=context)
+
+
+def raw_publisher(publisher: Any) -> tuple[Any, Any]:
+    """(publish, subscription_count) of an rclpy Publisher, without its Python wrapper.
+
+    Publisher.publish and get_subscription_count enter the handle's context and check the
+    type on every call (about a microsecond); these are its C++ methods themselves. publish
+    takes bytes or a bytearray of CDR. For a publisher that lives as long as the node (the
+    executor is single-threaded, so nothing destroys it during a call).
+    """
+    handle = publisher.handle
+    return handle.publish_raw, handle.get_subscription_count
 
 
 class Stamp(NamedTuple):
@@ -194,6 +219,85 @@ def decode_imu(data: bytes) -> ImuSample:
     return _decoded(_imu, data, Imu)
 
 
+def _imu_rates(data: bytes) -> tuple:
+    sec, nanosec, end = _header(data)
+    at = _align8(end) + _IMU_AV
+    _ends_at(data, at + 8 * 24)
+    return (data, sec, nanosec, at, *_3D.unpack_from(data, at))
+
+
+def imu_rates(data: bytes) -> tuple[bytes, int, int, int, float, float, float]:
+    """Read a sensor_msgs/Imu's stamp and angular_velocity, without building objects.
+
+    Returns:
+        (data, sec, nanosec, at, x, y, z): data is the bytes read (the canonical copy when
+        the given ones are not little endian or not as rclpy lays them out), at the byte
+        offset of angular_velocity in them, x, y, z its values (rad/s).
+
+    Raises:
+        WireError: the bytes are not an Imu message.
+    """
+    return _decoded(_imu_rates, data, Imu)
+
+
+def _imu_yaw(data: bytes) -> tuple:
+    sec, nanosec, end = _header(data)
+    at = _align8(end) + _IMU_AV
+    _ends_at(data, at + 8 * 24)
+    values = _IMU_RATES.unpack_from(data, at)
+    return (data, sec, nanosec, data[16:end - 1].decode('utf-8'), at, values[2], values[3],
+            values[11])
+
+
+def imu_yaw(data: bytes) -> tuple[bytes, int, int, str, int, float, float, float]:
+    """Read what ekf_node uses of a sensor_msgs/Imu, without building objects.
+
+    Returns:
+        (data, sec, nanosec, frame_id, at, z, covariance0, covariance8): data and at as
+        imu_rates returns them; z = angular_velocity.z, covariance0 and covariance8 =
+        angular_velocity_covariance[0] and [8].
+
+    Raises:
+        WireError: the bytes are not an Imu message.
+    """
+    return _decoded(_imu_yaw, data, Imu)
+
+
+def patched_imu(data: bytes, at: int, x: float, y: float, z: float,
+                variance: float | None = None) -> bytearray:
+    """Copy of Imu bytes with angular_velocity (x, y, z) and, unless None, covariance[8].
+
+    data and at as imu_rates returns them; the rest of the message is the input's, byte for
+    byte (what rclpy would serialize from the deserialized message with those fields set).
+    """
+    out = bytearray(data)
+    _3D.pack_into(out, at, x, y, z)
+    if variance is not None:
+        _D.pack_into(out, at + _IMU_COVARIANCE8, variance)
+    return out
+
+
+def patched_yaw_rate(data: bytes, at: int, z: float, variance: float | None = None
+                     ) -> bytearray:
+    """patched_imu that keeps angular_velocity x and y (ekf/imu corrects only z)."""
+    out = bytearray(data)
+    _D.pack_into(out, at + 16, z)
+    if variance is not None:
+        _D.pack_into(out, at + _IMU_COVARIANCE8, variance)
+    return out
+
+
+def online_variance(covariance0: float, covariance8: float, added_variance: float
+                    ) -> float | None:
+    """angular_velocity_covariance[8] of ekf/imu (conversions.online_corrected_imu's rule).
+
+    None: the covariance is marked unknown (covariance[0] == -1) and stays as it is.
+    """
+    if covariance0 == -1.0:
+        return None
+    return max(covariance8, 0.0) + added_variance
+
+
 def corrected_imu(sample: ImuSample, bias_rad_s: Sequence[float],
                   added_variance: float | None = None) -> bytes:
     """Copy an Imu message with the bias removed from its rates, as CDR bytes.
@@ -207,7 +311,8 @@ def corrected_imu(sample: ImuSample, bias_rad_s: Sequence[float],
     (x, y, z), (bx, by, bz) = sample.rates, bias_rad_s
     _3D.pack_into(out, at, x - float(bx), y - float(by), z - float(bz))
     if added_variance is not None and sample.covariance[0] != -1.0:
-        _D.pack_into(out, at + 24 + 64, max(sample.covariance[2], 0.0) + added_variance)
+        _D.pack_into(out, at + _IMU_COVARIANCE8,
+                     max(sample.covariance[2], 0.0) + added_variance)
     return bytes(out)
 
 
@@ -339,9 +444,6 @@ class EstimateWire:
         self._bias = bytearray()
         self._bias_at = 0
         self.bias_frame = base_frame
-        self._covariance = [0.0] * 36
-        self._twist = [0.0] * 42
-        self._twist[6] = self._speed_variance
 
     @property
     def bias_frame(self) -> str:
@@ -359,26 +461,33 @@ class EstimateWire:
 
     def fill(self, estimate: Estimate, stamp_ns: int) -> tuple[bytes, bytes, bytes]:
         """CDR of PoseWithCovarianceStamped, Odometry and Vector3Stamped of one estimate."""
-        sec, nanosec = split_ns(stamp_ns)
+        return tuple(bytes(data) for data in self.write(estimate, stamp_ns))
+
+    def write(self, estimate: Estimate, stamp_ns: int
+              ) -> tuple[bytearray, bytearray, bytearray]:
+        """Write one estimate into the templates and return them (as fill, without copies).
+
+        The returned buffers are overwritten by the next call: publish them before.
+        """
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)  # core.stamps.split_ns
         x, y, yaw, bias = estimate.state.tolist()
         _, _, qz, qw = quaternion_of_yaw(yaw)
-        covariance = self._covariance
-        for index, value in zip(_POSE_COVARIANCE_INDEX,
-                                estimate.covariance[:3, :3].ravel().tolist()):
-            covariance[index] = value
-        pose_values = (x, y, 0.0, 0.0, 0.0, qz, qw, *covariance)
-        _STAMP.pack_into(self._pose, 4, sec, nanosec)
-        _POSE_BODY.pack_into(self._pose, self._pose_at, *pose_values)
-        twist = self._twist
-        twist[0] = float(estimate.speed_m_s)
-        twist[5] = float(estimate.yaw_rate_rad_s)
-        twist[41] = self._gyro_variance + float(estimate.covariance[3, 3])
-        _STAMP.pack_into(self._odometry, 4, sec, nanosec)
-        _POSE_BODY.pack_into(self._odometry, self._odometry_at, *pose_values)
-        _TWIST_BODY.pack_into(self._odometry, self._odometry_at + _POSE_BYTES, *twist)
-        _STAMP.pack_into(self._bias, 4, sec, nanosec)
-        _D.pack_into(self._bias, self._bias_at + 16, bias)
-        return bytes(self._pose), bytes(self._odometry), bytes(self._bias)
+        (pxx, pxy, pxt, _), (pyx, pyy, pyt, _), (ptx, pty, ptt, _), (_, _, _, pbb) = \
+            estimate.covariance.tolist()
+        pose, odometry, bias_bytes = self._pose, self._odometry, self._bias
+        _STAMP.pack_into(pose, 4, sec, nanosec)
+        _POSE_SPARSE.pack_into(pose, self._pose_at, x, y, 0.0, 0.0, 0.0, qz, qw,
+                               pxx, pxy, pxt, pyx, pyy, pyt, ptx, pty, ptt)
+        _STAMP.pack_into(odometry, 4, sec, nanosec)
+        at = self._odometry_at
+        _POSE_SPARSE.pack_into(odometry, at, x, y, 0.0, 0.0, 0.0, qz, qw,
+                               pxx, pxy, pxt, pyx, pyy, pyt, ptx, pty, ptt)
+        _TWIST_SPARSE.pack_into(odometry, at + _POSE_BYTES, float(estimate.speed_m_s),
+                                float(estimate.yaw_rate_rad_s), self._speed_variance,
+                                self._gyro_variance + pbb)
+        _STAMP.pack_into(bias_bytes, 4, sec, nanosec)
+        _D.pack_into(bias_bytes, self._bias_at + 16, bias)
+        return pose, odometry, bias_bytes
 
 
 def pose_array_points(data: bytes) -> tuple[Stamp, str, np.ndarray]:
@@ -399,4 +508,5 @@ def pose_array_points(data: bytes) -> tuple[Stamp, str, np.ndarray]:
 __all__ = ['EstimateWire', 'ImuSample', 'NODE_IO_CHOICES', 'NODE_IO_VARIABLE',
            'OdometrySample', 'ScanSample', 'Stamp', 'WireError', 'canonical',
            'corrected_imu', 'decode_imu', 'decode_odometry', 'decode_scan', 'executor',
-           'node_io', 'points_bytes', 'pose_array_points', 'serialized_io']
+           'imu_rates', 'imu_yaw', 'node_io', 'online_variance', 'patched_imu', 'patched_yaw_rate',
+           'points_bytes', 'pose_array_points', 'raw_publisher', 'serialized_io']

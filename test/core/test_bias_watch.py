@@ -129,3 +129,50 @@ def test_a_clean_trip_never_opens_the_bias():
     _, run, summary = _run()
     assert run.result.stats.bias_openings == 0
     assert summary['health']['verdict'] == 'ok', summary['health']['reasons']
+
+
+def test_a_slow_drift_no_block_shows_alone_is_found_by_the_window():
+    # 0.03 deg/s: each block's innovations lean the same way by too little for its own
+    # test, but the window's ten implied errors share a sign beyond their scatter.
+    error = math.radians(0.03)
+    watch = BiasWatch()
+    openings = _feed(watch, 60.0, bearing_mean_rad=-0.1 * math.sqrt(S_BB), drift_rad_s=error)
+    assert openings, 'a slow drift of 0.03 deg/s was not seen'
+    assert watch.last_error_rad_s == pytest.approx(error, rel=0.3)
+    # Already known: a bias sigma that covers it opens nothing.
+    known = BiasWatch()
+    for k in range(600):
+        stamp = k / SCANS_PER_S
+        if known.due(stamp):
+            assert known.close(stamp, bias_variance=error ** 2) is None
+        known.add(stamp, -0.1 * math.sqrt(S_BB), S_BB)
+        known.corrected(-error / SCANS_PER_S)
+    assert known.openings == 0
+
+
+def _wandering(watch, seconds, block_sigma, seed=0):
+    """Innovations alike within each block, their common part of either sign block to block."""
+    rng = np.random.default_rng(seed)
+    offset = 0.0
+    for k in range(int(seconds * SCANS_PER_S)):
+        stamp = k / SCANS_PER_S
+        if watch.due(stamp):
+            watch.close(stamp)
+            offset = rng.normal(0.0, block_sigma)
+        elif k == 0:
+            offset = rng.normal(0.0, block_sigma)
+        for _ in range(POLES):
+            watch.add(stamp, offset + rng.normal(0.0, math.sqrt(S_BB)), S_BB)
+        watch.corrected(rng.normal(0.0, 1e-5))
+
+
+def test_a_gyro_noisier_than_stated_scales_its_noise_and_a_consistent_one_does_not():
+    noisy = BiasWatch()
+    # A common part of 0.2 sigma per look, over 100 looks a block: block Z^2 about 5.
+    _wandering(noisy, 120.0, 0.2 * math.sqrt(S_BB))
+    assert noisy.noise_scale > 2.0
+    # No drift: whatever block opened the bias, its corrections implied next to nothing.
+    assert abs(noisy.last_error_rad_s) < math.radians(0.001)
+    consistent = BiasWatch()
+    _wandering(consistent, 600.0, 0.0)
+    assert consistent.noise_scale == 1.0

@@ -40,11 +40,14 @@ def test_mostly_unmapped_detections_degrade_the_run():
 
 
 def test_a_silent_input_longer_than_a_prediction_step_degrades_the_run():
-    figures = _figures(matched=100, updates=100, input_gaps_s={'gyro': 0.3, 'odometry': 0.01},
+    figures = _figures(matched=100, updates=100, input_gaps_s={'gyro': 0.3, 'odometry': 0.2},
                        input_gap_limit_s=0.1)
     assert health.verdict(figures)['reasons'] == [
         'gyro silent for 0.30 s, longer than the longest prediction step 0.1 s: its last '
-        'value was held over the gap with the noise of one sample']
+        'value was held over the gap, the heading variance grown by the yaw acceleration '
+        'seen',
+        'odometry silent for 0.20 s, longer than the longest prediction step 0.1 s: its '
+        'last value was held over the gap with the noise of one sample']
     exact = _figures(matched=100, updates=100, input_gaps_s={'gyro': 0.1},
                      input_gap_limit_s=0.1)
     assert health.verdict(exact)['verdict'] == 'ok'

@@ -70,16 +70,22 @@ def test_imu_fields_are_rclpys(frame):
         assert sample.covariance == (covariance[0], covariance[4], covariance[8])
 
 
+def _imu_to_correct(rng, frame, unknown):
+    """An IMU message whose covariance is unknown (-1) or has an odd yaw entry, x = -0.0."""
+    message = _imu(rng, frame)
+    if unknown:
+        message.angular_velocity_covariance[0] = -1.0
+    message.angular_velocity_covariance[8] = float(rng.choice([-2.0, 0.0, 3e-5]))
+    message.angular_velocity.x = -0.0
+    return message
+
+
 @pytest.mark.parametrize('frame', FRAMES)
 @pytest.mark.parametrize('unknown', [False, True])
 def test_corrected_imu_bytes_are_the_rclpy_paths_message(frame, unknown):
     rng = np.random.default_rng(7)
     for _ in range(10):
-        message = _imu(rng, frame)
-        if unknown:
-            message.angular_velocity_covariance[0] = -1.0
-        message.angular_velocity_covariance[8] = float(rng.choice([-2.0, 0.0, 3e-5]))
-        message.angular_velocity.x = -0.0
+        message = _imu_to_correct(rng, frame, unknown)
         sample = wire.decode_imu(serialize_message(message))
         bias = rng.standard_normal(3).tolist()
         got = deserialize_message(wire.corrected_imu(sample, bias), Imu)
@@ -88,6 +94,49 @@ def test_corrected_imu_bytes_are_the_rclpy_paths_message(frame, unknown):
         got = deserialize_message(wire.corrected_imu(sample, (0.0, 0.0, bias[2]), variance),
                                   Imu)
         assert _same(got, conversions.online_corrected_imu(message, bias[2], variance))
+
+
+@pytest.mark.parametrize('frame', FRAMES)
+def test_imu_rates_and_yaw_are_rclpys(frame):
+    rng = np.random.default_rng(len(frame) + 100)
+    for _ in range(20):
+        message = _imu(rng, frame)
+        data = serialize_message(message)
+        read, sec, nanosec, at, x, y, z = wire.imu_rates(data)
+        stamp = message.header.stamp
+        assert read is data and (sec, nanosec) == (stamp.sec, stamp.nanosec)
+        assert (x, y, z) == conversions.imu_rates(message) == wire.decode_imu(data).rates
+        assert at == wire.decode_imu(data).rates_at
+        read, sec, nanosec, frame_id, at_yaw, z, cov0, cov8 = wire.imu_yaw(data)
+        covariance = message.angular_velocity_covariance
+        assert (read, frame_id, at_yaw) == (data, frame, at)
+        assert (sec, nanosec) == (message.header.stamp.sec, message.header.stamp.nanosec)
+        assert (z, cov0, cov8) == (message.angular_velocity.z, covariance[0], covariance[8])
+
+
+@pytest.mark.parametrize('frame', FRAMES)
+@pytest.mark.parametrize('unknown', [False, True])
+def test_patched_imu_bytes_are_the_rclpy_paths_message(frame, unknown):
+    """The nodes' corrected IMU copies (rates patched in the input's bytes) are rclpy's."""
+    rng = np.random.default_rng(8)
+    for _ in range(10):
+        message = _imu_to_correct(rng, frame, unknown)
+        data = serialize_message(message)
+        bias = rng.standard_normal(3).tolist()
+        # calibration_node: imu/corrected
+        data, _, _, at, x, y, z = wire.imu_rates(data)
+        patched = wire.patched_imu(data, at, x - bias[0], y - bias[1], z - bias[2])
+        assert len(patched) == len(data)
+        got = deserialize_message(bytes(patched), Imu)
+        assert _same(got, conversions.corrected_imu(message, bias))
+        # ekf_node: ekf/imu, the yaw rate corrected and the bias variance added
+        variance = float(rng.random()) * 1e-6
+        _, _, _, _, at, z, cov0, cov8 = wire.imu_yaw(data)
+        patched = wire.patched_yaw_rate(data, at, z - bias[2],
+                                        wire.online_variance(cov0, cov8, variance))
+        got = deserialize_message(bytes(patched), Imu)
+        assert _same(got, conversions.online_corrected_imu(message, bias[2], variance))
+        assert (wire.online_variance(cov0, cov8, variance) is None) == unknown
 
 
 @pytest.mark.parametrize('frame', FRAMES)
@@ -173,9 +222,12 @@ def test_estimate_bytes_are_the_rclpy_paths_messages(map_frame, base_frame):
                             speed_m_s=float(rng.standard_normal()),
                             yaw_rate_rad_s=float(rng.standard_normal()))
         ns = int(rng.integers(1, 2**31 * 10**9))
-        for data, message in zip(fast.fill(estimate, ns), plain.fill(estimate, ns)):
+        filled = fast.fill(estimate, ns)
+        for data, message in zip(filled, plain.fill(estimate, ns)):
             assert len(data) == len(serialize_message(message))
             assert _same(deserialize_message(data, type(message)), message)
+        # write() gives the same bytes, in the reused buffers
+        assert [bytes(data) for data in fast.write(estimate, ns)] == list(filled)
     assert fast.bias_frame == plain.bias_frame == 'imu_link'
 
 
@@ -196,10 +248,17 @@ def test_big_endian_and_padded_bytes_take_the_rclpy_path():
         assert sample.stamp == (message.header.stamp.sec, message.header.stamp.nanosec)
         got = deserialize_message(wire.corrected_imu(sample, (0.1, 0.2, 0.3)), Imu)
         assert _same(got, conversions.corrected_imu(message, (0.1, 0.2, 0.3)))
+        # the lean reads work on (and hand back) the canonical copy
+        read, _, _, at, x, y, z = wire.imu_rates(data)
+        assert read[:2] == b'\x00\x01' and (x, y, z) == conversions.imu_rates(message)
+        got = deserialize_message(bytes(wire.patched_imu(read, at, x - 0.1, y - 0.2,
+                                                         z - 0.3)), Imu)
+        assert _same(got, conversions.corrected_imu(message, (0.1, 0.2, 0.3)))
+        assert wire.imu_yaw(data)[3] == 'imu'
 
 
 @pytest.mark.parametrize('decode', [wire.decode_imu, wire.decode_odometry, wire.decode_scan,
-                                    wire.pose_array_points])
+                                    wire.pose_array_points, wire.imu_rates, wire.imu_yaw])
 def test_bytes_that_are_no_message_raise_wire_error(decode):
     good = serialize_message(_imu(np.random.default_rng(0), 'imu'))
     for data in (b'', b'\x00\x01\x00\x00', b'\x00\x01\x00\x00' + b'\xff' * 40, good[:30]):
