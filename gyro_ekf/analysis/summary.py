@@ -20,6 +20,9 @@ Definitions (see `metrics` for the band and the interpolation):
 - *Online mounts*: per LiDAR but the first, its mount estimated online
   (`core/mount_online.py`): stated, in use at the end, the last fit with its sigmas and
   residual, when it converged and how often it replaced the mount in use.
+- *Online odometry*: the odometry's speed scale in use and the first LiDAR's offset in
+  use, estimated online (`core/odometry_online.py`), with the start check and the last
+  fit of the odometry path against the filter's positions.
 - *Input*: what the validation boundary dropped (with --skip-bad): samples per stream,
   counts per field and reason with the first index, and how often a stream's time went back.
 - *Ground truth* (only when the trip has it): position RMSE and max error, heading RMSE
@@ -143,6 +146,8 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     mounts = run.result.mounts
     summary['online_mounts'] = {} if mounts is None else {
         tracker['name']: tracker for tracker in mounts.report()}
+    odometry = run.result.odometry
+    summary['online_odometry'] = None if odometry is None else odometry.report()
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)
@@ -178,7 +183,9 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
                       'odometry': _longest_interval(run.trip.speed.stamp_s, start, end)},
         input_gap_limit_s=run.config.max_prediction_step_s,
         bias_openings=int(stats.bias_openings),
-        bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s))
+        bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s),
+        mounts=[] if run.result.mounts is None else run.result.mounts.report(),
+        odometry=None if run.result.odometry is None else run.result.odometry.report())
     return {**health.verdict(figures), 'lidars': sensors,
             'transitions': [] if monitor is None else [
                 {'stamp_s': t.stamp_s, 'lidar': t.sensor, 'change': t.change,

@@ -143,6 +143,12 @@ class EkfConfig:
         0.01 * DEG, 'rad', 'Online mount calibration: the mount fitted to a LiDAR\'s '
         'detections (every LiDAR but the first) replaces its stated mount once the fit\'s yaw '
         'sigma is at most this and the previous fit agrees. 0: off.', 0.0, 1.0)
+    # Online odometry calibration (core/odometry_online.py).
+    odometry_online_min_change: float = config_field(
+        0.01, '1', 'Online odometry calibration: a speed scale fitted from the LiDAR-held '
+        'path replaces the one in use when it differs by more than this share (and 3 '
+        'sigmas); the first LiDAR\'s offset against the odometry is estimated beside it. '
+        '0: off (speeds and the first LiDAR\'s mount as they are).', 0.0, 1.0)
 
 
 @dataclass(frozen=True, slots=True)

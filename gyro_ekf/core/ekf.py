@@ -254,6 +254,11 @@ class GyroBiasEkf:
         return _full(self._p)
 
     @property
+    def yaw_rad(self) -> float:
+        """Heading estimate, rad (a plain float, no array)."""
+        return self._s[YAW]
+
+    @property
     def bias_rad_s(self) -> float:
         """Bias estimate, rad/s."""
         return self._s[BIAS]

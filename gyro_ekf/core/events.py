@@ -50,6 +50,7 @@ from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
+from gyro_ekf.core.odometry_online import OdometrySettings, OdometryTracker, midpoint_yaw
 from gyro_ekf.core.types import BIAS, YAW, FloatArray, LandmarkMap, LidarMount
 
 
@@ -95,6 +96,11 @@ class EventDriver:
         self.held_rate = HeldRate()
         self.mounts = OnlineMounts(OnlineMountSettings(
             converged_yaw_sigma_rad=self.config.mount_online_yaw_sigma_rad))
+        # The odometry's speed scale, estimated online (core/odometry_online.py).
+        self.odometry = OdometryTracker(OdometrySettings(
+            min_change=self.config.odometry_online_min_change))
+        self.odometry.start_at(self._trusted(pose))
+        self._measured_speed_m_s = 0.0
         self.last_transition: Transition | None = None
         self.sensor_names: dict[LidarMount, str] = {}
         self.stamp_s: float | None = None
@@ -139,6 +145,9 @@ class EventDriver:
         self._rate_stamp_s = None
         self._heading_dt2 = 0.0
         self.mounts.reset()
+        self.odometry.reset()
+        self.odometry.start_at(self._trusted(pose))
+        self._measured_speed_m_s = 0.0
         self.stamp_s = None
         self.speed_m_s = 0.0
         self.rate_rad_s = None
@@ -146,6 +155,13 @@ class EventDriver:
         self._first_scan_s = None
         self._rest_updates = {}
         self._end_stop()
+
+    def _trusted(self, pose: FloatArray | None) -> FloatArray | None:
+        """Return the start pose when the filter trusts it exactly (P0 of the pose 0)."""
+        config = self.config
+        if pose is None or config.initial_position_sigma_m or config.initial_yaw_sigma_rad:
+            return None
+        return pose
 
     def track_mounts(self, mounts: Iterable[tuple[LidarMount, str]]) -> None:
         """Estimate these LiDARs' mounts online, (stated mount, name) each.
@@ -164,14 +180,17 @@ class EventDriver:
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
                  self.zero_rate), self.mounts.save(), self.bias_watch.copy(),
-                self.held_rate.save(), self._rate_stamp_s, self._heading_dt2)
+                self.held_rate.save(), self._rate_stamp_s, self._heading_dt2,
+                (self.odometry.save(), self._measured_speed_m_s))
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
         (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self.speed_variance,
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
-         watch, held, self._rate_stamp_s, self._heading_dt2) = saved
+         watch, held, self._rate_stamp_s, self._heading_dt2,
+         (odometry, self._measured_speed_m_s)) = saved
         self.held_rate.restore(held)
+        self.odometry.restore(odometry)
         self.bias_watch = watch.copy()
         self.ekf.bias_walk_found = self.bias_watch.walk
         self.ekf.rate_noise_scale = self.bias_watch.noise_scale
@@ -203,6 +222,7 @@ class EventDriver:
             self.stats.long_gaps += 1
         speed_variance, rate_variance = self.speed_variance, self.rate_variance
         hold = self.zero_rate
+        yaw, total_s = self.ekf.yaw_rad, dt_s
         while dt_s > step:
             self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance, hold)
             # Sum of T^2 over the predictions: times sigma_w^2, the heading noise they added
@@ -217,6 +237,9 @@ class EventDriver:
             self.ekf.add_heading_variance(self.held_rate.heading_variance(
                 self.stamp_s - rate_stamp, stamp_s - rate_stamp))
         self.stamp_s = stamp_s
+        if self._measured_speed_m_s and not hold:
+            self.odometry.advance(total_s, self._measured_speed_m_s,
+                                  midpoint_yaw(yaw, self.ekf.yaw_rad))
 
     def on_speed(self, stamp_s: float, speed_m_s: float, variance: float | None = None
                  ) -> None:
@@ -226,8 +249,11 @@ class EventDriver:
         means the configured speed noise.
         """
         self._advance(stamp_s, 'speed')
-        self.speed_m_s = speed_m_s
-        self.speed_variance = variance
+        # Divided by the speed scale estimated online (1 until one is applied).
+        self._measured_speed_m_s = speed_m_s
+        self.speed_m_s = self.odometry.corrected(speed_m_s)
+        self.speed_variance = self.odometry.variance(speed_m_s, variance,
+                                                     self.config.speed_noise_m_s ** 2)
         self.stats.speed += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
@@ -326,6 +352,17 @@ class EventDriver:
         tracker = self.mounts.trackers.get(key)
         if tracker is not None:
             mount = tracker.used
+        else:
+            # Where the odometry places the LiDARs that define the body frame.
+            mount = self.odometry.first_mount(mount)
+            if self.landmarks is not None and len(points):
+                # Moving by the odometry (the bias is not known yet to judge the gyro).
+                moved = self.odometry.observe_start(
+                    stamp_s, points, mount, self.landmarks.xy_m,
+                    abs(self._measured_speed_m_s) > self.config.rest_speed_m_s)
+                if moved is not None:
+                    self._first_lidar_moved(key, moved)
+                    mount = self.odometry.first_mount(key)
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
             return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
         # Plain floats from here: a scan has a handful of poles, and numpy's per-call cost
@@ -392,7 +429,13 @@ class EventDriver:
                                             match.landmark_index,
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
         if nis and not at_rest:
-            self.bias_watch.corrected(wrap_scalar(float(self.ekf.x[YAW] - prior[YAW])))
+            self.bias_watch.corrected(wrap_scalar(self.ekf.yaw_rad - float(prior[YAW])))
+            if tracker is None:
+                # The poses the first LiDAR holds (a second one's could carry its own
+                # mount error, which would be taken for the first's).
+                moved = self.odometry.observe(stamp_s, self.ekf.x.tolist())
+                if moved is not None:
+                    self._first_lidar_moved(key, moved)
         nis_sum = float(sum(nis))
         self._judged(key, self.health.record(key, stamp_s, points.shape[0], len(nis),
                                              nis_sum, float(bearing_sum), sensor))
@@ -406,6 +449,25 @@ class EventDriver:
                 self.stats.first_association_s = stamp_s
             self.stats.last_association_s = stamp_s
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
+
+    def _first_lidar_moved(self, key: LidarMount, moved: tuple[float, float, float]) -> None:
+        """Move the pose back by (x, y, sigma): the first LiDAR's mount in use moved so.
+
+        The pose followed the LiDAR: move it back by as much, with that uncertainty; every
+        other LiDAR's mount, estimated against the old pose, is estimated again, and the
+        LiDAR's health is judged on new figures (core/odometry_online.py).
+        """
+        dx, dy, sigma = moved
+        x = self.ekf.x
+        c, s = math.cos(x[YAW]), math.sin(x[YAW])
+        P = self.ekf.P
+        P[0, 0] += sigma * sigma
+        P[1, 1] += sigma * sigma
+        self.ekf.reset(np.array([x[0] - c * dx + s * dy, x[1] - s * dx - c * dy, x[YAW]]),
+                       float(x[3]), P)
+        for other in self.mounts.trackers:
+            self.mounts.restart(other)
+        self.health.mount_changed(key, self.stamp_s)
 
     def _close_bias_block(self, stamp_s: float, at_rest: bool) -> None:
         """Before a scan's updates: judge the bias watch's block; re-open the bias on a drift."""

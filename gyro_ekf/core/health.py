@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from typing import Any, Hashable
 
 from gyro_ekf.core.config import EkfConfig
+from gyro_ekf.core import mount_online, odometry_online
 from gyro_ekf.core.types import FloatArray
 
 OK, DEGRADED, FAILED = 'ok', 'degraded', 'failed'
@@ -517,6 +518,8 @@ class RunFigures:
         bias_openings: times the LiDARs saw the heading drift and the bias was re-opened
             (DriverStats.bias_openings, core/bias_watch.py).
         bias_largest_opening_rad_s: the largest bias change such a drift implied, rad/s.
+        mounts: the online mount estimators' reports (OnlineMounts.report()).
+        odometry: the online odometry estimator's report (OdometryTracker.report()).
     """
 
     detections: int
@@ -534,6 +537,8 @@ class RunFigures:
     input_gap_limit_s: float = math.inf
     bias_openings: int = 0
     bias_largest_opening_rad_s: float = 0.0
+    mounts: list[dict[str, Any]] = field(default_factory=list)
+    odometry: dict[str, Any] | None = None
 
 
 def _whiteness_reasons(sensors: list[dict[str, Any]]) -> list[tuple[str, str]]:
@@ -603,6 +608,13 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
                 + (f': {sensor["disagreement"]}' if sensor['disagreement'] else ''))
     for level, text in _whiteness_reasons(figures.sensors):
         add(level, text)
+    # A mount moved online: the LiDARs disagree, and either may be the one off.
+    tracked = {m['name'] for m in figures.mounts}
+    first = [s['name'] for s in figures.sensors if s['name'] not in tracked]
+    for text in mount_online.verdict_reasons(figures.mounts, first):
+        add(DEGRADED, text)
+    for text in odometry_online.verdict_reasons(figures.odometry, first):
+        add(DEGRADED, text)
     low, high = VERDICT_NIS_MEAN_BAND
     nis = figures.nis_mean
     if figures.updates and nis > VERDICT_FAILED_NIS_MEAN:

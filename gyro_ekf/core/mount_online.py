@@ -495,3 +495,40 @@ class OnlineMounts:
     def report(self) -> list[dict[str, Any]]:
         """Figures of every tracked LiDAR, in the order tracked."""
         return [tracker.report() for tracker in self.trackers.values()]
+
+
+def verdict_reasons(mounts: list[dict[str, Any]], others: list[str],
+                    settings: OnlineMountSettings | None = None) -> list[str]:
+    """Return one sentence per tracked LiDAR whose mount in use moved off its stated mount.
+
+    A mount estimated online is the LiDAR's mount relative to the pose the filter made of
+    the first LiDAR and the odometry, so a change says that the LiDARs disagree, not which
+    one is off: a first LiDAR off its stated mount moves the pose by as much, and the
+    second LiDAR's estimate absorbs the difference (the filter's innovations then stay
+    small and white). Either way the run is degraded, and the reason names both.
+
+    Args:
+        mounts: ``OnlineMounts.report()`` (summary.json's online_mounts values).
+        others: names of the LiDARs not tracked (the first, which defines the body frame).
+        settings: the change limits (the defaults when None): a mount in use off its
+            stated mount by more than ``min_offset_change_m`` in x or y or
+            ``min_yaw_change_rad`` in yaw counts.
+    """
+    settings = settings or OnlineMountSettings()
+    reasons = []
+    for report in mounts:
+        stated, used = report['stated'], report['used']
+        dx, dy = used['x_m'] - stated['x_m'], used['y_m'] - stated['y_m']
+        dyaw = math.degrees(wrap_scalar(math.radians(used['yaw_deg'] - stated['yaw_deg'])))
+        if not (max(abs(dx), abs(dy)) > settings.min_offset_change_m
+                or abs(dyaw) > math.degrees(settings.min_yaw_change_rad)):
+            continue
+        first = ' or '.join(others) if others else 'the first LiDAR'
+        reasons.append(
+            f'LiDAR {report["name"]} mount estimated online is off its stated mount by '
+            f'x {100.0 * dx:+.1f} cm, y {100.0 * dy:+.1f} cm, yaw {dyaw:+.2f} deg (limits '
+            f'{100.0 * settings.min_offset_change_m:g} cm, '
+            f'{math.degrees(settings.min_yaw_change_rad):g} deg): either {report["name"]} '
+            f'or {first} (which with the odometry defines the body frame, and then the pose '
+            f'is off by as much) is not where its mount says')
+    return reasons

@@ -23,6 +23,7 @@ from gyro_ekf.core.event_records import DriverStats, EventKind
 from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.health import HealthMonitor
 from gyro_ekf.core.mount_online import OnlineMounts
+from gyro_ekf.core.odometry_online import OdometryTracker
 from gyro_ekf.core.models import sensor_point_to_map
 from gyro_ekf.core.types import FloatArray, ScanSeries, Trip
 
@@ -107,6 +108,7 @@ class TripRun:
         stats: final counts.
         health: the per-LiDAR health figures, exclusions and readmissions.
         mounts: the online mount estimates of every LiDAR but the first.
+        odometry: the online odometry speed-scale estimate (core/odometry_online.py).
     """
 
     estimates: Estimates
@@ -114,6 +116,7 @@ class TripRun:
     stats: DriverStats
     health: HealthMonitor | None = None
     mounts: OnlineMounts | None = None
+    odometry: OdometryTracker | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -213,4 +216,4 @@ def drive_trip(trip: Trip, driver: EventDriver,
                                      np.frombuffer(update_y, dtype=np.float64)]),
         nis=np.frombuffer(update_nis, dtype=np.float64))
     return TripRun(Estimates(stamps, states, covariances), updates, driver.stats,
-                   driver.health, driver.mounts)
+                   driver.health, driver.mounts, driver.odometry)

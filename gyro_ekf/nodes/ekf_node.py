@@ -37,7 +37,11 @@ observations are kept out of the filter; each exclusion and readmission is logge
 LiDAR mounts in use (`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file from
 `gyro-ekf calibrate-mounts` given after the bag's overrides the bag's mounts, and every
 LiDAR but the first has its mount estimated online, core/mount_online.py:
-`mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`); `ekf/mounts` (PoseArray in
+`mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`), and the odometry's speed scale and
+the first LiDAR's offset estimated online (core/odometry_online.py: `odometry_scale` in use,
+`odometry_scale_{applied,estimate,sigma}`, `odometry_first_lidar_offset_{x_m,y_m,found}`
+of the last fit, `odometry_first_lidar_offset_{in_use_x_m,in_use_y_m,applied}`);
+`ekf/mounts` (PoseArray in
 `base_link`, latched) holds the same mounts, one pose per `lidar.topics` entry in that
 order, published again when an online estimate replaces one.
 
@@ -747,7 +751,8 @@ class EkfNode(Node):
             dropped={k: self.dropped[k] for k in VERDICT_DROP_REASONS},
             final_bias_rad_s=self.driver.ekf.bias_rad_s, unmapped=stats.unmapped,
             bias_openings=stats.bias_openings,
-            bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s)
+            bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s,
+            mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report())
         return health.verdict(figures)
 
     def _publish_mounts(self) -> None:
@@ -813,6 +818,10 @@ class EkfNode(Node):
                     else f'{online["estimate"]["yaw_sigma_deg"]:.4f}'),
                    ('online_converged_s', '' if online['converged_s'] is None
                     else f'{online["converged_s"]:.3f}'))},
+            # The odometry's speed scale in use and its last online fit
+            # (core/odometry_online.py).
+            **{f'odometry_{key}': value for key, value in _odometry_values(
+                self.driver.odometry.report()).items()},
             'excluded_detections': str(stats.excluded),
             'zero_rate_updates': str(stats.zero_rate_updates),
             'bias_reopened': str(stats.bias_openings),
@@ -859,6 +868,24 @@ class EkfNode(Node):
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         self._diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=now.to_msg()),
                                                       status=[status]))
+
+
+def _odometry_values(report: dict) -> dict[str, str]:
+    """Return the online odometry estimate as /diagnostics values (empty before a fit)."""
+    estimate = report['estimate'] or {}
+
+    def figure(key: str, digits: int) -> str:
+        value = estimate.get(key)
+        return '' if value is None else f'{value:.{digits}f}'
+
+    return {'scale': f'{report["scale"]:.5f}', 'scale_applied': str(report['applied']),
+            'scale_estimate': figure('scale', 5), 'scale_sigma': figure('scale_sigma', 5),
+            'first_lidar_offset_x_m': figure('first_lidar_offset_x_m', 4),
+            'first_lidar_offset_y_m': figure('first_lidar_offset_y_m', 4),
+            'first_lidar_offset_found': str(report['first_lidar_offset_found']).lower(),
+            'first_lidar_offset_in_use_x_m': f'{report["first_lidar_offset_in_use_x_m"]:.4f}',
+            'first_lidar_offset_in_use_y_m': f'{report["first_lidar_offset_in_use_y_m"]:.4f}',
+            'first_lidar_offset_applied': str(report['first_lidar_offset_applied'])}
 
 
 def main(args: list[str] | None = None) -> int:

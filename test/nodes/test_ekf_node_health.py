@@ -93,6 +93,9 @@ def test_node_reports_the_verdict_summary_json_gives(mis_mounted_run):
     assert reasons[0].split(' s in all')[1] == offline['reasons'][0].split(' s in all')[1]
     assert reasons[1:] == offline['reasons'][1:]
     assert message.startswith('degraded: LiDAR scan2 excluded')
+    # The online odometry estimate is reported as the mounts are: exact odometry, kept.
+    assert values['odometry_scale'] == '1.00000' and values['odometry_scale_applied'] == '0'
+    assert values['odometry_first_lidar_offset_applied'] == '0'
 
 
 def test_node_reports_the_excluded_lidar_and_logs_it(mis_mounted_run):

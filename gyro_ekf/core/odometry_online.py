@@ -1,0 +1,482 @@
+"""Online odometry calibration: the speed scale, from the filter's LiDAR-held path.
+
+A wheel encoder whose radius is off reads ``k`` times the true speed (``k`` = 1 + e). The
+filter's motion model takes the speed as it comes, so every prediction moves the pose by
+``k`` times the true step, and the LiDARs pull it back scan after scan: the position
+innovations are alike from scan to scan (the whiteness test's sensor-frame x), the
+covariance is too small for the error it carries, and the pose NEES leaves its band.
+
+The estimator, outside the filter's state as the online mount estimator is
+(``core/mount_online.py``), compares two paths over a sliding window of
+``window_s`` seconds:
+
+- ``D(t)``, the odometry path: the *measured* speed integrated along the filter's heading
+  (the midpoint of each prediction step), never corrected, so that a fit does not depend
+  on the scale in use;
+- ``p(t)``, the filter's position after each scan's landmark updates (while moving): held
+  by the map to a few millimetres however wrong the odometry is.
+
+Over the window, ``p(t) = c + D(t) / k + R(yaw(t)) d``: ``c`` is where the window starts
+and ``d`` is where the first LiDAR, which with the odometry defines the body frame, sits
+off its stated mount (a first LiDAR mounted off by ``d`` draws the pose along with it:
+the pose follows the LiDAR, the odometry moves the body origin, and their difference turns
+with the heading). Both are fitted, by linear least squares, with a weak prior on ``d``
+(``offset_prior_m``: while the heading hardly changes it is not observable), so that a
+mount offset is not taken for a scale error. The fit's sigma of ``k`` comes from its
+residuals, inflated for their correlation from scan to scan (the filter's positions are a
+smoothed series, not independent draws; ``_lag_one_correlation``).
+
+A fit (at least ``min_distance_m`` driven in the window) whose sigma of ``k`` is at most
+``max_sigma``, whose residual RMS is at most ``max_rms_m`` and whose ``k`` differs from
+the scale in use by more than ``change_sigmas`` sigmas and ``min_change`` replaces it: the
+driver divides every later speed by it (and adds the fit's uncertainty to the speed
+variance); once one was applied, changes beyond ``min_refinement`` refine it. Changes
+below ``min_change`` (1 %) are not made: on the 2022 course log, whose odometry is exact,
+fits of the first 10-20 m come out 0.4-0.5 % off. The estimate is reported
+(summary.json ``online_odometry``, /diagnostics ``odometry_scale*``); an applied scale
+makes the run degraded (a wheel radius off is worth knowing, and the figures before the
+correction carried it), as does a first-LiDAR offset ``d`` beyond ``offset_limit_m``
+(``verdict_reasons``).
+
+A ``d`` beyond ``offset_limit_m`` (1 cm, the online mount estimator's offset limit) and
+``offset_sigmas`` sigmas, in a window of at least ``min_offset_distance_m`` driven, moves
+the first LiDAR's mount in use by ``d``: the driver moves the pose back by ``d`` (with its
+sigma added to P), estimates the other LiDARs' mounts again (they were fitted against the
+old pose) and judges the LiDAR's health afresh; the window starts again, and later fits
+refine the mount by ``offset_refinement_m`` steps.
+
+**Start check.** A first LiDAR off its mount drags the pose from the first scan on, well
+before the path above says so. Standing still at a start pose the filter trusts exactly
+(P0 of the pose 0, as every course log and simulated trip states it), the LiDAR's
+detections of ``start_check_s`` are fitted against that pose, by the online mount fit
+(``mount_online.fit_window``, no yaw search); the scans of a stop repeat their errors, so
+the fit's covariance is multiplied by their count (they are worth one scan). An offset
+beyond the limits above moves the mount in use as a path fit does. The check closes when
+the odometry reads a speed, so a trip that starts moving has none.
+
+The state is a handful of scalars and append-only lists, so ``save`` and ``restore``
+(called on every event by ``core/lagged.py``) cost O(1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import Any
+
+import numpy as np
+
+from gyro_ekf.core.angles import wrap_scalar
+from gyro_ekf.core.mount_calibration import MIN_DETECTIONS, MountSettings
+from gyro_ekf.core.mount_online import fit_window
+from gyro_ekf.core.types import FloatArray, LidarMount
+
+
+@dataclass(frozen=True, slots=True)
+class OdometrySettings:
+    """How the online odometry estimator collects, fits and decides.
+
+    Attributes:
+        window_s: the fit uses the samples of the last this many seconds, s.
+        fit_every_s: time between two fits, s.
+        min_distance_m: fewest metres driven in the window before a fit.
+        min_offset_distance_m: fewest metres driven in the window before a fit may move
+            the first LiDAR's mount (fits of the first metres after a start carry the
+            filter's transient: on exact mounts, 1 cm off at 3 sigmas after 6 m).
+        offset_prior_m: prior sigma of the first LiDAR's offset d, m.
+        max_sigma: a fit whose sigma of k is above this is not used ...
+        max_rms_m: ... nor one whose positions lie farther from the fitted path (RMS), m:
+            the map holds the filter's positions to a few millimetres, so a larger residual
+            is an error the model does not describe (the filter's heading error integrated
+            into the odometry path), which k and d would absorb.
+        change_sigmas: a fit replaces the scale in use only when it differs by more than
+            this many sigmas ...
+        min_change: ... and by more than this (relative) ... (0: the estimator is off)
+        min_refinement: ... or, once a scale was applied, than this.
+        offset_sigmas: the verdict names a first-LiDAR offset beyond this many sigmas ...
+        offset_limit_m: ... and beyond this, m; such an offset is applied to the first
+            LiDAR's mount in use ...
+        offset_refinement_m: ... as is, once one was, a further offset beyond this, m.
+        start_check_s: standing still at a start pose the filter trusts exactly, the first
+            LiDAR's detections of this long are fitted against that pose (or of the
+            whole stop, when the platform moves off sooner), s.
+    """
+
+    window_s: float = 60.0
+    fit_every_s: float = 2.0
+    min_distance_m: float = 5.0
+    min_offset_distance_m: float = 20.0
+    offset_prior_m: float = 0.1
+    max_sigma: float = 0.002
+    max_rms_m: float = 0.006
+    change_sigmas: float = 3.0
+    min_change: float = 0.01
+    min_refinement: float = 0.0005
+    offset_sigmas: float = 3.0
+    offset_limit_m: float = 0.01
+    offset_refinement_m: float = 0.002
+    start_check_s: float = 2.0
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryFit:
+    """One fit of the window.
+
+    Attributes:
+        stamp_s: stamp of the scan that completed the window, s.
+        scale: k, the odometry's reading over the true speed.
+        scale_sigma: 1-sigma of k.
+        offset_m: d, where the first LiDAR sits off its stated mount (x, y in the body
+            frame), m.
+        offset_sigma_m: 1-sigma of d's x and y, m.
+        rms_m: RMS residual of the positions, m.
+        samples: positions in the window.
+        distance_m: metres driven in the window (odometry as measured).
+    """
+
+    stamp_s: float
+    scale: float
+    scale_sigma: float
+    offset_m: tuple[float, float]
+    offset_sigma_m: tuple[float, float]
+    rms_m: float
+    samples: int
+    distance_m: float
+
+
+class OdometryTracker:
+    """The online speed-scale estimator (see the module docstring).
+
+    Attributes:
+        scale: the scale in use (speeds are divided by it), 1 until a fit is applied.
+        scale_sigma: sigma of the scale in use (0 until applied).
+        fit: the last fit, or None.
+        applied: times a fit replaced the scale in use.
+        fits: fits made.
+    """
+
+    def __init__(self, settings: OdometrySettings | None = None):
+        """Start with the odometry taken as it reads, and an empty window."""
+        self.settings = settings or OdometrySettings()
+        # Samples (stamp, D x, D y, distance, pose x, y, yaw), append-only; the first
+        # _dropped were deleted.
+        self._entries: list[tuple[float, float, float, float, float, float, float]] = []
+        self._dropped = 0
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything (a filter reset)."""
+        self._entries.clear()
+        self._dropped = 0
+        # The start check: the first LiDAR's detections (sensor x, y) while standing
+        # still at the start pose; append-only. None: no check (not trusted, or done).
+        self._start_pose: tuple[float, float, float] | None = None
+        self._start_points: list[tuple[float, float]] = []
+        self._start_scans = 0
+        self._start_first_s: float | None = None
+        self.start_fit: dict[str, float] | None = None
+        self._dx = self._dy = self._distance = 0.0
+        self._last_fit_s: float | None = None
+        self._window_start_s = -math.inf
+        self.offset_m = (0.0, 0.0)
+        self.offset_applied = 0
+        self.scale = 1.0
+        self.scale_sigma = 0.0
+        self.fit: OdometryFit | None = None
+        self.applied = 0
+        self.fits = 0
+
+    def corrected(self, speed_m_s: float) -> float:
+        """Return a measured speed divided by the scale in use."""
+        return speed_m_s if self.scale == 1.0 else speed_m_s / self.scale
+
+    def first_mount(self, stated: LidarMount) -> LidarMount:
+        """Return the mount in use of a LiDAR that defines the body frame (stated + offset)."""
+        dx, dy = self.offset_m
+        if not self.offset_applied:
+            return stated
+        return LidarMount(stated.x_m + dx, stated.y_m + dy, stated.yaw_rad)
+
+    def variance(self, speed_m_s: float, variance: float | None, configured: float
+                 ) -> float | None:
+        """Return the variance of a corrected speed: the scale's uncertainty added.
+
+        ``variance`` is the message's own (None: ``configured``, the configured noise).
+        """
+        if not self.applied:
+            return variance
+        base = configured if variance is None else variance
+        relative = self.scale_sigma / self.scale
+        return base / (self.scale * self.scale) + (speed_m_s * relative) ** 2
+
+    def advance(self, dt_s: float, measured_speed_m_s: float, yaw_rad: float) -> None:
+        """Add one prediction step to the odometry path: the measured speed along yaw."""
+        step = measured_speed_m_s * dt_s
+        if step and self.enabled:
+            self._dx += step * math.cos(yaw_rad)
+            self._dy += step * math.sin(yaw_rad)
+            self._distance += abs(step)
+
+    def save(self) -> tuple:
+        """Return the state (O(1): the entries list is append-only)."""
+        return (self._dropped + len(self._entries), self._dx, self._dy, self._distance,
+                self._last_fit_s, self.scale, self.scale_sigma, self.fit, self.applied,
+                self.fits, self._window_start_s, self.offset_m, self.offset_applied,
+                (self._start_pose, len(self._start_points), self._start_scans,
+                 self._start_first_s, self.start_fit))
+
+    def restore(self, saved: tuple) -> None:
+        """Put back a state from ``save``."""
+        (end, self._dx, self._dy, self._distance, self._last_fit_s, self.scale,
+         self.scale_sigma, self.fit, self.applied, self.fits, self._window_start_s,
+         self.offset_m, self.offset_applied, start) = saved
+        (self._start_pose, points, self._start_scans, self._start_first_s,
+         self.start_fit) = start
+        del self._start_points[points:]
+        if end < self._dropped:
+            self._entries.clear()
+            self._dropped = end
+        else:
+            del self._entries[end - self._dropped:]
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the estimator runs (``min_change`` above 0)."""
+        return self.settings.min_change > 0.0
+
+    def start_at(self, pose: FloatArray | None) -> None:
+        """Check the first LiDAR against this start pose (None: the pose is not trusted)."""
+        self._start_pose = None if pose is None or not self.enabled else (
+            float(pose[0]), float(pose[1]), float(pose[2]))
+        self._start_points.clear()
+        self._start_scans = 0
+        self._start_first_s = None
+
+    def observe_start(self, stamp_s: float, points_sensor_m: FloatArray, mount: LidarMount,
+                      poles: FloatArray, moving: bool
+                      ) -> tuple[float, float, float] | None:
+        """Add a first-LiDAR scan while the start check is open; fit when it closes.
+
+        The check is open while the platform has not moved since a start pose the filter
+        trusts exactly: the detections, placed with that pose, measure the LiDAR's mount
+        as the online mount fit does with moving poses. It closes after ``start_check_s``
+        of scans, or at the first scan once the platform moved. Returns (x m, y m, sigma m)
+        when the fit moved the first LiDAR's mount in use (as ``observe`` does).
+
+        Args:
+            stamp_s: scan stamp, s.
+            points_sensor_m: the scan's detections in the sensor frame, shape (k, 2), m.
+            mount: the LiDAR's mount in use.
+            poles: map pole centres, shape (m, 2), m.
+            moving: whether the platform is known to move now.
+        """
+        if self._start_pose is None:
+            return None
+        moved = self._distance > 0.0 or moving
+        if not moved:
+            if self._start_first_s is None:
+                self._start_first_s = stamp_s
+            self._start_points.extend(map(tuple, points_sensor_m.tolist()))
+            self._start_scans += 1
+            if stamp_s - self._start_first_s < self.settings.start_check_s:
+                return None
+        pose, self._start_pose = self._start_pose, None
+        return self._fit_start(pose, mount, poles)
+
+    def _fit_start(self, pose: tuple[float, float, float], mount: LidarMount,
+                   poles: FloatArray) -> tuple[float, float, float] | None:
+        if len(self._start_points) < MIN_DETECTIONS:
+            return None
+        points = np.array(self._start_points)
+        result = fit_window(points, np.tile(pose, (len(points), 1)), poles, mount,
+                            MountSettings(), search=False)
+        if result is None or not result[3]:
+            return None
+        theta, covariance, used, _ = result
+        # Every scan of a stop sees the same poles with the same beams: its errors repeat,
+        # so the scans are worth one scan, not many.
+        sigma = math.sqrt(max(covariance[1, 1], covariance[2, 2], 0.0) * self._start_scans)
+        dx, dy = float(theta[1]) - mount.x_m, float(theta[2]) - mount.y_m
+        settings = self.settings
+        self.start_fit = {'x_m': dx, 'y_m': dy, 'sigma_m': sigma, 'scans': self._start_scans,
+                          'detections_used': used}
+        if max(abs(dx), abs(dy)) <= max(settings.offset_limit_m,
+                                        settings.offset_sigmas * sigma):
+            return None
+        self.offset_m = (self.offset_m[0] + dx, self.offset_m[1] + dy)
+        self.offset_applied += 1
+        return dx, dy, sigma
+
+    def observe(self, stamp_s: float, pose: list[float]) -> tuple[float, float, float] | None:
+        """Add the filter's pose after a scan's updates (moving); fit when due.
+
+        Returns (x m, y m, sigma m) when a fit moved the first LiDAR's mount in use by x, y
+        (body frame): the pose, drawn along with the LiDAR, is to move back by as much.
+        """
+        if not self.enabled:
+            return None
+        self._entries.append((stamp_s, self._dx, self._dy, self._distance,
+                              pose[0], pose[1], pose[2]))
+        settings = self.settings
+        if self._last_fit_s is None:
+            self._last_fit_s = stamp_s
+        if stamp_s - self._last_fit_s < settings.fit_every_s:
+            return None
+        self._last_fit_s = stamp_s
+        # Keep a window's worth before the window: a replay may restore to it.
+        old = stamp_s - 2.0 * settings.window_s
+        entries = self._entries
+        if len(entries) > 64 and entries[len(entries) // 2][0] < old:
+            drop = len(entries) // 2
+            del entries[:drop]
+            self._dropped += drop
+        return self._fit(stamp_s)
+
+    def _fit(self, stamp_s: float) -> tuple[float, float, float] | None:
+        settings = self.settings
+        first = max(stamp_s - settings.window_s, self._window_start_s)
+        rows = [e for e in self._entries if e[0] >= first]
+        if len(rows) < 10:
+            return None
+        window = np.array(rows)
+        distance = float(window[-1, 3] - window[0, 3])
+        if distance < settings.min_distance_m:
+            return None
+        n = len(window)
+        d = window[:, 1:3] - window[0, 1:3]
+        p = window[:, 4:6] - window[0, 4:6]
+        c, s = np.cos(window[:, 6]), np.sin(window[:, 6])
+        # Unknowns: 1/k, d x, d y, c x, c y; rows x then y of every sample.
+        A = np.zeros((2 * n, 5))
+        A[:n, 0], A[n:, 0] = d[:, 0], d[:, 1]
+        A[:n, 1], A[:n, 2], A[n:, 1], A[n:, 2] = c, -s, s, c
+        A[:n, 3], A[n:, 4] = 1.0, 1.0
+        b = np.concatenate([p[:, 0], p[:, 1]])
+        # The prior on d, in units of the residual once known; first a plain solve for it.
+        normal = A.T @ A
+        prior = np.zeros(5)
+        theta = np.linalg.lstsq(A, b, rcond=None)[0]
+        residual = b - A @ theta
+        dof = max(2 * n - 5, 1)
+        variance = max(float(residual @ residual) / dof, 1e-8)
+        prior[1] = prior[2] = variance / settings.offset_prior_m ** 2
+        try:
+            covariance = np.linalg.inv(normal + np.diag(prior))
+        except np.linalg.LinAlgError:
+            return None
+        theta = covariance @ (A.T @ b)
+        residual = b - A @ theta
+        rms = float(np.sqrt(np.mean(residual ** 2)))
+        # The filter's positions are a smoothed series: residuals of consecutive scans
+        # are alike. As an AR(1) series with lag-1 correlation rho, n of them are worth
+        # n (1 - rho) / (1 + rho) independent ones, which scales the covariance.
+        rho = max(_lag_one_correlation(residual[:n]), _lag_one_correlation(residual[n:]),
+                  0.0)
+        inflation = (1.0 + rho) / max(1.0 - rho, 1.0 / n)
+        covariance = covariance * variance * inflation
+        inverse = float(theta[0])
+        if not math.isfinite(inverse) or inverse <= 0.0:
+            return None
+        scale = 1.0 / inverse
+        sigma = math.sqrt(max(covariance[0, 0], 0.0)) / (inverse * inverse)
+        self.fits += 1
+        self.fit = OdometryFit(stamp_s, scale, sigma, (float(theta[1]), float(theta[2])),
+                               (math.sqrt(max(covariance[1, 1], 0.0)),
+                                math.sqrt(max(covariance[2, 2], 0.0))), rms, n, distance)
+        if sigma > settings.max_sigma or rms > settings.max_rms_m:
+            return None
+        change = abs(scale - self.scale)
+        # Once the odometry is known to be off, every clear change refines the scale.
+        least = settings.min_refinement if self.applied else settings.min_change
+        if change > max(settings.change_sigmas * sigma, least):
+            self.scale, self.scale_sigma = scale, sigma
+            self.applied += 1
+        if distance < settings.min_offset_distance_m or not self.offset_found():
+            return None
+        # The first LiDAR sits off its mount in use by d: take it there. The window
+        # starts again (the poses so far were drawn along with the LiDAR).
+        dx, dy = self.fit.offset_m
+        self.offset_m = (self.offset_m[0] + dx, self.offset_m[1] + dy)
+        self.offset_applied += 1
+        self._window_start_s = stamp_s
+        return dx, dy, max(self.fit.offset_sigma_m)
+
+    def offset_found(self) -> bool:
+        """Whether the last fit places the first LiDAR clearly off its stated mount."""
+        fit, settings = self.fit, self.settings
+        if (fit is None or fit.scale_sigma > settings.max_sigma
+                or fit.rms_m > settings.max_rms_m):
+            return False
+        limit = settings.offset_refinement_m if self.offset_applied else (
+            settings.offset_limit_m)
+        return any(abs(v) > max(limit, settings.offset_sigmas * s)
+                   for v, s in zip(fit.offset_m, fit.offset_sigma_m))
+
+    def report(self) -> dict[str, Any]:
+        """JSON-ready figures for summary.json and /diagnostics."""
+        fit = self.fit
+        return {
+            'scale': self.scale, 'scale_sigma': self.scale_sigma, 'applied': self.applied,
+            'fits': self.fits, 'first_lidar_offset_in_use_x_m': self.offset_m[0],
+            'first_lidar_offset_in_use_y_m': self.offset_m[1],
+            'first_lidar_offset_applied': self.offset_applied,
+            'first_lidar_start_check': self.start_fit,
+            'estimate': None if fit is None else {
+                'stamp_s': fit.stamp_s, 'scale': fit.scale, 'scale_sigma': fit.scale_sigma,
+                'first_lidar_offset_x_m': fit.offset_m[0],
+                'first_lidar_offset_y_m': fit.offset_m[1],
+                'first_lidar_offset_x_sigma_m': fit.offset_sigma_m[0],
+                'first_lidar_offset_y_sigma_m': fit.offset_sigma_m[1],
+                'rms_residual_m': fit.rms_m, 'samples': fit.samples,
+                'distance_m': fit.distance_m},
+            'first_lidar_offset_found': self.offset_found()}
+
+
+def _lag_one_correlation(residual: np.ndarray) -> float:
+    """Lag-1 autocorrelation of a residual series (0 when it has no spread)."""
+    centred = residual - residual.mean()
+    energy = float(centred @ centred)
+    return float(centred[1:] @ centred[:-1]) / energy if energy > 0.0 else 0.0
+
+
+def midpoint_yaw(before_rad: float, after_rad: float) -> float:
+    """Return the heading halfway between two (wrapped) headings, rad."""
+    return before_rad + 0.5 * wrap_scalar(after_rad - before_rad)
+
+
+def verdict_reasons(report: dict[str, Any] | None, first: list[str],
+                    settings: OdometrySettings | None = None) -> list[str]:
+    """Return a sentence for a speed scale in use off 1, and one for a first-LiDAR offset.
+
+    Args:
+        report: ``OdometryTracker.report()`` (summary.json's online_odometry), or None.
+        first: names of the LiDARs not tracked by the online mount estimator (the first).
+        settings: the limits (the defaults when None).
+    """
+    settings = settings or OdometrySettings()
+    if report is None:
+        return []
+    reasons = []
+    if abs(report['scale'] - 1.0) > settings.min_change:
+        reasons.append(
+            f'the odometry reads {100.0 * (report["scale"] - 1.0):+.2f} % off the path the '
+            f'LiDARs hold (sigma {100.0 * report["scale_sigma"]:.2f} %, limit '
+            f'{100.0 * settings.min_change:g} %): its speeds were divided by '
+            f'{report["scale"]:.4f} from the first fit on, a wheel radius is off')
+    estimate = report['estimate']
+    name = ' or '.join(first) if first else 'the first LiDAR'
+    if report['first_lidar_offset_applied']:
+        reasons.append(
+            f'LiDAR {name} sits off its stated mount against the odometry: its mount in use '
+            f'was moved by x {100.0 * report["first_lidar_offset_in_use_x_m"]:+.1f} cm, y '
+            f'{100.0 * report["first_lidar_offset_in_use_y_m"]:+.1f} cm (limit '
+            f'{100.0 * settings.offset_limit_m:g} cm and {settings.offset_sigmas:g} sigmas); '
+            f'until then the pose followed it and was off by as much')
+    elif report['first_lidar_offset_found'] and estimate is not None:
+        reasons.append(
+            f'LiDAR {name} sits off its stated mount against the odometry by x '
+            f'{100.0 * estimate["first_lidar_offset_x_m"]:+.1f} cm, y '
+            f'{100.0 * estimate["first_lidar_offset_y_m"]:+.1f} cm (limit '
+            f'{100.0 * settings.offset_limit_m:g} cm and {settings.offset_sigmas:g} sigmas): '
+            f'the pose follows it and is off by as much')
+    return reasons

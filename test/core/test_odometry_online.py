@@ -1,0 +1,156 @@
+"""Online odometry calibration: a speed-scale error is fitted and divided out; a first
+LiDAR off its mount is found against the odometry, moved and named in the verdict; a LiDAR
+mount moved online is named in the verdict with the first LiDAR."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gyro_ekf.analysis.offline import run_trip
+from gyro_ekf.analysis.summary import summarize
+from gyro_ekf.core.odometry_online import OdometryTracker
+from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+
+
+def _summary(seed=3, **changes):
+    return summarize(run_trip(simulate_trip(SimulationConfig(**changes),
+                                            seed)))
+
+
+@pytest.mark.parametrize('error', [0.03, -0.025])
+def test_a_speed_scale_error_is_fitted_divided_out_and_named(error):
+    summary = _summary(speed_scale_error=error)
+    odometry = summary['online_odometry']
+    assert odometry['applied'] >= 1
+    assert odometry['scale'] == pytest.approx(1.0 + error, abs=0.002)
+    assert odometry['first_lidar_offset_applied'] == 0
+    # Divided out from the first fit on (after 20 m), the pose keeps within 2 cm; the
+    # verdict says the wheel is off.
+    assert summary['ground_truth']['position_rmse_m'] <= 0.02
+    assert summary['health']['verdict'] == 'degraded'
+    assert any('odometry reads' in r for r in summary['health']['reasons'])
+
+
+def test_a_right_odometry_is_left_as_it_reads():
+    summary = _summary()
+    odometry = summary['online_odometry']
+    assert odometry['applied'] == 0 and odometry['scale'] == 1.0
+    assert odometry['first_lidar_offset_applied'] == 0
+    assert odometry['estimate']['scale'] == pytest.approx(1.0, abs=0.002)
+    assert summary['health']['verdict'] == 'ok'
+
+
+@pytest.mark.parametrize('offset', [(0.005, -0.026), (-0.02, 0.025)])
+def test_a_first_lidar_off_its_mount_is_found_moved_and_named(offset):
+    # Two LiDARs: without the odometry the rear one's online mount would absorb the
+    # difference (stress seed 0, mount_offset trip 5: RMSE 2.6 cm, verdict ok). Moving
+    # from the start (no start check): found by the fit of the odometry path.
+    summary = _summary(second_lidar=True, lidar_x_error_m=offset[0],
+                       lidar_y_error_m=offset[1], static_s=0.0)
+    odometry = summary['online_odometry']
+    assert odometry['first_lidar_start_check'] is None
+    assert odometry['first_lidar_offset_applied'] >= 1
+    assert (odometry['first_lidar_offset_in_use_x_m'],
+            odometry['first_lidar_offset_in_use_y_m']) == pytest.approx(offset, abs=0.005)
+    # The rear LiDAR's mount, estimated again against the moved pose, is its stated one.
+    rear = summary['online_mounts']['scan2']
+    assert rear['used']['x_m'] == pytest.approx(rear['stated']['x_m'], abs=0.01)
+    assert rear['used']['y_m'] == pytest.approx(rear['stated']['y_m'], abs=0.01)
+    assert summary['health']['verdict'] == 'degraded'
+    assert any('LiDAR scan sits off its stated mount' in r
+               for r in summary['health']['reasons'])
+
+
+def test_the_start_check_moves_a_first_lidar_off_its_mount_before_the_trip_begins():
+    # 8 s standing still at the trusted start pose: 2 s of scans place the LiDAR.
+    trip = simulate_trip(SimulationConfig(second_lidar=True, lidar_x_error_m=0.06), 3)
+    run = run_trip(trip)
+    check = run.result.odometry.report()['first_lidar_start_check']
+    assert check['scans'] >= 20
+    assert (check['x_m'], check['y_m']) == pytest.approx((0.06, 0.0), abs=0.01)
+    summary = summarize(run)
+    assert summary['online_odometry']['first_lidar_offset_in_use_x_m'] == pytest.approx(
+        0.06, abs=0.005)
+    # Moved at 2 s: the pose is right for the rest of the static start and the trip.
+    estimates = run.result.estimates
+    truth = trip.ground_truth
+    late = estimates.stamp_s > 3.0
+    error = np.hypot(*(estimates.state[late, i] - np.interp(
+        estimates.stamp_s[late], truth.stamp_s, truth.pose[:, i]) for i in (0, 1)))
+    assert np.sqrt(np.mean(error ** 2)) <= 0.01
+    assert summary['ground_truth']['nees_share_in_band'] >= 0.9
+    assert summary['health']['verdict'] == 'degraded'
+
+
+def test_the_start_check_needs_a_trusted_start_and_keeps_an_exact_mount():
+    from gyro_ekf.core.config import EkfConfig
+    from gyro_ekf.core.events import EventDriver
+    trusted = EventDriver(EkfConfig(), pose=np.zeros(3))
+    assert trusted.odometry._start_pose == (0.0, 0.0, 0.0)
+    loose = EventDriver(EkfConfig(initial_position_sigma_m=0.1), pose=np.zeros(3))
+    assert loose.odometry._start_pose is None
+    # Exact mounts: the check's offset stays within its 3 sigmas and nothing moves.
+    run = run_trip(simulate_trip(SimulationConfig(second_lidar=True), 3))
+    report = run.result.odometry.report()
+    check = report['first_lidar_start_check']
+    assert max(abs(check['x_m']), abs(check['y_m'])) <= 3.0 * check['sigma_m']
+    assert report['first_lidar_offset_applied'] == 0
+
+
+def test_a_mount_moved_online_is_named_with_the_first_lidar():
+    from gyro_ekf.core.health import RunFigures, verdict
+    stated = {'x_m': 0.46, 'y_m': 0.0, 'yaw_deg': 180.0}
+    report = {'name': 'scan2', 'stated': stated,
+              'used': {'x_m': 0.455, 'y_m': 0.025, 'yaw_deg': 180.02}}
+    sensors = [{'name': 'scan', 'exclusions': 0, 'disagreed_s': 0.0, 'disagreement': None},
+               {'name': 'scan2', 'exclusions': 0, 'disagreed_s': 0.0, 'disagreement': None}]
+    base = dict(detections=100, matched=99, updates=99, nis_mean=2.0, longest_gap_s=0.1,
+                start_gap_s=0.1, sensors=sensors)
+    found = verdict(RunFigures(**base, mounts=[report]))
+    assert found['verdict'] == 'degraded'
+    assert 'scan2' in found['reasons'][0] and 'or scan ' in found['reasons'][0]
+    same = verdict(RunFigures(**base, mounts=[{**report, 'used': stated}]))
+    assert same['verdict'] == 'ok'
+
+
+def test_save_and_restore_put_the_estimator_back_exactly():
+    rng = np.random.default_rng(1)
+    tracker = OdometryTracker()
+    yaw, x, y = 0.0, 0.0, 0.0
+    rows = []
+    for k in range(1500):
+        yaw += 0.02 * math.sin(k / 50.0)
+        x += 0.1 * math.cos(yaw)
+        y += 0.1 * math.sin(yaw)
+        rows.append((k * 0.1, yaw, [x + rng.normal(0, 0.003), y + rng.normal(0, 0.003), yaw]))
+
+    def feed(part):
+        out = []
+        for stamp, heading, pose in part:
+            tracker.advance(0.1, 1.03, heading)  # reads 3 % fast
+            out.append(tracker.observe(stamp, pose))
+        return out
+
+    feed(rows[:1200])
+    saved = tracker.save()
+    first = (feed(rows[1200:]), tracker.report())
+    tracker.restore(saved)
+    assert (feed(rows[1200:]), tracker.report()) == first
+    assert tracker.scale == pytest.approx(1.03, abs=0.001)
+
+
+def test_the_estimator_is_off_at_zero():
+    import dataclasses
+
+    from gyro_ekf.core.config import EkfConfig
+    from gyro_ekf.io.params_file import PipelineParams
+    off = dataclasses.replace(PipelineParams(), ekf=dataclasses.replace(
+        EkfConfig(), odometry_online_min_change=0.0))
+    trip = simulate_trip(SimulationConfig(speed_scale_error=0.03, lidar_x_error_m=0.05), 3)
+    report = run_trip(trip, off).result.odometry.report()
+    assert report['applied'] == 0 and report['scale'] == 1.0 and report['fits'] == 0
+    assert report['first_lidar_offset_applied'] == 0
+    assert report['first_lidar_start_check'] is None
