@@ -390,12 +390,16 @@ class GyroBiasEkf:
         """
         if dt_s <= 0.0:
             return
+        rate_var = self._sigma_w2 if rate_variance is None else rate_variance
+        if self.rate_noise_scale != 1.0:
+            rate_var *= self.rate_noise_scale
+        bias_walk = self._q_b2
+        if self.bias_walk_found:
+            bias_walk += self.bias_walk_found / dt_s
         self._s, self._p = self._maths.predict(
             self._s, self._p, float(speed_m_s), float(rate_rad_s), float(dt_s),
-            self._sigma_v2 if speed_variance is None else speed_variance,
-            (self._sigma_w2 if rate_variance is None else rate_variance)
-            * self.rate_noise_scale,
-            self._q_pos2, self._q_b2 + self.bias_walk_found / dt_s, hold_position)
+            self._sigma_v2 if speed_variance is None else speed_variance, rate_var,
+            self._q_pos2, bias_walk, hold_position)
 
     def update_zero_rate(self, rate_rad_s: float, variance: float) -> float:
         """Correct with a gyro sample taken standing still: z = w = b + noise.

@@ -101,6 +101,11 @@ class EventDriver:
             min_change=self.config.odometry_online_min_change))
         self.odometry.start_at(self._trusted(pose))
         self._measured_speed_m_s = 0.0
+        # Stamp up to which the odometry path's distance is summed, the distance not yet
+        # laid along the heading, and the heading at the last scan (_integrate_path).
+        self._path_s: float | None = None
+        self._path_m = 0.0
+        self._path_yaw = 0.0
         self.last_transition: Transition | None = None
         self.sensor_names: dict[LidarMount, str] = {}
         self.stamp_s: float | None = None
@@ -148,6 +153,7 @@ class EventDriver:
         self.odometry.reset()
         self.odometry.start_at(self._trusted(pose))
         self._measured_speed_m_s = 0.0
+        self._path_s, self._path_m, self._path_yaw = None, 0.0, 0.0
         self.stamp_s = None
         self.speed_m_s = 0.0
         self.rate_rad_s = None
@@ -181,14 +187,16 @@ class EventDriver:
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
                  self.zero_rate), self.mounts.save(), self.bias_watch.copy(),
                 self.held_rate.save(), self._rate_stamp_s, self._heading_dt2,
-                (self.odometry.save(), self._measured_speed_m_s))
+                (self.odometry.save(), self._measured_speed_m_s, self._path_s,
+                 self._path_m, self._path_yaw))
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
         (ekf, stats, self.stamp_s, self.speed_m_s, self.rate_rad_s, self.speed_variance,
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
          watch, held, self._rate_stamp_s, self._heading_dt2,
-         (odometry, self._measured_speed_m_s)) = saved
+         (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
+          self._path_yaw)) = saved
         self.held_rate.restore(held)
         self.odometry.restore(odometry)
         self.bias_watch = watch.copy()
@@ -222,7 +230,6 @@ class EventDriver:
             self.stats.long_gaps += 1
         speed_variance, rate_variance = self.speed_variance, self.rate_variance
         hold = self.zero_rate
-        yaw, total_s = self.ekf.yaw_rad, dt_s
         while dt_s > step:
             self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance, hold)
             # Sum of T^2 over the predictions: times sigma_w^2, the heading noise they added
@@ -237,9 +244,24 @@ class EventDriver:
             self.ekf.add_heading_variance(self.held_rate.heading_variance(
                 self.stamp_s - rate_stamp, stamp_s - rate_stamp))
         self.stamp_s = stamp_s
-        if self._measured_speed_m_s and not hold:
-            self.odometry.advance(total_s, self._measured_speed_m_s,
-                                  midpoint_yaw(yaw, self.ekf.yaw_rad))
+
+    def _integrate_path(self, scan: bool) -> None:
+        """Bring the odometry path up to the filter's stamp: the held speed along the heading.
+
+        The distance is summed at every speed sample (the speed held since the last one);
+        it is laid along the heading at scans only (the midpoint of the headings at the two
+        scans: the heading moves little between scans, and the fits use the path at scans).
+        """
+        stamp = self.stamp_s
+        if self._path_s is not None and self._measured_speed_m_s and not self.zero_rate:
+            self._path_m += self._measured_speed_m_s * (stamp - self._path_s)
+        self._path_s = stamp
+        if scan:
+            yaw = self.ekf.yaw_rad
+            if self._path_m:
+                self.odometry.advance(self._path_m, midpoint_yaw(self._path_yaw, yaw))
+                self._path_m = 0.0
+            self._path_yaw = yaw
 
     def on_speed(self, stamp_s: float, speed_m_s: float, variance: float | None = None
                  ) -> None:
@@ -249,11 +271,15 @@ class EventDriver:
         means the configured speed noise.
         """
         self._advance(stamp_s, 'speed')
+        self._integrate_path(scan=False)
         # Divided by the speed scale estimated online (1 until one is applied).
         self._measured_speed_m_s = speed_m_s
-        self.speed_m_s = self.odometry.corrected(speed_m_s)
-        self.speed_variance = self.odometry.variance(speed_m_s, variance,
-                                                     self.config.speed_noise_m_s ** 2)
+        if self.odometry.applied:
+            self.speed_m_s = self.odometry.corrected(speed_m_s)
+            self.speed_variance = self.odometry.variance(speed_m_s, variance,
+                                                         self.config.speed_noise_m_s ** 2)
+        else:
+            self.speed_m_s, self.speed_variance = speed_m_s, variance
         self.stats.speed += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
@@ -348,6 +374,7 @@ class EventDriver:
         points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)
         self.stats.detections += points.shape[0]
         prior = self.ekf.x
+        self._integrate_path(scan=True)
         key = mount  # the LiDAR (its stated mount): the key of its health and rest counts
         tracker = self.mounts.trackers.get(key)
         if tracker is not None:

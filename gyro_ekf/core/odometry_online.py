@@ -103,7 +103,7 @@ class OdometrySettings:
     """
 
     window_s: float = 60.0
-    fit_every_s: float = 2.0
+    fit_every_s: float = 5.0
     min_distance_m: float = 5.0
     min_offset_distance_m: float = 20.0
     offset_prior_m: float = 0.1
@@ -153,11 +153,13 @@ class OdometryTracker:
         fit: the last fit, or None.
         applied: times a fit replaced the scale in use.
         fits: fits made.
+        enabled: whether the estimator runs (``min_change`` above 0).
     """
 
     def __init__(self, settings: OdometrySettings | None = None):
         """Start with the odometry taken as it reads, and an empty window."""
         self.settings = settings or OdometrySettings()
+        self.enabled = self.settings.min_change > 0.0
         # Samples (stamp, D x, D y, distance, pose x, y, yaw), append-only; the first
         # _dropped were deleted.
         self._entries: list[tuple[float, float, float, float, float, float, float]] = []
@@ -209,13 +211,12 @@ class OdometryTracker:
         relative = self.scale_sigma / self.scale
         return base / (self.scale * self.scale) + (speed_m_s * relative) ** 2
 
-    def advance(self, dt_s: float, measured_speed_m_s: float, yaw_rad: float) -> None:
-        """Add one prediction step to the odometry path: the measured speed along yaw."""
-        step = measured_speed_m_s * dt_s
-        if step and self.enabled:
-            self._dx += step * math.cos(yaw_rad)
-            self._dy += step * math.sin(yaw_rad)
-            self._distance += abs(step)
+    def advance(self, distance_m: float, yaw_rad: float) -> None:
+        """Add a stretch of the odometry path: the measured distance along a heading (m, rad)."""
+        if self.enabled:
+            self._dx += distance_m * math.cos(yaw_rad)
+            self._dy += distance_m * math.sin(yaw_rad)
+            self._distance += abs(distance_m)
 
     def save(self) -> tuple:
         """Return the state (O(1): the entries list is append-only)."""
@@ -238,11 +239,6 @@ class OdometryTracker:
             self._dropped = end
         else:
             del self._entries[end - self._dropped:]
-
-    @property
-    def enabled(self) -> bool:
-        """Whether the estimator runs (``min_change`` above 0)."""
-        return self.settings.min_change > 0.0
 
     def start_at(self, pose: FloatArray | None) -> None:
         """Check the first LiDAR against this start pose (None: the pose is not trusted)."""

@@ -130,7 +130,7 @@ def test_save_and_restore_put_the_estimator_back_exactly():
     def feed(part):
         out = []
         for stamp, heading, pose in part:
-            tracker.advance(0.1, 1.03, heading)  # reads 3 % fast
+            tracker.advance(0.1 * 1.03, heading)  # reads 3 % fast
             out.append(tracker.observe(stamp, pose))
         return out
 
