@@ -274,12 +274,8 @@ class EventDriver:
         self._integrate_path(scan=False)
         # Divided by the speed scale estimated online (1 until one is applied).
         self._measured_speed_m_s = speed_m_s
-        if self.odometry.applied:
-            self.speed_m_s = self.odometry.corrected(speed_m_s)
-            self.speed_variance = self.odometry.variance(speed_m_s, variance,
-                                                         self.config.speed_noise_m_s ** 2)
-        else:
-            self.speed_m_s, self.speed_variance = speed_m_s, variance
+        self.speed_m_s, self.speed_variance = self.odometry.correct(
+            speed_m_s, variance, self.config.speed_noise_m_s ** 2)
         self.stats.speed += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()

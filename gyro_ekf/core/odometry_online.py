@@ -188,10 +188,6 @@ class OdometryTracker:
         self.applied = 0
         self.fits = 0
 
-    def corrected(self, speed_m_s: float) -> float:
-        """Return a measured speed divided by the scale in use."""
-        return speed_m_s if self.scale == 1.0 else speed_m_s / self.scale
-
     def first_mount(self, stated: LidarMount) -> LidarMount:
         """Return the mount in use of a LiDAR that defines the body frame (stated + offset)."""
         dx, dy = self.offset_m
@@ -199,17 +195,19 @@ class OdometryTracker:
             return stated
         return LidarMount(stated.x_m + dx, stated.y_m + dy, stated.yaw_rad)
 
-    def variance(self, speed_m_s: float, variance: float | None, configured: float
-                 ) -> float | None:
-        """Return the variance of a corrected speed: the scale's uncertainty added.
+    def correct(self, speed_m_s: float, variance: float | None, configured: float
+                ) -> tuple[float, float | None]:
+        """Return a measured speed divided by the scale in use, and its variance.
 
-        ``variance`` is the message's own (None: ``configured``, the configured noise).
+        ``variance`` is the message's own (None: ``configured``, the configured noise); the
+        scale's uncertainty is added to it. Until a scale is applied both pass unchanged.
         """
         if not self.applied:
-            return variance
+            return speed_m_s, variance
         base = configured if variance is None else variance
         relative = self.scale_sigma / self.scale
-        return base / (self.scale * self.scale) + (speed_m_s * relative) ** 2
+        return (speed_m_s / self.scale,
+                base / (self.scale * self.scale) + (speed_m_s * relative) ** 2)
 
     def advance(self, distance_m: float, yaw_rad: float) -> None:
         """Add a stretch of the odometry path: the measured distance along a heading (m, rad)."""
