@@ -11,7 +11,8 @@ The estimator, outside the filter's state as the online mount estimator is
 ``window_s`` seconds:
 
 - ``D(t)``, the odometry path: the *measured* speed integrated along the filter's heading
-  (the midpoint of each prediction step), never corrected, so that a fit does not depend
+  (the distance since the last scan laid along the midpoint of the headings at the two
+  scans, by the driver), never corrected, so that a fit does not depend
   on the scale in use;
 - ``p(t)``, the filter's position after each scan's landmark updates (while moving): held
   by the map to a few millimetres however wrong the odometry is.
