@@ -172,7 +172,8 @@ class EventDriver:
     def track_mounts(self, mounts: Iterable[tuple[LidarMount, str]]) -> None:
         """Estimate these LiDARs' mounts online, (stated mount, name) each.
 
-        Every LiDAR but the first, which defines the body frame with the odometry; off when
+        Every LiDAR but the first, which defines the body frame with the odometry (until
+        it disagrees with the map and another takes over, OnlineMounts.hand_over); off when
         ``mount_online_yaw_sigma_rad`` is 0.
         """
         if self.config.mount_online_yaw_sigma_rad > 0.0:
@@ -517,10 +518,23 @@ class EventDriver:
                 self.stats.bias_largest_opening_rad_s, math.sqrt(variance))
 
     def _judged(self, key: LidarMount, transition: Transition | None) -> None:
-        """Keep the health monitor's decision; re-estimate a newly excluded LiDAR's mount."""
+        """Keep the health monitor's decision; re-estimate a newly excluded LiDAR's mount.
+
+        When the excluded LiDAR is the one that defines the body frame, a tracked LiDAR
+        that agrees with the map at its stated mount takes over (OnlineMounts.hand_over).
+        """
         self.last_transition = transition
-        if transition is not None and transition.change == 'excluded':
-            self.mounts.restart(key)
+        if transition is None or transition.change != 'excluded':
+            return
+        if key not in self.mounts.trackers:
+            for other in self.health.vouching_peers(key, transition.stamp_s):
+                tracker = self.mounts.trackers.get(other)
+                # Not one whose mount was estimated against the pose the excluded one held.
+                if tracker is not None and not tracker.applied:
+                    self.mounts.hand_over(key, transition.sensor, other, transition.stamp_s)
+                    self.odometry.new_reference(transition.stamp_s)
+                    break
+        self.mounts.restart(key)
 
     def _recheck(self, stamp_s: float, points: FloatArray, z: list, prior: FloatArray,
                  key: LidarMount, mount: LidarMount, result: AssociationResult,

@@ -399,16 +399,19 @@ class HealthMonitor:
             return f'mean NIS {nis:.1f} above {self.config.health_max_nis_mean:g}'
         return None
 
+    def vouching_peers(self, key: Hashable, stamp_s: float) -> list[Hashable]:
+        """Keys of the other admitted, agreeing LiDARs that associate well now."""
+        return [other_key for other_key, other in self.sensors.items()
+                if other_key != key and other.excluded_since is None and other.reason is None
+                and other.last_s is not None
+                and stamp_s - other.last_s <= self.config.health_window_s
+                and other.w_detected >= self.config.health_min_detections
+                and other.share() >= self.config.health_good_association_share]
+
     def _vouching_peer(self, key: Hashable, stamp_s: float) -> str | None:
         """Name of another admitted, agreeing LiDAR that associates well now, or None."""
-        for other_key, other in self.sensors.items():
-            if (other_key != key and other.excluded_since is None and other.reason is None
-                    and other.last_s is not None
-                    and stamp_s - other.last_s <= self.config.health_window_s
-                    and other.w_detected >= self.config.health_min_detections
-                    and other.share() >= self.config.health_good_association_share):
-                return other.name
-        return None
+        peers = self.vouching_peers(key, stamp_s)
+        return self.sensors[peers[0]].name if peers else None
 
     def _judge(self, key: Hashable, health: SensorHealth, stamp_s: float, readmit: bool
                ) -> Transition | None:

@@ -189,6 +189,16 @@ class OdometryTracker:
         self.applied = 0
         self.fits = 0
 
+    def new_reference(self, stamp_s: float) -> None:
+        """Another LiDAR defines the body frame from `stamp_s` (OnlineMounts.hand_over).
+
+        The offset found belonged to the LiDAR that defined it before: the new one is taken
+        at its stated mount, fits use only the poses it holds, the start check ends.
+        """
+        self.offset_m = (0.0, 0.0)
+        self._window_start_s = stamp_s
+        self._start_pose = None
+
     def first_mount(self, stated: LidarMount) -> LidarMount:
         """Return the mount in use of a LiDAR that defines the body frame (stated + offset)."""
         dx, dy = self.offset_m

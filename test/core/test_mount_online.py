@@ -14,7 +14,7 @@ from gyro_ekf.analysis.offline import run_trip
 from gyro_ekf.analysis.summary import summarize
 from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core.events import EventDriver
-from gyro_ekf.core.mount_online import (ACQUIRING, CONFIRMED, MountTracker,
+from gyro_ekf.core.mount_online import (ACQUIRING, CONFIRMED, MountTracker, OnlineMounts,
                                         OnlineMountSettings)
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 from gyro_ekf.core.types import LidarMount
@@ -169,3 +169,45 @@ def test_save_and_restore_put_the_estimator_back_exactly():
     # Seen from the true poses, the mount is found to a few hundredths of a degree.
     assert tracker.used.yaw_rad == pytest.approx(math.pi - math.radians(6.0),
                                                  abs=math.radians(0.05))
+
+
+@pytest.mark.parametrize('seed, yaw_error_deg', [(51, 5.0), (52, -8.0), (53, 2.0)])
+def test_a_mis_mounted_first_lidar_hands_the_body_frame_over_and_is_found(
+        seed, yaw_error_deg):
+    # The first LiDAR defines the body frame; the rear one, exact, agrees with the map.
+    trip = simulate_trip(SimulationConfig(
+        duration_s=60.0, second_lidar=True, lidar_yaw_error_rad=math.radians(yaw_error_deg)),
+        seed)
+    summary = summarize(run_trip(trip))
+    online = summary['online_mounts']
+    assert set(online) == {'scan'}  # scan2 defines the body frame now, scan is tracked
+    first = online['scan']
+    assert first['handed_over_s'] is not None and first['state'] == CONFIRMED
+    assert first['yaw_error_deg'] == pytest.approx(yaw_error_deg, abs=0.2)
+    changes = [(t['lidar'], t['change']) for t in summary['health']['transitions']]
+    assert changes == [('scan', 'excluded'), ('scan', 'readmitted')]
+    verdict = summary['health']
+    assert verdict['verdict'] == 'degraded'
+    assert any('scan2 defines the body frame' in reason for reason in verdict['reasons'])
+    _assert_within_bounds(summary)
+    # Without online estimation the first LiDAR stays out for the whole run.
+    off = summarize(run_trip(trip, OFF))
+    assert off['online_mounts'] == {}
+    assert [t['change'] for t in off['health']['transitions']] == ['excluded']
+
+
+def test_a_hand_over_is_undone_by_restore_and_by_reset():
+    first, rear = LidarMount(), LidarMount(x_m=-0.3, yaw_rad=math.pi)
+    mounts = OnlineMounts()
+    mounts.track([(rear, 'scan2')])
+    saved = mounts.save()
+    tracked_rear = mounts.trackers[rear]
+    mounts.hand_over(first, 'scan', rear, 12.5)
+    assert list(mounts.trackers) == [first] and mounts.handovers == 1
+    assert mounts.report()[0]['handed_over_s'] == 12.5
+    mounts.restore(saved)
+    assert list(mounts.trackers) == [rear] and mounts.trackers[rear] is tracked_rear
+    assert mounts.handovers == 0
+    mounts.hand_over(first, 'scan', rear, 12.5)
+    mounts.reset()
+    assert list(mounts.trackers) == [rear] and mounts.report()[0]['handed_over_s'] is None
