@@ -385,6 +385,14 @@ class EventDriver:
                     stamp_s, points, mount, self.landmarks.xy_m,
                     abs(self._measured_speed_m_s) > self.config.rest_speed_m_s)
                 if moved is not None:
+                    if self._hand_over(key, stamp_s, self.odometry.checked_at):
+                        # Off its mount at the trusted start pose, and another LiDAR agrees
+                        # with the map there: that one defines the body frame, this one's
+                        # mount is estimated online, and the pose it dragged goes back.
+                        still_at = self.odometry.still_at
+                        if still_at is not None:
+                            self.ekf.reset(np.array(still_at), self.ekf.bias_rad_s, self.ekf.P)
+                        return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
                     self._first_lidar_moved(key, moved)
                     mount = self.odometry.first_mount(key)
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
@@ -396,6 +404,9 @@ class EventDriver:
         excluded = self.health.excluded(key)
         held = False
         if tracker is not None:
+            if self.odometry.at_start(abs(self._measured_speed_m_s)
+                                      > self.config.rest_speed_m_s) is not None:
+                tracker.observe_start(points)
             # The pose does not depend on a LiDAR held out or excluded.
             if self.mounts.observe(key, stamp_s, prior.tolist(), points, self.landmarks.xy_m,
                                    excluded or tracker.holds):
@@ -527,14 +538,31 @@ class EventDriver:
         if transition is None or transition.change != 'excluded':
             return
         if key not in self.mounts.trackers:
-            for other in self.health.vouching_peers(key, transition.stamp_s):
-                tracker = self.mounts.trackers.get(other)
-                # Not one whose mount was estimated against the pose the excluded one held.
-                if tracker is not None and not tracker.applied:
-                    self.mounts.hand_over(key, transition.sensor, other, transition.stamp_s)
-                    self.odometry.new_reference(transition.stamp_s)
-                    break
+            self._hand_over(key, transition.stamp_s)
         self.mounts.restart(key)
+
+    def _hand_over(self, key: LidarMount, stamp_s: float,
+                   start: tuple[float, float, float] | None = None) -> bool:
+        """Let a tracked LiDAR that agrees with the map define the body frame instead of
+        `key` (which disagrees); return whether one did (OnlineMounts.hand_over).
+
+        It agrees when the health monitor says so, or, at the start check (`start`: the
+        trusted start pose), when its own scans there keep its mount in use: the pose the
+        health monitor judges by was dragged by `key` meanwhile.
+        """
+        if start is None:
+            candidates = self.health.vouching_peers(key, stamp_s)
+        else:
+            candidates = [other for other, tracker in self.mounts.trackers.items()
+                          if tracker.agrees_at_start(start, self.landmarks.xy_m)]
+        for other in candidates:
+            tracker = self.mounts.trackers.get(other)
+            # Not one whose mount was estimated against the pose the other one held.
+            if tracker is not None and not tracker.applied:
+                self.mounts.hand_over(key, self.health.sensor(key).name, other, stamp_s)
+                self.odometry.new_reference(stamp_s)
+                return True
+        return False
 
     def _recheck(self, stamp_s: float, points: FloatArray, z: list, prior: FloatArray,
                  key: LidarMount, mount: LidarMount, result: AssociationResult,

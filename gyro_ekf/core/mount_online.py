@@ -231,6 +231,10 @@ class MountTracker:
         self.converged_s: float | None = None
         # When this LiDAR stopped defining the body frame (OnlineMounts.hand_over), or None.
         self.handed_over_s: float | None = None
+        # Its detections while standing at a start pose the filter trusts (append-only),
+        # and their scans: agrees_at_start.
+        self._start_points: list[tuple[float, float]] = []
+        self._start_scans = 0
         self.restart()
 
     def restart(self, state: str = ACQUIRING) -> None:
@@ -261,16 +265,18 @@ class MountTracker:
         return self.state != CONFIRMED and self._seen < self.settings.hold_detections
 
     def save(self) -> tuple:
-        """Return the state (O(1): the entries list is append-only)."""
+        """Return the state (O(1): the entries lists are append-only)."""
         return (self._start, self._dropped + len(self._entries), self._since_fit, self._seen,
                 self._last_pose, self.state, self.fit, self._previous, self.used,
-                self.applied, self.refined, self.fits, self.converged_s)
+                self.applied, self.refined, self.fits, self.converged_s,
+                len(self._start_points), self._start_scans)
 
     def restore(self, saved: tuple) -> None:
         """Put back a state from ``save``."""
         (self._start, end, self._since_fit, self._seen, self._last_pose, self.state, self.fit,
          self._previous, self.used, self.applied, self.refined, self.fits,
-         self.converged_s) = saved
+         self.converged_s, start_points, self._start_scans) = saved
+        del self._start_points[start_points:]
         if end < self._dropped:
             # Older than what was compacted away (never within a replay history): empty.
             self._entries.clear()
@@ -278,6 +284,37 @@ class MountTracker:
         else:
             del self._entries[end - self._dropped:]
         self._start = max(self._start, self._dropped)
+
+    def observe_start(self, points_sensor_m: FloatArray) -> None:
+        """Add a scan taken standing still at a start pose the filter trusts exactly."""
+        self._start_points.extend(map(tuple, points_sensor_m.tolist()))
+        self._start_scans += 1
+
+    def agrees_at_start(self, pose: tuple[float, float, float], poles: FloatArray) -> bool:
+        """Whether the scans of ``observe_start``, placed with that start pose, keep the
+        mount in use within the change limits (at ``change_sigmas`` sigmas).
+
+        The scans of a stop repeat their errors, so together they are worth one scan (the
+        fit's covariance is multiplied by their count), as in the odometry's start check.
+        """
+        if len(self._start_points) < MIN_DETECTIONS:
+            return False
+        points = np.array(self._start_points)
+        result = fit_window(points, np.tile(pose, (len(points), 1)), poles, self.used,
+                            self.settings.fit, search=False)
+        if result is None:
+            return False
+        theta, covariance, _, observable = result
+        sigma = np.sqrt(np.abs(np.diag(covariance)) * self._start_scans)
+        settings, used = self.settings, self.used
+        k = settings.change_sigmas
+        if abs(wrap_scalar(float(theta[0]) - used.yaw_rad)) > max(
+                settings.min_yaw_change_rad, k * sigma[0]):
+            return False
+        return not observable or all(
+            abs(a - b) <= max(settings.min_offset_change_m, k * s)
+            for a, b, s in ((float(theta[1]), used.x_m, sigma[1]),
+                            (float(theta[2]), used.y_m, sigma[2])))
 
     def observe(self, stamp_s: float, pose: list[float], points_sensor_m: FloatArray,
                 poles: FloatArray, excluded: bool = False) -> bool:

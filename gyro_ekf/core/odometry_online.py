@@ -178,6 +178,9 @@ class OdometryTracker:
         self._start_scans = 0
         self._start_first_s: float | None = None
         self.start_fit: dict[str, float] | None = None
+        # The pose the start check closed at, and the same when still standing there.
+        self.checked_at: tuple[float, float, float] | None = None
+        self.still_at: tuple[float, float, float] | None = None
         self._dx = self._dy = self._distance = 0.0
         self._last_fit_s: float | None = None
         self._window_start_s = -math.inf
@@ -286,7 +289,16 @@ class OdometryTracker:
             if stamp_s - self._start_first_s < self.settings.start_check_s:
                 return None
         pose, self._start_pose = self._start_pose, None
+        self.checked_at = pose
+        # Still standing at the start pose: the driver may put the pose back there.
+        self.still_at = None if moved else pose
         return self._fit_start(pose, mount, poles)
+
+    def at_start(self, moving: bool) -> tuple[float, float, float] | None:
+        """The start pose while its check is open and the platform has not moved, or None."""
+        if self._start_pose is None or self._distance > 0.0 or moving:
+            return None
+        return self._start_pose
 
     def _fit_start(self, pose: tuple[float, float, float], mount: LidarMount,
                    poles: FloatArray) -> tuple[float, float, float] | None:

@@ -211,3 +211,20 @@ def test_a_hand_over_is_undone_by_restore_and_by_reset():
     mounts.hand_over(first, 'scan', rear, 12.5)
     mounts.reset()
     assert list(mounts.trackers) == [rear] and mounts.report()[0]['handed_over_s'] is None
+
+
+def test_a_first_lidar_off_its_offset_at_the_start_hands_over_before_it_drags_the_pose():
+    # 3.6 cm off at an 8 s static start: the start check (2 s) finds it against the trusted
+    # start pose, the rear LiDAR's own scans there keep its stated mount, so it takes over.
+    trip = simulate_trip(SimulationConfig(
+        duration_s=60.0, second_lidar=True, lidar_x_error_m=0.03, lidar_y_error_m=0.02), 17)
+    summary = summarize(run_trip(trip))
+    first = summary['online_mounts']['scan']
+    assert first['handed_over_s'] is not None and first['handed_over_s'] <= 3.0
+    used, stated = first['used'], first['stated']
+    assert (used['x_m'] - stated['x_m'], used['y_m'] - stated['y_m']) == pytest.approx(
+        (0.03, 0.02), abs=0.01)
+    # Taken over at the start check, before the health monitor judged it.
+    assert all(t['stamp_s'] > first['handed_over_s']
+               for t in summary['health']['transitions'])
+    assert summary['ground_truth']['position_rmse_m'] <= 0.02
