@@ -393,6 +393,7 @@ class EventDriver:
                         if still_at is not None:
                             self.ekf.reset(np.array(still_at), self.ekf.bias_rad_s, self.ekf.P)
                         return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
+                    self.odometry.apply(moved)
                     self._first_lidar_moved(key, moved)
                     mount = self.odometry.first_mount(key)
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
@@ -485,21 +486,29 @@ class EventDriver:
             self.stats.last_association_s = stamp_s
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
 
-    def _first_lidar_moved(self, key: LidarMount, moved: tuple[float, float, float]) -> None:
-        """Move the pose back by (x, y, sigma): the first LiDAR's mount in use moved so.
+    def _first_lidar_moved(self, key: LidarMount,
+                           moved: tuple[float, float, float, float, float],
+                           start: tuple[float, float, float] | None = None) -> None:
+        """Move the pose back by (x, y, sigma, yaw, yaw sigma): the first LiDAR's mount in
+        use moved so.
 
-        The pose followed the LiDAR: move it back by as much, with that uncertainty; every
-        other LiDAR's mount, estimated against the old pose, is estimated again, and the
-        LiDAR's health is judged on new figures (core/odometry_online.py).
+        The pose followed the LiDAR: move it back by as much (turn the heading back by the
+        yaw), with that uncertainty; every other LiDAR's mount, estimated against the old
+        pose, is estimated again, and the LiDAR's health is judged on new figures
+        (core/odometry_online.py). Found by the start check while still standing at the
+        trusted start pose (`start`), the pose is that pose: the LiDAR had dragged the
+        heading too.
         """
-        dx, dy, sigma = moved
+        dx, dy, sigma, dyaw, yaw_sigma = moved
         x = self.ekf.x
         c, s = math.cos(x[YAW]), math.sin(x[YAW])
         P = self.ekf.P
         P[0, 0] += sigma * sigma
         P[1, 1] += sigma * sigma
-        self.ekf.reset(np.array([x[0] - c * dx + s * dy, x[1] - s * dx - c * dy, x[YAW]]),
-                       float(x[3]), P)
+        P[YAW, YAW] += yaw_sigma * yaw_sigma
+        pose = np.array(start if start is not None else
+                        (x[0] - c * dx + s * dy, x[1] - s * dx - c * dy, x[YAW] - dyaw))
+        self.ekf.reset(pose, float(x[3]), P)
         for other in self.mounts.trackers:
             self.mounts.restart(other)
         self.health.mount_changed(key, self.stamp_s)
@@ -561,6 +570,10 @@ class EventDriver:
             if tracker is not None and not tracker.applied:
                 self.mounts.hand_over(key, self.health.sensor(key).name, other, stamp_s)
                 self.odometry.new_reference(stamp_s)
+                if start is not None:
+                    # Excluded against the pose `key` dragged, it agreed at the start pose.
+                    self.health.vouched(other, stamp_s, 'its scans at the trusted start '
+                                        'pose agree with its stated mount')
                 return True
         return False
 

@@ -484,6 +484,14 @@ class HealthMonitor:
         # The innovations under the former mount say nothing about the new one.
         self.whiteness.pop(key, None)
 
+    def vouched(self, key: Hashable, stamp_s: float, why: str) -> Transition | None:
+        """Readmit an excluded LiDAR found right by other means (its own scans at a start
+        pose the filter trusts exactly: core/events.py's hand-over); None if not excluded."""
+        health = self.sensors.get(key)
+        if health is None or health.excluded_since is None:
+            return None
+        return self._change(health, stamp_s, 'readmitted', None, why)
+
     def report(self) -> list[dict[str, Any]]:
         """Figures of every LiDAR, in the order first seen, with its whiteness test."""
         out = []

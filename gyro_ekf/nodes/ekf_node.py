@@ -40,7 +40,9 @@ LiDAR but the first has its mount estimated online, core/mount_online.py:
 `mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`), and the odometry's speed scale and
 the first LiDAR's offset estimated online (core/odometry_online.py: `odometry_scale` in use,
 `odometry_scale_{applied,estimate,sigma}`, `odometry_first_lidar_offset_{x_m,y_m,found}`
-of the last fit, `odometry_first_lidar_offset_{in_use_x_m,in_use_y_m,applied}`);
+and `odometry_first_lidar_yaw_{deg,found}` of the last fit,
+`odometry_first_lidar_offset_{in_use_x_m,in_use_y_m,applied}` and
+`odometry_first_lidar_yaw_in_use_deg`);
 `ekf/mounts` (PoseArray in
 `base_link`, latched) holds the same mounts, one pose per `lidar.topics` entry in that
 order, published again when an online estimate replaces one.
@@ -885,7 +887,10 @@ def _odometry_values(report: dict) -> dict[str, str]:
             'first_lidar_offset_found': str(report['first_lidar_offset_found']).lower(),
             'first_lidar_offset_in_use_x_m': f'{report["first_lidar_offset_in_use_x_m"]:.4f}',
             'first_lidar_offset_in_use_y_m': f'{report["first_lidar_offset_in_use_y_m"]:.4f}',
-            'first_lidar_offset_applied': str(report['first_lidar_offset_applied'])}
+            'first_lidar_offset_applied': str(report['first_lidar_offset_applied']),
+            'first_lidar_yaw_deg': figure('first_lidar_yaw_deg', 3),
+            'first_lidar_yaw_found': str(report['first_lidar_yaw_found']).lower(),
+            'first_lidar_yaw_in_use_deg': f'{report["first_lidar_yaw_in_use_deg"]:.3f}'}
 
 
 def main(args: list[str] | None = None) -> int:

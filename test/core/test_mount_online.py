@@ -227,4 +227,7 @@ def test_a_first_lidar_off_its_offset_at_the_start_hands_over_before_it_drags_th
     # Taken over at the start check, before the health monitor judged it.
     assert all(t['stamp_s'] > first['handed_over_s']
                for t in summary['health']['transitions'])
+    # The offset the start check found was the first LiDAR's, not the new reference's.
+    assert summary['online_odometry']['first_lidar_offset_applied'] == 0
+    assert not any('against the odometry' in r for r in summary['health']['reasons'])
     assert summary['ground_truth']['position_rmse_m'] <= 0.02

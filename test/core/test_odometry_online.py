@@ -64,6 +64,31 @@ def test_a_first_lidar_off_its_mount_is_found_moved_and_named(offset):
                for r in summary['health']['reasons'])
 
 
+@pytest.mark.parametrize('seed, yaw_error_deg', [(3, 0.5), (4, -0.8)])
+def test_a_first_lidar_turned_off_the_odometry_direction_is_found_turned_and_named(
+        seed, yaw_error_deg):
+    # One LiDAR, its yaw off its stated mount: the pose's heading follows the LiDAR, the
+    # odometry moves along the heading, so the odometry path turns away from the path the
+    # map holds, by the same angle.
+    trip = simulate_trip(SimulationConfig(lidar_yaw_error_rad=math.radians(yaw_error_deg)),
+                         seed)
+    run = run_trip(trip)
+    summary = summarize(run)
+    odometry = summary['online_odometry']
+    assert odometry['first_lidar_offset_applied'] >= 1
+    assert odometry['first_lidar_yaw_in_use_deg'] == pytest.approx(yaw_error_deg, abs=0.05)
+    assert summary['health']['verdict'] == 'degraded'
+    assert any('LiDAR scan sits off its stated mount' in r and 'yaw' in r
+               for r in summary['health']['reasons'])
+    # Turned back, the heading is right for the rest of the trip.
+    estimates = run.result.estimates
+    truth = trip.ground_truth
+    late = estimates.stamp_s > 60.0
+    heading = np.interp(estimates.stamp_s[late], truth.stamp_s, np.unwrap(truth.pose[:, 2]))
+    error = np.angle(np.exp(1j * (estimates.state[late, 2] - heading)))
+    assert np.degrees(np.sqrt(np.mean(error ** 2))) <= 0.05
+
+
 def test_the_start_check_moves_a_first_lidar_off_its_mount_before_the_trip_begins():
     # 8 s standing still at the trusted start pose: 2 s of scans place the LiDAR. (With a
     # second LiDAR that agrees there, it takes over instead: test_mount_online.py.)
