@@ -489,13 +489,12 @@ class EventDriver:
     def _first_lidar_moved(self, key: LidarMount,
                            moved: tuple[float, float, float, float, float],
                            start: tuple[float, float, float] | None = None) -> None:
-        """Move the pose back by (x, y, sigma, yaw, yaw sigma): the first LiDAR's mount in
-        use moved so.
+        """Move the pose back: the first LiDAR's mount in use moved by `moved`.
 
-        The pose followed the LiDAR: move it back by as much (turn the heading back by the
-        yaw), with that uncertainty; every other LiDAR's mount, estimated against the old
-        pose, is estimated again, and the LiDAR's health is judged on new figures
-        (core/odometry_online.py). Found by the start check while still standing at the
+        `moved` is (x, y, sigma, yaw, yaw sigma). The pose followed the LiDAR: move it back
+        by as much (turn the heading back by the yaw), with that uncertainty; every other
+        LiDAR's mount, estimated against the old pose, is estimated again, and the LiDAR's
+        health is judged on new figures (core/odometry_online.py). Found by the start check while still standing at the
         trusted start pose (`start`), the pose is that pose: the LiDAR had dragged the
         heading too.
         """
@@ -552,12 +551,12 @@ class EventDriver:
 
     def _hand_over(self, key: LidarMount, stamp_s: float,
                    start: tuple[float, float, float] | None = None) -> bool:
-        """Let a tracked LiDAR that agrees with the map define the body frame instead of
-        `key` (which disagrees); return whether one did (OnlineMounts.hand_over).
+        """Let another LiDAR define the body frame instead of `key`; return whether one did.
 
-        It agrees when the health monitor says so, or, at the start check (`start`: the
-        trusted start pose), when its own scans there keep its mount in use: the pose the
-        health monitor judges by was dragged by `key` meanwhile.
+        A tracked LiDAR that agrees with the map takes over from `key`, which disagrees
+        (OnlineMounts.hand_over). It agrees when the health monitor says so, or, at the
+        start check (`start`: the trusted start pose), when its own scans there keep its
+        mount in use: the pose the health monitor judges by was dragged by `key` meanwhile.
         """
         if start is None:
             candidates = self.health.vouching_peers(key, stamp_s)

@@ -485,8 +485,10 @@ class HealthMonitor:
         self.whiteness.pop(key, None)
 
     def vouched(self, key: Hashable, stamp_s: float, why: str) -> Transition | None:
-        """Readmit an excluded LiDAR found right by other means (its own scans at a start
-        pose the filter trusts exactly: core/events.py's hand-over); None if not excluded."""
+        """Readmit an excluded LiDAR found right by other means; None if not excluded.
+
+        Its own scans at a start pose the filter trusts exactly (core/events.py's hand-over).
+        """
         health = self.sensors.get(key)
         if health is None or health.excluded_since is None:
             return None

@@ -291,11 +291,11 @@ class MountTracker:
         self._start_scans += 1
 
     def agrees_at_start(self, pose: tuple[float, float, float], poles: FloatArray) -> bool:
-        """Whether the scans of ``observe_start``, placed with that start pose, keep the
-        mount in use within the change limits (at ``change_sigmas`` sigmas).
+        """Return whether the scans at the start keep the mount in use, placed at `pose`.
 
-        The scans of a stop repeat their errors, so together they are worth one scan (the
-        fit's covariance is multiplied by their count), as in the odometry's start check.
+        That is, within the change limits at ``change_sigmas`` sigmas. The scans of a stop
+        repeat their errors, so together they are worth one scan (the fit's covariance is
+        multiplied by their count), as in the odometry's start check.
         """
         if len(self._start_points) < MIN_DETECTIONS:
             return False
@@ -509,8 +509,10 @@ class OnlineMounts:
                 self._tracked.append((mount, name))
 
     def reset(self) -> None:
-        """Forget every estimate (a filter reset): the LiDARs tracked at first start again
-        from their stated mounts (a hand-over is undone)."""
+        """Forget every estimate (a filter reset); a hand-over is undone.
+
+        The LiDARs tracked at first start again from their stated mounts.
+        """
         self.trackers = {mount: MountTracker(mount, name, self.settings)
                          for mount, name in self._tracked}
         self.changes = 0
@@ -577,8 +579,10 @@ class OnlineMounts:
 
 def verdict_reasons(mounts: list[dict[str, Any]], others: list[str],
                     settings: OnlineMountSettings | None = None) -> list[str]:
-    """Return one sentence per tracked LiDAR whose mount in use moved off its stated mount,
-    and one per LiDAR that stopped defining the body frame (``OnlineMounts.hand_over``).
+    """Return a sentence per tracked LiDAR off its stated mount or handed over.
+
+    One per LiDAR whose mount in use moved off its stated mount, and one per LiDAR that
+    stopped defining the body frame (``OnlineMounts.hand_over``).
 
     A mount estimated online is the LiDAR's mount relative to the pose the filter made of
     the first LiDAR and the odometry, so a change says that the LiDARs disagree, not which

@@ -26,9 +26,10 @@ with the heading). Both are fitted, by linear least squares, with a weak prior o
 mount offset is not taken for a scale error. A first LiDAR whose yaw is off its stated
 mount by ``e`` turns the filter's heading by ``e`` (the pose follows the LiDAR), and the
 odometry path, laid along that heading, turns away from the map-held path by as much:
-``p(t) = c + R(-e) D(t) / k + R(yaw(t)) d``, fitted to first order in ``e``. The fit's sigma of ``k`` comes from its
-residuals, inflated for their correlation from scan to scan (the filter's positions are a
-smoothed series, not independent draws; ``_lag_one_correlation``).
+``p(t) = c + R(-e) D(t) / k + R(yaw(t)) d``, fitted to first order in ``e``. The fit's
+sigma of ``k`` comes from its residuals, inflated for their correlation from scan to scan
+(the filter's positions are a smoothed series, not independent draws;
+``_lag_one_correlation``).
 
 A fit (at least ``min_distance_m`` driven in the window) whose sigma of ``k`` is at most
 ``max_sigma``, whose residual RMS is at most ``max_rms_m`` and whose ``k`` differs from
@@ -46,8 +47,9 @@ A ``d`` beyond ``offset_limit_m`` (1 cm, the online mount estimator's offset lim
 ``offset_sigmas`` sigmas, in a window of at least ``min_offset_distance_m`` driven, moves
 the first LiDAR's mount in use by ``d``, as does an ``e`` beyond ``yaw_limit_rad`` (0.1
 deg) and ``offset_sigmas`` sigmas (its yaw by ``e``): the driver moves the pose back by
-``d`` and turns the heading back by ``e`` (with their sigmas added to P), estimates the other LiDARs' mounts again (they were fitted against the
-old pose) and judges the LiDAR's health afresh; the window starts again, and later fits
+``d`` and turns the heading back by ``e`` (with their sigmas added to P), estimates the
+other LiDARs' mounts again (they were fitted against the old pose) and judges the LiDAR's
+health afresh; the window starts again, and later fits
 refine the mount by ``offset_refinement_m`` steps.
 
 **Start check.** A first LiDAR off its mount drags the pose from the first scan on, well
@@ -255,8 +257,8 @@ class OdometryTracker:
         return (self._dropped + len(self._entries), self._dx, self._dy, self._distance,
                 self._last_fit_s, self.scale, self.scale_sigma, self.fit, self.applied,
                 self.fits, self._window_start_s, self.offset_m, self.yaw_rad,
-                self.offset_applied, (self._start_pose, len(self._start_points), self._start_scans,
-                 self._start_first_s, self.start_fit))
+                self.offset_applied, (self._start_pose, len(self._start_points),
+                                      self._start_scans, self._start_first_s, self.start_fit))
 
     def restore(self, saved: tuple) -> None:
         """Put back a state from ``save``."""
@@ -316,7 +318,7 @@ class OdometryTracker:
         return self._fit_start(pose, mount, poles)
 
     def at_start(self, moving: bool) -> tuple[float, float, float] | None:
-        """The start pose while its check is open and the platform has not moved, or None."""
+        """Return the start pose while its check is open and the platform has not moved."""
         if self._start_pose is None or self._distance > 0.0 or moving:
             return None
         return self._start_pose
