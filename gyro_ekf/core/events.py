@@ -494,9 +494,9 @@ class EventDriver:
         `moved` is (x, y, sigma, yaw, yaw sigma). The pose followed the LiDAR: move it back
         by as much (turn the heading back by the yaw), with that uncertainty; every other
         LiDAR's mount, estimated against the old pose, is estimated again, and the LiDAR's
-        health is judged on new figures (core/odometry_online.py). Found by the start check while still standing at the
-        trusted start pose (`start`), the pose is that pose: the LiDAR had dragged the
-        heading too.
+        health is judged on new figures (core/odometry_online.py). Found by the start
+        check while still standing at the trusted start pose (`start`), the pose is that
+        pose: the LiDAR had dragged the heading too.
         """
         dx, dy, sigma, dyaw, yaw_sigma = moved
         x = self.ekf.x
