@@ -487,16 +487,13 @@ class EventDriver:
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
 
     def _first_lidar_moved(self, key: LidarMount,
-                           moved: tuple[float, float, float, float, float],
-                           start: tuple[float, float, float] | None = None) -> None:
+                           moved: tuple[float, float, float, float, float]) -> None:
         """Move the pose back: the first LiDAR's mount in use moved by `moved`.
 
         `moved` is (x, y, sigma, yaw, yaw sigma). The pose followed the LiDAR: move it back
         by as much (turn the heading back by the yaw), with that uncertainty; every other
         LiDAR's mount, estimated against the old pose, is estimated again, and the LiDAR's
-        health is judged on new figures (core/odometry_online.py). Found by the start
-        check while still standing at the trusted start pose (`start`), the pose is that
-        pose: the LiDAR had dragged the heading too.
+        health is judged on new figures (core/odometry_online.py).
         """
         dx, dy, sigma, dyaw, yaw_sigma = moved
         x = self.ekf.x
@@ -505,9 +502,8 @@ class EventDriver:
         P[0, 0] += sigma * sigma
         P[1, 1] += sigma * sigma
         P[YAW, YAW] += yaw_sigma * yaw_sigma
-        pose = np.array(start if start is not None else
-                        (x[0] - c * dx + s * dy, x[1] - s * dx - c * dy, x[YAW] - dyaw))
-        self.ekf.reset(pose, float(x[3]), P)
+        self.ekf.reset(np.array([x[0] - c * dx + s * dy, x[1] - s * dx - c * dy,
+                                 x[YAW] - dyaw]), float(x[3]), P)
         for other in self.mounts.trackers:
             self.mounts.restart(other)
         self.health.mount_changed(key, self.stamp_s)
