@@ -436,10 +436,10 @@ class MountTracker:
         if abs(wrap_scalar(fit.mount.yaw_rad - used.yaw_rad)) + k * fit.sigma[0] > (
                 settings.min_yaw_change_rad):
             return False
-        return not fit.offset_observable or all(
-            abs(a - b) + k * s <= settings.min_offset_change_m
-            for a, b, s in ((fit.mount.x_m, used.x_m, fit.sigma[1]),
-                            (fit.mount.y_m, used.y_m, fit.sigma[2])))
+        # An offset is a vector: 0.8 cm in x and in y is 1.1 cm off.
+        return not fit.offset_observable or (
+            math.hypot(fit.mount.x_m - used.x_m, fit.mount.y_m - used.y_m)
+            + k * max(fit.sigma[1:]) <= settings.min_offset_change_m)
 
     def _differs(self, fit: MountFit) -> bool:
         """Whether a converged fit differs clearly from the mount in use."""
@@ -449,10 +449,9 @@ class MountTracker:
         if yaw_change > max(settings.change_sigmas * fit.sigma[0],
                             settings.min_yaw_change_rad):
             return True
-        return fit.offset_observable and any(
-            abs(a - b) > max(settings.change_sigmas * s, settings.min_offset_change_m)
-            for a, b, s in ((fit.mount.x_m, used.x_m, fit.sigma[1]),
-                            (fit.mount.y_m, used.y_m, fit.sigma[2])))
+        return fit.offset_observable and math.hypot(
+            fit.mount.x_m - used.x_m, fit.mount.y_m - used.y_m) > max(
+                settings.change_sigmas * max(fit.sigma[1:]), settings.min_offset_change_m)
 
     def report(self) -> dict[str, Any]:
         """JSON-ready figures (degrees for yaws) for summary.json and /diagnostics."""
@@ -609,7 +608,7 @@ def verdict_reasons(mounts: list[dict[str, Any]], others: list[str],
         stated, used = report['stated'], report['used']
         dx, dy = used['x_m'] - stated['x_m'], used['y_m'] - stated['y_m']
         dyaw = math.degrees(wrap_scalar(math.radians(used['yaw_deg'] - stated['yaw_deg'])))
-        if not (max(abs(dx), abs(dy)) > settings.min_offset_change_m
+        if not (math.hypot(dx, dy) > settings.min_offset_change_m
                 or abs(dyaw) > math.degrees(settings.min_yaw_change_rad)):
             continue
         first = ' or '.join(others) if others else 'the first LiDAR'
