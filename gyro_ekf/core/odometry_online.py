@@ -480,8 +480,9 @@ class OdometryTracker:
             return False
         limit = settings.offset_refinement_m if self.offset_applied else (
             settings.offset_limit_m)
-        return any(abs(v) > max(limit, settings.offset_sigmas * s)
-                   for v, s in zip(fit.offset_m, fit.offset_sigma_m))
+        # A vector, as the online mount estimator judges it.
+        return math.hypot(*fit.offset_m) > max(limit,
+                                               settings.offset_sigmas * max(fit.offset_sigma_m))
 
     def report(self) -> dict[str, Any]:
         """JSON-ready figures for summary.json and /diagnostics."""
