@@ -169,6 +169,16 @@ class EventDriver:
             return None
         return pose
 
+    def mount_in_use(self, stated: LidarMount) -> LidarMount:
+        """Return the mount a LiDAR stated as `stated` is taken with now.
+
+        Estimated online (core/mount_online.py), or, for the LiDAR that defines the body
+        frame, moved by the odometry's fits (core/odometry_online.py).
+        """
+        if stated in self.mounts.trackers:
+            return self.mounts.used(stated)
+        return self.odometry.first_mount(stated)
+
     def track_mounts(self, mounts: Iterable[tuple[LidarMount, str]]) -> None:
         """Estimate these LiDARs' mounts online, (stated mount, name) each.
 

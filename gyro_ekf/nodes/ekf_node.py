@@ -759,7 +759,7 @@ class EkfNode(Node):
 
     def _publish_mounts(self) -> None:
         """Publish the LiDAR mounts in use on ekf/mounts when they changed."""
-        used = [self.driver.mounts.used(mount) for _, mount in self._sidecar.lidars.values()]
+        used = [self.driver.mount_in_use(mount) for _, mount in self._sidecar.lidars.values()]
         if used == self._published_mounts:
             return
         self._published_mounts = used

@@ -231,3 +231,19 @@ def test_a_first_lidar_off_its_offset_at_the_start_hands_over_before_it_drags_th
     assert summary['online_odometry']['first_lidar_offset_applied'] == 0
     assert not any('against the odometry' in r for r in summary['health']['reasons'])
     assert summary['ground_truth']['position_rmse_m'] <= 0.02
+
+
+def test_the_mount_in_use_follows_the_hand_over():
+    first, rear = LidarMount(x_m=0.46), LidarMount(x_m=-0.3, yaw_rad=math.pi)
+    driver = EventDriver()
+    driver.track_mounts([(rear, 'scan2')])
+    assert driver.mount_in_use(first) == first and driver.mount_in_use(rear) == rear
+    driver.mounts.trackers[rear].used = LidarMount(x_m=-0.3, yaw_rad=math.pi + 0.01)
+    assert driver.mount_in_use(rear).yaw_rad == pytest.approx(math.pi + 0.01)
+    driver.mounts.hand_over(first, 'scan', rear, 3.0)
+    driver.odometry.new_reference(3.0)
+    # The rear LiDAR defines the body frame now: its stated mount; the first is tracked.
+    assert driver.mount_in_use(rear) == rear
+    assert driver.mount_in_use(first) == first
+    driver.mounts.trackers[first].used = LidarMount(x_m=0.46, yaw_rad=0.05)
+    assert driver.mount_in_use(first).yaw_rad == pytest.approx(0.05)
