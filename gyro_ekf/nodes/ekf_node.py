@@ -36,9 +36,10 @@ with each LiDAR's window figures (`lidar_<scan topic>_*`, `excluded` true while 
 observations are kept out of the filter; each exclusion and readmission is logged), and the
 LiDAR mounts in use (`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file from
 `gyro-ekf calibrate-mounts` given after the bag's overrides the bag's mounts, and every
-LiDAR but the first has its mount estimated online, core/mount_online.py:
-`mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`), and the odometry's speed scale and
-the first LiDAR's offset estimated online (core/odometry_online.py: `odometry_scale` in use,
+LiDAR but the one defining the body frame, `body_frame_lidar`, has its mount estimated
+online, core/mount_online.py: `mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`), and
+the odometry's speed scale and the first LiDAR's offset estimated online
+(core/odometry_online.py: `odometry_scale` in use,
 `odometry_scale_{applied,estimate,sigma}`, `odometry_first_lidar_offset_{x_m,y_m,found}`
 and `odometry_first_lidar_yaw_{deg,found}` of the last fit,
 `odometry_first_lidar_offset_{in_use_x_m,in_use_y_m,applied}` and
@@ -813,6 +814,11 @@ class EkfNode(Node):
                for key, value in (('frame_id', frame), ('x_m', f'{mount.x_m:.4f}'),
                                   ('y_m', f'{mount.y_m:.4f}'),
                                   ('yaw_deg', f'{math.degrees(mount.yaw_rad):.3f}'))},
+            # Which LiDAR defines the body frame with the odometry (the first, until it
+            # disagrees with the map and another takes over: mount_online's hand-over).
+            'body_frame_lidar': ' '.join(
+                topic for topic, (_, mount) in self._sidecar.lidars.items()
+                if mount not in self.driver.mounts.trackers),
             **{f'mount_{online["name"]}_{key}': value for online in self.driver.mounts.report()
                for key, value in (
                    ('online', online['state']),

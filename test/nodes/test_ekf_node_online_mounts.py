@@ -66,6 +66,7 @@ def test_the_node_finds_the_mount_publishes_it_and_readmits_the_lidar(
     probe.spin_until(lambda: len(diagnostics) >= seen + 2, 10, 'two more diagnostics')
     values = diagnostics_of(diagnostics, STATUS)
     assert values['mount_scan2_online'] == 'confirmed'
+    assert values['body_frame_lidar'] == 'scan'
     assert float(values['mount_scan2_online_yaw_sigma_deg']) < 0.01
     yaw_deg = float(values['mount_scan2_yaw_deg'])
     assert math.remainder(yaw_deg - 180.0, 360.0) == pytest.approx(0.0, abs=0.2)
