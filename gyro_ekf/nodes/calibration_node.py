@@ -8,6 +8,8 @@ subscriber still gets it), logs the bias in deg/s with the noise sigma per axis,
 then on republishes every IMU message on `imu/corrected` with the bias removed. A refused
 window is logged with the reason and a new window starts. `~/recalibrate` (std_srvs/Trigger)
 starts a new window on demand. Status goes to `/diagnostics` once per diagnostics_period_s.
+Messages are served in batches gathered for up to `event_batch_s` (runtime._spin_events):
+fewer wake-ups per message for that much latency of imu/corrected.
 
 Bad input is dropped and counted per reason in /diagnostics: `zero_stamp`, `non_finite`,
 `out_of_range` (a rate or speed beyond the `limits.*` parameters, core.config.InputLimits),
@@ -80,6 +82,11 @@ class CalibrationNode(Node):
                            'data QoS (lossless replay, tests)')
         period = declare(self, 'diagnostics_period_s', 1.0,
                          'Period of the /diagnostics status', 's', 0.01, 3600.0)
+        self.event_batch_s = declare(
+            self, 'event_batch_s', 0.01,
+            'Serve incoming messages in batches gathered for up to this long (fewer wake-ups '
+            'per message, up to this much latency of imu/corrected); 0: each as it comes',
+            's', 0.0, 0.1)
         report_removed(self, REMOVED_PARAMETERS)
         self.calibrator = StaticWindowCalibrator(self.config)
         self.result: BiasEstimate | None = None

@@ -65,3 +65,68 @@ def test_raw_publisher_sends_bytearrays_as_rclpy_would(ros_processes):
     assert got.header.stamp.sec == 123 and got.header.frame_id == 'imu_link'
     assert got.angular_velocity.z == -0.25
     assert np.array_equal(got.angular_velocity_covariance, message.angular_velocity_covariance)
+
+
+class _FakeClock:
+    """runtime.time stand-in: monotonic() moves only when a fake call says so; sleeps logged."""
+
+    def __init__(self):
+        self.now = 0.0
+        self.sleeps: list[float] = []
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.sleeps.append(seconds)
+        self.now += seconds
+
+
+class _FakeExecutor:
+    """Records the spin calls; spin_once 'waits' the given times for its event.
+
+    The context is ok for `rounds` serving calls (spin_until_future_complete).
+    """
+
+    def __init__(self, clock: _FakeClock, waits: list[float], rounds: int):
+        self.clock, self.waits, self.rounds, self.calls = clock, list(waits), rounds, []
+        self.context = self
+
+    def ok(self) -> bool:
+        return self.rounds > 0
+
+    def add_node(self, node) -> None:
+        pass
+
+    def remove_node(self, node) -> None:
+        pass
+
+    def shutdown(self) -> None:
+        pass
+
+    def spin_once(self, timeout_sec: float) -> None:
+        self.calls.append(('once', timeout_sec))
+        self.clock.now += self.waits.pop(0)
+
+    def spin_until_future_complete(self, future, timeout_sec: float) -> None:
+        self.calls.append(('serve', timeout_sec))
+        self.rounds -= 1
+
+
+def test_events_are_served_in_batches_unless_a_backlog_waits(monkeypatch):
+    """event_batch_s: pause after an event that had to be waited for, none after a ready one."""
+    clock = _FakeClock()
+    monkeypatch.setattr(runtime, 'time', clock)
+    # The first event came after 3 ms (pause), the second was already waiting (no pause).
+    executor = _FakeExecutor(clock, [0.003, 0.0], rounds=2)
+    runtime._spin_events(object(), executor, batch_s=0.01)
+    assert executor.calls == [('once', runtime._SPIN_RETURN_S), ('serve', runtime._DRAIN_S)] * 2
+    assert clock.sleeps == [0.01]
+
+
+def test_without_a_batch_the_events_are_served_as_they_come(monkeypatch):
+    clock = _FakeClock()
+    monkeypatch.setattr(runtime, 'time', clock)
+    executor = _FakeExecutor(clock, [], rounds=2)
+    runtime._spin_events(object(), executor)
+    assert executor.calls == [('serve', runtime._SPIN_RETURN_S)] * 2 and clock.sleeps == []
