@@ -50,7 +50,8 @@ from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
-from gyro_ekf.core.odometry_online import OdometrySettings, OdometryTracker, midpoint_yaw
+from gyro_ekf.core.odometry_online import (Moved, OdometrySettings, OdometryTracker,
+                                           midpoint_yaw)
 from gyro_ekf.core.types import BIAS, YAW, FloatArray, LandmarkMap, LidarMount
 
 
@@ -496,8 +497,7 @@ class EventDriver:
             self.stats.last_association_s = stamp_s
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
 
-    def _first_lidar_moved(self, key: LidarMount,
-                           moved: tuple[float, float, float, float, float]) -> None:
+    def _first_lidar_moved(self, key: LidarMount, moved: Moved) -> None:
         """Move the pose back: the first LiDAR's mount in use moved by `moved`.
 
         `moved` is (x, y, sigma, yaw, yaw sigma). The pose followed the LiDAR: move it back

@@ -49,8 +49,8 @@ the first LiDAR's mount in use by ``d``, as does an ``e`` beyond ``yaw_limit_rad
 deg) and ``offset_sigmas`` sigmas (its yaw by ``e``): the driver moves the pose back by
 ``d`` and turns the heading back by ``e`` (with their sigmas added to P), estimates the
 other LiDARs' mounts again (they were fitted against the old pose) and judges the LiDAR's
-health afresh; the window starts again, and later fits
-refine the mount by ``offset_refinement_m`` steps.
+health afresh; the window starts again, and later fits refine the mount by
+``offset_refinement_m`` steps.
 
 **Start check.** A first LiDAR off its mount drags the pose from the first scan on, well
 before the path above says so. Standing still at a start pose the filter trusts exactly
@@ -80,6 +80,9 @@ from gyro_ekf.core.angles import wrap_scalar
 from gyro_ekf.core.mount_calibration import MIN_DETECTIONS, MountSettings
 from gyro_ekf.core.mount_online import fit_window
 from gyro_ekf.core.types import FloatArray, LidarMount
+
+Moved = tuple[float, float, float, float, float]
+"""A move of the first LiDAR's mount in use: x m, y m, their sigma m, yaw rad, its sigma rad."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -283,16 +286,15 @@ class OdometryTracker:
         self._start_first_s = None
 
     def observe_start(self, stamp_s: float, points_sensor_m: FloatArray, mount: LidarMount,
-                      poles: FloatArray, moving: bool
-                      ) -> tuple[float, float, float] | None:
+                      poles: FloatArray, moving: bool) -> Moved | None:
         """Add a first-LiDAR scan while the start check is open; fit when it closes.
 
         The check is open while the platform has not moved since a start pose the filter
         trusts exactly: the detections, placed with that pose, measure the LiDAR's mount
         as the online mount fit does with moving poses. It closes after ``start_check_s``
-        of scans, or at the first scan once the platform moved. Returns (x m, y m, sigma m,
-        yaw rad, yaw sigma rad) when the fit places the LiDAR off its mount in use beyond
-        the limits (zeros for a part within them); the driver decides (``apply``).
+        of scans, or at the first scan once the platform moved. Returns the move
+        (``Moved``, its yaw 0: see the module docstring) when the fit places the LiDAR off
+        its mount in use beyond the limits; the driver decides (``apply``).
 
         Args:
             stamp_s: scan stamp, s.
@@ -324,7 +326,7 @@ class OdometryTracker:
         return self._start_pose
 
     def _fit_start(self, pose: tuple[float, float, float], mount: LidarMount,
-                   poles: FloatArray) -> tuple[float, float, float] | None:
+                   poles: FloatArray) -> Moved | None:
         if len(self._start_points) < MIN_DETECTIONS:
             return None
         points = np.array(self._start_points)
@@ -351,17 +353,18 @@ class OdometryTracker:
             return None
         return dx, dy, sigma, 0.0, 0.0
 
-    def apply(self, moved: tuple[float, float, float, float, float]) -> None:
+    def apply(self, moved: Moved) -> None:
         """Move the first LiDAR's mount in use by a start check's (x, y, _, yaw, _)."""
         self.offset_m = (self.offset_m[0] + moved[0], self.offset_m[1] + moved[1])
         self.yaw_rad += moved[3]
         self.offset_applied += 1
 
-    def observe(self, stamp_s: float, pose: list[float]) -> tuple[float, float, float] | None:
+    def observe(self, stamp_s: float, pose: list[float]) -> Moved | None:
         """Add the filter's pose after a scan's updates (moving); fit when due.
 
-        Returns (x m, y m, sigma m) when a fit moved the first LiDAR's mount in use by x, y
-        (body frame): the pose, drawn along with the LiDAR, is to move back by as much.
+        Returns the move (``Moved``) when a fit moved the first LiDAR's mount in use by x, y
+        (body frame) and yaw: the pose, drawn along with the LiDAR, is to move back by as
+        much.
         """
         if not self.enabled:
             return None
@@ -382,7 +385,7 @@ class OdometryTracker:
             self._dropped += drop
         return self._fit(stamp_s)
 
-    def _fit(self, stamp_s: float) -> tuple[float, float, float] | None:
+    def _fit(self, stamp_s: float) -> Moved | None:
         settings = self.settings
         first = max(stamp_s - settings.window_s, self._window_start_s)
         rows = [e for e in self._entries if e[0] >= first]
