@@ -311,10 +311,9 @@ class MountTracker:
         if abs(wrap_scalar(float(theta[0]) - used.yaw_rad)) > max(
                 settings.min_yaw_change_rad, k * sigma[0]):
             return False
-        return not observable or all(
-            abs(a - b) <= max(settings.min_offset_change_m, k * s)
-            for a, b, s in ((float(theta[1]), used.x_m, sigma[1]),
-                            (float(theta[2]), used.y_m, sigma[2])))
+        return not observable or math.hypot(
+            float(theta[1]) - used.x_m, float(theta[2]) - used.y_m) <= max(
+                settings.min_offset_change_m, k * max(sigma[1:]))
 
     def observe(self, stamp_s: float, pose: list[float], points_sensor_m: FloatArray,
                 poles: FloatArray, excluded: bool = False) -> bool:

@@ -348,8 +348,7 @@ class OdometryTracker:
         # The yaw is reported, not acted on: a stop's scans are worth one, and one scan's
         # yaw is not known as well as its sigma says (on 75 clean simulated starts it came
         # out with an RMS of 1.6 sigmas, 3 of them beyond 3); the path fits find it.
-        if max(abs(dx), abs(dy)) <= max(settings.offset_limit_m,
-                                        settings.offset_sigmas * sigma):
+        if math.hypot(dx, dy) <= max(settings.offset_limit_m, settings.offset_sigmas * sigma):
             return None
         return dx, dy, sigma, 0.0, 0.0
 
