@@ -190,6 +190,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         input_gap_limit_s=run.config.max_prediction_step_s,
         bias_openings=int(stats.bias_openings),
         bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s),
+        bias_largest_rate_rad_s2=float(stats.bias_largest_rate_rad_s2),
         mounts=[] if run.result.mounts is None else run.result.mounts.report(),
         odometry=None if run.result.odometry is None else run.result.odometry.report())
     return {**health.verdict(figures), 'lidars': sensors,

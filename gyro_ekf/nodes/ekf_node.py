@@ -752,6 +752,7 @@ class EkfNode(Node):
             final_bias_rad_s=self.driver.ekf.bias_rad_s, unmapped=stats.unmapped,
             bias_openings=stats.bias_openings,
             bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s,
+            bias_largest_rate_rad_s2=stats.bias_largest_rate_rad_s2,
             mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report())
         return health.verdict(figures)
 
