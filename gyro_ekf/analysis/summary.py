@@ -112,7 +112,13 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'stops': int(run.result.stats.stops),
         'reopened': int(run.result.stats.bias_openings),
         'largest_reopening_deg_s': _deg(float(run.result.stats.bias_largest_opening_rad_s)),
-        'gyro_noise_scale': float(run.result.stats.gyro_noise_scale)}
+        'gyro_noise_scale': float(run.result.stats.gyro_noise_scale),
+        # A ramping bias followed (core/bias_rate.py): the rate in use at the end, the
+        # largest used, and how often one came into use.
+        'rate_deg_s_per_min': _deg(float(run.result.stats.bias_rate_rad_s2)) * 60.0,
+        'largest_rate_deg_s_per_min': _deg(
+            float(run.result.stats.bias_largest_rate_rad_s2)) * 60.0,
+        'rate_found': int(run.result.stats.bias_rate_found)}
     # Where the trip is known to start static, the bias the zero-rate updates learned there.
     static_end = trip.start_s + trip.static_duration_s
     at_static_end = int(np.searchsorted(stamps, static_end, side='right')) - 1
@@ -184,6 +190,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         input_gap_limit_s=run.config.max_prediction_step_s,
         bias_openings=int(stats.bias_openings),
         bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s),
+        bias_largest_rate_rad_s2=float(stats.bias_largest_rate_rad_s2),
         mounts=[] if run.result.mounts is None else run.result.mounts.report(),
         odometry=None if run.result.odometry is None else run.result.odometry.report())
     return {**health.verdict(figures), 'lidars': sensors,

@@ -75,7 +75,7 @@ class BiasWatch:
 
     __slots__ = ('_start_s', '_z_sum', '_variance', '_shared', '_correction_sum',
                  'openings', 'last_error_rad_s', '_drifts', 'walk', '_blocks', 'noise_scale',
-                 '_start_yaw_variance')
+                 '_start_yaw_variance', 'block')
 
     def __init__(self) -> None:
         """Start with no block open."""
@@ -97,6 +97,9 @@ class BiasWatch:
         self._blocks: list[tuple[float, float, float, float, float]] = []
         self._start_yaw_variance = 0.0
         self.noise_scale = 1.0
+        # (start s, length s, implied bias error db rad/s) of the last block closed and
+        # judged, None when the last one was dropped (core/bias_rate.py fits its db).
+        self.block: tuple[float, float, float] | None = None
 
     def copy(self) -> 'BiasWatch':
         """Return an independent duplicate, for the driver's save and restore."""
@@ -109,6 +112,7 @@ class BiasWatch:
         clone._drifts, clone.walk = list(self._drifts), self.walk
         clone._blocks, clone.noise_scale = list(self._blocks), self.noise_scale
         clone._start_yaw_variance = self._start_yaw_variance
+        clone.block = self.block
         return clone
 
     def pause(self) -> None:
@@ -149,6 +153,17 @@ class BiasWatch:
         if self._start_s is not None:
             self._correction_sum += yaw_correction_rad
 
+    @property
+    def idle(self) -> bool:
+        """Whether no block is open (the next landmark update starts one)."""
+        return self._start_s is None
+
+    def drift_sign(self) -> float:
+        """Sign of the last drift's bias error if one lies within WALK_WINDOW_S, else 0."""
+        if not self._drifts or self.last_error_rad_s == 0.0:
+            return 0.0
+        return math.copysign(1.0, self.last_error_rad_s)
+
     def due(self, stamp_s: float) -> bool:
         """Whether a scan at stamp_s closes the open block (``close`` would judge it)."""
         return self._start_s is not None and stamp_s >= self._start_s + BLOCK_S
@@ -169,6 +184,7 @@ class BiasWatch:
         error = -self._correction_sum / length
         self.pause()
         judged = length <= 2.0 * BLOCK_S
+        self.block = (start, length, error) if judged else None
         drifted = judged and abs(z) > _Z_LIMIT
         if judged and not drifted:
             # Not a drift of its own: maybe one of a slow drift's blocks, or a noisier gyro.

@@ -143,6 +143,12 @@ class EkfConfig:
         0.01 * DEG, 'rad', 'Online mount calibration: the mount fitted to a LiDAR\'s '
         'detections (every LiDAR but the first) replaces its stated mount once the fit\'s yaw '
         'sigma is at most this and the previous fit agrees. 0: off.', 0.0, 1.0)
+    # A ramping gyro bias (core/bias_rate.py).
+    bias_rate_window_s: float = config_field(
+        40.0, 's', 'Bias rate: a ramping gyro bias is followed by a line fitted to the bias '
+        'the bias watch\'s blocks imply over this window (used while significant, a ramp '
+        'not a step, and the heading was seen drifting that way); the prediction then moves '
+        'the bias by T times its slope. 0: off.', 0.0, 1e4)
     # Online odometry calibration (core/odometry_online.py).
     odometry_online_min_change: float = config_field(
         0.01, '1', 'Online odometry calibration: a speed scale fitted from the LiDAR-held '

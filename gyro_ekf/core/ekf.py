@@ -26,6 +26,9 @@ simulator's map is exact.
 Because the bias enters yaw through ``-T`` in J, landmark updates that correct yaw also
 correct the bias: that is how the filter finds the bias online.
 
+A bias found to ramp (``bias_rate.py``) is a known input of the prediction: b += T r, with
+r's uncertainty added to Q2's bias random walk (``bias_rate_found``, ``bias_walk_found``).
+
 Standing still (the driver decides when, ``events.py``), a gyro sample w measures the bias
 alone: z = w, h(x) = b, H = [0, 0, 0, 1] (a zero-rate update, ``update_zero_rate``), and the
 prediction holds the position (no translation, no speed noise).
@@ -236,6 +239,9 @@ class GyroBiasEkf:
         # A random walk of the bias found in the data ((rad/s)^2 per s, core/bias_watch.py):
         # Q2 adds it times T to the bias, on top of the configured (q_b T)^2.
         self.bias_walk_found = 0.0
+        # A rate of the bias found in the data (rad/s^2, core/bias_rate.py): each prediction
+        # moves b by T times it, a known input (its uncertainty comes in bias_walk_found).
+        self.bias_rate_found = 0.0
         # A factor on the gyro's noise variance found in the data (core/bias_watch.py).
         self.rate_noise_scale = 1.0
         self.reset(pose, bias_rad_s, covariance)
@@ -400,6 +406,9 @@ class GyroBiasEkf:
             self._s, self._p, float(speed_m_s), float(rate_rad_s), float(dt_s),
             self._sigma_v2 if speed_variance is None else speed_variance, rate_var,
             self._q_pos2, bias_walk, hold_position)
+        if self.bias_rate_found:
+            # b += T b' (the bias ramps; core/bias_rate.py): J's bias row is still [0 0 0 1].
+            self._s[BIAS] += dt_s * self.bias_rate_found
 
     def update_zero_rate(self, rate_rad_s: float, variance: float) -> float:
         """Correct with a gyro sample taken standing still: z = w = b + noise.

@@ -41,6 +41,7 @@ import numpy as np
 from gyro_ekf.core.angles import wrap_scalar
 from gyro_ekf.core.association import (AssociationOutcome, AssociationResult, associate,
                                        associate_by_distance)
+from gyro_ekf.core.bias_rate import BiasRate
 from gyro_ekf.core.bias_watch import BiasWatch
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
@@ -94,6 +95,9 @@ class EventDriver:
         self.stats = DriverStats()
         self.health = HealthMonitor(self.config)
         self.bias_watch = BiasWatch()
+        self.bias_rate = BiasRate(self.config.bias_rate_window_s)
+        # The filter's bias where the bias watch's open block began.
+        self._block_bias = 0.0
         self.held_rate = HeldRate()
         self.mounts = OnlineMounts(OnlineMountSettings(
             converged_yaw_sigma_rad=self.config.mount_online_yaw_sigma_rad))
@@ -147,6 +151,9 @@ class EventDriver:
         self.stats = DriverStats()
         self.health = HealthMonitor(self.config)
         self.bias_watch = BiasWatch()
+        self.bias_rate = BiasRate(self.config.bias_rate_window_s)
+        self._block_bias = 0.0
+        self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0
         self.held_rate = HeldRate()
         self._rate_stamp_s = None
         self._heading_dt2 = 0.0
@@ -197,7 +204,8 @@ class EventDriver:
                 self.speed_variance, self.rate_variance, self._first_scan_s,
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
-                 self.zero_rate), self.mounts.save(), self.bias_watch.copy(),
+                 self.zero_rate), self.mounts.save(),
+                (self.bias_watch.copy(), self.bias_rate.copy(), self._block_bias),
                 self.held_rate.save(), self._rate_stamp_s, self._heading_dt2,
                 (self.odometry.save(), self._measured_speed_m_s, self._path_s,
                  self._path_m, self._path_yaw))
@@ -211,8 +219,10 @@ class EventDriver:
           self._path_yaw)) = saved
         self.held_rate.restore(held)
         self.odometry.restore(odometry)
-        self.bias_watch = watch.copy()
-        self.ekf.bias_walk_found = self.bias_watch.walk
+        watch, rate, self._block_bias = watch
+        self.bias_watch, self.bias_rate = watch.copy(), rate.copy()
+        self.ekf.bias_walk_found = self.bias_watch.walk + self.bias_rate.walk
+        self.ekf.bias_rate_found = self.bias_rate.rate_rad_s2
         self.ekf.rate_noise_scale = self.bias_watch.noise_scale
         self.mounts.restore(mounts)
         (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
@@ -449,6 +459,9 @@ class EventDriver:
         # worth, and the yaw drift is still tracked (that is how the bias is found at rest).
         at_rest = self._still()
         self._close_bias_block(stamp_s, at_rest)
+        if self.bias_watch.idle:
+            # This scan's updates may start a block: the bias it begins with.
+            self._block_bias = self.ekf.bias_rad_s
         # A mount estimated online weighs less (core/mount_online.py, its item 6).
         base = 1.0 if tracker is None else tracker.noise_scale
         for match in result.associations:
@@ -534,13 +547,27 @@ class EventDriver:
         variance = watch.close(stamp_s, float(P[BIAS, BIAS]), float(P[YAW, YAW]),
                                self._heading_dt2 * rate_variance * ekf.rate_noise_scale)
         self._heading_dt2 = 0.0
-        self.ekf.bias_walk_found = watch.walk
         self.ekf.rate_noise_scale = self.stats.gyro_noise_scale = watch.noise_scale
         if variance is not None:
             self.ekf.open_bias(variance)
             self.stats.bias_openings += 1
             self.stats.bias_largest_opening_rad_s = max(
                 self.stats.bias_largest_opening_rad_s, math.sqrt(variance))
+        rate = self.bias_rate
+        if watch.block is not None:
+            # The block's true-bias estimate (the bias used plus the error its corrections
+            # imply) for the ramp's line (core/bias_rate.py).
+            start, length, error = watch.block
+            bias = ekf.bias_rad_s
+            lag = rate.add(start + 0.5 * length, 0.5 * (self._block_bias + bias), error,
+                           watch.drift_sign(), bias)
+            if lag is not None:
+                self.ekf.open_bias(lag)
+            self.stats.bias_rate_rad_s2 = rate.rate_rad_s2
+            self.stats.bias_rate_found = rate.found
+            self.stats.bias_largest_rate_rad_s2 = rate.largest_rad_s2
+        self.ekf.bias_walk_found = watch.walk + rate.walk
+        self.ekf.bias_rate_found = rate.rate_rad_s2
 
     def _judged(self, key: LidarMount, transition: Transition | None) -> None:
         """Keep the health monitor's decision; re-estimate a newly excluded LiDAR's mount.

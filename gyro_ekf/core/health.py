@@ -531,6 +531,8 @@ class RunFigures:
         bias_openings: times the LiDARs saw the heading drift and the bias was re-opened
             (DriverStats.bias_openings, core/bias_watch.py).
         bias_largest_opening_rad_s: the largest bias change such a drift implied, rad/s.
+        bias_largest_rate_rad_s2: the largest bias rate followed (signed; core/bias_rate.py),
+            rad/s^2 (0: none).
         mounts: the online mount estimators' reports (OnlineMounts.report()).
         odometry: the online odometry estimator's report (OdometryTracker.report()).
     """
@@ -550,6 +552,7 @@ class RunFigures:
     input_gap_limit_s: float = math.inf
     bias_openings: int = 0
     bias_largest_opening_rad_s: float = 0.0
+    bias_largest_rate_rad_s2: float = 0.0
     mounts: list[dict[str, Any]] = field(default_factory=list)
     odometry: dict[str, Any] | None = None
 
@@ -654,9 +657,12 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
     if figures.bias_openings:
         # The filter followed it, but its bias is then only as old as the last change: a
         # gyro whose bias moves is worth knowing about, and the final figure is less sure.
+        per_minute = math.degrees(figures.bias_largest_rate_rad_s2) * 60.0
+        ramp = (f'; it ramped at up to {per_minute:+.3f} deg/s per minute, followed'
+                if per_minute else '')
         add(DEGRADED, f'the gyro bias changed during the run: the LiDARs saw the heading '
             f'drift and the bias was re-opened {figures.bias_openings} time(s), by up to '
-            f'{math.degrees(figures.bias_largest_opening_rad_s):.3f} deg/s')
+            f'{math.degrees(figures.bias_largest_opening_rad_s):.3f} deg/s{ramp}')
     dropped = {k: v for k, v in figures.dropped.items() if v}
     if dropped:
         add(DEGRADED, f'input dropped by validation: {sum(dropped.values())} ('

@@ -755,6 +755,7 @@ class EkfNode(Node):
             final_bias_rad_s=self.driver.ekf.bias_rad_s, unmapped=stats.unmapped,
             bias_openings=stats.bias_openings,
             bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s,
+            bias_largest_rate_rad_s2=stats.bias_largest_rate_rad_s2,
             mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report())
         return health.verdict(figures)
 
@@ -834,6 +835,8 @@ class EkfNode(Node):
             'zero_rate_updates': str(stats.zero_rate_updates),
             'bias_reopened': str(stats.bias_openings),
             'gyro_noise_scale': f'{stats.gyro_noise_scale:.3f}',
+            # A ramping bias followed (core/bias_rate.py): its rate in use, 0 when none.
+            'bias_rate_deg_s_per_min': f'{math.degrees(stats.bias_rate_rad_s2) * 60.0:.4f}',
             'standing_still': str(self.driver.zero_rate).lower(),
         }
         verdict = self._verdict(since)

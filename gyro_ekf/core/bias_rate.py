@@ -1,0 +1,171 @@
+"""Follow a gyro bias that ramps: its rate, fitted outside the state, drives the prediction.
+
+The bias watch (``bias_watch.py``) sees a bias that moves and re-opens it, so the filter
+learns it again; but a bias that keeps moving (a gyro warming up: up to 1 deg/s per minute)
+is then always behind: the filter catches up on a ramp with a lag of seconds, its final
+bias is off by the rate times that lag, and its heading meanwhile drifts more than its
+covariance says. Following it takes the rate.
+
+Why outside the state, and not a fifth state b' (b += T b'): the fast kernel
+(``_ekf_kernel.py``) covers the report's four states, and a fifth would cost every step of
+every trip (the 2016 log's run must stay >= 150x real time), for a rate that is zero but
+on a warming gyro; and a rate state with a random walk small enough to stay out of a clean
+trip's way learns a ramp as slowly as the bias itself does. A rate is seen much more
+directly in what the bias watch already measures: each of its 2-s blocks of driving gives
+the bias the filter used during the block plus the bias error that block's yaw corrections
+imply (``BiasWatch.block``), an estimate of the true bias m = b + db that does not lag
+(scatter about 0.03 deg/s on the simulator). A line fitted to the last ``window_s`` of
+those is the rate, with the standard error of its slope from the line's own residuals.
+
+The rate is used, and only then, when:
+
+- it is significant: |slope| beyond ``T_ON`` standard errors (it stays in use while beyond
+  ``T_OFF``), with at least ``MIN_BLOCKS`` blocks in the window;
+- the bias watch has seen the heading drift the same way within its walk window (a drift
+  whose implied error shares the rate's sign: the bias changed, and in that direction);
+- the blocks are a ramp, not a step: the line leaves smaller residuals than the best split
+  of the window into two constant levels (a bias step, which the watch re-opens once, fits
+  two levels; a ramp fits the line).
+
+In use, the prediction moves the bias by T r as a known input (``GyroBiasEkf.bias_rate_found``)
+and the rate's uncertainty is added honestly: a rate error e makes the bias error grow as
+e t, which the bias variance takes as a random walk of sigma_r^2 ``window_s`` per second
+(``walk``: over one window it adds (sigma_r window)^2, what the rate error costs by then).
+When the rate comes into use, the bias is opened by the squared distance between the
+filter's bias and the line's present value (the lag the filter built up), as the watch
+opens it on a drift. Nothing is silent: the watch's drifts that allowed the rate keep the
+verdict degraded, and the run's summary reports the rate (``online_bias``).
+"""
+
+from __future__ import annotations
+
+import math
+
+T_ON = 4.0
+"""Standard errors of the slope beyond which a rate comes into use (a clean trip's fit lies
+beyond them about once in 16 000 fits, and also needs the watch's drift)."""
+
+T_OFF = 2.0
+"""Standard errors of the slope below which a rate in use is dropped."""
+
+MIN_BLOCKS = 10
+"""Fewest blocks in the window before a line is fitted (20 s of driving)."""
+
+
+class BiasRate:
+    """A line through the last blocks' true-bias estimates; its slope, when it is a ramp.
+
+    Attributes:
+        window_s: length of the fit window, s (0: off, never a rate).
+        rate_rad_s2: the rate in use, rad/s^2 (0 when none).
+        sigma_rad_s2: its standard error, rad/s^2 (0 when none).
+        found: times a rate came into use.
+        largest_rad_s2: the largest rate in use so far (signed), rad/s^2.
+    """
+
+    __slots__ = ('window_s', '_blocks', 'rate_rad_s2', 'sigma_rad_s2', 'found',
+                 'largest_rad_s2')
+
+    def __init__(self, window_s: float) -> None:
+        """Start with no blocks and no rate."""
+        self.window_s = float(window_s)
+        # (block middle s, bias estimate b + db rad/s) of the last window_s.
+        self._blocks: list[tuple[float, float]] = []
+        self.rate_rad_s2 = 0.0
+        self.sigma_rad_s2 = 0.0
+        self.found = 0
+        self.largest_rad_s2 = 0.0
+
+    def copy(self) -> 'BiasRate':
+        """Return an independent duplicate, for the driver's save and restore."""
+        clone = BiasRate(self.window_s)
+        clone._blocks = list(self._blocks)
+        clone.rate_rad_s2, clone.sigma_rad_s2 = self.rate_rad_s2, self.sigma_rad_s2
+        clone.found, clone.largest_rad_s2 = self.found, self.largest_rad_s2
+        return clone
+
+    @property
+    def walk(self) -> float:
+        """Variance per second the rate's uncertainty adds to the bias, (rad/s)^2 / s."""
+        return self.sigma_rad_s2 * self.sigma_rad_s2 * self.window_s
+
+    def add(self, stamp_s: float, bias_rad_s: float, error_rad_s: float, drift_sign: float,
+            bias_now_rad_s: float) -> float | None:
+        """Add one judged block of the bias watch; return a variance to open the bias by.
+
+        Args:
+            stamp_s: the block's middle, s.
+            bias_rad_s: the filter's bias during the block (mean of its ends), rad/s.
+            error_rad_s: the bias error the block's yaw corrections imply (db), rad/s.
+            drift_sign: sign of the bias watch's last drift within its walk window (0: none).
+            bias_now_rad_s: the filter's bias now, rad/s.
+
+        Returns:
+            When a rate comes into use: the squared distance of the filter's bias from the
+            line's present value, (rad/s)^2, for the bias variance; else None.
+        """
+        if self.window_s <= 0.0:
+            return None
+        blocks = self._blocks
+        blocks.append((stamp_s, bias_rad_s + error_rad_s))
+        while blocks[0][0] < stamp_s - self.window_s:
+            blocks.pop(0)
+        fit = _fit(blocks) if len(blocks) >= MIN_BLOCKS else None
+        was = self.rate_rad_s2 != 0.0
+        keep = False
+        if fit is not None:
+            slope, sigma, level_now = fit
+            t = abs(slope) / sigma if sigma > 0.0 else math.inf
+            if was:
+                keep = t > T_OFF and math.copysign(1.0, slope) == math.copysign(
+                    1.0, self.rate_rad_s2)
+            else:
+                keep = t > T_ON and drift_sign * slope > 0.0
+        if not keep:
+            self.rate_rad_s2 = self.sigma_rad_s2 = 0.0
+            return None
+        self.rate_rad_s2, self.sigma_rad_s2 = slope, sigma
+        if abs(slope) > abs(self.largest_rad_s2):
+            self.largest_rad_s2 = slope
+        if was:
+            return None
+        self.found += 1
+        # The line's value at the last block's middle: where the filter's bias should be.
+        return (level_now - bias_now_rad_s) ** 2
+
+
+def _fit(blocks: list[tuple[float, float]]) -> tuple[float, float, float] | None:
+    """Least-squares line through (t, m): slope, its standard error and the last level.
+
+    None when two constant levels (the best split of the blocks in time) leave smaller
+    residuals than the line: a step, not a ramp.
+    """
+    n = len(blocks)
+    t0 = blocks[0][0]
+    ts = [b[0] - t0 for b in blocks]
+    ms = [b[1] for b in blocks]
+    t_mean = sum(ts) / n
+    m_mean = sum(ms) / n
+    sxx = sum((t - t_mean) ** 2 for t in ts)
+    if sxx <= 0.0:
+        return None
+    slope = sum((t - t_mean) * (m - m_mean) for t, m in zip(ts, ms)) / sxx
+    residuals = [m - m_mean - slope * (t - t_mean) for t, m in zip(ts, ms)]
+    rss_line = sum(r * r for r in residuals)
+    # Two levels split at every place (running sums: n splits cost O(n)).
+    total_sq = sum(m * m for m in ms)
+    total = m_mean * n
+    left_sum = left_sq = 0.0
+    rss_step = math.inf
+    for k in range(1, n - 1):
+        left_sum += ms[k - 1]
+        left_sq += ms[k - 1] ** 2
+        if k < 2:
+            continue
+        right_sum, right_sq = total - left_sum, total_sq - left_sq
+        rss = (left_sq - left_sum ** 2 / k) + (right_sq - right_sum ** 2 / (n - k))
+        rss_step = min(rss_step, rss)
+    if rss_step <= rss_line:
+        return None
+    sigma = math.sqrt(rss_line / (n - 2) / sxx)
+    return slope, sigma, m_mean + slope * (ts[-1] - t_mean)

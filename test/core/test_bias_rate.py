@@ -1,0 +1,111 @@
+"""The bias rate: a ramping bias is followed, a clean trip, a step or no drift finds no rate."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from gyro_ekf.analysis.offline import run_trip
+from gyro_ekf.analysis.summary import summarize
+from gyro_ekf.core import bias_rate
+from gyro_ekf.core.bias_rate import BiasRate
+from gyro_ekf.core.ekf import GyroBiasEkf
+from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+from gyro_ekf.core.types import BIAS
+from gyro_ekf.core.validation import validate_trip
+
+BLOCK_SIGMA = math.radians(0.03)
+"""Scatter of a block's true-bias estimate b + db (the simulator's, driving)."""
+
+RATE = math.radians(0.6) / 60.0
+"""A ramp of 0.6 deg/s per minute, rad/s^2."""
+
+
+def _blocks(rate, drift_sign, seconds=60.0, step=0.0, seed=0, window_s=40.0):
+    """Feed 2-s blocks of m = rate t (+ step halfway) + noise; return the estimator and
+    what it asked to open the bias by."""
+    rng = np.random.default_rng(seed)
+    estimator = BiasRate(window_s)
+    openings = []
+    for k in range(int(seconds / 2.0)):
+        t = 1.0 + 2.0 * k
+        m = rate * t + (step if t > seconds / 2.0 else 0.0) + rng.normal(0.0, BLOCK_SIGMA)
+        lag = estimator.add(t, m, 0.0, drift_sign, 0.0)
+        if lag is not None:
+            openings.append((t, lag))
+    return estimator, openings
+
+
+def test_a_ramp_with_a_drift_its_way_gives_its_rate_and_opens_the_lag():
+    estimator, openings = _blocks(RATE, drift_sign=1.0)
+    assert estimator.rate_rad_s2 == pytest.approx(RATE, rel=0.2)
+    assert 0.0 < estimator.sigma_rad_s2 < RATE / bias_rate.T_ON
+    assert estimator.found == 1 and len(openings) == 1
+    # The filter's bias was 0 all along: the line's present value is the lag it opens.
+    t, lag = openings[0]
+    assert math.sqrt(lag) == pytest.approx(RATE * t, rel=0.3)
+    assert estimator.walk == pytest.approx(estimator.sigma_rad_s2 ** 2 * 40.0)
+
+
+@pytest.mark.parametrize('drift_sign', [0.0, -1.0])
+def test_a_ramp_without_a_drift_its_way_gives_no_rate(drift_sign):
+    estimator, openings = _blocks(RATE, drift_sign)
+    assert estimator.rate_rad_s2 == 0.0 and estimator.walk == 0.0
+    assert estimator.found == 0 and openings == []
+
+
+def test_a_step_is_no_ramp():
+    estimator, _ = _blocks(0.0, drift_sign=1.0, step=math.radians(0.3))
+    assert estimator.found == 0
+
+
+def test_blocks_without_a_ramp_give_no_rate():
+    for seed in range(20):
+        estimator, _ = _blocks(0.0, drift_sign=1.0, seconds=200.0, seed=seed)
+        assert estimator.found == 0, seed
+
+
+def test_window_zero_is_off():
+    estimator, _ = _blocks(RATE, drift_sign=1.0, window_s=0.0)
+    assert estimator.found == 0 and estimator.rate_rad_s2 == 0.0
+
+
+@pytest.mark.parametrize('textbook', [False, True])
+def test_the_prediction_moves_the_bias_by_its_rate(textbook):
+    ekf = GyroBiasEkf(textbook=textbook)
+    ekf.bias_rate_found = RATE
+    before = ekf.x
+    ekf.predict(1.0, 0.1, 0.5)
+    assert ekf.x[BIAS] - before[BIAS] == pytest.approx(0.5 * RATE, rel=1e-12)
+
+
+def _run(**changes):
+    config = dataclasses.replace(SimulationConfig(duration_s=120.0), **changes)
+    trip = simulate_trip(config, 3)
+    trip, report = validate_trip(trip, trip.name)
+    run = run_trip(trip)
+    return config, run, summarize(run, report)
+
+
+def test_a_ramping_bias_is_followed_and_said():
+    config, run, summary = _run(gyro_bias_ramp_rad_s2=-RATE)
+    end = run.result.estimates.stamp_s[-1] - run.trip.imu.stamp_s[0]
+    truth = float(config.gyro_bias_z_at(np.array([end]))[0])
+    error = math.degrees(run.result.estimates.state[-1, BIAS] - truth)
+    assert abs(error) < 0.02, f'final bias {error:.4f} deg/s off on a 0.6 deg/s/min ramp'
+    assert summary['online_bias']['rate_found'] >= 1
+    assert summary['online_bias']['rate_deg_s_per_min'] == pytest.approx(-0.6, rel=0.2)
+    # Followed, but not silently: the bias changed, and the verdict says so.
+    assert summary['health']['verdict'] == 'degraded'
+    assert any(r.startswith('the gyro bias changed during the run')
+               for r in summary['health']['reasons']), summary['health']['reasons']
+
+
+def test_a_clean_trip_finds_no_rate():
+    _, run, summary = _run()
+    assert run.result.stats.bias_rate_found == 0
+    assert summary['online_bias']['rate_deg_s_per_min'] == 0.0
+    assert summary['online_bias']['rate_found'] == 0
