@@ -1,4 +1,4 @@
-"""Simulated two-LiDAR trips for the sensor-health tests: one LiDAR honest, one mis-mounted.
+"""Simulated trips for the tests: two-LiDAR trips with one mis-mounted, and one-off runs.
 
 Not a test module: test files import it (pytest puts this folder on sys.path through the
 conftest beside it).
@@ -9,8 +9,11 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from gyro_ekf.analysis.offline import OfflineRun, run_trip
+from gyro_ekf.analysis.summary import summarize
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 from gyro_ekf.core.types import Trip
+from gyro_ekf.core.validation import validate_trip
 
 FRONT_DROPOUT_S = (20.0, 30.0)
 """The front LiDAR gives no scan in this span: the rear one alone could drag the pose."""
@@ -39,3 +42,16 @@ def two_lidar_trip(seed: int, duration_s: float = 60.0, rear_yaw_error_deg: floa
             front, stamp_s=front.stamp_s[keep], ranges_m=front.ranges_m[keep],
             intensities=None if front.intensities is None else front.intensities[keep])
     return dataclasses.replace(trip, scans=(front, rear))
+
+
+def simulated_run(duration_s: float, seed: int = 3, **changes
+                  ) -> tuple[SimulationConfig, Trip, OfflineRun, dict]:
+    """Simulate a trip with `changes` to the default config, run it as `gyro-ekf run` does.
+
+    Returns the config, the validated trip, the run and its summary.json content.
+    """
+    config = dataclasses.replace(SimulationConfig(duration_s=duration_s), **changes)
+    trip = simulate_trip(config, seed)
+    trip, report = validate_trip(trip, trip.name)
+    run = run_trip(trip)
+    return config, trip, run, summarize(run, report)

@@ -2,20 +2,16 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 import pytest
+from health_trips import simulated_run
 
-from gyro_ekf.analysis.offline import run_trip
-from gyro_ekf.analysis.summary import summarize
 from gyro_ekf.core import bias_rate
 from gyro_ekf.core.bias_rate import BiasRate
 from gyro_ekf.core.ekf import GyroBiasEkf
-from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 from gyro_ekf.core.types import BIAS
-from gyro_ekf.core.validation import validate_trip
 
 BLOCK_SIGMA = math.radians(0.03)
 """Scatter of a block's true-bias estimate b + db (the simulator's, driving)."""
@@ -82,16 +78,8 @@ def test_the_prediction_moves_the_bias_by_its_rate(textbook):
     assert ekf.x[BIAS] - before[BIAS] == pytest.approx(0.5 * RATE, rel=1e-12)
 
 
-def _run(**changes):
-    config = dataclasses.replace(SimulationConfig(duration_s=120.0), **changes)
-    trip = simulate_trip(config, 3)
-    trip, report = validate_trip(trip, trip.name)
-    run = run_trip(trip)
-    return config, run, summarize(run, report)
-
-
 def test_a_ramping_bias_is_followed_and_said():
-    config, run, summary = _run(gyro_bias_ramp_rad_s2=-RATE)
+    config, _, run, summary = simulated_run(120.0, gyro_bias_ramp_rad_s2=-RATE)
     end = run.result.estimates.stamp_s[-1] - run.trip.imu.stamp_s[0]
     truth = float(config.gyro_bias_z_at(np.array([end]))[0])
     error = math.degrees(run.result.estimates.state[-1, BIAS] - truth)
@@ -105,7 +93,7 @@ def test_a_ramping_bias_is_followed_and_said():
 
 
 def test_a_clean_trip_finds_no_rate():
-    _, run, summary = _run()
+    _, _, run, summary = simulated_run(120.0)
     assert run.result.stats.bias_rate_found == 0
     assert summary['online_bias']['rate_deg_s_per_min'] == 0.0
     assert summary['online_bias']['rate_found'] == 0

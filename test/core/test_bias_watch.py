@@ -2,18 +2,14 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 import pytest
+from health_trips import simulated_run
 
-from gyro_ekf.analysis.offline import run_trip
-from gyro_ekf.analysis.summary import summarize
 from gyro_ekf.core import bias_watch
 from gyro_ekf.core.bias_watch import BiasWatch
-from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
-from gyro_ekf.core.validation import validate_trip
 
 SCANS_PER_S = 10.0
 POLES = 5
@@ -105,16 +101,9 @@ def test_a_block_across_a_dropout_is_not_judged():
     assert watch.openings == 0
 
 
-def _run(**changes):
-    config = dataclasses.replace(SimulationConfig(duration_s=90.0), **changes)
-    trip = simulate_trip(config, 3)
-    trip, report = validate_trip(trip, trip.name)
-    run = run_trip(trip)
-    return trip, run, summarize(run, report)
-
-
 def test_a_bias_step_is_followed_and_said():
-    trip, run, summary = _run(gyro_bias_step_rad_s=math.radians(0.4), gyro_bias_step_at_s=30.0)
+    _, trip, run, summary = simulated_run(90.0, gyro_bias_step_rad_s=math.radians(0.4),
+                                          gyro_bias_step_at_s=30.0)
     assert run.result.stats.bias_openings >= 1
     error = abs(math.degrees(run.result.estimates.state[-1, 3] - trip.true_gyro_bias_rad_s[2]))
     assert error < 0.02, f'final bias {error:.4f} deg/s off after a 0.4 deg/s step'
@@ -126,7 +115,7 @@ def test_a_bias_step_is_followed_and_said():
 
 
 def test_a_clean_trip_never_opens_the_bias():
-    _, run, summary = _run()
+    _, _, run, summary = simulated_run(90.0)
     assert run.result.stats.bias_openings == 0
     assert summary['health']['verdict'] == 'ok', summary['health']['reasons']
 

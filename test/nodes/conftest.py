@@ -65,6 +65,27 @@ class Processes(ChildProcesses):
         assert code == 0, f'{name} exited with {code}:\n{output}'
         return output
 
+    def two_lidar_nodes(self, bag: Path, *ekf_args: str) -> None:
+        """Start a detector per LiDAR (scan, scan2) and the EKF node, lossless inputs.
+
+        The EKF node takes the bag's params file, then `ekf_args` (more params files or
+        -p overrides), and publishes /diagnostics every 0.2 s.
+        """
+        lossless = ('-p', 'reliable_inputs:=true')
+        self.node('landmark_detector_node', *lossless)
+        self.node('landmark_detector_node', *lossless, '-r', 'scan:=scan2',
+                  '-r', '__node:=landmark_detector_scan2', name='detector_scan2')
+        self.node('ekf_node', '--params-file', f'{bag}.params.yaml', *ekf_args, *lossless,
+                  '-p', 'diagnostics_period_s:=0.2')
+
+    def replay_two_lidar_bag(self, bag: Path) -> str:
+        """Replay a two-LiDAR bag at 5x once every input has a reader; return its output."""
+        return self.run(
+            'replay', 'gyro_ekf.cli.main', 'replay', str(bag), '--rate', '5',
+            '--topics', 'imu', 'odom', 'scan', 'scan2', 'landmark_map', 'initialpose',
+            '--wait-for', 'imu:1', '--wait-for', 'odom:1', '--wait-for', 'scan:1',
+            '--wait-for', 'scan2:1', timeout_s=150)
+
 
 MIN_WAIT_S = 90.0
 """Shortest wait for a message or a state before a test fails (see Probe.spin_until)."""

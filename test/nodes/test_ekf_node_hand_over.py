@@ -40,21 +40,12 @@ def test_the_node_hands_the_body_frame_over_and_says_so(
 
     processes, probe = ros_processes
     diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
-    lossless = ('-p', 'reliable_inputs:=true')
-    processes.node('landmark_detector_node', *lossless)
-    processes.node('landmark_detector_node', *lossless, '-r', 'scan:=scan2',
-                   '-r', '__node:=landmark_detector_scan2', name='detector_scan2')
-    processes.node('ekf_node', '--params-file', f'{bag}.params.yaml', *lossless,
-                   '-p', 'diagnostics_period_s:=0.2')
+    processes.two_lidar_nodes(bag)
     probe.spin_until(lambda: probe.node.count_publishers('/landmarks') == 2
                      and probe.node.count_subscribers('/landmarks') == 1
                      and (diagnostics_of(diagnostics, STATUS) or {}).get('body_frame_lidar')
                      == 'scan', 20, 'two detectors and the EKF node, scan defining the frame')
-    replay = processes.run(
-        'replay', 'gyro_ekf.cli.main', 'replay', str(bag), '--rate', '5',
-        '--topics', 'imu', 'odom', 'scan', 'scan2', 'landmark_map', 'initialpose',
-        '--wait-for', 'imu:1', '--wait-for', 'odom:1', '--wait-for', 'scan:1',
-        '--wait-for', 'scan2:1', timeout_s=150)
+    replay = processes.replay_two_lidar_bag(bag)
     assert 'all acknowledged: True' in replay
     n_imu = str(len(read_bag(bag).trip.imu.stamp_s))
     probe.spin_until(lambda: (diagnostics_of(diagnostics, STATUS) or {}).get('estimates')

@@ -47,21 +47,12 @@ def mis_mounted_run(ros_processes, tmp_path_factory):
 
     processes, probe = ros_processes
     diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
-    lossless = ('-p', 'reliable_inputs:=true')
-    processes.node('landmark_detector_node', *lossless)
-    processes.node('landmark_detector_node', *lossless, '-r', 'scan:=scan2',
-                   '-r', '__node:=landmark_detector_scan2', name='detector_scan2')
-    processes.node('ekf_node', '--params-file', f'{bag}.params.yaml', '--params-file', str(off),
-                   *lossless, '-p', 'diagnostics_period_s:=0.2')
+    processes.two_lidar_nodes(bag, '--params-file', str(off))
     probe.spin_until(lambda: probe.node.count_publishers('/landmarks') == 2
                      and probe.node.count_subscribers('/landmarks') == 1
                      and probe.node.count_publishers('/ekf/odometry') == 1, 20,
                      'two detectors and the EKF node on /landmarks')
-    replay = processes.run(
-        'replay', 'gyro_ekf.cli.main', 'replay', str(bag), '--rate', '5',
-        '--topics', 'imu', 'odom', 'scan', 'scan2', 'landmark_map', 'initialpose',
-        '--wait-for', 'imu:1', '--wait-for', 'odom:1', '--wait-for', 'scan:1',
-        '--wait-for', 'scan2:1', timeout_s=150)
+    replay = processes.replay_two_lidar_bag(bag)
     n_imu = str(len(read_bag(bag).trip.imu.stamp_s))
     probe.spin_until(lambda: (_status(diagnostics) or (0, '', {}))[2].get('estimates') == n_imu,
                      60, f'{n_imu} estimates in /diagnostics')

@@ -40,12 +40,7 @@ def test_the_node_finds_the_mount_publishes_it_and_readmits_the_lidar(
     processes, probe = ros_processes
     diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
     mounts = probe.subscribe(PoseArray, 'ekf/mounts', qos.LATCHED)
-    lossless = ('-p', 'reliable_inputs:=true')
-    processes.node('landmark_detector_node', *lossless)
-    processes.node('landmark_detector_node', *lossless, '-r', 'scan:=scan2',
-                   '-r', '__node:=landmark_detector_scan2', name='detector_scan2')
-    processes.node('ekf_node', '--params-file', f'{bag}.params.yaml', *lossless,
-                   '-p', 'diagnostics_period_s:=0.2')
+    processes.two_lidar_nodes(bag)
     probe.spin_until(lambda: probe.node.count_publishers('/landmarks') == 2
                      and probe.node.count_subscribers('/landmarks') == 1
                      and len(mounts) >= 1, 20, 'two detectors, the EKF node and ekf/mounts')
@@ -53,11 +48,7 @@ def test_the_node_finds_the_mount_publishes_it_and_readmits_the_lidar(
     stated = mounts[0].poses[1]
     assert quaternion_yaw(stated.orientation) == pytest.approx(
         math.remainder(math.pi + math.radians(6.0), 2 * math.pi), abs=1e-9)
-    replay = processes.run(
-        'replay', 'gyro_ekf.cli.main', 'replay', str(bag), '--rate', '5',
-        '--topics', 'imu', 'odom', 'scan', 'scan2', 'landmark_map', 'initialpose',
-        '--wait-for', 'imu:1', '--wait-for', 'odom:1', '--wait-for', 'scan:1',
-        '--wait-for', 'scan2:1', timeout_s=150)
+    replay = processes.replay_two_lidar_bag(bag)
     assert 'all acknowledged: True' in replay
     n_imu = str(len(read_bag(bag).trip.imu.stamp_s))
     probe.spin_until(lambda: (diagnostics_of(diagnostics, STATUS) or {}).get('estimates')
