@@ -154,6 +154,7 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         tracker['name']: tracker for tracker in mounts.report()}
     odometry = run.result.odometry
     summary['online_odometry'] = None if odometry is None else odometry.report()
+    summary['online_noise'] = {lidar['name']: lidar for lidar in run.result.noise or ()}
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)

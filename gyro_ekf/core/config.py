@@ -149,6 +149,23 @@ class EkfConfig:
         'the bias watch\'s blocks imply over this window (used while significant, a ramp '
         'not a step, and the heading was seen drifting that way); the prediction then moves '
         'the bias by T times its slope. 0: off.', 0.0, 1e4)
+    # Each LiDAR's noise, measured online (core/noise_online.py).
+    lidar_noise_window: int = config_field(
+        1000, '1', 'LiDAR noise: each LiDAR\'s range and bearing noise variances are measured '
+        'from its own innovations (covariance matching) as a mean over this many updates, '
+        'and replace range_noise_m and bearing_noise_rad for that LiDAR once it has '
+        'lidar_noise_min_updates. 0: off (the configured or stated figures).', 0, 10**7)
+    lidar_noise_min_updates: int = config_field(
+        300, '1', 'LiDAR noise: updates a LiDAR\'s measured noise needs before it is used.',
+        1, 10**7)
+    # Measured and reported, not used, by default: the simulator's pole ranges come out
+    # at 1.1-1.3 cm against the configured 2 cm, but their errors are correlated from scan
+    # to scan, and with the measured figure in use the range innovations' 5-s block sums
+    # fail the whiteness test on 44 of 50 clean two-LiDAR trips (4 of them: verdict
+    # degraded for nothing). A scan-to-scan correlation model would be needed first.
+    lidar_noise_limit: float = config_field(
+        1.0, '1', 'LiDAR noise: the measured variances are used within [1/limit, limit] '
+        'times the configured ones; 1: measured and reported only.', 1.0, 1e4)
     # Online odometry calibration (core/odometry_online.py).
     odometry_online_min_change: float = config_field(
         0.01, '1', 'Online odometry calibration: a speed scale fitted from the LiDAR-held '

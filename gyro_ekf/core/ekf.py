@@ -295,6 +295,11 @@ class GyroBiasEkf:
         s00, s01, s11 = self._S
         return np.array([[s00, s01], [s01, s11]])
 
+    @property
+    def S_packed(self) -> tuple[float, float, float]:
+        """Last innovation covariance as (s00, s01, s11), plain floats."""
+        return tuple(self._S)
+
     def bearing_innovation(self) -> tuple[float, float]:
         """Return the last update's bearing innovation (rad) and its S_bb, plain floats."""
         return self._y[1], self._S[2]
@@ -445,11 +450,15 @@ class GyroBiasEkf:
         return models.observation_noise(range_m, self.R, self.landmark_var_m2)
 
     def update(self, z: FloatArray, landmark_xy_m: FloatArray,
-               mount: LidarMount = _NO_MOUNT, noise_scale: float = 1.0) -> float:
+               mount: LidarMount = _NO_MOUNT, noise_scale: float = 1.0,
+               sensor_variance: tuple[float, float] | None = None) -> float:
         """Correct with z = [range m, bearing rad] (0 = sensor forward) of a known landmark.
 
         ``noise_scale`` multiplies R (sensor and map) for this observation only; the NIS
         is still taken against the unscaled R, so it keeps measuring the sensor.
+        ``sensor_variance`` (range m^2, bearing rad^2), when given, replaces the configured
+        sensor noise of R for this observation (a LiDAR's measured noise,
+        core/noise_online.py).
 
         Returns:
             The normalised innovation squared (NIS) of this observation.
@@ -461,9 +470,11 @@ class GyroBiasEkf:
         z_range, z_bearing = z.tolist() if isinstance(z, np.ndarray) else z
         lx, ly = (landmark_xy_m.tolist() if isinstance(landmark_xy_m, np.ndarray)
                   else landmark_xy_m)
+        r_range, r_bearing = ((self._r_range, self._r_bearing) if sensor_variance is None
+                              else sensor_variance)
         prior = self._s, self._p
         self._s, self._p, self._y, self._S, self._K, self.nis = self._maths.update(
-            self._s, self._p, z_range, z_bearing, lx, ly, mount, self._r_range,
-            self._r_bearing, self.landmark_var_m2, noise_scale)
+            self._s, self._p, z_range, z_bearing, lx, ly, mount, r_range, r_bearing,
+            self.landmark_var_m2, noise_scale)
         self._s_prior, self._p_prior = prior
         return self.nis

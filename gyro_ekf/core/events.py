@@ -51,6 +51,7 @@ from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
+from gyro_ekf.core.noise_online import NoiseMatch
 from gyro_ekf.core.odometry_online import (Moved, OdometrySettings, OdometryTracker,
                                            midpoint_yaw)
 from gyro_ekf.core.types import BIAS, YAW, FloatArray, LandmarkMap, LidarMount
@@ -96,6 +97,8 @@ class EventDriver:
         self.health = HealthMonitor(self.config)
         self.bias_watch = BiasWatch()
         self.bias_rate = BiasRate(self.config.bias_rate_window_s)
+        # Each LiDAR's range and bearing noise, measured online (core/noise_online.py).
+        self.noise: dict[LidarMount, NoiseMatch] = {}
         # The filter's bias where the bias watch's open block began.
         self._block_bias = 0.0
         self.held_rate = HeldRate()
@@ -152,6 +155,7 @@ class EventDriver:
         self.health = HealthMonitor(self.config)
         self.bias_watch = BiasWatch()
         self.bias_rate = BiasRate(self.config.bias_rate_window_s)
+        self.noise = {}
         self._block_bias = 0.0
         self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0
         self.held_rate = HeldRate()
@@ -208,7 +212,8 @@ class EventDriver:
                 (self.bias_watch.copy(), self.bias_rate.copy(), self._block_bias),
                 self.held_rate.save(), self._rate_stamp_s, self._heading_dt2,
                 (self.odometry.save(), self._measured_speed_m_s, self._path_s,
-                 self._path_m, self._path_yaw))
+                 self._path_m, self._path_yaw),
+                {key: noise.save() for key, noise in self.noise.items()})
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
@@ -216,7 +221,10 @@ class EventDriver:
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
          watch, held, self._rate_stamp_s, self._heading_dt2,
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
-          self._path_yaw)) = saved
+          self._path_yaw), noise) = saved
+        self.noise = {}
+        for key, saved_noise in noise.items():
+            self.lidar_noise(key).restore(saved_noise)
         self.held_rate.restore(held)
         self.odometry.restore(odometry)
         watch, rate, self._block_bias = watch
@@ -434,14 +442,17 @@ class EventDriver:
                                    excluded or tracker.holds):
                 self.health.mount_changed(key, stamp_s)
             mount, held = tracker.used, tracker.holds
+        noise = self.lidar_noise(key) if self.config.lidar_noise_window else None
+        variances = None if noise is None else noise.variances
+        R = self.ekf.R if noise is None else noise.R
         if self._recovering(stamp_s):
             self.stats.recoveries += 1
             result = associate_by_distance(
-                z, prior, P, self.ekf.R, self.landmarks.xy_m, mount,
+                z, prior, P, R, self.landmarks.xy_m, mount,
                 self.config.recovery_max_distance_m, self.config.recovery_ratio,
                 self.ekf.landmark_var_m2)
         else:
-            result = associate(z, prior, P, self.ekf.R, self.landmarks.xy_m,
+            result = associate(z, prior, P, R, self.landmarks.xy_m,
                                mount, self.config.gate_probability, self.ekf.landmark_var_m2)
         if excluded or held:
             # Held out while its mount is estimated online; not readmitted while a mount
@@ -477,9 +488,14 @@ class EventDriver:
                     scale = base * n
                 nis.append(self.ekf.update(z[match.detection_index],
                                            landmark_xy[match.landmark_index], mount,
-                                           float(scale)))
+                                           float(scale), variances))
                 y = self.ekf.y
                 bearing_sum += y[1]
+                if noise is not None and scale == 1.0:
+                    # At the LiDAR's plain R: not a repeated look at rest, nor a mount on
+                    # probation (their R is scaled; the first's error repeats).
+                    s00, _, s11 = self.ekf.S_packed
+                    noise.add(y, (s00, s11), variances)
                 if scale == base:  # not a repeated look at rest
                     self.health.innovation(key, stamp_s, y, self.ekf.S,
                                            z[match.detection_index])
@@ -509,6 +525,22 @@ class EventDriver:
                 self.stats.first_association_s = stamp_s
             self.stats.last_association_s = stamp_s
         return ObservationReport(stamp_s, points, prior, mount, result, np.array(nis))
+
+    def lidar_noise(self, key: LidarMount) -> NoiseMatch:
+        """Return the noise estimate of the LiDAR at stated mount `key` (made on first use)."""
+        noise = self.noise.get(key)
+        if noise is None:
+            config = self.config
+            noise = self.noise[key] = NoiseMatch(
+                config.range_noise_m ** 2, config.bearing_noise_rad ** 2,
+                config.lidar_noise_window, config.lidar_noise_min_updates,
+                config.lidar_noise_limit)
+        return noise
+
+    def noise_report(self) -> list[dict]:
+        """Return each LiDAR's measured noise (``NoiseMatch.report``) with its name."""
+        return [{'name': self.health.sensor(key).name, **noise.report()}
+                for key, noise in self.noise.items()]
 
     def _first_lidar_moved(self, key: LidarMount, moved: Moved) -> None:
         """Move the pose back: the first LiDAR's mount in use moved by `moved`.

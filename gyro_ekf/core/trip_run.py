@@ -109,6 +109,7 @@ class TripRun:
         health: the per-LiDAR health figures, exclusions and readmissions.
         mounts: the online mount estimates of every LiDAR but the first.
         odometry: the online odometry speed-scale estimate (core/odometry_online.py).
+        noise: each LiDAR's measured noise at the end (EventDriver.noise_report).
     """
 
     estimates: Estimates
@@ -117,6 +118,7 @@ class TripRun:
     health: HealthMonitor | None = None
     mounts: OnlineMounts | None = None
     odometry: OdometryTracker | None = None
+    noise: list[dict] | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -216,4 +218,4 @@ def drive_trip(trip: Trip, driver: EventDriver,
                                      np.frombuffer(update_y, dtype=np.float64)]),
         nis=np.frombuffer(update_nis, dtype=np.float64))
     return TripRun(Estimates(stamps, states, covariances), updates, driver.stats,
-                   driver.health, driver.mounts, driver.odometry)
+                   driver.health, driver.mounts, driver.odometry, driver.noise_report())

@@ -43,7 +43,10 @@ the odometry's speed scale and the first LiDAR's offset estimated online
 `odometry_scale_{applied,estimate,sigma}`, `odometry_first_lidar_offset_{x_m,y_m,found}`
 and `odometry_first_lidar_yaw_{deg,found}` of the last fit,
 `odometry_first_lidar_offset_{in_use_x_m,in_use_y_m,applied}` and
-`odometry_first_lidar_yaw_in_use_deg`);
+`odometry_first_lidar_yaw_in_use_deg`), and each LiDAR's range and bearing noise in use,
+measured online (core/noise_online.py: `lidar_<topic>_{range_noise_m,bearing_noise_deg}` in use,
+`lidar_<topic>_measured_{range_noise_m,bearing_noise_deg}`, `_noise_measured` (in use),
+`_noise_updates`);
 `ekf/mounts` (PoseArray in
 `base_link`, latched) holds the same mounts, one pose per `lidar.topics` entry in that
 order, published again when an online estimate replaces one.
@@ -853,6 +856,18 @@ class EkfNode(Node):
                 prefix + 'exclusions': str(lidar['exclusions']),
                 prefix + 'excluded_s': f'{lidar["excluded_s"]:.1f}',
                 prefix + 'disagreement': lidar['disagreement'] or ''})
+        # Each LiDAR's range and bearing noise in use, measured online (core/noise_online.py).
+        for lidar in self.driver.noise_report():
+            prefix = f'lidar_{lidar["name"]}_'
+            values.update({
+                prefix + 'range_noise_m': f'{lidar["range_sigma_m"]:.4f}',
+                prefix + 'bearing_noise_deg': f'{lidar["bearing_sigma_deg"]:.4f}',
+                prefix + 'measured_range_noise_m': _optional(
+                    lidar['measured_range_sigma_m'], '.4f'),
+                prefix + 'measured_bearing_noise_deg': _optional(
+                    lidar['measured_bearing_sigma_deg'], '.4f'),
+                prefix + 'noise_measured': str(lidar['in_use']).lower(),
+                prefix + 'noise_updates': str(lidar['updates'])})
         status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: gyro bias EKF',
                                   hardware_id=self.resolve_topic_name(topics.IMU))
         rising = sorted(k for k, v in self.dropped.items() if v > self._reported_drops[k])
@@ -879,6 +894,11 @@ class EkfNode(Node):
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         self._diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=now.to_msg()),
                                                       status=[status]))
+
+
+def _optional(value: float | None, spec: str) -> str:
+    """Format a figure for /diagnostics; '' when there is none."""
+    return '' if value is None else format(value, spec)
 
 
 def _odometry_values(report: dict) -> dict[str, str]:
