@@ -424,6 +424,12 @@ class EventDriver:
                         return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
                     self.odometry.apply(moved)
                     self._first_lidar_moved(key, moved)
+                    still_at = self.odometry.still_at
+                    if still_at is not None and moved[3]:
+                        # Still at the trusted start pose: the heading a turned LiDAR dragged
+                        # goes back there (at rest the looks drag it only part of the way, so
+                        # turning it back by the whole yaw would overshoot).
+                        self.ekf.reset(np.array(still_at), self.ekf.bias_rad_s, self.ekf.P)
                     mount = self.odometry.first_mount(key)
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
             return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)

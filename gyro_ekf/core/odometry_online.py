@@ -60,9 +60,12 @@ detections of ``start_check_s`` are fitted against that pose, by the online moun
 the fit's covariance is multiplied by their count (they are worth one scan). An offset
 beyond the limits above moves the mount in use as a path fit does, unless another LiDAR's
 own scans there keep its stated mount: then that one defines the body frame
-(``mount_online.OnlineMounts.hand_over``). The check's yaw is reported, not acted on: on 75
-clean simulated starts it came out with an RMS of 1.6 of its sigma, 3 beyond 3 sigmas. The
-check closes when the odometry reads a speed, so a trip that starts moving has none.
+(``mount_online.OnlineMounts.hand_over``). A small yaw of the check is reported, not acted
+on: on 75 clean simulated starts it came out with an RMS of 1.6 of its sigma, 3 beyond 3
+sigmas (and within 0.22 deg on 100). A yaw beyond ``start_yaw_limit_rad`` (0.5 deg) and
+``start_yaw_sigmas`` (8) is acted on as an offset is: it turns the mount in use and the
+heading, or hands the body frame over. Once a yaw was applied, a path fit's yaw beyond
+``yaw_refinement_rad`` (0.02 deg) and 3 sigmas refines it. The check closes when the odometry reads a speed, so a trip that starts moving has none.
 
 The state is a handful of scalars and append-only lists, so ``save`` and ``restore``
 (called on every event by ``core/lagged.py``) cost O(1).
@@ -114,6 +117,13 @@ class OdometrySettings:
             this and offset_sigmas sigmas (with the offset's distance and residual rules),
             turns the LiDAR's mount in use and the heading by as much, rad (the online
             mount estimator's 0.1 deg).
+        yaw_refinement_rad: ... and, once one was, a further yaw beyond this, rad (the
+            first turn proves the error; what is left of it, 0.05 deg after a 1.5 deg
+            error, is 3 times the heading's sigma and would hold the NEES above its band).
+        start_yaw_limit_rad: the start check turns the first LiDAR's mount in use (and the
+            heading) by a yaw beyond this ...
+        start_yaw_sigmas: ... and beyond this many of its sigmas (on 100 clean simulated
+            starts the check's yaw stayed within 0.22 deg and 3.4 sigmas).
         start_check_s: standing still at a start pose the filter trusts exactly, the first
             LiDAR's detections of this long are fitted against that pose (or of the
             whole stop, when the platform moves off sooner), s.
@@ -133,6 +143,9 @@ class OdometrySettings:
     offset_limit_m: float = 0.01
     offset_refinement_m: float = 0.002
     yaw_limit_rad: float = math.radians(0.1)
+    yaw_refinement_rad: float = math.radians(0.02)
+    start_yaw_limit_rad: float = math.radians(0.5)
+    start_yaw_sigmas: float = 8.0
     start_check_s: float = 2.0
 
 
@@ -293,8 +306,8 @@ class OdometryTracker:
         trusts exactly: the detections, placed with that pose, measure the LiDAR's mount
         as the online mount fit does with moving poses. It closes after ``start_check_s``
         of scans, or at the first scan once the platform moved. Returns the move
-        (``Moved``, its yaw 0: see the module docstring) when the fit places the LiDAR off
-        its mount in use beyond the limits; the driver decides (``apply``).
+        (``Moved``; a small yaw is left 0: see the module docstring) when the fit places the
+        LiDAR off its mount in use beyond the limits; the driver decides (``apply``).
 
         Args:
             stamp_s: scan stamp, s.
@@ -345,12 +358,19 @@ class OdometryTracker:
         self.start_fit = {'x_m': dx, 'y_m': dy, 'sigma_m': sigma,
                           'yaw_deg': math.degrees(dyaw), 'yaw_sigma_deg': math.degrees(yaw_sigma),
                           'scans': self._start_scans, 'detections_used': used}
-        # The yaw is reported, not acted on: a stop's scans are worth one, and one scan's
-        # yaw is not known as well as its sigma says (on 75 clean simulated starts it came
-        # out with an RMS of 1.6 sigmas, 3 of them beyond 3); the path fits find it.
-        if math.hypot(dx, dy) <= max(settings.offset_limit_m, settings.offset_sigmas * sigma):
+        # A small yaw is reported, not acted on: a stop's scans are worth one, and one
+        # scan's yaw is not known as well as its sigma says (on 75 clean simulated starts
+        # it came out with an RMS of 1.6 sigmas, 3 of them beyond 3); the path fits find
+        # it. A large one is plain at once and would hold the heading off for the 20 m the
+        # path fit needs.
+        offset = math.hypot(dx, dy) > max(settings.offset_limit_m,
+                                          settings.offset_sigmas * sigma)
+        turned = abs(dyaw) > max(settings.start_yaw_limit_rad,
+                                 settings.start_yaw_sigmas * yaw_sigma)
+        if not (offset or turned):
             return None
-        return dx, dy, sigma, 0.0, 0.0
+        return ((dx, dy, sigma) if offset else (0.0, 0.0, 0.0)) + (
+            (dyaw, yaw_sigma) if turned else (0.0, 0.0))
 
     def apply(self, moved: Moved) -> None:
         """Move the first LiDAR's mount in use by a start check's (x, y, _, yaw, _)."""
@@ -471,8 +491,8 @@ class OdometryTracker:
         if (fit is None or fit.scale_sigma > settings.max_sigma
                 or fit.rms_m > settings.max_rms_m):
             return False
-        return abs(fit.yaw_rad) > max(settings.yaw_limit_rad,
-                                      settings.offset_sigmas * fit.yaw_sigma_rad)
+        limit = settings.yaw_refinement_rad if self.yaw_rad else settings.yaw_limit_rad
+        return abs(fit.yaw_rad) > max(limit, settings.offset_sigmas * fit.yaw_sigma_rad)
 
     def offset_found(self) -> bool:
         """Whether the last fit places the first LiDAR clearly off its stated mount."""
