@@ -64,8 +64,10 @@ own scans there keep its stated mount: then that one defines the body frame
 on: on 75 clean simulated starts it came out with an RMS of 1.6 of its sigma, 3 beyond 3
 sigmas (and within 0.22 deg on 100). A yaw beyond ``start_yaw_limit_rad`` (0.5 deg) and
 ``start_yaw_sigmas`` (8) is acted on as an offset is: it turns the mount in use and the
-heading, or hands the body frame over. Once a yaw was applied, a path fit's yaw beyond
-``yaw_refinement_rad`` (0.02 deg) and 3 sigmas refines it. The check closes when the odometry reads a speed, so a trip that starts moving has none.
+heading (back to the start pose: at rest the looks drag it only part of the way), or hands
+the body frame over. Once a yaw was applied, a path fit's yaw beyond ``yaw_refinement_rad``
+(0.02 deg) and 3 sigmas refines it. The check closes when the odometry reads a speed, so a
+trip that starts moving has none.
 
 The state is a handful of scalars and append-only lists, so ``save`` and ``restore``
 (called on every event by ``core/lagged.py``) cost O(1).
