@@ -63,14 +63,16 @@ class NoiseMatch:
         is still settling) says little about R and much about whether P is right, so
         it is left out.
         """
-        if s[0] > 2.0 * used[0] or s[1] > 2.0 * used[1]:
+        range_used, bearing_used = used
+        if s[0] > 2.0 * range_used or s[1] > 2.0 * bearing_used:
             return
-        self.updates += 1
-        weight = 1.0 / min(self.updates, self.window)
-        for i in (0, 1):
-            sample = y[i] * y[i] - (s[i] - used[i])
-            self._mean[i] += weight * (sample - self._mean[i])
-        if self.updates % REFRESH_UPDATES == 0 or self.updates == self.min_updates:
+        # Unrolled: this runs at every landmark update.
+        n = self.updates = self.updates + 1
+        weight = 1.0 / (n if n < self.window else self.window)
+        mean = self._mean
+        mean[0] += weight * (y[0] * y[0] - s[0] + range_used - mean[0])
+        mean[1] += weight * (y[1] * y[1] - s[1] + bearing_used - mean[1])
+        if self.limit > 1.0 and (n % REFRESH_UPDATES == 0 or n == self.min_updates):
             self._refresh()
 
     def _refresh(self) -> None:

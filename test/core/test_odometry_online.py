@@ -20,6 +20,21 @@ def _summary(seed=3, **changes):
                                             seed)))
 
 
+def _turned_lidar_run(seed, yaw_error_deg):
+    """One LiDAR yaw_error_deg off its stated yaw: the trip and its run."""
+    trip = simulate_trip(SimulationConfig(lidar_yaw_error_rad=math.radians(yaw_error_deg)),
+                         seed)
+    return trip, run_trip(trip)
+
+
+def _heading_error_deg(run, trip, after_s):
+    """The run's heading minus the true heading at each estimate after after_s, deg."""
+    estimates, truth = run.result.estimates, trip.ground_truth
+    late = estimates.stamp_s > after_s
+    heading = np.interp(estimates.stamp_s[late], truth.stamp_s, np.unwrap(truth.pose[:, 2]))
+    return np.degrees(np.angle(np.exp(1j * (estimates.state[late, 2] - heading))))
+
+
 @pytest.mark.parametrize('error', [0.03, -0.025])
 def test_a_speed_scale_error_is_fitted_divided_out_and_named(error):
     summary = _summary(speed_scale_error=error)
@@ -70,9 +85,7 @@ def test_a_first_lidar_turned_off_the_odometry_direction_is_found_turned_and_nam
     # One LiDAR, its yaw off its stated mount: the pose's heading follows the LiDAR, the
     # odometry moves along the heading, so the odometry path turns away from the path the
     # map holds, by the same angle.
-    trip = simulate_trip(SimulationConfig(lidar_yaw_error_rad=math.radians(yaw_error_deg)),
-                         seed)
-    run = run_trip(trip)
+    trip, run = _turned_lidar_run(seed, yaw_error_deg)
     summary = summarize(run)
     odometry = summary['online_odometry']
     assert odometry['first_lidar_offset_applied'] >= 1
@@ -81,12 +94,8 @@ def test_a_first_lidar_turned_off_the_odometry_direction_is_found_turned_and_nam
     assert any('LiDAR scan sits off its stated mount' in r and 'yaw' in r
                for r in summary['health']['reasons'])
     # Turned back, the heading is right for the rest of the trip.
-    estimates = run.result.estimates
-    truth = trip.ground_truth
-    late = estimates.stamp_s > 60.0
-    heading = np.interp(estimates.stamp_s[late], truth.stamp_s, np.unwrap(truth.pose[:, 2]))
-    error = np.angle(np.exp(1j * (estimates.state[late, 2] - heading)))
-    assert np.degrees(np.sqrt(np.mean(error ** 2))) <= 0.05
+    error = _heading_error_deg(run, trip, after_s=60.0)
+    assert np.sqrt(np.mean(error ** 2)) <= 0.05
 
 
 def test_the_start_check_moves_a_first_lidar_off_its_mount_before_the_trip_begins():
@@ -116,20 +125,14 @@ def test_the_start_check_turns_a_first_lidar_far_off_its_yaw_before_the_trip_beg
         seed, yaw_error_deg):
     # Far beyond the check's scatter (0.22 deg on 100 clean starts): turned at 2 s, not
     # after the 20 m the path fit needs; the path fit then refines what is left.
-    trip = simulate_trip(SimulationConfig(lidar_yaw_error_rad=math.radians(yaw_error_deg)),
-                         seed)
-    run = run_trip(trip)
+    trip, run = _turned_lidar_run(seed, yaw_error_deg)
     check = run.result.odometry.report()['first_lidar_start_check']
     assert check['yaw_deg'] == pytest.approx(yaw_error_deg, abs=0.2)
     summary = summarize(run)
     assert summary['online_odometry']['first_lidar_yaw_in_use_deg'] == pytest.approx(
         yaw_error_deg, abs=0.05)
-    estimates, truth = run.result.estimates, trip.ground_truth
-    moving = estimates.stamp_s > SimulationConfig().static_s
-    heading = np.interp(estimates.stamp_s[moving], truth.stamp_s,
-                        np.unwrap(truth.pose[:, 2]))
-    error = np.angle(np.exp(1j * (estimates.state[moving, 2] - heading)))
-    assert np.degrees(np.abs(error)).max() <= 0.3
+    error = _heading_error_deg(run, trip, after_s=SimulationConfig().static_s)
+    assert np.abs(error).max() <= 0.3
     assert summary['ground_truth']['position_rmse_m'] <= 0.02
     assert summary['health']['verdict'] == 'degraded'
 
