@@ -300,6 +300,11 @@ class GyroBiasEkf:
         """Last innovation covariance as (s00, s01, s11), plain floats."""
         return tuple(self._S)
 
+    @property
+    def y_values(self) -> tuple[float, float]:
+        """Last innovation as plain floats (range m, bearing rad): the per-update path."""
+        return tuple(self._y)
+
     def bearing_innovation(self) -> tuple[float, float]:
         """Return the last update's bearing innovation (rad) and its S_bb, plain floats."""
         return self._y[1], self._S[2]

@@ -495,15 +495,15 @@ class EventDriver:
                 nis.append(self.ekf.update(z[match.detection_index],
                                            landmark_xy[match.landmark_index], mount,
                                            float(scale), variances))
-                y = self.ekf.y
+                # Plain floats: this runs at every update.
+                y, S = self.ekf.y_values, self.ekf.S_packed
                 bearing_sum += y[1]
                 if noise is not None and scale == 1.0:
                     # At the LiDAR's plain R: not a repeated look at rest, nor a mount on
                     # probation (their R is scaled; the first's error repeats).
-                    s00, _, s11 = self.ekf.S_packed
-                    noise.add(y, (s00, s11), variances)
+                    noise.add(y, (S[0], S[2]), variances)
                 if scale == base:  # not a repeated look at rest
-                    self.health.innovation(key, stamp_s, y, self.ekf.S,
+                    self.health.innovation(key, stamp_s, y, S,
                                            z[match.detection_index])
                     if not at_rest:
                         r = z[match.detection_index][0]

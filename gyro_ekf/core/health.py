@@ -40,7 +40,6 @@ from typing import Any, Hashable
 
 from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core import mount_online, odometry_online
-from gyro_ekf.core.types import FloatArray
 
 OK, DEGRADED, FAILED = 'ok', 'degraded', 'failed'
 _RANK = {OK: 0, DEGRADED: 1, FAILED: 2}
@@ -141,14 +140,14 @@ class WhitenessTest:
         clone.blocks, clone.updates = self.blocks, self.updates
         return clone
 
-    def add(self, stamp_s: float, y: FloatArray, s: FloatArray, range_m: float,
-            bearing_rad: float) -> None:
+    def add(self, stamp_s: float, y: tuple[float, float], s: tuple[float, float, float],
+            range_m: float, bearing_rad: float) -> None:
         """Add one applied update.
 
         Args:
             stamp_s: scan stamp, s.
-            y: innovation [range m, bearing rad].
-            s: its covariance S, shape (2, 2).
+            y: innovation (range m, bearing rad), plain floats.
+            s: its covariance S as (s_rr, s_rb, s_bb).
             range_m, bearing_rad: the measurement (bearing in the LiDAR's frame).
         """
         if self._block_start_s is None:
@@ -159,8 +158,8 @@ class WhitenessTest:
             skipped = math.floor((stamp_s - self._block_start_s) / WHITENESS_BLOCK_S)
             self._block_start_s += skipped * WHITENESS_BLOCK_S
         # Plain floats: this runs for every update (numpy's per-call cost would dominate).
-        yr, yb = y.tolist()
-        (srr, srb), (_, sbb) = s.tolist()
+        yr, yb = y
+        srr, srb, sbb = s
         c, si = math.cos(bearing_rad), math.sin(bearing_rad)
         # The rows of J = [[c, -r si], [si, r c]] give x and y.
         ryb, rsrb, r2sbb = range_m * yb, range_m * srb, range_m * range_m * sbb
@@ -308,15 +307,15 @@ class HealthMonitor:
         self.transitions = deque(transitions, maxlen=MAX_TRANSITIONS)
         self.whiteness = {key: w.copy() for key, w in whiteness.items()}
 
-    def innovation(self, key: Hashable, stamp_s: float, y: FloatArray, s: FloatArray,
-                   z: list[float]) -> None:
+    def innovation(self, key: Hashable, stamp_s: float, y: tuple[float, float],
+                   s: tuple[float, float, float], z: list[float]) -> None:
         """Add one applied update (not at rest) of this LiDAR to its whiteness test.
 
         Args:
             key: the LiDAR (its mount).
             stamp_s: scan stamp, s.
-            y: innovation [range m, bearing rad].
-            s: its covariance S, shape (2, 2).
+            y: innovation (range m, bearing rad), plain floats.
+            s: its covariance S as (s_rr, s_rb, s_bb).
             z: the measurement [range m, bearing rad in the LiDAR frame].
         """
         test = self.whiteness.get(key)

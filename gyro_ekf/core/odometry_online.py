@@ -75,8 +75,10 @@ The state is a handful of scalars and append-only lists, so ``save`` and ``resto
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
 import math
+from operator import itemgetter
 from typing import Any
 
 import numpy as np
@@ -149,6 +151,9 @@ class OdometrySettings:
     start_yaw_limit_rad: float = math.radians(0.5)
     start_yaw_sigmas: float = 8.0
     start_check_s: float = 2.0
+
+
+_stamp = itemgetter(0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -409,7 +414,8 @@ class OdometryTracker:
     def _fit(self, stamp_s: float) -> Moved | None:
         settings = self.settings
         first = max(stamp_s - settings.window_s, self._window_start_s)
-        rows = [e for e in self._entries if e[0] >= first]
+        # The entries are in stamp order: the window is their tail.
+        rows = self._entries[bisect.bisect_left(self._entries, first, key=_stamp):]
         if len(rows) < 10:
             return None
         window = np.array(rows)

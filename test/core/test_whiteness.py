@@ -16,6 +16,7 @@ from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 
 S = np.diag([0.02 ** 2, 0.002 ** 2])
 """Innovation covariance of the synthetic updates: 2 cm, 0.11 deg."""
+S_PACKED = (S[0, 0], S[0, 1], S[1, 1])
 POLES = 6
 SCANS_PER_S = 10.0
 
@@ -30,7 +31,7 @@ def _feed(monitor, seconds, bearing_offset=None, seed=0, key='scan'):
             y = rng.normal(0.0, sigma)
             if bearing_offset is not None:
                 y[1] += bearing_offset(stamp)
-            monitor.innovation(key, stamp, y, S, [5.0, 0.3])
+            monitor.innovation(key, stamp, tuple(y), S_PACKED, [5.0, 0.3])
         monitor.record(key, stamp, POLES, POLES, 2.0 * POLES, 0.0, name=key)
 
 
@@ -83,7 +84,7 @@ def test_a_shift_of_every_detection_in_the_lidar_frame_is_named_as_such():
             c, s = math.cos(bearing), math.sin(bearing)
             y = rng.normal(0.0, sigma) + [c * shift[0] + s * shift[1],
                                           (-s * shift[0] + c * shift[1]) / r]
-            monitor.innovation('scan', k / 10.0, y, S, [r, bearing])
+            monitor.innovation('scan', k / 10.0, tuple(y), S_PACKED, [r, bearing])
         monitor.record('scan', k / 10.0, POLES, POLES, 2.0 * POLES, 0.0)
     reasons = _whiteness_reasons(monitor)
     assert len(reasons) == 1, reasons
