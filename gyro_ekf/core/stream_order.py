@@ -62,7 +62,7 @@ class StreamMerger:
 
     def __init__(self, window_s: float, max_events: int = 20_000, stale_after_s: float = 1.0,
                  clock: Callable[[], float] = time.monotonic,
-                 expected_streams: Iterable[str] = ()):
+                 expected_streams: Iterable[str] = (), stale_wall_s: float | None = None):
         """Hold events window_s of stamp time at least, at most max_events at once.
 
         Args:
@@ -73,10 +73,14 @@ class StreamMerger:
             clock: steady seconds (monotonic); replaceable in tests.
             expected_streams: streams to wait for before the first release (at most
                 stale_after_s after the first event).
+            stale_wall_s: the clock's part of staleness, when it should differ from
+                stale_after_s, s (longer: an upstream known to deliver every message,
+                however slowly, is waited for longer before it counts as stopped).
         """
         self.window_s = window_s
         self.max_events = max_events
         self.stale_after_s = stale_after_s
+        self.stale_wall_s = stale_after_s if stale_wall_s is None else stale_wall_s
         self.expected_streams = frozenset(expected_streams)
         self._started: float | None = None
         self._first_newest_s = -math.inf
@@ -113,9 +117,9 @@ class StreamMerger:
                 and not self._passed(now, self._started, self._first_newest_s)
                 and len(self._heap) <= self.max_events):
             return [], []
-        stale_s = self.stale_after_s
+        stale_s, wall_s = self.stale_after_s, self.stale_wall_s
         watermark = min((own for own, newest_then, seen in self._streams.values()
-                         if now - seen <= stale_s or newest_s - newest_then <= stale_s),
+                         if now - seen <= wall_s or newest_s - newest_then <= stale_s),
                         default=math.inf)  # not stale (see _passed), inline: per message
         return self._release(min(newest_s - self.window_s, watermark)), []
 
@@ -126,12 +130,12 @@ class StreamMerger:
                 if not self._passed(now, seen, newest_then)}
 
     def _passed(self, now: float, seen: float, newest_then_s: float) -> bool:
-        """Tell whether stale_after_s has passed on the clock and in the received stamps.
+        """Tell whether stale_wall_s has passed on the clock and stale_after_s in the stamps.
 
         On the clock since `seen`, and in the newest stamp received on any stream since it
         was `newest_then_s`.
         """
-        return (now - seen > self.stale_after_s
+        return (now - seen > self.stale_wall_s
                 and self._newest_s - newest_then_s > self.stale_after_s)
 
     def flush(self) -> ReadyEvents:

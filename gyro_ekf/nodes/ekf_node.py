@@ -143,6 +143,13 @@ far on, and for this long on the steady clock, stops holding the others back, s:
 of a 10 Hz LiDAR, so a late scan is waited for, and a sensor that stopped costs the others
 one second of latency once."""
 
+STALE_RELIABLE_INPUT_WALL_S = 10.0
+"""With `reliable_inputs` (every message is delivered, however late), the steady-clock part
+of STALE_INPUT_S, s: a detector starved upstream (two CPU hogs per core and a second test
+suite on two cores) lagged by more than 1 s, and each landmark message it then sent was
+dropped as late although nothing was lost; a LiDAR that really stopped holds the others
+back this long, once."""
+
 MAX_BUFFERED_EVENTS = 20_000
 """Most messages the merger (and the late-observation history) holds: bounds memory when an
 input stalls without going stale; the oldest are released beyond it."""
@@ -231,7 +238,8 @@ class EkfNode(Node):
                                       1, 100_000)
         lossless = declare(self, 'reliable_inputs', False,
                            'Reliable keep-all QoS on the inputs instead of sensor data QoS '
-                           '(lossless replay, tests)')
+                           '(lossless replay, tests); an input then counts as stopped after '
+                           '10 s without a message on the steady clock instead of 1 s')
         period = declare(self, 'diagnostics_period_s', 1.0,
                          'Period of the /diagnostics status (node clock)', 's', 0.01, 3600.0)
         self._max_gap_s = declare(self, 'max_association_gap_s', 5.0,
@@ -271,8 +279,10 @@ class EkfNode(Node):
         # Silence is judged in the stamps received (the data's own ROS time: a paused
         # replay is no silence), and, so that a burst or a busy detector upstream is none
         # either, on the steady clock; never on /clock, which runs ahead of queued messages.
-        self._buffer = StreamMerger(0.0, MAX_BUFFERED_EVENTS, STALE_INPUT_S,
-                                    clock=time.monotonic, expected_streams=expected)
+        self._buffer = StreamMerger(
+            0.0, MAX_BUFFERED_EVENTS, STALE_INPUT_S, clock=time.monotonic,
+            expected_streams=expected,
+            stale_wall_s=STALE_RELIABLE_INPUT_WALL_S if lossless else STALE_INPUT_S)
         self._gate = StampGate(limits.max_stamp_jump_s)
         self._lagged = (LaggedObservations(self.driver, history_s, MAX_BUFFERED_EVENTS,
                                            on_refused=self._observation_refused)

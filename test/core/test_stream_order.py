@@ -110,6 +110,27 @@ def test_a_stopped_stream_goes_stale_on_the_clock_and_in_the_stamps():
     assert len(buffer) < 5
 
 
+def test_a_longer_wall_time_waits_for_a_slow_upstream_and_still_ends_a_stopped_one():
+    # Reliable inputs: a detector starved upstream sends nothing for 3 s of steady clock
+    # while 3 s of IMU stamps arrive; with the clock's part at 10 s it still holds them.
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0],
+                          stale_wall_s=10.0)
+    buffer.push('scan', 0.0, EventKind.OBSERVATION, 'scan')
+    for k in range(300):
+        now[0] = 0.01 * k
+        buffer.push('imu', 0.01 * k, EventKind.IMU, k)
+    assert buffer.active_streams() == {'imu', 'scan'}
+    assert len(buffer) == 299  # all IMU samples after the scan's stamp are held
+    late = buffer.push('scan', 2.9, EventKind.OBSERVATION, 'late scan')[1]
+    assert late == []
+    # Stopped for good: 10 s on the clock and 1 s of stamps end the wait.
+    now[0] = 13.0
+    buffer.push('imu', 4.0, EventKind.IMU, 300)
+    assert buffer.active_streams() == {'imu'}
+    assert len(buffer) < 5
+
+
 def _drain(buffer, now, rounds, clock_step_s, streams):
     """Serve each stream's queue one message per round, as the executor does; return late.
 
