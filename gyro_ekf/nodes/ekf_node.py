@@ -28,7 +28,9 @@ to their landmark and its other detections, 2 Hz), latched `landmark_markers` (t
 and with `publish_tf` TF `map -> base_link` (or `map -> odom_frame`, robot_localization's
 rule) where the install has tf2_msgs. `/diagnostics`
 reports the bias and its sigma in deg/s, associated/rejected observations, mean NIS, input
-rates, time since the last associated landmark, the drop counts, the zero-rate updates
+rates, time since the last associated landmark, the drop counts, the matched readers of
+ekf/odometry and ekf/bias (`odometry_readers`, `bias_readers`: neither is published without
+one, to save the CPU), the zero-rate updates
 (`standing_still`: they are being applied now, core/events.py), the health verdict
 of the run since the start or the last reset (`verdict`, `verdict_reasons`: core.health's,
 as `gyro-ekf run` writes it in summary.json; level WARN when degraded, ERROR when failed),
@@ -811,6 +813,9 @@ class EkfNode(Node):
             **{f'rate_{k}_hz': f'{v:.2f}' for k, v in self._rates_hz.items()},
             'time_since_association_s': '' if since is None else f'{since:.3f}',
             'estimates': str(self._estimates), 'published': str(self.published),
+            # Matched readers: ekf/odometry and ekf/bias are not published without one.
+            'odometry_readers': str(self._odometry_readers()),
+            'bias_readers': str(self._bias_readers()),
             'buffered': str(len(self._buffer)), 'resets': str(self.resets),
             'ignored_covariances': str(self.covariances_ignored),
             'held_far_ahead': str(self._gate.held), 'long_gaps': str(stats.long_gaps),

@@ -36,6 +36,7 @@ class EkfUnderTest:
                 '-p', 'diagnostics_period_s:=0.1']
         for param in params:
             args += ['-p', param]
+        self._sim_time = 'use_sim_time:=true' in (*params, *node_args)
         self.processes.node('ekf_node', *args, name=name)
         node = self.probe.node
         self.imu = node.create_publisher(Imu, f'/{name}/imu', qos.LOSSLESS)
@@ -51,9 +52,12 @@ class EkfUnderTest:
         # Matched endpoints both ways, not graph counts: the node skips an output nobody
         # reads, so an estimate published before its writer matched the probe's reader
         # never arrives (seen under load: 'the last estimate' awaited for 90 s in vain).
+        # The node's side of the match is what it reports in /diagnostics (on its clock: a
+        # node on sim time reports nothing before /clock runs, so there only the probe's).
         self.probe.spin_until(
             lambda: all(p.get_subscription_count() for p in (self.imu, self.odom, *publishers))
-            and self._odometry_sub.get_publisher_count() > 0, 20,
+            and self._odometry_sub.get_publisher_count() > 0
+            and (self._sim_time or int(self.values().get('odometry_readers') or 0) > 0), 20,
             f'the EKF node {self.name}')
 
     def _publish(self, publisher, message) -> None:
