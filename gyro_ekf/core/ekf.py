@@ -305,10 +305,6 @@ class GyroBiasEkf:
         """Last innovation as plain floats (range m, bearing rad): the per-update path."""
         return tuple(self._y)
 
-    def bearing_innovation(self) -> tuple[float, float]:
-        """Return the last update's bearing innovation (rad) and its S_bb, plain floats."""
-        return self._y[1], self._S[2]
-
     @property
     def K(self) -> FloatArray:
         """Last Kalman gain, shape (4, 2)."""

@@ -501,13 +501,13 @@ class EventDriver:
                 if noise is not None and scale == 1.0:
                     # At the LiDAR's plain R: not a repeated look at rest, nor a mount on
                     # probation (their R is scaled; the first's error repeats).
-                    noise.add(y, (S[0], S[2]), variances)
+                    noise.add(y, S, variances)
                 if scale == base:  # not a repeated look at rest
                     self.health.innovation(key, stamp_s, y, S,
                                            z[match.detection_index])
                     if not at_rest:
                         r = z[match.detection_index][0]
-                        self.bias_watch.add(stamp_s, *self.ekf.bearing_innovation(),
+                        self.bias_watch.add(stamp_s, y[1], S[2],
                                             match.landmark_index,
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
         if nis and not at_rest:

@@ -9,11 +9,14 @@ falls below the band), one too small makes it overconfident. So the filter measu
 Covariance matching (Mehra 1972): an update's innovation y has covariance
 S = H P H^T + R_map + R, so ``y y^T - (S - R)`` is a sample of R whose mean is R when P
 is right. Each LiDAR keeps the mean of those samples' diagonal (range, bearing) over its
-last ``window`` updates (an exponential mean); once it has ``min_updates`` of them the
-LiDAR's updates and association use that mean instead of the configured figure, within
-``[1/limit, limit]`` times the configured variance (a filter gone wrong must not talk
-itself into a near-zero R). Only updates at the LiDAR's plain R count (not a repeated
-look at rest, whose error repeats, nor a mount on probation, whose R is inflated).
+last ``window`` updates (an exponential mean) and reports it. With ``limit`` above 1, once
+it has ``min_updates`` of them, the LiDAR's updates and association use that mean instead of
+the configured figure, within ``[1/limit, limit]`` times the configured variance (a filter
+gone wrong must not talk itself into a near-zero R). The default limit is 1 (reported
+only): the simulator's detection errors change slowly from scan to scan, and with the
+measured figure in use clean trips failed the whiteness test (config.py says more). Only
+updates at the LiDAR's plain R count (not a repeated look at rest, whose error repeats, nor
+a mount on probation, whose R is inflated).
 """
 
 from __future__ import annotations
@@ -55,23 +58,23 @@ class NoiseMatch:
         self._mean = [range_var, bearing_var]
         self._refresh()
 
-    def add(self, y: tuple[float, float], s: tuple[float, float],
+    def add(self, y: tuple[float, float], s: tuple[float, float, float],
             used: tuple[float, float]) -> None:
-        """Take one update: innovation y, the diagonal of its S, the sensor R it used.
+        """Take one update: innovation y, its S as (s_rr, s_rb, s_bb), the sensor R it used.
 
         An update whose S is mostly the pose's uncertainty (S more than twice R: the filter
         is still settling) says little about R and much about whether P is right, so
         it is left out.
         """
         range_used, bearing_used = used
-        if s[0] > 2.0 * range_used or s[1] > 2.0 * bearing_used:
+        if s[0] > 2.0 * range_used or s[2] > 2.0 * bearing_used:
             return
         # Unrolled: this runs at every landmark update.
         n = self.updates = self.updates + 1
         weight = 1.0 / (n if n < self.window else self.window)
         mean = self._mean
         mean[0] += weight * (y[0] * y[0] - s[0] + range_used - mean[0])
-        mean[1] += weight * (y[1] * y[1] - s[1] + bearing_used - mean[1])
+        mean[1] += weight * (y[1] * y[1] - s[2] + bearing_used - mean[1])
         if self.limit > 1.0 and (n % REFRESH_UPDATES == 0 or n == self.min_updates):
             self._refresh()
 

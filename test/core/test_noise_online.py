@@ -29,7 +29,7 @@ def _feed(match: NoiseMatch, true_r: tuple[float, float], pose_part: tuple[float
     for _ in range(n):
         used = match.variances
         y = tuple(rng.normal(0.0, math.sqrt(p + r)) for p, r in zip(pose_part, true_r))
-        match.add(y, (pose_part[0] + used[0], pose_part[1] + used[1]), used)
+        match.add(y, (pose_part[0] + used[0], 0.0, pose_part[1] + used[1]), used)
 
 
 def test_the_measured_noise_replaces_the_configured_once_it_has_enough_updates():
@@ -74,7 +74,7 @@ def test_the_measured_noise_stays_within_its_limits():
 def test_updates_whose_s_is_mostly_the_pose_uncertainty_are_left_out():
     match = NoiseMatch(*CONFIGURED, window=1000, min_updates=1, limit=4.0)
     # Settling: S is three times R in range; such an update says little about R.
-    match.add((0.05, 0.0), (3.0 * CONFIGURED[0], CONFIGURED[1]), CONFIGURED)
+    match.add((0.05, 0.0), (3.0 * CONFIGURED[0], 0.0, CONFIGURED[1]), CONFIGURED)
     assert match.updates == 0 and match.variances == CONFIGURED
 
 
