@@ -28,6 +28,8 @@ correct the bias: that is how the filter finds the bias online.
 
 A bias found to ramp (``bias_rate.py``) is a known input of the prediction: b += T r, with
 r's uncertainty added to Q2's bias random walk (``bias_rate_found``, ``bias_walk_found``).
+The odometry's speed scale, while not yet known, adds to q^2 of x and y
+(``odometry_walk``, ``odometry_online.walk_density``).
 
 Standing still (the driver decides when, ``events.py``), a gyro sample w measures the bias
 alone: z = w, h(x) = b, H = [0, 0, 0, 1] (a zero-rate update, ``update_zero_rate``), and the
@@ -239,6 +241,9 @@ class GyroBiasEkf:
         # A random walk of the bias found in the data ((rad/s)^2 per s, core/bias_watch.py):
         # Q2 adds it times T to the bias, on top of the configured (q_b T)^2.
         self.bias_walk_found = 0.0
+        # The odometry's speed scale not yet known, as a random walk of x and y (m^2 per s,
+        # core/odometry_online.py walk_density): Q2 adds it times T, beside q_pos^2 T.
+        self.odometry_walk = 0.0
         # A rate of the bias found in the data (rad/s^2, core/bias_rate.py): each prediction
         # moves b by T times it, a known input (its uncertainty comes in bias_walk_found).
         self.bias_rate_found = 0.0
@@ -411,7 +416,7 @@ class GyroBiasEkf:
         self._s, self._p = self._maths.predict(
             self._s, self._p, float(speed_m_s), float(rate_rad_s), float(dt_s),
             self._sigma_v2 if speed_variance is None else speed_variance, rate_var,
-            self._q_pos2, bias_walk, hold_position)
+            self._q_pos2 + self.odometry_walk, bias_walk, hold_position)
         if self.bias_rate_found:
             # b += T b' (the bias ramps; core/bias_rate.py): J's bias row is still [0 0 0 1].
             self._s[BIAS] += dt_s * self.bias_rate_found

@@ -106,7 +106,9 @@ class EventDriver:
             converged_yaw_sigma_rad=self.config.mount_online_yaw_sigma_rad))
         # The odometry's speed scale, estimated online (core/odometry_online.py).
         self.odometry = OdometryTracker(OdometrySettings(
-            min_change=self.config.odometry_online_min_change))
+            min_change=self.config.odometry_online_min_change,
+            prior_scale_sigma=self.config.odometry_scale_sigma,
+            scale_time_s=self.config.odometry_scale_time_s))
         self.odometry.start_at(self._trusted(pose))
         self._measured_speed_m_s = 0.0
         # Stamp up to which the odometry path's distance is summed, the distance not yet
@@ -158,6 +160,7 @@ class EventDriver:
         self.noise = {}
         self._block_bias = 0.0
         self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0
+        self.ekf.odometry_walk = 0.0
         self.held_rate = HeldRate()
         self._rate_stamp_s = None
         self._heading_dt2 = 0.0
@@ -232,6 +235,7 @@ class EventDriver:
         self.ekf.bias_walk_found = self.bias_watch.walk + self.bias_rate.walk
         self.ekf.bias_rate_found = self.bias_rate.rate_rad_s2
         self.ekf.rate_noise_scale = self.bias_watch.noise_scale
+        self.ekf.odometry_walk = self.odometry.walk_density(self.speed_m_s)
         self.mounts.restore(mounts)
         (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
          self.zero_rate) = stop
@@ -306,6 +310,8 @@ class EventDriver:
         self._measured_speed_m_s = speed_m_s
         self.speed_m_s, self.speed_variance = self.odometry.correct(
             speed_m_s, variance, self.config.speed_noise_m_s ** 2)
+        # The scale not yet known, as a position random walk (core/odometry_online.py).
+        self.ekf.odometry_walk = self.odometry.walk_density(self.speed_m_s)
         self.stats.speed += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
@@ -425,10 +431,11 @@ class EventDriver:
                     self.odometry.apply(moved)
                     self._first_lidar_moved(key, moved)
                     still_at = self.odometry.still_at
-                    if still_at is not None and moved[3]:
-                        # Still at the trusted start pose: the heading a turned LiDAR dragged
-                        # goes back there (at rest the looks drag it only part of the way, so
-                        # turning it back by the whole yaw would overshoot).
+                    if still_at is not None:
+                        # Still at the trusted start pose: the pose a LiDAR off its mount
+                        # dragged goes back there, heading included (at rest the looks drag
+                        # it only part of the way, so moving it back by the whole offset or
+                        # yaw would overshoot; an offset drags the heading too).
                         self.ekf.reset(np.array(still_at), self.ekf.bias_rad_s, self.ekf.P)
                     mount = self.odometry.first_mount(key)
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:

@@ -34,10 +34,10 @@ sigma of ``k`` comes from its residuals, inflated for their correlation from sca
 A fit (at least ``min_distance_m`` driven in the window) whose sigma of ``k`` is at most
 ``max_sigma``, whose residual RMS is at most ``max_rms_m`` and whose ``k`` differs from
 the scale in use by more than ``change_sigmas`` sigmas and ``min_change`` replaces it: the
-driver divides every later speed by it (and adds the fit's uncertainty to the speed
-variance); once one was applied, changes beyond ``min_refinement`` refine it. Changes
-below ``min_change`` (1 %) are not made: on the 2022 course log, whose odometry is exact,
-fits of the first 10-20 m come out 0.4-0.5 % off. The estimate is reported
+driver divides every later speed by it; once one was applied, changes beyond
+``min_refinement`` refine it. Changes below ``min_change`` (1 %) are not made: on the
+2022 course log, whose odometry is exact, fits of the first 10-20 m come out 0.4-0.5 %
+off. The estimate is reported
 (summary.json ``online_odometry``, /diagnostics ``odometry_scale*``); an applied scale
 makes the run degraded (a wheel radius off is worth knowing, and the figures before the
 correction carried it), as does a first-LiDAR offset ``d`` beyond ``offset_limit_m``
@@ -51,6 +51,21 @@ deg) and ``offset_sigmas`` sigmas (its yaw by ``e``): the driver moves the pose 
 other LiDARs' mounts again (they were fitted against the old pose) and judges the LiDAR's
 health afresh; the window starts again, and later fits refine the mount by
 ``offset_refinement_m`` steps.
+
+**The scale not yet known, as process noise.** Until the LiDARs have held the path long
+enough to fit ``k``, and while a fit disagrees with the scale in use, a speed error of
+``sigma_k v`` moves the pose along the track. It is a bias, not white noise: between the
+LiDARs' corrections it adds up. The driver adds it to the position random walk as a
+density ``(sigma_k v)^2 tau`` (``walk_density``): a speed bias held for ``tau`` (the
+time the LiDARs take to pull an along-track error back, about a second), then corrected.
+``sigma_k`` is ``prior_scale_sigma`` before the first fit, then the last fit's
+``hypot(k_fit - k_used, sigma_fit) / k_used``: its sigma when it agrees with the scale in
+use, the disagreement when not, whether or not the fit was clean enough to apply (the real
+2016 log's odometry reads 8 % off the LiDAR-held path, never clean enough to apply; its
+walk carries that). A fit whose window spans a stretch of more than ``gap_s`` driven
+(``gap_distance_m``) with no LiDAR-held pose does not count: across a LiDAR dropout the
+odometry path is laid along a heading that drifted and the pose jumps back at the end
+(such fits come out 10-17 % off, sigma 3-12 %), and the last fit before the gap stays.
 
 **Start check.** A first LiDAR off its mount drags the pose from the first scan on, well
 before the path above says so. Standing still at a start pose the filter trusts exactly
@@ -131,6 +146,12 @@ class OdometrySettings:
         start_check_s: standing still at a start pose the filter trusts exactly, the first
             LiDAR's detections of this long are fitted against that pose (or of the
             whole stop, when the platform moves off sooner), s.
+        prior_scale_sigma: sigma of k before the first fit (relative), for ``walk_density``.
+        scale_time_s: tau of ``walk_density``: how long a speed error acts before the
+            LiDARs correct what it did, s.
+        gap_s: poses held by the LiDARs this far apart ...
+        gap_distance_m: ... with more than this driven between them make a gap: fits whose
+            window spans it leave ``walk_density`` on the fit before, m.
     """
 
     window_s: float = 60.0
@@ -151,6 +172,10 @@ class OdometrySettings:
     start_yaw_limit_rad: float = math.radians(0.5)
     start_yaw_sigmas: float = 8.0
     start_check_s: float = 2.0
+    prior_scale_sigma: float = 0.01
+    scale_time_s: float = 1.0
+    gap_s: float = 2.0
+    gap_distance_m: float = 0.5
 
 
 _stamp = itemgetter(0)
@@ -232,6 +257,10 @@ class OdometryTracker:
         self.scale = 1.0
         self.scale_sigma = 0.0
         self.fit: OdometryFit | None = None
+        # The last fit whose window spans no gap (walk_density), and where the last gap
+        # ended.
+        self._walk_fit: OdometryFit | None = None
+        self._gap_end_s = -math.inf
         self.applied = 0
         self.fits = 0
 
@@ -258,15 +287,27 @@ class OdometryTracker:
                 ) -> tuple[float, float | None]:
         """Return a measured speed divided by the scale in use, and its variance.
 
-        ``variance`` is the message's own (None: ``configured``, the configured noise); the
-        scale's uncertainty is added to it. Until a scale is applied both pass unchanged.
+        ``variance`` is the message's own (None: ``configured``, the configured noise).
+        Until a scale is applied both pass unchanged. The scale's own uncertainty is not
+        white speed noise (it adds up between the LiDARs' corrections): it comes in as
+        ``walk_density``.
         """
         if not self.applied:
             return speed_m_s, variance
-        base = configured if variance is None else variance
-        relative = self.scale_sigma / self.scale
-        return (speed_m_s / self.scale,
-                base / (self.scale * self.scale) + (speed_m_s * relative) ** 2)
+        scale = self.scale
+        return speed_m_s / scale, (configured if variance is None else variance) / (scale * scale)
+
+    def scale_uncertainty(self) -> float:
+        """Return sigma_k: how far the scale in use may be off, relative (module docstring)."""
+        fit = self._walk_fit
+        if fit is None:
+            return self.settings.prior_scale_sigma
+        return math.hypot(fit.scale - self.scale, fit.scale_sigma) / self.scale
+
+    def walk_density(self, speed_m_s: float) -> float:
+        """Return (sigma_k v)^2 tau, m^2/s: the position random walk the unknown scale adds."""
+        error = speed_m_s * self.scale_uncertainty()
+        return error * error * self.settings.scale_time_s
 
     def advance(self, distance_m: float, yaw_rad: float) -> None:
         """Add a stretch of the odometry path: the measured distance along a heading (m, rad)."""
@@ -281,13 +322,15 @@ class OdometryTracker:
                 self._last_fit_s, self.scale, self.scale_sigma, self.fit, self.applied,
                 self.fits, self._window_start_s, self.offset_m, self.yaw_rad,
                 self.offset_applied, (self._start_pose, len(self._start_points),
-                                      self._start_scans, self._start_first_s, self.start_fit))
+                                      self._start_scans, self._start_first_s, self.start_fit),
+                self._walk_fit, self._gap_end_s)
 
     def restore(self, saved: tuple) -> None:
         """Put back a state from ``save``."""
         (end, self._dx, self._dy, self._distance, self._last_fit_s, self.scale,
          self.scale_sigma, self.fit, self.applied, self.fits, self._window_start_s,
-         self.offset_m, self.yaw_rad, self.offset_applied, start) = saved
+         self.offset_m, self.yaw_rad, self.offset_applied, start, self._walk_fit,
+         self._gap_end_s) = saved
         (self._start_pose, points, self._start_scans, self._start_first_s,
          self.start_fit) = start
         del self._start_points[points:]
@@ -394,9 +437,15 @@ class OdometryTracker:
         """
         if not self.enabled:
             return None
-        self._entries.append((stamp_s, self._dx, self._dy, self._distance,
-                              pose[0], pose[1], pose[2]))
-        settings = self.settings
+        entries, settings = self._entries, self.settings
+        if entries:
+            last = entries[-1]
+            # Driven with no LiDAR-held pose: fits across this gap do not judge the scale.
+            if (stamp_s - last[0] > settings.gap_s
+                    and self._distance - last[3] > settings.gap_distance_m):
+                self._gap_end_s = stamp_s
+        entries.append((stamp_s, self._dx, self._dy, self._distance,
+                        pose[0], pose[1], pose[2]))
         if self._last_fit_s is None:
             self._last_fit_s = stamp_s
         if stamp_s - self._last_fit_s < settings.fit_every_s:
@@ -404,7 +453,6 @@ class OdometryTracker:
         self._last_fit_s = stamp_s
         # Keep a window's worth before the window: a replay may restore to it.
         old = stamp_s - 2.0 * settings.window_s
-        entries = self._entries
         if len(entries) > 64 and entries[len(entries) // 2][0] < old:
             drop = len(entries) // 2
             del entries[:drop]
@@ -469,6 +517,8 @@ class OdometryTracker:
                                (math.sqrt(max(covariance[1, 1], 0.0)),
                                 math.sqrt(max(covariance[2, 2], 0.0))), yaw, yaw_sigma, rms,
                                n, distance)
+        if self._gap_end_s <= first:
+            self._walk_fit = self.fit
         if sigma > settings.max_sigma or rms > settings.max_rms_m:
             return None
         change = abs(scale - self.scale)
@@ -519,7 +569,8 @@ class OdometryTracker:
         fit = self.fit
         return {
             'scale': self.scale, 'scale_sigma': self.scale_sigma, 'applied': self.applied,
-            'fits': self.fits, 'first_lidar_offset_in_use_x_m': self.offset_m[0],
+            'fits': self.fits, 'scale_uncertainty': self.scale_uncertainty(),
+            'first_lidar_offset_in_use_x_m': self.offset_m[0],
             'first_lidar_offset_in_use_y_m': self.offset_m[1],
             'first_lidar_yaw_in_use_deg': math.degrees(self.yaw_rad),
             'first_lidar_offset_applied': self.offset_applied,

@@ -42,7 +42,8 @@ LiDAR but the one defining the body frame, `body_frame_lidar`, has its mount est
 online, core/mount_online.py: `mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`), and
 the odometry's speed scale and the first LiDAR's offset estimated online
 (core/odometry_online.py: `odometry_scale` in use,
-`odometry_scale_{applied,estimate,sigma}`, `odometry_first_lidar_offset_{x_m,y_m,found}`
+`odometry_scale_{applied,estimate,sigma}`, `odometry_scale_uncertainty` (how far the scale in
+use may be off: the position random walk it adds), `odometry_first_lidar_offset_{x_m,y_m,found}`
 and `odometry_first_lidar_yaw_{deg,found}` of the last fit,
 `odometry_first_lidar_offset_{in_use_x_m,in_use_y_m,applied}` and
 `odometry_first_lidar_yaw_in_use_deg`), and each LiDAR's range and bearing noise in use,
@@ -926,6 +927,7 @@ def _odometry_values(report: dict) -> dict[str, str]:
 
     return {'scale': f'{report["scale"]:.5f}', 'scale_applied': str(report['applied']),
             'scale_estimate': figure('scale', 5), 'scale_sigma': figure('scale_sigma', 5),
+            'scale_uncertainty': f'{report["scale_uncertainty"]:.5f}',
             'first_lidar_offset_x_m': figure('first_lidar_offset_x_m', 4),
             'first_lidar_offset_y_m': figure('first_lidar_offset_y_m', 4),
             'first_lidar_offset_found': str(report['first_lidar_offset_found']).lower(),

@@ -119,6 +119,20 @@ def test_zero_or_negative_step_leaves_the_filter_unchanged():
     np.testing.assert_array_equal(ekf.P, P)
 
 
+@pytest.mark.parametrize('textbook', [False, True])
+def test_the_odometry_walk_adds_to_the_position_random_walk(textbook):
+    # Q2's x and y terms are (q^2 + odometry_walk) T, in the kernel and the readable maths.
+    config = EkfConfig(position_random_walk_m_sqrt_s=0.004)
+    grown = []
+    for walk in (0.0, 3e-4):
+        ekf = GyroBiasEkf(config, pose=[0.0, 0.0, 0.0], textbook=textbook)
+        ekf.odometry_walk = walk
+        ekf.predict(0.0, 0.0, 0.5, speed_variance=0.0, rate_variance=0.0)
+        grown.append(ekf.P[:2, :2])
+    np.testing.assert_allclose(grown[0], np.diag([0.004 ** 2 * 0.5] * 2), rtol=1e-12)
+    np.testing.assert_allclose(grown[1] - grown[0], np.diag([3e-4 * 0.5] * 2), rtol=1e-9)
+
+
 def test_packed_rows_unpack_to_the_state_and_covariance():
     from gyro_ekf.core.ekf import unpack_rows
     ekf = GyroBiasEkf(EkfConfig(), pose=np.array([1.0, 2.0, 0.3]))

@@ -87,6 +87,8 @@ def test_node_reports_the_verdict_summary_json_gives(mis_mounted_run):
     # The online odometry estimate is reported as the mounts are: exact odometry, kept.
     assert values['odometry_scale'] == '1.00000' and values['odometry_scale_applied'] == '0'
     assert values['odometry_first_lidar_offset_applied'] == '0'
+    # How far the scale may be off (the walk it adds): at most the prior, once fitted.
+    assert 0.0 < float(values['odometry_scale_uncertainty']) <= 0.01
 
 
 def test_node_reports_the_excluded_lidar_and_logs_it(mis_mounted_run):
