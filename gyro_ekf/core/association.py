@@ -38,10 +38,11 @@ from numpy.typing import NDArray
 
 from gyro_ekf.core import _ekf_kernel as kernel
 from gyro_ekf.core.angles import wrap_scalar
-from gyro_ekf.core.ekf import innovation, innovation_covariance, normalised_innovation_sq
+from gyro_ekf.core.ekf import (innovation, innovation_covariance, normalised_innovation_sq,
+                               unpack_rows)
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.models import RANGE, observation_noise, observe_with_jacobian, sensor_to_map
-from gyro_ekf.core.types import STATE_SIZE, X, Y, YAW, FloatArray, LidarMount
+from gyro_ekf.core.types import STATE_SIZE, FloatArray, LidarMount
 
 _NO_MOUNT = LidarMount()
 
@@ -195,8 +196,10 @@ def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
     z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
     landmarks = np.asarray(landmarks_xy_m, dtype=np.float64).reshape(-1, 2)
     if 0 < z.shape[0] * landmarks.shape[0] <= SCALAR_PAIRS_MAX:
-        return _associate_scalar(z.tolist(), state, P, R, landmarks.tolist(), mount,
-                                 threshold, landmark_var_m2)
+        row = np.concatenate([np.asarray(state, dtype=np.float64).ravel(),
+                              np.asarray(P, dtype=np.float64)[_UPPER_TRIANGLE]]).tolist()
+        return _associate_scalar(z.tolist(), row, R, landmarks.tolist(), mount, threshold,
+                                 landmark_var_m2)
     d2 = mahalanobis_sq(z, state, P, R, landmarks, mount, landmark_var_m2)
     n, k = d2.shape
     if k == 0:
@@ -226,8 +229,6 @@ _OUTCOMES = tuple(AssociationOutcome)
 _UPPER_TRIANGLE = np.triu_indices(STATE_SIZE)
 """P's upper triangle row by row: the kernel's packed covariance."""
 
-_POSE = [X, Y, YAW]
-
 SCALAR_PAIRS_MAX = 64
 """Up to this many detection-landmark pairs, ``associate`` works in plain floats.
 
@@ -238,12 +239,40 @@ to the bit.
 """
 
 
-def _mahalanobis_rows(z: list[list[float]], state: FloatArray, P: FloatArray, R: FloatArray,
+def associate_packed(z: list[list[float]], packed_row: list[float], R: FloatArray,
+                     landmarks: list[list[float]], mount: LidarMount = _NO_MOUNT,
+                     gate_probability: float = 0.99, landmark_var_m2: float = 0.0
+                     ) -> AssociationResult:
+    """``associate`` for a caller that holds the filter's plain floats (the event driver).
+
+    Args:
+        z: observations as [range m, bearing rad] lists.
+        packed_row: the state and P's upper triangle, ``GyroBiasEkf.packed_row`` order.
+        R, mount, gate_probability, landmark_var_m2: as for ``associate``.
+        landmarks: landmark positions as [x m, y m] lists.
+
+    Small scans stay in plain floats (no array is built at all: on the 2016 trip that was
+    a few per cent of the run); larger ones go through ``associate``. Same outcomes either
+    way, to the bit (the scalar path is the one ``associate`` takes for them too).
+    """
+    if 0 < len(z) * len(landmarks) <= SCALAR_PAIRS_MAX:
+        return _associate_scalar(z, packed_row, R, landmarks, mount,
+                                 gate_threshold(gate_probability), landmark_var_m2)
+    states, covariances = unpack_rows(np.array(packed_row, dtype=np.float64))
+    return associate(np.array(z, dtype=np.float64).reshape(-1, 2), states[0], covariances[0],
+                     R, np.array(landmarks, dtype=np.float64).reshape(-1, 2), mount,
+                     gate_probability, landmark_var_m2)
+
+
+def _mahalanobis_rows(z: list[list[float]], packed_row: list[float], R: FloatArray,
                       landmarks: list[list[float]], mount: LidarMount,
                       landmark_var_m2: float = 0.0) -> list[list[float]]:
-    """mahalanobis_sq in plain floats (the filter's kernel): d2[i][j], detection i, landmark j."""
-    pose = np.asarray(state, dtype=np.float64)[_POSE].tolist()
-    p = np.asarray(P, dtype=np.float64)[_UPPER_TRIANGLE].tolist()
+    """mahalanobis_sq in plain floats (the filter's kernel): d2[i][j], detection i, landmark j.
+
+    ``packed_row``: the state, then P's upper triangle (``GyroBiasEkf.packed_row``).
+    """
+    pose = packed_row[:3]
+    p = packed_row[STATE_SIZE:]
     (r_range, r_cross), (_, r_bearing) = np.asarray(R, dtype=np.float64).tolist()
     per_landmark = []
     for lx, ly in landmarks:
@@ -268,11 +297,11 @@ def _mahalanobis_rows(z: list[list[float]], state: FloatArray, P: FloatArray, R:
     return rows
 
 
-def _associate_scalar(z: list[list[float]], state: FloatArray, P: FloatArray, R: FloatArray,
+def _associate_scalar(z: list[list[float]], packed_row: list[float], R: FloatArray,
                       landmarks: list[list[float]], mount: LidarMount, threshold: float,
                       landmark_var_m2: float = 0.0) -> AssociationResult:
     """associate() for small scans, in plain floats (same outcomes, see SCALAR_PAIRS_MAX)."""
-    d2 = _mahalanobis_rows(z, state, P, R, landmarks, mount, landmark_var_m2)
+    d2 = _mahalanobis_rows(z, packed_row, R, landmarks, mount, landmark_var_m2)
     k = len(landmarks)
     gated = [[j for j in range(k) if row[j] <= threshold] for row in d2]
     gating_detections = [0] * k

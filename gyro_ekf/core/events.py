@@ -39,8 +39,8 @@ import math
 import numpy as np
 
 from gyro_ekf.core.angles import wrap_scalar
-from gyro_ekf.core.association import (AssociationOutcome, AssociationResult, associate,
-                                       associate_by_distance)
+from gyro_ekf.core.association import (AssociationOutcome, AssociationResult,
+                                       associate_by_distance, associate_packed)
 from gyro_ekf.core.bias_rate import BiasRate
 from gyro_ekf.core.bias_watch import BiasWatch
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
@@ -443,7 +443,6 @@ class EventDriver:
         # Plain floats from here: a scan has a handful of poles, and numpy's per-call cost
         # would outweigh the arithmetic (this runs ~40 times a second on the real trip).
         z = points_to_range_bearing(points).tolist()
-        P = self.ekf.P
         excluded = self.health.excluded(key)
         held = False
         if tracker is not None:
@@ -461,12 +460,13 @@ class EventDriver:
         if self._recovering(stamp_s):
             self.stats.recoveries += 1
             result = associate_by_distance(
-                z, prior, P, R, self.landmarks.xy_m, mount,
+                z, prior, self.ekf.P, R, self.landmarks.xy_m, mount,
                 self.config.recovery_max_distance_m, self.config.recovery_ratio,
                 self.ekf.landmark_var_m2)
         else:
-            result = associate(z, prior, P, R, self.landmarks.xy_m,
-                               mount, self.config.gate_probability, self.ekf.landmark_var_m2)
+            # The filter's own plain floats: no array per scan (core/association.py).
+            result = associate_packed(z, self.ekf.packed_row(), R, self._landmark_xy, mount,
+                                      self.config.gate_probability, self.ekf.landmark_var_m2)
         if excluded or held:
             # Held out while its mount is estimated online; not readmitted while a mount
             # estimated online is being verified.

@@ -263,6 +263,7 @@ class OdometryTracker:
         self._gap_end_s = -math.inf
         self.applied = 0
         self.fits = 0
+        self._refresh_walk()
 
     def new_reference(self, stamp_s: float) -> None:
         """Another LiDAR defines the body frame from `stamp_s` (OnlineMounts.hand_over).
@@ -304,10 +305,15 @@ class OdometryTracker:
             return self.settings.prior_scale_sigma
         return math.hypot(fit.scale - self.scale, fit.scale_sigma) / self.scale
 
+    def _refresh_walk(self) -> None:
+        # sigma_k^2 tau, kept: walk_density runs at every speed sample, sigma_k changes
+        # only with a fit.
+        sigma = self.scale_uncertainty()
+        self._walk_per_speed2 = sigma * sigma * self.settings.scale_time_s
+
     def walk_density(self, speed_m_s: float) -> float:
         """Return (sigma_k v)^2 tau, m^2/s: the position random walk the unknown scale adds."""
-        error = speed_m_s * self.scale_uncertainty()
-        return error * error * self.settings.scale_time_s
+        return speed_m_s * speed_m_s * self._walk_per_speed2
 
     def advance(self, distance_m: float, yaw_rad: float) -> None:
         """Add a stretch of the odometry path: the measured distance along a heading (m, rad)."""
@@ -334,6 +340,7 @@ class OdometryTracker:
         (self._start_pose, points, self._start_scans, self._start_first_s,
          self.start_fit) = start
         del self._start_points[points:]
+        self._refresh_walk()
         if end < self._dropped:
             self._entries.clear()
             self._dropped = end
@@ -519,6 +526,7 @@ class OdometryTracker:
                                n, distance)
         if self._gap_end_s <= first:
             self._walk_fit = self.fit
+            self._refresh_walk()
         if sigma > settings.max_sigma or rms > settings.max_rms_m:
             return None
         change = abs(scale - self.scale)
@@ -527,6 +535,7 @@ class OdometryTracker:
         if change > max(settings.change_sigmas * sigma, least):
             self.scale, self.scale_sigma = scale, sigma
             self.applied += 1
+            self._refresh_walk()
         if distance < settings.min_offset_distance_m:
             return None
         offset, turned = self.offset_found(), self.yaw_found()

@@ -190,8 +190,17 @@ def test_small_scans_in_plain_floats_match_the_numpy_path(seed, monkeypatch):
         assert z.size // 2 * len(landmarks) <= association.SCALAR_PAIRS_MAX
         map_var = float(rng.choice([0.0, 0.01 ** 2, 0.1 ** 2]))
         small = associate(z.tolist(), state, cov, R, landmarks, mount, 0.99, map_var)
+        # The driver's entry: the filter's packed row and plain lists, the same to the bit.
+        row = np.r_[state, cov[np.triu_indices(4)]].tolist()
+        packed = association.associate_packed(z.tolist(), row, R, landmarks.tolist(), mount,
+                                              0.99, map_var)
+        np.testing.assert_array_equal(packed.mahalanobis_sq, small.mahalanobis_sq)
+        assert packed.associations == small.associations
         monkeypatch.setattr(association, 'SCALAR_PAIRS_MAX', 0)
         large = associate(z, state, cov, R, landmarks, mount, 0.99, map_var)
+        large_packed = association.associate_packed(z.tolist(), row, R, landmarks.tolist(),
+                                                    mount, 0.99, map_var)
+        np.testing.assert_array_equal(large_packed.mahalanobis_sq, large.mahalanobis_sq)
         monkeypatch.undo()
         np.testing.assert_allclose(small.mahalanobis_sq, large.mahalanobis_sq, rtol=1e-9,
                                    atol=1e-9)
