@@ -28,9 +28,11 @@ A drift adds db^2 to the bias variance P_bb and changes nothing else: the filter
 does not know the bias as well as it thought, learns it again from the next updates as it
 did at the start. Drifts that recur (a ramp) make the bias a random walk while they last:
 the db^2 of the last ``WALK_WINDOW_S`` seconds, over that time, is the variance per second
-the prediction adds to P_bb (``GyroBiasEkf.bias_walk_found``). A mount yaw error of one
-LiDAR shifts its bearings by a constant, which the yaw absorbs once, not block after
-block: its corrections add up to about nothing, and so does its db. Nothing of this is
+the prediction adds to P_bb (``GyroBiasEkf.bias_walk_found``), until ``QUIET_S`` pass
+without a drift (a step, once learnt, is a constant again: a walk kept for the whole
+window let the learnt bias wander 0.02-0.035 deg/s off to the end of the trip). A mount
+yaw error of one LiDAR shifts its bearings by a constant, which the yaw absorbs once, not
+block after block: its corrections add up to about nothing, and so does its db. Nothing of this is
 silent: the run's verdict is degraded when the bias was re-opened (core/health.py).
 """
 
@@ -51,6 +53,10 @@ is forgotten after this long; a ramp opens it again and again and keeps it walki
 
 NOISE_BLOCKS = 10
 """Blocks (20 s of driving) judged together: a slow drift, or a gyro noisier than stated."""
+
+QUIET_S = NOISE_BLOCKS * BLOCK_S
+"""After this long without a drift the drifts have stopped recurring and the walk ends, s:
+a window of blocks the slow-drift judge would have seen a ramp in."""
 
 NOISE_SIGNIFICANCE = 1e-3
 """Chance that a window of a consistent filter's blocks is taken for a noisier gyro."""
@@ -229,8 +235,9 @@ class BiasWatch:
             self._drifts.append((stamp_s, error * error))
         # The bias moved by about db at each drift: sum(db^2) over the window is the
         # variance a random walk gains in that time.
-        self._drifts = [d for d in self._drifts if d[0] > stamp_s - WALK_WINDOW_S]
-        self.walk = sum(d[1] for d in self._drifts) / WALK_WINDOW_S
+        drifts = self._drifts = [d for d in self._drifts if d[0] > stamp_s - WALK_WINDOW_S]
+        recurring = drifts and drifts[-1][0] > stamp_s - QUIET_S
+        self.walk = sum(d[1] for d in drifts) / WALK_WINDOW_S if recurring else 0.0
         return error * error if drifted else None
 
     def _window(self, z: float, error: float, length: float, bias_variance: float,

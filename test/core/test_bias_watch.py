@@ -54,10 +54,29 @@ def test_a_drift_opens_the_bias_by_the_error_its_corrections_imply():
     assert openings, 'a drift of 0.2 deg/s was not seen'
     assert openings[0][1] == pytest.approx(error ** 2, rel=0.25)
     assert watch.last_error_rad_s == pytest.approx(error, rel=0.25)
-    # Drifts make the bias a random walk while they last, then it is forgotten.
+    # Drifts make the bias a random walk while they last: it ends once QUIET_S pass
+    # without one (a step learnt is a constant again), not a whole WALK_WINDOW_S later.
     assert watch.walk > 0.0
-    _feed(watch, bias_watch.WALK_WINDOW_S + 2.0 * bias_watch.BLOCK_S, start_s=10.0)
-    assert watch.walk == 0.0
+    last = openings[-1][0]
+    seen = []
+    for k in range(int(bias_watch.WALK_WINDOW_S)):
+        more = _feed(watch, 1.0, start_s=10.0 + k, seed=k)
+        last = max([last] + [stamp for stamp, _ in more])
+        seen.append((10.0 + k + 1.0 - last, watch.walk))
+    assert all(walk > 0.0 for quiet, walk in seen if quiet < bias_watch.QUIET_S - 0.2)
+    assert all(walk == 0.0 for quiet, walk in seen if quiet > bias_watch.QUIET_S + 0.2)
+    assert seen[-1][0] > bias_watch.QUIET_S < bias_watch.WALK_WINDOW_S
+
+
+def test_drifts_that_recur_keep_the_bias_walking():
+    # A ramp: the filter lags again and again, each drift within QUIET_S of the last.
+    error = math.radians(0.2)
+    watch = BiasWatch()
+    for k in range(6):
+        _feed(watch, 10.0, bearing_mean_rad=-0.5 * math.sqrt(S_BB), drift_rad_s=error,
+              seed=k, start_s=10.0 * k)
+        assert watch.walk > 0.0
+    assert watch.openings >= 6
 
 
 def test_alike_innovations_without_a_drift_open_the_bias_by_almost_nothing():
