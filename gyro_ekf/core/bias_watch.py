@@ -32,8 +32,9 @@ the prediction adds to P_bb (``GyroBiasEkf.bias_walk_found``), until ``QUIET_S``
 without a drift (a step, once learnt, is a constant again: a walk kept for the whole
 window let the learnt bias wander 0.02-0.035 deg/s off to the end of the trip). A mount
 yaw error of one LiDAR shifts its bearings by a constant, which the yaw absorbs once, not
-block after block: its corrections add up to about nothing, and so does its db. Nothing of this is
-silent: the run's verdict is degraded when the bias was re-opened (core/health.py).
+block after block: its corrections add up to about nothing, and so does its db. Nothing of
+this is silent: the run's verdict is degraded when the bias was re-opened
+(core/health.py).
 """
 
 from __future__ import annotations
