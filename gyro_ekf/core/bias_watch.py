@@ -24,6 +24,16 @@ A block whose Z is already beyond a stricter limit (``SIGNIFICANCE`` spread over
 ``EARLY_LOOKS`` looks) once ``EARLY_MIN_S`` old closes then, as a drift: a step makes the
 heading run off at once, and waiting out the block let it run a degree.
 
+A run of the last k blocks (2 <= k <= ``NOISE_BLOCKS``) that are no drift of their own is
+judged as one longer block: its normalised innovations summed, over the root of their
+variance (a pole's map error is shared by its looks in every block of the run), are
+standard normal for a consistent filter, and beyond the limit of ``SIGNIFICANCE`` spread
+over the ``NOISE_BLOCKS - 1`` runs looked at when a block closes they are a drift, of the
+run's db (its corrections over its length). A bias error too small for one block to show
+adds up in a run: a ramp of 0.3 deg/s per minute gave blocks of Z -2 to -3.8, each below
+the single-block limit of 4.4, for 15 s (the heading 0.07 deg off, NEES above its band)
+until one block passed it; the first four together are a drift, 9 s sooner.
+
 A drift adds db^2 to the bias variance P_bb and changes nothing else: the filter, told it
 does not know the bias as well as it thought, learns it again from the next updates as it
 did at the start. Drifts that recur (a ramp) make the bias a random walk while they last:
@@ -78,6 +88,7 @@ the early limit spends SIGNIFICANCE over that many looks, so a consistent filter
 is no more often taken for a drift than before."""
 
 _Z_LIMIT = NormalDist().inv_cdf(1.0 - SIGNIFICANCE / 2.0)
+_RUN_Z_LIMIT = NormalDist().inv_cdf(1.0 - SIGNIFICANCE / (2.0 * (NOISE_BLOCKS - 1)))
 _EARLY_Z_LIMIT = NormalDist().inv_cdf(1.0 - SIGNIFICANCE / (2.0 * EARLY_LOOKS))
 _NOISE_HIGH = chi_square_upper(NOISE_SIGNIFICANCE, NOISE_BLOCKS) / NOISE_BLOCKS
 _NOISE_LOW = chi_square_upper(1.0 - NOISE_SIGNIFICANCE, NOISE_BLOCKS) / NOISE_BLOCKS
@@ -110,11 +121,12 @@ class BiasWatch:
         # (stamp s, db^2) of the drifts of the last WALK_WINDOW_S.
         self._drifts: list[tuple[float, float]] = []
         self.walk = 0.0
-        # Z^2 of the last blocks that were no drift, and the factor they set on the gyro's
-        # noise variance.
-        # (Z^2, db, length, heading variance at its start, heading noise added) of the
-        # last blocks.
-        self._blocks: list[tuple[float, float, float, float, float]] = []
+        # (Z, db, length, heading variance at its start, heading noise added, (sum of the
+        # normalised innovations, its variance, the shares per landmark)) of the last
+        # blocks that were no drift of their own; noise_scale is the factor their Z^2 set
+        # on the gyro's noise variance.
+        self._blocks: list[tuple[float, float, float, float, float,
+                                 tuple[float, float, dict[int, float]]]] = []
         self._start_yaw_variance = 0.0
         self.noise_scale = 1.0
         # (start s, length s, implied bias error db rad/s) of the last block closed and
@@ -215,15 +227,18 @@ class BiasWatch:
             return None
         length = stamp_s - start
         z = self._z_sum / math.sqrt(self._variance)
+        # What a run of blocks sums (see _window); pause() starts a new dict of shares.
+        sums = (self._z_sum, self._variance, self._shared)
         error = -self._correction_sum / length
         self.pause()
         judged = length <= 2.0 * BLOCK_S
         self.block = (start, length, error) if judged else None
         drifted = judged and abs(z) > _Z_LIMIT
         if judged and not drifted:
-            # Not a drift of its own: maybe one of a slow drift's blocks, or a noisier gyro.
+            # Not a drift of its own: maybe one of a run's or a slow drift's blocks, or a
+            # noisier gyro.
             drifted = self._window(z, error, length, bias_variance, yaw_variance,
-                                   heading_noise)
+                                   heading_noise, sums)
             if drifted:
                 error = self.last_error_rad_s
         elif drifted:
@@ -242,25 +257,48 @@ class BiasWatch:
         return error * error if drifted else None
 
     def _window(self, z: float, error: float, length: float, bias_variance: float,
-                yaw_variance: float, heading_noise: float) -> bool:
-        """Judge the last NOISE_BLOCKS blocks together; return True on a slow drift.
+                yaw_variance: float, heading_noise: float,
+                sums: tuple[float, float, dict[int, float]]) -> bool:
+        """Judge the last blocks together; return True on a drift of a run or a slow drift.
 
-        A bias that ramps, or steps by too little for one block to show, leaves blocks whose
-        implied errors db share a sign: their mean, against their own scatter (Student's t
-        with NOISE_BLOCKS - 1 dof), is a drift, of that mean, when it also lies beyond three
+        First the runs of the last 2 to NOISE_BLOCKS blocks, each as one longer block (see
+        the module docstring). Then, once there are NOISE_BLOCKS of them: a bias that
+        ramps, or steps by too little for one block to show, leaves blocks whose implied
+        errors db share a sign: their mean, against their own scatter (Student's t with
+        NOISE_BLOCKS - 1 dof), is a drift, of that mean, when it also lies beyond three
         sigmas of what the filter already allows for: its bias error, its heading error at
         the window's ends (the corrections take back the heading error's change too) and
         the heading noise its predictions added over the window (the gyro's white noise).
-        Otherwise a window whose
-        mean Z^2 lies far from 1 scales the gyro's noise (covariance matching, Mehra): a
-        consistent filter's Z^2 has mean 1, and a gyro noisier at low frequencies than its
-        stated white noise (a bias that wanders over seconds) leaves blocks alike inside,
-        so their Z^2 is larger by about the factor by which the filter's heading noise is
-        too small. The stated rate variance is multiplied by it; a window below the lower
-        bound takes a factor back (never under 1). The window starts afresh at each change.
+        Otherwise a window whose mean Z^2 lies far from 1 scales the gyro's noise
+        (covariance matching, Mehra): a consistent filter's Z^2 has mean 1, and a gyro
+        noisier at low frequencies than its stated white noise (a bias that wanders over
+        seconds) leaves blocks alike inside, so their Z^2 is larger by about the factor by
+        which the filter's heading noise is too small. The stated rate variance is
+        multiplied by it; a window below the lower bound takes a factor back (never under
+        1). The window starts afresh at each change.
         """
         blocks = self._blocks
-        blocks.append((z * z, error, length, self._start_yaw_variance, heading_noise))
+        blocks.append((z, error, length, self._start_yaw_variance, heading_noise, sums))
+        # A run's Z is its looks' sum over the root of its variance: the blocks' own, plus
+        # what looks at one pole in different blocks share (a stated map's error is the
+        # pole's, from block to block), as add() sums it within a block.
+        run_sum = run_variance = run_error = run_length = 0.0
+        run_shared: dict[int, float] = {}
+        for k, block in enumerate(reversed(blocks), start=1):
+            block_sum, block_variance, shared = block[5]
+            run_sum += block_sum
+            run_variance += block_variance
+            for landmark, root in shared.items():
+                before = run_shared.get(landmark, 0.0)
+                run_shared[landmark] = before + root
+                run_variance += 2.0 * before * root
+            # db = -corrections / length: the run's db is its blocks' db weighted by length.
+            run_error += block[1] * block[2]
+            run_length += block[2]
+            if k > 1 and abs(run_sum) > _RUN_Z_LIMIT * math.sqrt(run_variance):
+                self.last_error_rad_s = run_error / run_length
+                blocks.clear()
+                return True
         if len(blocks) < NOISE_BLOCKS:
             return False
         n = len(blocks)
@@ -274,7 +312,7 @@ class BiasWatch:
             self.last_error_rad_s = mean_error
             blocks.clear()
             return True
-        mean = sum(b[0] for b in blocks) / n
+        mean = sum(b[0] * b[0] for b in blocks) / n
         blocks.pop(0)
         if mean > _NOISE_HIGH:
             scale = min(self.noise_scale * mean, MAX_NOISE_SCALE)

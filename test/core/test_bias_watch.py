@@ -196,6 +196,19 @@ def test_a_slow_drift_no_block_shows_alone_is_found_by_the_window():
     assert known.openings == 0
 
 
+def test_a_drift_too_small_for_one_block_is_found_by_a_run_of_them():
+    # 0.05 deg/s: each block's innovations lean by a Z of about -2.5, below the single-block
+    # limit (4.4); four blocks together are a Z of about -5, beyond the runs' limit (4.9),
+    # long before the slow-drift window has its NOISE_BLOCKS blocks.
+    error = math.radians(0.05)
+    watch = BiasWatch()
+    openings = _feed(watch, 60.0, bearing_mean_rad=-0.25 * math.sqrt(S_BB),
+                     drift_rad_s=error)
+    assert openings, 'a drift of 0.05 deg/s was not seen'
+    assert openings[0][0] < bias_watch.NOISE_BLOCKS * bias_watch.BLOCK_S
+    assert watch.last_error_rad_s == pytest.approx(error, rel=0.3)
+
+
 def _wandering(watch, seconds, block_sigma, seed=0):
     """Innovations alike within each block, their common part of either sign block to block."""
     rng = np.random.default_rng(seed)
