@@ -22,7 +22,11 @@ The rate is used, and only then, when:
 - it is significant: |slope| beyond ``T_ON`` standard errors (it stays in use while beyond
   ``T_OFF``), with at least ``MIN_BLOCKS`` blocks in the window;
 - the bias watch has seen the heading drift the same way within its walk window (a drift
-  whose implied error shares the rate's sign: the bias changed, and in that direction);
+  whose implied error shares the rate's sign: the bias changed, and in that direction), or
+  a rate of that sign was in use within the last ``window_s`` (a rate followed leaves no
+  drift to see: when one fit of a slow ramp took two levels for a better fit than the line
+  and dropped it, 60 s after the drift that had allowed it, nothing brought it back and the
+  bias fell 0.03 deg/s behind by the end of the trip);
 - the blocks are a ramp, not a step: the line leaves smaller residuals than the best split
   of the window into two constant levels (a bias step, which the watch re-opens once, fits
   two levels; a ramp fits the line).
@@ -64,7 +68,7 @@ class BiasRate:
     """
 
     __slots__ = ('window_s', '_blocks', 'rate_rad_s2', 'sigma_rad_s2', 'found',
-                 'largest_rad_s2')
+                 'largest_rad_s2', '_in_use')
 
     def __init__(self, window_s: float) -> None:
         """Start with no blocks and no rate."""
@@ -75,6 +79,8 @@ class BiasRate:
         self.sigma_rad_s2 = 0.0
         self.found = 0
         self.largest_rad_s2 = 0.0
+        # (sign, block middle s) of the rate when it was last in use; (0, 0) before one.
+        self._in_use = (0.0, 0.0)
 
     def copy(self) -> 'BiasRate':
         """Return an independent duplicate, for the driver's save and restore."""
@@ -82,6 +88,7 @@ class BiasRate:
         clone._blocks = list(self._blocks)
         clone.rate_rad_s2, clone.sigma_rad_s2 = self.rate_rad_s2, self.sigma_rad_s2
         clone.found, clone.largest_rad_s2 = self.found, self.largest_rad_s2
+        clone._in_use = self._in_use
         return clone
 
     @property
@@ -120,11 +127,15 @@ class BiasRate:
                 keep = t > T_OFF and math.copysign(1.0, slope) == math.copysign(
                     1.0, self.rate_rad_s2)
             else:
-                keep = t > T_ON and drift_sign * slope > 0.0
+                sign, last_s = self._in_use
+                if stamp_s - last_s > self.window_s:
+                    sign = 0.0
+                keep = t > T_ON and (drift_sign * slope > 0.0 or sign * slope > 0.0)
         if not keep:
             self.rate_rad_s2 = self.sigma_rad_s2 = 0.0
             return None
         self.rate_rad_s2, self.sigma_rad_s2 = slope, sigma
+        self._in_use = (math.copysign(1.0, slope), stamp_s)
         if abs(slope) > abs(self.largest_rad_s2):
             self.largest_rad_s2 = slope
         if was:

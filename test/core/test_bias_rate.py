@@ -53,6 +53,34 @@ def test_a_ramp_without_a_drift_its_way_gives_no_rate(drift_sign):
     assert estimator.found == 0 and openings == []
 
 
+def _paused_ramp(pause, seed, window_s=40.0):
+    """A ramp that pauses over pause = (start s, end s); the watch's drift is seen only
+    before 40 s (while a rate is followed no drift shows)."""
+    rng = np.random.default_rng(seed)
+    estimator = BiasRate(window_s)
+    level = 0.0
+    for k in range(80):
+        t = 1.0 + 2.0 * k
+        if not pause[0] <= t < pause[1]:
+            level += 2.0 * RATE
+        estimator.add(t, level + rng.normal(0.0, BLOCK_SIGMA), 0.0, 1.0 if t < 40.0 else 0.0,
+                      0.0)
+    return estimator
+
+
+@pytest.mark.parametrize('seed', range(3))
+def test_a_rate_dropped_comes_back_within_a_window_without_a_new_drift(seed):
+    # Paused for 30 s, the ramp's line fails and the rate is dropped; when the ramp goes on
+    # within a window of the rate's last use, the rate comes back on its own sign.
+    estimator = _paused_ramp((40.0, 70.0), seed)
+    assert estimator.found == 2
+    assert estimator.rate_rad_s2 == pytest.approx(RATE, rel=0.3)
+    # Paused for longer than the window, a ramp that starts again is a new one: it waits
+    # for a drift of its own.
+    estimator = _paused_ramp((40.0, 130.0), seed)
+    assert estimator.found == 1 and estimator.rate_rad_s2 == 0.0
+
+
 def test_a_step_is_no_ramp():
     estimator, _ = _blocks(0.0, drift_sign=1.0, step=math.radians(0.3))
     assert estimator.found == 0
