@@ -25,8 +25,8 @@ The rate is used, and only then, when:
   whose implied error shares the rate's sign: the bias changed, and in that direction), or
   a rate of that sign was in use within the last ``window_s`` (a rate followed leaves no
   drift to see: when one fit of a slow ramp took two levels for a better fit than the line
-  and dropped it, 60 s after the drift that had allowed it, nothing brought it back and the
-  bias fell 0.03 deg/s behind by the end of the trip);
+  and dropped it, 63 s after the drift that had allowed it, nothing brought it back and
+  the bias ended the trip 0.025 deg/s behind);
 - the blocks are a ramp, not a step: the line leaves smaller residuals than the best split
   of the window into two constant levels (a bias step, which the watch re-opens once, fits
   two levels; a ramp fits the line).
