@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import math
 from statistics import NormalDist
+from typing import NamedTuple
 
 from gyro_ekf.core.health import chi_square_upper
 
@@ -96,6 +97,30 @@ _T_LIMIT = 4.781
 """Student's t, 9 dof (NOISE_BLOCKS - 1), two-sided NOISE_SIGNIFICANCE."""
 
 
+class _Block(NamedTuple):
+    """A judged block that was no drift of its own, as the runs and the windows take it."""
+
+    looks_sum: float
+    """Its normalised bearing innovations y_b / sqrt(S_bb), summed."""
+    variance: float
+    """That sum's variance: the looks' count plus the correlation of looks at one pole."""
+    shared: dict[int, float]
+    """Per landmark, the sum of sqrt(map share) of its looks (see ``BiasWatch.add``)."""
+    error: float
+    """db, the bias error its yaw corrections imply, rad/s."""
+    length: float
+    """s."""
+    start_yaw_variance: float
+    """The heading's variance where it started, rad^2."""
+    heading_noise: float
+    """The heading noise its predictions added, rad^2."""
+
+    @property
+    def z_squared(self) -> float:
+        """Z^2: standard normal Z for a consistent filter, squared."""
+        return self.looks_sum * self.looks_sum / self.variance
+
+
 class BiasWatch:
     """Blocks of bearing innovations and yaw corrections; says when to re-open the bias.
 
@@ -121,12 +146,9 @@ class BiasWatch:
         # (stamp s, db^2) of the drifts of the last WALK_WINDOW_S.
         self._drifts: list[tuple[float, float]] = []
         self.walk = 0.0
-        # (Z, db, length, heading variance at its start, heading noise added, (sum of the
-        # normalised innovations, its variance, the shares per landmark)) of the last
-        # blocks that were no drift of their own; noise_scale is the factor their Z^2 set
-        # on the gyro's noise variance.
-        self._blocks: list[tuple[float, float, float, float, float,
-                                 tuple[float, float, dict[int, float]]]] = []
+        # The last blocks that were no drift of their own; noise_scale is the factor their
+        # Z^2 set on the gyro's noise variance.
+        self._blocks: list[_Block] = []
         self._start_yaw_variance = 0.0
         self.noise_scale = 1.0
         # (start s, length s, implied bias error db rad/s) of the last block closed and
@@ -227,9 +249,10 @@ class BiasWatch:
             return None
         length = stamp_s - start
         z = self._z_sum / math.sqrt(self._variance)
-        # What a run of blocks sums (see _window); pause() starts a new dict of shares.
-        sums = (self._z_sum, self._variance, self._shared)
         error = -self._correction_sum / length
+        # pause() starts a new dict of shares: this one stays the block's.
+        block = _Block(self._z_sum, self._variance, self._shared, error, length,
+                       self._start_yaw_variance, heading_noise)
         self.pause()
         judged = length <= 2.0 * BLOCK_S
         self.block = (start, length, error) if judged else None
@@ -237,8 +260,7 @@ class BiasWatch:
         if judged and not drifted:
             # Not a drift of its own: maybe one of a run's or a slow drift's blocks, or a
             # noisier gyro.
-            drifted = self._window(z, error, length, bias_variance, yaw_variance,
-                                   heading_noise, sums)
+            drifted = self._window(block, bias_variance, yaw_variance)
             if drifted:
                 error = self.last_error_rad_s
         elif drifted:
@@ -256,9 +278,7 @@ class BiasWatch:
         self.walk = sum(d[1] for d in drifts) / WALK_WINDOW_S if recurring else 0.0
         return error * error if drifted else None
 
-    def _window(self, z: float, error: float, length: float, bias_variance: float,
-                yaw_variance: float, heading_noise: float,
-                sums: tuple[float, float, dict[int, float]]) -> bool:
+    def _window(self, block: _Block, bias_variance: float, yaw_variance: float) -> bool:
         """Judge the last blocks together; return True on a drift of a run or a slow drift.
 
         First the runs of the last 2 to NOISE_BLOCKS blocks, each as one longer block (see
@@ -278,23 +298,22 @@ class BiasWatch:
         1). The window starts afresh at each change.
         """
         blocks = self._blocks
-        blocks.append((z, error, length, self._start_yaw_variance, heading_noise, sums))
+        blocks.append(block)
         # A run's Z is its looks' sum over the root of its variance: the blocks' own, plus
         # what looks at one pole in different blocks share (a stated map's error is the
         # pole's, from block to block), as add() sums it within a block.
         run_sum = run_variance = run_error = run_length = 0.0
         run_shared: dict[int, float] = {}
         for k, block in enumerate(reversed(blocks), start=1):
-            block_sum, block_variance, shared = block[5]
-            run_sum += block_sum
-            run_variance += block_variance
-            for landmark, root in shared.items():
+            run_sum += block.looks_sum
+            run_variance += block.variance
+            for landmark, root in block.shared.items():
                 before = run_shared.get(landmark, 0.0)
                 run_shared[landmark] = before + root
                 run_variance += 2.0 * before * root
             # db = -corrections / length: the run's db is its blocks' db weighted by length.
-            run_error += block[1] * block[2]
-            run_length += block[2]
+            run_error += block.error * block.length
+            run_length += block.length
             if k > 1 and abs(run_sum) > _RUN_Z_LIMIT * math.sqrt(run_variance):
                 self.last_error_rad_s = run_error / run_length
                 blocks.clear()
@@ -302,17 +321,17 @@ class BiasWatch:
         if len(blocks) < NOISE_BLOCKS:
             return False
         n = len(blocks)
-        mean_error = sum(b[1] for b in blocks) / n
-        spread = math.sqrt(sum((b[1] - mean_error) ** 2 for b in blocks) / (n - 1))
-        span = sum(b[2] for b in blocks)
-        allowed = bias_variance + (blocks[0][3] + yaw_variance
-                                   + sum(b[4] for b in blocks)) / (span * span)
+        mean_error = sum(b.error for b in blocks) / n
+        spread = math.sqrt(sum((b.error - mean_error) ** 2 for b in blocks) / (n - 1))
+        span = sum(b.length for b in blocks)
+        allowed = bias_variance + (blocks[0].start_yaw_variance + yaw_variance
+                                   + sum(b.heading_noise for b in blocks)) / (span * span)
         if (abs(mean_error) > _T_LIMIT * spread / math.sqrt(n)
                 and mean_error * mean_error > 9.0 * allowed):
             self.last_error_rad_s = mean_error
             blocks.clear()
             return True
-        mean = sum(b[0] * b[0] for b in blocks) / n
+        mean = sum(b.z_squared for b in blocks) / n
         blocks.pop(0)
         if mean > _NOISE_HIGH:
             scale = min(self.noise_scale * mean, MAX_NOISE_SCALE)
