@@ -113,6 +113,7 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'reopened': int(run.result.stats.bias_openings),
         'largest_reopening_deg_s': _deg(float(run.result.stats.bias_largest_opening_rad_s)),
         'gyro_noise_scale': float(run.result.stats.gyro_noise_scale),
+        'gyro_noise_scale_max': float(run.result.stats.gyro_noise_scale_max),
         # A ramping bias followed (core/bias_rate.py): the rate in use at the end, the
         # largest used, and how often one came into use.
         'rate_deg_s_per_min': _deg(float(run.result.stats.bias_rate_rad_s2)) * 60.0,
@@ -192,6 +193,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         bias_openings=int(stats.bias_openings),
         bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s),
         bias_largest_rate_rad_s2=float(stats.bias_largest_rate_rad_s2),
+        gyro_noise_scale_max=float(stats.gyro_noise_scale_max),
         mounts=[] if run.result.mounts is None else run.result.mounts.report(),
         odometry=None if run.result.odometry is None else run.result.odometry.report())
     return {**health.verdict(figures), 'lidars': sensors,

@@ -100,6 +100,7 @@ class DriverStats:
         bias_largest_opening_rad_s: the largest bias error such a drift implied, rad/s.
         gyro_noise_scale: the factor on the gyro's noise variance the innovations asked for
             (1: as stated).
+        gyro_noise_scale_max: the largest such factor of the run so far.
         bias_rate_rad_s2: the rate of the bias in use now (core/bias_rate.py), rad/s^2
             (0: none).
         bias_rate_found: times a bias rate came into use.
@@ -126,6 +127,7 @@ class DriverStats:
     bias_openings: int = 0
     bias_largest_opening_rad_s: float = 0.0
     gyro_noise_scale: float = 1.0
+    gyro_noise_scale_max: float = 1.0
     bias_rate_rad_s2: float = 0.0
     bias_rate_found: int = 0
     bias_largest_rate_rad_s2: float = 0.0
@@ -149,6 +151,7 @@ class DriverStats:
                 'stops': self.stops, 'bias_openings': self.bias_openings,
                 'bias_largest_opening_rad_s': self.bias_largest_opening_rad_s,
                 'gyro_noise_scale': self.gyro_noise_scale,
+                'gyro_noise_scale_max': self.gyro_noise_scale_max,
                 'bias_rate_rad_s2': self.bias_rate_rad_s2,
                 'bias_rate_found': self.bias_rate_found,
                 'bias_largest_rate_rad_s2': self.bias_largest_rate_rad_s2}

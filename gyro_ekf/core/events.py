@@ -593,6 +593,7 @@ class EventDriver:
                                self._heading_dt2 * rate_variance * ekf.rate_noise_scale)
         self._heading_dt2 = 0.0
         self.ekf.rate_noise_scale = self.stats.gyro_noise_scale = watch.noise_scale
+        self.stats.gyro_noise_scale_max = max(self.stats.gyro_noise_scale_max, watch.noise_scale)
         if variance is not None:
             self.ekf.open_bias(variance)
             self.stats.bias_openings += 1

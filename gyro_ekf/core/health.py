@@ -532,6 +532,8 @@ class RunFigures:
         bias_largest_opening_rad_s: the largest bias change such a drift implied, rad/s.
         bias_largest_rate_rad_s2: the largest bias rate followed (signed; core/bias_rate.py),
             rad/s^2 (0: none).
+        gyro_noise_scale_max: the largest factor on the gyro's noise variance the LiDARs'
+            heading innovations asked for (DriverStats.gyro_noise_scale_max; 1: as stated).
         mounts: the online mount estimators' reports (OnlineMounts.report()).
         odometry: the online odometry estimator's report (OdometryTracker.report()).
     """
@@ -552,6 +554,7 @@ class RunFigures:
     bias_openings: int = 0
     bias_largest_opening_rad_s: float = 0.0
     bias_largest_rate_rad_s2: float = 0.0
+    gyro_noise_scale_max: float = 1.0
     mounts: list[dict[str, Any]] = field(default_factory=list)
     odometry: dict[str, Any] | None = None
 
@@ -662,6 +665,16 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
         add(DEGRADED, f'the gyro bias changed during the run: the LiDARs saw the heading '
             f'drift and the bias was re-opened {figures.bias_openings} time(s), by up to '
             f'{math.degrees(figures.bias_largest_opening_rad_s):.3f} deg/s{ramp}')
+    if figures.gyro_noise_scale_max > 1.0:
+        # The bias watch widens the gyro's noise only when ten blocks' heading innovations
+        # fail a chi-square test (core/bias_watch.py): the gyro is noisier than the
+        # configuration says, or its noise is coloured (a wander no bias model follows).
+        # The filter went on with the wider noise; its heading and bias are less sure than
+        # a gyro as stated would give, and the configuration is worth a look.
+        add(DEGRADED, f'the gyro was noisier than configured: the LiDARs saw the heading '
+            f'wander more than its noise explains and the filter widened the yaw-rate noise '
+            f'variance up to {figures.gyro_noise_scale_max:.1f} times (a coloured or '
+            f'understated gyro noise)')
     dropped = {k: v for k, v in figures.dropped.items() if v}
     if dropped:
         add(DEGRADED, f'input dropped by validation: {sum(dropped.values())} ('

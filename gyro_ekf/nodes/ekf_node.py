@@ -772,6 +772,7 @@ class EkfNode(Node):
             bias_openings=stats.bias_openings,
             bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s,
             bias_largest_rate_rad_s2=stats.bias_largest_rate_rad_s2,
+            gyro_noise_scale_max=stats.gyro_noise_scale_max,
             mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report())
         return health.verdict(figures)
 

@@ -142,3 +142,16 @@ def test_verdict_names_each_reason_with_its_figure_and_threshold():
     good = health.RunFigures(detections=100, matched=99, updates=99, nis_mean=2.0,
                              longest_gap_s=0.5, start_gap_s=1.0, sensors=[])
     assert health.verdict(good) == {'verdict': 'ok', 'reasons': []}
+
+
+def test_verdict_says_when_the_gyro_was_noisier_than_configured():
+    # The bias watch widened the gyro's noise: the heading wandered more than stated.
+    plain = dict(detections=100, matched=99, updates=99, nis_mean=2.0, longest_gap_s=0.5,
+                 start_gap_s=1.0, sensors=[])
+    assert health.verdict(health.RunFigures(**plain, gyro_noise_scale_max=1.0))[
+        'verdict'] == 'ok'
+    result = health.verdict(health.RunFigures(**plain, gyro_noise_scale_max=3.46))
+    assert result['verdict'] == 'degraded'
+    assert len(result['reasons']) == 1
+    assert result['reasons'][0].startswith('the gyro was noisier than configured')
+    assert 'up to 3.5 times' in result['reasons'][0]
