@@ -115,10 +115,13 @@ class AssociationResult:
         """Detections refused because another detection gated the same landmark."""
         return self.count(AssociationOutcome.DUPLICATE)
 
+    def matched(self) -> list[Association]:
+        """Return the MATCHED associations, in detection order."""
+        return [a for a in self.associations if a.outcome is AssociationOutcome.MATCHED]
+
     def matched_pairs(self) -> NDArray[np.int64]:
         """Return (detection index, landmark index) of every MATCHED detection, shape (m, 2)."""
-        pairs = [(a.detection_index, a.landmark_index) for a in self.associations
-                 if a.outcome is AssociationOutcome.MATCHED]
+        pairs = [(a.detection_index, a.landmark_index) for a in self.matched()]
         return np.array(pairs, dtype=np.int64).reshape(-1, 2)
 
 
