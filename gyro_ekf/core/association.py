@@ -305,15 +305,15 @@ def _associate_scalar(z: list[list[float]], packed_row: list[float], R: FloatArr
                       landmark_var_m2: float = 0.0) -> AssociationResult:
     """associate() for small scans, in plain floats (same outcomes, see SCALAR_PAIRS_MAX)."""
     d2 = _mahalanobis_rows(z, packed_row, R, landmarks, mount, landmark_var_m2)
-    k = len(landmarks)
-    gated = [[j for j in range(k) if row[j] <= threshold] for row in d2]
-    gating_detections = [0] * k
+    gated = [[j for j, distance in enumerate(row) if distance <= threshold] for row in d2]
+    gating_detections = [0] * len(landmarks)
     for inside in gated:
         for j in inside:
             gating_detections[j] += 1
     associations = []
     for i, (row, inside) in enumerate(zip(d2, gated)):
-        nearest = min(range(k), key=row.__getitem__)
+        # The first of the smallest, as argmin in associate (min with a key costs more).
+        nearest = row.index(min(row))
         if len(inside) > 1:
             outcome = AssociationOutcome.AMBIGUOUS
         elif len(inside) == 1:
