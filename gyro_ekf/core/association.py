@@ -278,12 +278,14 @@ def _mahalanobis_rows(z: list[list[float]], packed_row: list[float], R: FloatArr
     p = packed_row[STATE_SIZE:]
     (r_range, r_cross), (_, r_bearing) = np.asarray(R, dtype=np.float64).tolist()
     per_landmark = []
+    at_sensor = False
     for lx, ly in landmarks:
         try:
             (range_m, bearing), _, _, _, (s00, s01, s11) = kernel.innovation_terms(
                 pose, p, lx, ly, mount, r_range, r_cross, r_bearing, landmark_var_m2, 1.0)
         except ZeroDivisionError:
             # A landmark at the sensor has no bearing: nothing can match it (NaN, then inf).
+            at_sensor = True
             per_landmark.append((0.0, 0.0, math.nan, math.nan, math.nan))
             continue
         try:
@@ -295,7 +297,7 @@ def _mahalanobis_rows(z: list[list[float]], packed_row: list[float], R: FloatArr
     rows = [[distance_sq(z_range - h0, wrap_scalar(z_bearing - h1), i00, i01, i11)
              for h0, h1, i00, i01, i11 in per_landmark]
             for z_range, z_bearing in z]
-    if any(math.isnan(i00) for _, _, i00, _, _ in per_landmark):
+    if at_sensor:
         rows = [[math.inf if math.isnan(d2) else d2 for d2 in row] for row in rows]
     return rows
 
