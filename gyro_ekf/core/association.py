@@ -115,10 +115,13 @@ class AssociationResult:
         """Detections refused because another detection gated the same landmark."""
         return self.count(AssociationOutcome.DUPLICATE)
 
+    def matched(self) -> list[Association]:
+        """Return the MATCHED associations, in detection order."""
+        return [a for a in self.associations if a.outcome is AssociationOutcome.MATCHED]
+
     def matched_pairs(self) -> NDArray[np.int64]:
         """Return (detection index, landmark index) of every MATCHED detection, shape (m, 2)."""
-        pairs = [(a.detection_index, a.landmark_index) for a in self.associations
-                 if a.outcome is AssociationOutcome.MATCHED]
+        pairs = [(a.detection_index, a.landmark_index) for a in self.matched()]
         return np.array(pairs, dtype=np.int64).reshape(-1, 2)
 
 
@@ -275,12 +278,14 @@ def _mahalanobis_rows(z: list[list[float]], packed_row: list[float], R: FloatArr
     p = packed_row[STATE_SIZE:]
     (r_range, r_cross), (_, r_bearing) = np.asarray(R, dtype=np.float64).tolist()
     per_landmark = []
+    at_sensor = False
     for lx, ly in landmarks:
         try:
             (range_m, bearing), _, _, _, (s00, s01, s11) = kernel.innovation_terms(
                 pose, p, lx, ly, mount, r_range, r_cross, r_bearing, landmark_var_m2, 1.0)
         except ZeroDivisionError:
             # A landmark at the sensor has no bearing: nothing can match it (NaN, then inf).
+            at_sensor = True
             per_landmark.append((0.0, 0.0, math.nan, math.nan, math.nan))
             continue
         try:
@@ -292,7 +297,7 @@ def _mahalanobis_rows(z: list[list[float]], packed_row: list[float], R: FloatArr
     rows = [[distance_sq(z_range - h0, wrap_scalar(z_bearing - h1), i00, i01, i11)
              for h0, h1, i00, i01, i11 in per_landmark]
             for z_range, z_bearing in z]
-    if any(math.isnan(i00) for _, _, i00, _, _ in per_landmark):
+    if at_sensor:
         rows = [[math.inf if math.isnan(d2) else d2 for d2 in row] for row in rows]
     return rows
 
@@ -302,15 +307,15 @@ def _associate_scalar(z: list[list[float]], packed_row: list[float], R: FloatArr
                       landmark_var_m2: float = 0.0) -> AssociationResult:
     """associate() for small scans, in plain floats (same outcomes, see SCALAR_PAIRS_MAX)."""
     d2 = _mahalanobis_rows(z, packed_row, R, landmarks, mount, landmark_var_m2)
-    k = len(landmarks)
-    gated = [[j for j in range(k) if row[j] <= threshold] for row in d2]
-    gating_detections = [0] * k
+    gated = [[j for j, distance in enumerate(row) if distance <= threshold] for row in d2]
+    gating_detections = [0] * len(landmarks)
     for inside in gated:
         for j in inside:
             gating_detections[j] += 1
     associations = []
     for i, (row, inside) in enumerate(zip(d2, gated)):
-        nearest = min(range(k), key=row.__getitem__)
+        # The first of the smallest, as argmin in associate (min with a key costs more).
+        nearest = row.index(min(row))
         if len(inside) > 1:
             outcome = AssociationOutcome.AMBIGUOUS
         elif len(inside) == 1:

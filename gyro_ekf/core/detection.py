@@ -336,16 +336,17 @@ def detect_poles_in_scans(ranges_m: FloatArray, angles_rad: FloatArray,
     last_beams = (idx[ends[sel]] % beams).astype(np.int64)
     widths = width[sel]
     beam_counts = counts[sel].astype(np.int64)
-    bounds = np.searchsorted(scan_of, np.arange(scans + 1))
+    # Plain ints for the loop: a numpy scalar per scan and bound costs more than the slices.
+    bounds = np.searchsorted(scan_of, np.arange(scans + 1)).tolist()
     found = []
-    for k in range(scans):
-        lo, hi = int(bounds[k]), int(bounds[k + 1])
+    for k, clusters in enumerate(cluster_counts.tolist()):
+        lo, hi = bounds[k], bounds[k + 1]
         if lo == hi:
-            found.append(_empty(int(cluster_counts[k]), use_intensity))
+            found.append(_empty(clusters, use_intensity))
             continue
         found.append(PoleDetections(
             points_sensor_m=centre[lo:hi], widths_m=widths[lo:hi],
             beam_counts=beam_counts[lo:hi], first_beams=first_beams[lo:hi],
             last_beams=last_beams[lo:hi],
-            cluster_count=int(cluster_counts[k]), used_intensities=use_intensity))
+            cluster_count=clusters, used_intensities=use_intensity))
     return found

@@ -254,6 +254,8 @@ class EventDriver:
         if dt_s < 0.0:
             raise TimeWentBackwardsError(
                 f'{what} stamp {stamp_s:.4f} s went back {-dt_s:.4f} s behind the filter')
+        if dt_s == 0.0:
+            return  # nothing to predict (the 2016 log's gyro and odometry share stamps)
         # Before the first gyro sample the heading is held: the yaw rate is taken as the bias.
         rate = self.ekf.bias_rad_s if self.rate_rad_s is None else self.rate_rad_s
         step = self.config.max_prediction_step_s

@@ -204,5 +204,8 @@ def sensor_point_to_map(state: list[float] | FloatArray, x_m: float, y_m: float,
 def points_to_range_bearing(points_sensor_m: FloatArray) -> FloatArray:
     """Points (k, 2) in the sensor frame to observations (k, 2): range m, bearing rad."""
     points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)
-    return np.column_stack([np.hypot(points[:, 0], points[:, 1]),
-                            np.arctan2(points[:, 1], points[:, 0])])
+    # Filled in place, not column_stack'ed: this runs for every scan, with a few points.
+    observations = np.empty_like(points)
+    observations[:, 0] = np.hypot(points[:, 0], points[:, 1])
+    observations[:, 1] = np.arctan2(points[:, 1], points[:, 0])
+    return observations

@@ -194,13 +194,15 @@ def drive_trip(trip: Trip, driver: EventDriver,
             report = driver.on_detections(stamp_s, found[index - begin].points_sensor_m,
                                           scan.mount, scan.topic)
             if report.nis.size:
-                pairs = report.association.matched_pairs().tolist()
-                update_stamp.extend([stamp_s] * len(pairs))
+                # Plain floats and the associations themselves: an index array of the
+                # pairs and a row of the points per update cost more than the maths.
+                matched = report.association.matched()
+                update_stamp.extend([stamp_s] * len(matched))
                 prior = report.prior_state.tolist()
-                points = report.points_sensor_m
-                for detection, landmark in pairs:
-                    update_landmark.append(landmark)
-                    px, py = sensor_point_to_map(prior, *points[detection].tolist(),
+                points = report.points_sensor_m.tolist()
+                for match in matched:
+                    update_landmark.append(match.landmark_index)
+                    px, py = sensor_point_to_map(prior, *points[match.detection_index],
                                                  report.mount)
                     update_x.append(px)
                     update_y.append(py)
