@@ -140,3 +140,26 @@ def test_a_bias_step_makes_the_bearing_innovations_not_white():
                for r in section['reasons']), section['reasons']
     assert any(r.startswith('the gyro bias changed during the run')
                for r in section['reasons']), section['reasons']
+
+
+def test_an_hour_of_white_innovations_passes_window_by_window():
+    monitor = health.HealthMonitor(EkfConfig(landmark_sigma_m=0.0))
+    _feed(monitor, 3600.0, seed=7)
+    figures = monitor.report()[0]['whiteness']
+    assert figures['window'] == 30 and figures['total_blocks'] == 720
+    assert all(figures['worst'][c]['blocks'] == health.WHITENESS_WINDOW_BLOCKS
+               for c in health.WHITENESS_COMPONENTS)
+    assert _whiteness_reasons(monitor) == []
+
+
+def test_a_slow_error_in_one_window_of_a_long_run_is_named_with_its_window():
+    monitor = health.HealthMonitor(EkfConfig(landmark_sigma_m=0.0))
+    # The wander of the 120-s test above, only in the eleventh 2-minute window.
+    _feed(monitor, 1800.0, bearing_offset=lambda t: 0.001 * math.sin(
+        2.0 * math.pi * t / 20.0) if 1200.0 <= t < 1320.0 else 0.0)
+    reasons = _whiteness_reasons(monitor)
+    assert reasons[0].startswith("LiDAR scan bearing innovations are not white in the run's "
+                                 "2-minute window 11: 5-s block sums give chi-square ")
+    assert 'on 24 blocks' in reasons[0] and 'significance 8.26446e-06' in reasons[0]
+    assert not any(' range ' in r for r in reasons)
+    assert all('window 11:' in r for r in reasons)
