@@ -6,21 +6,15 @@ is caught here once and printed as one line; argparse keeps exit code 2 for usag
 
 from __future__ import annotations
 
-import os
+# Before numpy loads (see the module).
+import gyro_ekf.blas_threads  # noqa: F401
 
-# One BLAS thread, set before numpy loads OpenBLAS: the tools' matrices are small, and
-# after each call big enough to go parallel (odometry_online's fits) OpenBLAS's workers
-# spin for a while, taking CPU from the main thread wherever the cores are busy (the 2016
-# run: 1.7 s against 1.0 s on 2 cores loaded by two other processes; the same numbers).
-for _name in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS'):
-    os.environ.setdefault(_name, '1')
+import argparse
+import importlib
+import logging
+import sys
 
-import argparse  # noqa: E402
-import importlib  # noqa: E402
-import logging  # noqa: E402
-import sys  # noqa: E402
-
-from gyro_ekf.errors import GyroEkfError  # noqa: E402
+from gyro_ekf.errors import GyroEkfError
 
 COMMANDS = ('convert', 'info', 'simulate', 'calibrate', 'calibrate_mounts', 'run', 'demo',
             'replay', 'record', 'reindex', 'make_bags', 'stress')
