@@ -138,7 +138,7 @@ class WhitenessTest:
     """
 
     __slots__ = ('judged', '_block_start_s', '_sums', '_counts', 'chi2', 'blocks',
-                 'updates', 'window', 'total_blocks', 'worst')
+                 'updates', 'window', 'worst')
 
     def __init__(self, judged: bool = True):
         """Start empty; ``judged`` is False where the test does not apply (a map error)."""
@@ -152,7 +152,7 @@ class WhitenessTest:
         # chi2 and blocks are the current window's (the window-th); worst holds, per
         # component, (tail chance over the window's significance, window, chi2, blocks)
         # of the least likely window closed so far.
-        self.window, self.total_blocks = 1, 0
+        self.window = 1
         self.worst: list[tuple[float, int, float, int] | None] = [None] * len(
             WHITENESS_COMPONENTS)
 
@@ -162,7 +162,7 @@ class WhitenessTest:
         clone._block_start_s, clone._counts = self._block_start_s, self._counts
         clone._sums, clone.chi2 = list(self._sums), list(self.chi2)
         clone.blocks, clone.updates = self.blocks, self.updates
-        clone.window, clone.total_blocks = self.window, self.total_blocks
+        clone.window = self.window
         clone.worst = list(self.worst)
         return clone
 
@@ -203,7 +203,6 @@ class WhitenessTest:
         if self._counts:
             if self.blocks == WHITENESS_WINDOW_BLOCKS:
                 self._next_window()
-            self.total_blocks += 1
             for k, total in enumerate(self._sums):
                 self.chi2[k] += total * total / self._counts
             self.blocks += 1
@@ -227,7 +226,9 @@ class WhitenessTest:
         test = self.copy()
         test._close()
         return {'judged': self.judged, 'block_s': WHITENESS_BLOCK_S, 'window': test.window,
-                'blocks': test.blocks, 'total_blocks': test.total_blocks,
+                'blocks': test.blocks,
+                # Every window before the current one is full.
+                'total_blocks': (test.window - 1) * WHITENESS_WINDOW_BLOCKS + test.blocks,
                 'updates': test.updates,
                 **{f'{name}_chi2': chi2 for name, chi2 in zip(WHITENESS_COMPONENTS, test.chi2)},
                 'worst': {name: None if worst is None else
