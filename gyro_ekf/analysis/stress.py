@@ -45,6 +45,9 @@ BOUNDS = {'position_rmse_m': POSITION_RMSE_BOUND_M,
 
 DEFAULT_DURATION_S = 120.0
 """Trip length: the simulator's default (a 2016-like trip: 8 s static, then driving)."""
+MAX_STATIC_SHARE = 0.5
+"""Largest share of a trip its static start may take (``--static-s``): the rest is driven, and
+a bias step still falls while driving, at least a quarter of the trip before its end."""
 
 Draw = Callable[[np.random.Generator, SimulationConfig], dict[str, Any]]
 
@@ -122,28 +125,41 @@ CLASSES: tuple[StressClass, ...] = (
 
 @dataclass(frozen=True)
 class TripJob:
-    """One trip of the suite: its class, index, simulator seed and config changes."""
+    """One trip of the suite: its class, index, simulator seed and config changes.
+
+    ``static_s`` None: the suite's default static start (``base_config``).
+    """
 
     stress_class: str
     index: int
     seed: int
     changes: dict[str, Any]
     duration_s: float
+    static_s: float | None = None
 
 
-def base_config(duration_s: float) -> SimulationConfig:
+def base_config(duration_s: float, static_s: float | None = None) -> SimulationConfig:
     """Return the unperturbed config of the suite's trips: the defaults at this length.
 
-    The static start stays the default 8 s, or a quarter of a short trip.
+    The static start is ``static_s`` when given (at most ``MAX_STATIC_SHARE`` of the
+    trip), else the default 8 s, or a quarter of a short trip.
+
+    Raises:
+        ValueError: ``static_s`` is negative or more than ``MAX_STATIC_SHARE`` of the trip.
     """
-    return SimulationConfig(duration_s=duration_s,
-                            static_s=min(SimulationConfig().static_s, 0.25 * duration_s))
+    if static_s is None:
+        static_s = min(SimulationConfig().static_s, 0.25 * duration_s)
+    elif not 0.0 <= static_s <= MAX_STATIC_SHARE * duration_s:
+        raise ValueError(f'a static start of {static_s:g} s in a {duration_s:g} s trip: it '
+                         f'must be at least 0 s and at most {MAX_STATIC_SHARE:g} of the trip')
+    return SimulationConfig(duration_s=duration_s, static_s=static_s)
 
 
 def trip_jobs(trips_per_class: int, seed: int, duration_s: float = DEFAULT_DURATION_S,
-              classes: tuple[StressClass, ...] = CLASSES) -> list[TripJob]:
+              classes: tuple[StressClass, ...] = CLASSES,
+              static_s: float | None = None) -> list[TripJob]:
     """Return every trip of the suite, class by class (see the module docstring for seeds)."""
-    base = base_config(duration_s)
+    base = base_config(duration_s, static_s)
     jobs = []
     for stress_class in classes:
         key = zlib.crc32(stress_class.name.encode())
@@ -151,7 +167,8 @@ def trip_jobs(trips_per_class: int, seed: int, duration_s: float = DEFAULT_DURAT
             rng = np.random.default_rng([seed, key, k])
             changes = {name: (value if isinstance(value, (bool, int)) else float(value))
                        for name, value in stress_class.draw(rng, base).items()}
-            jobs.append(TripJob(stress_class.name, k, seed * 10_000 + k, changes, duration_s))
+            jobs.append(TripJob(stress_class.name, k, seed * 10_000 + k, changes, duration_s,
+                                static_s))
     return jobs
 
 
@@ -175,8 +192,8 @@ def run_job(job: TripJob) -> dict[str, Any]:
                               'changes': job.changes}
     began = time.perf_counter()
     try:
-        trip = simulate_trip(dataclasses.replace(base_config(job.duration_s), **job.changes),
-                             job.seed)
+        trip = simulate_trip(dataclasses.replace(base_config(job.duration_s, job.static_s),
+                                                 **job.changes), job.seed)
         trip, report = validate_trip(trip, trip.name)
         summary = summarize(run_trip(trip), report)
     except GyroEkfError as err:
@@ -251,7 +268,8 @@ def _class_summary(stress_class: StressClass, records: list[dict[str, Any]]
 
 def run_suite(trips_per_class: int, seed: int = 0, workers: int = 2,
               duration_s: float = DEFAULT_DURATION_S,
-              progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+              progress: Callable[[int], None] | None = None,
+              static_s: float | None = None) -> dict[str, Any]:
     """Run every trip of every class; return the JSON-ready results.
 
     Args:
@@ -260,8 +278,9 @@ def run_suite(trips_per_class: int, seed: int = 0, workers: int = 2,
         workers: processes (1: in this process).
         duration_s: length of each trip, s.
         progress: called with 1 after each trip.
+        static_s: the static start of every trip, s (None: ``base_config``'s default).
     """
-    jobs = trip_jobs(trips_per_class, seed, duration_s)
+    jobs = trip_jobs(trips_per_class, seed, duration_s, static_s=static_s)
     began = time.perf_counter()
     records = []
     for record in _records(jobs, workers):
@@ -275,7 +294,9 @@ def run_suite(trips_per_class: int, seed: int = 0, workers: int = 2,
     total = len(records)
     return {
         'suite': {'trips_per_class': trips_per_class, 'seed': seed, 'workers': workers,
-                  'duration_s': duration_s, 'trips': total, 'elapsed_s': elapsed,
+                  'duration_s': duration_s,
+                  'static_s': base_config(duration_s, static_s).static_s,
+                  'trips': total, 'elapsed_s': elapsed,
                   'trip_seconds_per_second': total * duration_s / elapsed if elapsed else None},
         'bounds': BOUNDS,
         'totals': {'passed': sum(r['passed'] for r in records),
@@ -312,7 +333,8 @@ def table(results: dict[str, Any]) -> str:
                        for i, (cell, w) in enumerate(zip(row, widths)))
              for row in [header] + rows]
     suite, totals = results['suite'], results['totals']
-    lines.append(f"{suite['trips']} trips of {suite['duration_s']:g} s, seed {suite['seed']}: "
+    lines.append(f"{suite['trips']} trips of {suite['duration_s']:g} s ("
+                 f"{suite['static_s']:g} s static start), seed {suite['seed']}: "
                  f"{_percent(totals['pass_rate'])} within the bounds (RMSE <= "
                  f"{100 * POSITION_RMSE_BOUND_M:g} cm, |final bias error| <= "
                  f"{BIAS_ERROR_BOUND_DEG_S:g} deg/s, NEES share in band >= "

@@ -40,6 +40,16 @@ def _duration(text: str) -> float:
     return value
 
 
+def _static(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0.0 <= value <= 1800.0:
+        raise argparse.ArgumentTypeError(f'{text!r}: must be a number of seconds in [0, 1800]')
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add this command's arguments."""
     from gyro_ekf.analysis.stress import DEFAULT_DURATION_S
@@ -52,20 +62,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='worker processes (1: in this process)')
     parser.add_argument('--duration-s', type=_duration, default=DEFAULT_DURATION_S,
                         help='length of each simulated trip, s')
+    parser.add_argument('--static-s', type=_static, default=None,
+                        help='static start of every trip, s, at most half the trip (default: '
+                        "the simulator's 8 s, or a quarter of a trip shorter than 32 s)")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
     from tqdm import tqdm
 
-    from gyro_ekf.analysis.stress import CLASSES, run_suite, table
+    from gyro_ekf.analysis.stress import CLASSES, MAX_STATIC_SHARE, run_suite, table
+    from gyro_ekf.errors import GyroEkfError
     from gyro_ekf.io.results import write_summary_json
 
+    if args.static_s is not None and args.static_s > MAX_STATIC_SHARE * args.duration_s:
+        raise GyroEkfError(f'--static-s {args.static_s:g}: at most {MAX_STATIC_SHARE:g} of '
+                           f'--duration-s {args.duration_s:g} (the rest of each trip is driven)')
     total = args.trips_per_class * len(CLASSES)
     with tqdm(total=total, unit='trip', desc='stress', leave=False, file=sys.stderr,
               disable=not sys.stderr.isatty()) as bar:
         results = run_suite(args.trips_per_class, args.seed, args.workers, args.duration_s,
-                            progress=bar.update)
+                            progress=bar.update, static_s=args.static_s)
     args.output.parent.mkdir(parents=True, exist_ok=True)
     write_summary_json(args.output, results)
     print(table(results), flush=True)

@@ -65,3 +65,32 @@ def test_bad_arguments_are_usage_errors(argument, tmp_path):
         main(['stress', '-o', str(tmp_path / 'x.json'), *argument])
     assert exit_info.value.code == 2
     assert not (tmp_path / 'x.json').exists()
+
+
+def test_static_start_is_the_suites_choice():
+    from gyro_ekf.analysis.stress import base_config, run_job
+    from gyro_ekf.core.simulator import simulate_trip
+    assert base_config(120.0).static_s == 8.0
+    assert base_config(20.0).static_s == 5.0
+    jobs = trip_jobs(1, 0, 40.0, static_s=14.0)
+    assert {job.static_s for job in jobs} == {14.0}
+    # A bias step still falls while driving.
+    step = next(job for job in jobs if job.stress_class == 'bias_step')
+    assert 14.0 <= step.changes['gyro_bias_step_at_s'] <= 30.0
+    trip = simulate_trip(base_config(40.0, 14.0), jobs[0].seed)
+    assert trip.static_duration_s == pytest.approx(14.0, abs=0.02)
+    record = run_job(jobs[0])
+    assert 'error' not in record and record['verdict'] in ('ok', 'degraded', 'failed')
+    for static_s in (-1.0, 20.5):
+        with pytest.raises(ValueError, match='static start'):
+            base_config(40.0, static_s)
+
+
+def test_static_start_beyond_half_the_trip_is_refused(tmp_path, capsys):
+    output = tmp_path / 'x.json'
+    assert main(['stress', '-o', str(output), '--duration-s', '60', '--static-s', '31']) == 1
+    assert '--static-s 31: at most 0.5 of --duration-s 60' in capsys.readouterr().err
+    assert not output.exists()
+    with pytest.raises(SystemExit) as exit_info:
+        main(['stress', '-o', str(output), '--static-s', '-2'])
+    assert exit_info.value.code == 2
