@@ -137,6 +137,7 @@ class EventDriver:
         self._stop_since_s: float | None = None
         self._stop_n, self._stop_mean, self._stop_m2 = 0, 0.0, 0.0
         self.zero_rate = False
+        self.bias_rate.end_rest()
 
     @property
     def landmarks(self) -> LandmarkMap | None:
@@ -367,12 +368,18 @@ class EventDriver:
             # Vibration, a push or a turn on the spot: not still after all. The spread is
             # of the whole stop, so a shaken stop stays shaken.
             self.zero_rate = False
+            self.bias_rate.end_rest()
             return
         if not self.zero_rate:
             self.zero_rate = True
             self.stats.stops += 1
         ekf.update_zero_rate(rate_rad_s, max(variance, config.zero_rate_min_noise_rad_s ** 2))
         self.stats.zero_rate_updates += 1
+        # The samples of the stop measure the bias itself: a ramp shows in their line
+        # (core/bias_rate.py, a ramp at rest).
+        lag = self.bias_rate.add_rest(stamp_s, rate_rad_s, ekf.bias_rad_s)
+        if lag is not None or self.bias_rate.rate_rad_s2 != ekf.bias_rate_found:
+            self._rate_followed(lag)
 
     def estimate(self) -> Estimate:
         """Return a snapshot of the filter (state and covariance are copies)."""
@@ -601,20 +608,26 @@ class EventDriver:
             self.stats.bias_openings += 1
             self.stats.bias_largest_opening_rad_s = max(
                 self.stats.bias_largest_opening_rad_s, math.sqrt(variance))
-        rate = self.bias_rate
         if watch.block is not None:
             # The block's true-bias estimate (the bias used plus the error its corrections
             # imply) for the ramp's line (core/bias_rate.py).
             start, length, error = watch.block
             bias = ekf.bias_rad_s
-            lag = rate.add(start + 0.5 * length, 0.5 * (self._block_bias + bias), error,
-                           watch.drift_sign(), bias)
-            if lag is not None:
-                self.ekf.open_bias(lag)
-            self.stats.bias_rate_rad_s2 = rate.rate_rad_s2
-            self.stats.bias_rate_found = rate.found
-            self.stats.bias_largest_rate_rad_s2 = rate.largest_rad_s2
-        self.ekf.bias_walk_found = watch.walk + rate.walk
+            self._rate_followed(self.bias_rate.add(
+                start + 0.5 * length, 0.5 * (self._block_bias + bias), error,
+                watch.drift_sign(), bias))
+        else:
+            self._rate_followed(None)
+
+    def _rate_followed(self, lag: float | None) -> None:
+        """Open the bias by a new rate's lag; hand the rate and the walks to the filter."""
+        rate = self.bias_rate
+        if lag is not None:
+            self.ekf.open_bias(lag)
+        self.stats.bias_rate_rad_s2 = rate.rate_rad_s2
+        self.stats.bias_rate_found = rate.found
+        self.stats.bias_largest_rate_rad_s2 = rate.largest_rad_s2
+        self.ekf.bias_walk_found = self.bias_watch.walk + rate.walk
         self.ekf.bias_rate_found = rate.rate_rad_s2
 
     def _judged(self, key: LidarMount, transition: Transition | None) -> None:

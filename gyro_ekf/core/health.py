@@ -714,15 +714,19 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
                     'its last value was held over the gap with the noise of one sample')
             add(DEGRADED, f'{stream} silent for {gap:.2f} s, longer than the longest '
                 f'prediction step {figures.input_gap_limit_s:g} s: {held}')
+    per_minute = math.degrees(figures.bias_largest_rate_rad_s2) * 60.0
     if figures.bias_openings:
         # The filter followed it, but its bias is then only as old as the last change: a
         # gyro whose bias moves is worth knowing about, and the final figure is less sure.
-        per_minute = math.degrees(figures.bias_largest_rate_rad_s2) * 60.0
         ramp = (f'; it ramped at up to {per_minute:+.3f} deg/s per minute, followed'
                 if per_minute else '')
         add(DEGRADED, f'the gyro bias changed during the run: the LiDARs saw the heading '
             f'drift and the bias was re-opened {figures.bias_openings} time(s), by up to '
             f'{math.degrees(figures.bias_largest_opening_rad_s):.3f} deg/s{ramp}')
+    elif per_minute:
+        # Found at a stop by the zero-rate updates' own samples (core/bias_rate.py).
+        add(DEGRADED, f'the gyro bias changed during the run: standing still, the gyro '
+            f'samples ramped at up to {per_minute:+.3f} deg/s per minute, followed')
     if figures.gyro_noise_scale_max > 1.0:
         # The bias watch widens the gyro's noise only when ten blocks' heading innovations
         # fail a chi-square test (core/bias_watch.py): the gyro is noisier than the

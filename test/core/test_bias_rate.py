@@ -125,3 +125,71 @@ def test_a_clean_trip_finds_no_rate():
     assert run.result.stats.bias_rate_found == 0
     assert summary['online_bias']['rate_deg_s_per_min'] == 0.0
     assert summary['online_bias']['rate_found'] == 0
+
+
+GYRO_SIGMA = math.radians(0.25)
+"""White noise of one gyro sample at rest (the simulator's), rad/s."""
+
+
+def _stop(rate, seconds=20.0, step=0.0, seed=0, bias=0.0, hz=200.0):
+    """Feed a stop's gyro samples w = bias + rate t (+ step halfway) + noise to add_rest;
+    return the estimator and what it asked to open the bias by."""
+    rng = np.random.default_rng(seed)
+    estimator = BiasRate(40.0)
+    openings = []
+    for k in range(int(seconds * hz)):
+        t = k / hz
+        w = bias + rate * t + (step if t > seconds / 2.0 else 0.0) + rng.normal(0.0, GYRO_SIGMA)
+        # The filter's bias is taken to sit at the stop's first value (it lags the ramp).
+        lag = estimator.add_rest(t, w, bias)
+        if lag is not None:
+            openings.append((t, lag))
+    return estimator, openings
+
+
+def test_a_ramp_at_rest_is_found_from_the_gyro_samples_alone():
+    rate = math.radians(0.5) / 60.0
+    estimator, openings = _stop(rate)
+    assert estimator.rate_rad_s2 == pytest.approx(rate, rel=0.25)
+    assert 0.0 < estimator.sigma_rad_s2 < rate / bias_rate.REST_T_ON
+    assert estimator.found == 1 and len(openings) == 1
+    # Opened by how far the line's present value lies from the filter's bias.
+    t, lag = openings[0]
+    assert math.sqrt(lag) == pytest.approx(rate * t, rel=0.3)
+    # Found at rest, kept once moving until the blocks of driving can judge it ...
+    estimator.end_rest()
+    for k in range(bias_rate.MIN_BLOCKS - 1):
+        assert estimator.add(21.0 + 2.0 * k, 0.0, 0.0, 0.0, 0.0) is None
+        assert estimator.rate_rad_s2 == pytest.approx(rate, rel=0.25)
+    # ... and they, flat, drop it.
+    estimator.add(21.0 + 2.0 * bias_rate.MIN_BLOCKS, 0.0, 0.0, 0.0, 0.0)
+    assert estimator.rate_rad_s2 == 0.0
+
+
+def test_a_still_gyro_or_a_step_at_rest_gives_no_rate():
+    for seed in range(20):
+        estimator, openings = _stop(0.0, seconds=60.0, seed=seed, bias=-0.015)
+        assert estimator.found == 0 and openings == [], seed
+    estimator, _ = _stop(0.0, step=math.radians(0.2))
+    assert estimator.found == 0
+
+
+def test_a_ramp_during_a_long_static_start_is_followed_and_said():
+    rate = -math.radians(0.6) / 60.0
+    static_s = 20.0
+    config, _, run, summary = simulated_run(60.0, static_s=static_s,
+                                            gyro_bias_ramp_rad_s2=rate)
+    estimates = run.result.estimates
+    at = int(np.searchsorted(estimates.stamp_s, estimates.stamp_s[0] + static_s - 1.0))
+    truth = float(config.gyro_bias_z_at(np.array([estimates.stamp_s[at]
+                                                  - run.trip.imu.stamp_s[0]]))[0])
+    error = math.degrees(estimates.state[at, BIAS] - truth)
+    # A running mean of the stop would lag by half of it: 0.1 deg/s here.
+    assert abs(error) < 0.02, f'bias {error:.4f} deg/s off at the end of the static start'
+    assert summary['online_bias']['rate_deg_s_per_min'] == pytest.approx(-0.6, rel=0.25)
+    assert summary['health']['verdict'] == 'degraded'
+    assert any('standing still, the gyro samples ramped' in r
+               for r in summary['health']['reasons']), summary['health']['reasons']
+    # The same static start without a ramp finds none.
+    _, _, run, summary = simulated_run(60.0, static_s=static_s)
+    assert run.result.stats.bias_rate_found == 0
