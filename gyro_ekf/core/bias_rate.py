@@ -204,14 +204,13 @@ class BiasRate:
         if len(blocks) < REST_MIN_BLOCKS:
             return None
         fit = _fit(blocks)
-        was = self.rate_rad_s2 != 0.0
         if fit is None:
-            if was and self._from_rest:
-                # Two levels fit the stop better now: a step, not the ramp it found.
-                self.rate_rad_s2 = self.sigma_rad_s2 = 0.0
-                self._from_rest = False
+            # Two levels fit better: no new rate. One in use stays (on a ramp a chance
+            # split of a few noisy blocks wins now and then; dropping and finding it again
+            # would open the bias each time), judged by the next line.
             return None
         slope, sigma, level_now = fit
+        was = self.rate_rad_s2 != 0.0
         if was and self._from_rest and not (abs(slope) > T_OFF * sigma
                                             and slope * self.rate_rad_s2 > 0.0):
             # The stop's line no longer shows the ramp it found.
