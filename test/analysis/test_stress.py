@@ -41,6 +41,12 @@ def test_stress_runs_one_trip_per_class_and_writes_json(tmp_path, capsys):
         summary = results['classes'][record['class']]
         assert summary['passed'] == int(record['passed'])
         assert summary['silent_failures'] == int(record['silent'])
+        below, above = record['nees_share_below_band'], record['nees_share_above_band']
+        assert below + above + record['nees_share_in_band'] == pytest.approx(1.0)
+        assert summary['silent_nees_below_band'] == int(
+            record['silent'] and record['missed'] == ['nees_share_in_band'] and below > above)
+    assert results['totals']['silent_nees_below_band'] == sum(
+        c['silent_nees_below_band'] for c in results['classes'].values())
     changes = {r['class']: r['changes'] for r in results['trips']}
     assert changes['clean'] == {}
     yaw = [v for k, v in changes['mount_yaw'].items() if k.endswith('yaw_error_rad')]
@@ -94,3 +100,26 @@ def test_static_start_beyond_half_the_trip_is_refused(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(['stress', '-o', str(output), '--static-s', '-2'])
     assert exit_info.value.code == 2
+
+
+def test_silent_misses_below_the_band_are_counted_apart():
+    from gyro_ekf.analysis.stress import _class_summary, table
+
+    def record(missed, verdict, below, above):
+        return {'passed': not missed, 'silent': bool(missed) and verdict == 'ok',
+                'verdict': verdict, 'missed': missed, 'nees_share_in_band': 1 - below - above,
+                'nees_share_below_band': below, 'nees_share_above_band': above}
+    records = [record(['nees_share_in_band'], 'ok', 0.15, 0.0),        # conservative
+               record(['nees_share_in_band'], 'ok', 0.0, 0.15),        # overconfident
+               record(['nees_share_in_band', 'position_rmse_m'], 'ok', 0.15, 0.0),
+               record(['nees_share_in_band'], 'degraded', 0.15, 0.0),  # loud
+               record([], 'ok', 0.02, 0.02)]
+    summary = _class_summary(CLASSES[0], records)
+    assert summary['silent_failures'] == 3
+    assert summary['silent_nees_below_band'] == 1
+    results = {'classes': {'clean': summary},
+               'suite': {'trips': 5, 'duration_s': 120.0, 'static_s': 8.0, 'seed': 0,
+                         'elapsed_s': 1.0, 'workers': 1},
+               'totals': {'pass_rate': 0.2, 'silent_failures': 3, 'errors': 0,
+                          'silent_nees_below_band': 1}}
+    assert '3 silent failure(s) (1 of them the NEES share alone missed below' in table(results)
