@@ -71,13 +71,18 @@ def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
     from tqdm import tqdm
 
-    from gyro_ekf.analysis.stress import CLASSES, MAX_STATIC_SHARE, run_suite, table
+    from gyro_ekf.analysis.stress import (CLASSES, MAX_STATIC_SHARE, base_config, run_suite,
+                                          table)
     from gyro_ekf.errors import GyroEkfError
     from gyro_ekf.io.results import write_summary_json
 
-    if args.static_s is not None and args.static_s > MAX_STATIC_SHARE * args.duration_s:
+    try:
+        # The suite's own rule, checked before any worker starts.
+        base_config(args.duration_s, args.static_s)
+    except ValueError:
         raise GyroEkfError(f'--static-s {args.static_s:g}: at most {MAX_STATIC_SHARE:g} of '
-                           f'--duration-s {args.duration_s:g} (the rest of each trip is driven)')
+                           f'--duration-s {args.duration_s:g} (the rest of each trip is driven)'
+                           ) from None
     total = args.trips_per_class * len(CLASSES)
     with tqdm(total=total, unit='trip', desc='stress', leave=False, file=sys.stderr,
               disable=not sys.stderr.isatty()) as bar:
