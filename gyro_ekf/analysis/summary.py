@@ -186,7 +186,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         updates=int(stats.updates), nis_mean=summary['nis']['mean'],
         longest_gap_s=longest, start_gap_s=start_gap, sensors=sensors, dropped=dropped,
         final_bias_rad_s=summary['online_bias']['final_rad_s'],
-        unmapped=int(stats.unmapped),
+        unmapped=int(stats.unmapped), scans=int(stats.scans), finished=True,
         input_gaps_s={'gyro': _longest_interval(run.trip.imu.stamp_s, start, end),
                       'odometry': _longest_interval(run.trip.speed.stamp_s, start, end)},
         input_gap_limit_s=run.config.max_prediction_step_s,

@@ -583,6 +583,9 @@ class RunFigures:
             heading innovations asked for (DriverStats.gyro_noise_scale_max; 1: as stated).
         mounts: the online mount estimators' reports (OnlineMounts.report()).
         odometry: the online odometry estimator's report (OdometryTracker.report()).
+        scans: LiDAR scans processed.
+        finished: the run is over (offline): no update by its end is final, where a live
+            node still waits ``VERDICT_MAX_START_GAP_S`` for the first one.
     """
 
     detections: int
@@ -604,6 +607,8 @@ class RunFigures:
     gyro_noise_scale_max: float = 1.0
     mounts: list[dict[str, Any]] = field(default_factory=list)
     odometry: dict[str, Any] | None = None
+    scans: int = 0
+    finished: bool = False
 
 
 def _whiteness_reasons(sensors: list[dict[str, Any]]) -> list[tuple[str, str]]:
@@ -653,6 +658,14 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
     if figures.detections and figures.updates == 0:
         add(FAILED, f'no landmark update in {figures.start_gap_s:.1f} s although '
             f'{figures.detections} poles were detected')
+    elif figures.updates == 0 and (figures.finished
+                                   or figures.start_gap_s > VERDICT_MAX_START_GAP_S):
+        # Nothing checked the pose against the map: dead reckoning, however smooth (a bag
+        # without its scans once ended 1.7 m off with the verdict ok).
+        seen = (f'no pole detected in {figures.scans} LiDAR scans' if figures.scans
+                else 'no LiDAR scan')
+        add(FAILED, f'no landmark update in {figures.start_gap_s:.1f} s ({seen}): the pose '
+            f'is dead reckoning, never checked against the map')
     if figures.detections:
         # Detections far from every mapped pole are objects the map lacks (a reflector,
         # a post), not poles the filter failed to match: the share leaves them out...

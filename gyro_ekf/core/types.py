@@ -202,16 +202,19 @@ class Trip:
     @property
     def start_s(self) -> float:
         """Earliest stamp of any stream, s."""
-        starts = [self.imu.stamp_s[0], self.speed.stamp_s[0]] if len(self.imu.stamp_s) else []
-        starts += [s.stamp_s[0] for s in self.scans if len(s.stamp_s)]
+        starts = [s[0] for s in self._stamp_series() if len(s)]
         return float(min(starts)) if starts else 0.0
 
     @property
     def end_s(self) -> float:
         """Latest stamp of any stream, s."""
-        ends = [self.imu.stamp_s[-1], self.speed.stamp_s[-1]] if len(self.imu.stamp_s) else []
-        ends += [s.stamp_s[-1] for s in self.scans if len(s.stamp_s)]
+        ends = [s[-1] for s in self._stamp_series() if len(s)]
         return float(max(ends)) if ends else 0.0
+
+    def _stamp_series(self) -> list[FloatArray]:
+        # Each stream on its own: any of them may be empty (a bag with /odom declared
+        # but no message on it).
+        return [self.imu.stamp_s, self.speed.stamp_s] + [s.stamp_s for s in self.scans]
 
 
 @dataclass(frozen=True, slots=True)

@@ -118,7 +118,8 @@ from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
 from gyro_ekf.core.stream_order import StreamMerger
 from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import LandmarkMap, LidarMount
-from gyro_ekf.core.validation import coordinate_problem, initial_pose_problem, message_variance, \
+from gyro_ekf.core.validation import coordinate_problem, duplicate_landmark_problem, \
+    initial_pose_problem, message_variance, \
     mount_problem, rate_problem, speed_problem
 from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.io import messages
@@ -132,7 +133,7 @@ from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar, repo
 from gyro_ekf.nodes.runtime import run_node
 
 DROP_REASONS = ('non_finite', 'out_of_range', 'bad_pose', 'zero_stamp', 'late', 'stamp_jump',
-                'empty_map', 'unknown_frame', 'filter_error', 'malformed')
+                'empty_map', 'bad_map', 'unknown_frame', 'filter_error', 'malformed')
 VERDICT_DROP_REASONS = tuple(r for r in DROP_REASONS if r != 'late')
 """Drops the health verdict counts: all but late messages, which a live node under load
 drops by design (the merger's window), not because the input was bad."""
@@ -654,6 +655,9 @@ class EkfNode(Node):
         if points.shape[0] == 0:
             self._drop('empty_map', f'{topics.LANDMARK_MAP} has no landmarks; keeping the '
                        'current map')
+        elif (duplicate := duplicate_landmark_problem(points)) is not None:
+            self._drop('bad_map', f'{topics.LANDMARK_MAP}: {duplicate}; keeping the current '
+                       'map')
         elif not self._refuse(coordinate_problem(points.ravel().tolist(), self._limits),
                               f'{topics.LANDMARK_MAP} holds a bad landmark; keeping the '
                               'current map'):
@@ -769,7 +773,7 @@ class EkfNode(Node):
             sensors=self.driver.health.report(), resets=self.resets,
             dropped={k: self.dropped[k] for k in VERDICT_DROP_REASONS},
             final_bias_rad_s=self.driver.ekf.bias_rad_s, unmapped=stats.unmapped,
-            bias_openings=stats.bias_openings,
+            scans=stats.scans, bias_openings=stats.bias_openings,
             bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s,
             bias_largest_rate_rad_s2=stats.bias_largest_rate_rad_s2,
             gyro_noise_scale_max=stats.gyro_noise_scale_max,

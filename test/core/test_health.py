@@ -144,6 +144,22 @@ def test_verdict_names_each_reason_with_its_figure_and_threshold():
     assert health.verdict(good) == {'verdict': 'ok', 'reasons': []}
 
 
+def test_a_run_with_no_landmark_update_fails_when_over_or_after_the_start_limit():
+    # A bag without its scans ran 45 s on dead reckoning, 1.7 m off, with the verdict ok.
+    none = dict(detections=0, matched=0, updates=0, nis_mean=math.nan, longest_gap_s=0.0,
+                sensors=[])
+    result = health.verdict(health.RunFigures(**none, start_gap_s=12.0, finished=True))
+    assert result['verdict'] == 'failed'
+    assert result['reasons'] == ['no landmark update in 12.0 s (no LiDAR scan): the pose is '
+                                 'dead reckoning, never checked against the map']
+    result = health.verdict(health.RunFigures(**none, start_gap_s=45.0, scans=180))
+    assert result['verdict'] == 'failed'
+    assert 'no pole detected in 180 LiDAR scans' in result['reasons'][0]
+    # Live, before the first update is due (2023 starts 10 s with no pole in view).
+    assert health.verdict(health.RunFigures(**none, start_gap_s=12.0, scans=48))[
+        'verdict'] == 'ok'
+
+
 def test_verdict_says_when_the_gyro_was_noisier_than_configured():
     # The bias watch widened the gyro's noise: the heading wandered more than stated.
     plain = dict(detections=100, matched=99, updates=99, nis_mean=2.0, longest_gap_s=0.5,

@@ -256,6 +256,39 @@ def test_ekf_refuses_a_non_finite_start():
         GyroBiasEkf(covariance=np.full((4, 4), np.nan))
 
 
+def test_a_trip_without_speed_samples_is_refused_and_its_span_still_known():
+    # A bag with /odom declared but empty once crashed in the summary (start_s indexed the
+    # empty speed stamps) and, in calibrate-mounts, fitted a mount to a platform held still.
+    trip = _trip()
+    empty = dataclasses.replace(trip, speed=SpeedSeries(np.zeros(0), np.zeros(0)))
+    assert empty.start_s == 0.0 and empty.end_s == pytest.approx(trip.imu.stamp_s[-1])
+    with pytest.raises(InvalidInputError, match=re.escape('x: speed: no samples')):
+        validate_trip(empty, 'x')
+    speeds = trip.speed.speed_m_s.copy()
+    speeds[:] = np.nan
+    bad = dataclasses.replace(trip, speed=SpeedSeries(trip.speed.stamp_s, speeds))
+    with pytest.raises(InvalidInputError,
+                       match=re.escape('x: speed: no samples left (2000 dropped as bad)')):
+        validate_trip(bad, 'x', skip_bad=True)
+
+
+def test_an_empty_map_or_a_pole_listed_twice_is_refused_naming_the_landmarks():
+    trip = _trip()
+    empty = dataclasses.replace(trip, landmarks=LandmarkMap(np.zeros((0, 2))))
+    with pytest.raises(InvalidInputError,
+                       match=re.escape('m.bag: landmarks.xy_m: the map lists no landmark')):
+        validate_trip(empty, 'm.bag')
+    xy = np.asarray(trip.landmarks.xy_m).copy()
+    twice = dataclasses.replace(trip, landmarks=LandmarkMap(np.vstack([xy, xy[2] + [5e-4, 0.0]])))
+    with pytest.raises(InvalidInputError) as caught:
+        validate_trip(twice, 'm.bag')
+    assert str(caught.value).startswith('m.bag: landmarks.xy_m: landmarks 2 and 5 are 0.5 mm '
+                                        'apart')
+    # Two poles 2 mm apart are two poles.
+    near = dataclasses.replace(trip, landmarks=LandmarkMap(np.vstack([xy, xy[2] + [2e-3, 0.0]])))
+    validate_trip(near, 'm.bag')
+
+
 def test_calibration_refuses_non_finite_samples_instead_of_a_nan_bias():
     stamps = np.arange(2000) * 0.005
     rates = np.zeros((2000, 3)) + 0.01

@@ -169,6 +169,9 @@ def test_bad_messages_are_dropped_and_a_looped_stream_resets(ros_processes, diag
     landmark_map.publish(PoseArray())  # empty: dropped
     probe.spin_until(lambda: (diagnostics_of(diagnostics, key) or {}).get(
         'dropped_empty_map') == '1', 60, 'the empty map to be dropped')
+    landmark_map.publish(PoseArray(poses=[pose, pose]))  # one pole listed twice: dropped
+    probe.spin_until(lambda: (diagnostics_of(diagnostics, key) or {}).get(
+        'dropped_bad_map') == '1', 60, 'the map listing a pole twice to be dropped')
     landmark_map.publish(PoseArray(poses=[pose]))
     start = 1_800_000_000 * 10 ** 9
     step = 10_000_000
