@@ -17,6 +17,8 @@ from gyro_ekf.core.validation import InputReport, validate_trip
 from gyro_ekf.io import trip_file
 from gyro_ekf.io.errors import LogFormatError
 from gyro_ekf.io.matlab import detect_course_log, expand_paths, load_course_log
+from gyro_ekf.io.matlab._common import variable_names
+from gyro_ekf.io.matlab.aas2021 import MAP_VARIABLE
 
 
 def load_log(paths: Sequence[Path | str], map_path: Path | str | None = None) -> Trip:
@@ -63,6 +65,14 @@ def load_checked_log(paths: Sequence[Path | str], map_path: Path | str | None = 
                 f'{trips[0].name}: a trip file carries everything itself; give it alone')
         return validate_trip(trip_file.load_trip(trips[0]), trips[0].name,
                              limits or InputLimits(), skip_bad=skip_bad)
+    if map_path is not None:
+        # A map named on its own must be one: among the log's files a wrong one only
+        # left the log without landmarks and a warning that no map was given.
+        names = variable_names(Path(map_path))
+        if MAP_VARIABLE not in names:
+            raise LogFormatError(f'{Path(map_path).name}: not a landmark map: no variable '
+                                 f"'{MAP_VARIABLE}' (it has {names}); expected "
+                                 'MapMTRN4010.mat')
     given = inputs + ([Path(map_path)] if map_path is not None else [])
     trip = load_course_log(given, strict_time=not skip_bad)
     source = ', '.join(p.name for p in expand_paths(inputs))

@@ -303,6 +303,16 @@ def test_2016_log_with_a_nan_landmark_in_its_map_names_the_map(tmp_path, capsys)
     assert not (tmp_path / 'bag').exists()
 
 
+def test_a_map_option_naming_a_file_that_is_no_map_is_refused(tmp_path, capsys):
+    # It used to join the log's files: the log converted without landmarks, with a warning
+    # that no map was given.
+    write_2016(tmp_path / 'log')
+    _fails(capsys, ['convert', str(tmp_path / 'log'), '-o', str(tmp_path / 'bag'), '--map',
+                    str(tmp_path / 'log' / 'IMU_dataC.mat')],
+           "error: IMU_dataC.mat: not a landmark map: no variable 'Map' (it has ['IMU'])")
+    assert not (tmp_path / 'bag').exists()
+
+
 def test_run_ignores_and_counts_bad_message_covariances(tmp_path, capsys, caplog, sim_trip):
     rate_vars = np.full(len(sim_trip.imu.stamp_s), sim_trip.noise.gyro_rad_s ** 2)
     rate_vars[[100, 200]] = [np.inf, -5.0]  # (a NaN the writer takes as "not given")
