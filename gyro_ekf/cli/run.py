@@ -123,7 +123,8 @@ def run(args: argparse.Namespace) -> int:
     began = time.perf_counter()
     bag = read_bag(args.bag, acceleration=False)  # the EKF does not use it
     # Checked before the output folder exists, so refused input leaves nothing behind.
-    trip, report = validate_trip(bag.trip, Path(args.bag).name, skip_bad=args.skip_bad)
+    trip, report = validate_trip(bag.trip, Path(args.bag).name, params.limits,
+                                 skip_bad=args.skip_bad)
     warn_dropped(report)
     read_s = time.perf_counter() - began
     folder = output_dir.prepare_output_dir(args.output, force=args.force)

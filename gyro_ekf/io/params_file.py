@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+import difflib
 import logging
 import math
 from pathlib import Path
@@ -39,8 +40,8 @@ from typing import Any
 import yaml
 
 from gyro_ekf.io.errors import ParamsFileError
-from gyro_ekf.core.config import (CalibrationConfig, DetectorConfig, EkfConfig, make_config,
-                                  RunOptions)
+from gyro_ekf.core.config import (CalibrationConfig, DetectorConfig, EkfConfig, InputLimits,
+                                  make_config, RunOptions)
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.types import LidarMount, Trip
 from gyro_ekf.core.validation import mount_problem
@@ -55,6 +56,9 @@ _CONFIG_TYPES: dict[str, type] = {
 _FIELD_OWNER = {f.name: group for group, kind in _CONFIG_TYPES.items()
                 for f in dataclasses.fields(kind)}
 _OPTIONS = frozenset(f.name for f in dataclasses.fields(RunOptions))
+_LIMITS = frozenset(f.name for f in dataclasses.fields(InputLimits))
+_KNOWN = sorted(set(_FIELD_OWNER) | _OPTIONS | {f'limits.{name}' for name in _LIMITS})
+"""Every name `run` reads: a name in a pipeline section close to one of them is a typo."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,6 +73,7 @@ class PipelineParams:
             'detector', 'options').
         options: the run options (defaults where the file sets none).
         lidars: scan topic (no slash) -> (frame_id or None, mount) the file sets.
+        limits: the plausible input ranges (``limits.*``, as the nodes take them).
     """
 
     ekf: EkfConfig = field(default_factory=EkfConfig)
@@ -77,6 +82,7 @@ class PipelineParams:
     explicit: dict[str, tuple[str, ...]] = field(default_factory=dict)
     options: RunOptions = field(default_factory=RunOptions)
     lidars: dict[str, tuple[str | None, LidarMount]] = field(default_factory=dict)
+    limits: InputLimits = field(default_factory=InputLimits)
 
 
 def _flatten(tree: dict[str, Any], prefix: str = '') -> dict[str, Any]:
@@ -126,10 +132,19 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
     values: dict[str, dict[str, Any]] = {group: {} for group in _CONFIG_TYPES}
     options: dict[str, Any] = {}
     lidar_values: dict[str, Any] = {}
+    limits: dict[str, Any] = {}
+    read = 0
     for node, body in sections:
         if not _is_pipeline_section(str(node)):
-            log.debug('%s: skipping the section of node %r', source, node)
+            near = difflib.get_close_matches(str(node).rstrip('/').rsplit('/', 1)[-1],
+                                             PIPELINE_NODES, n=1, cutoff=0.8)
+            if near:
+                log.warning('%s: section %r is not one of the pipeline\'s nodes (did you '
+                            'mean %r?); skipped', source, node, near[0])
+            else:
+                log.debug('%s: skipping the section of node %r', source, node)
             continue
+        read += 1
         if not isinstance(body, dict) or not isinstance(body.get('ros__parameters'), dict):
             raise ParamsFileError(f"{source}: section {node!r} has no 'ros__parameters' "
                                   'mapping')
@@ -141,28 +156,56 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
             if short in _OPTIONS and not group:
                 options[short] = value
                 continue
+            if group == 'limits' and short in _LIMITS:
+                limits[short] = value
+                continue
             owner = _FIELD_OWNER.get(short)
             if owner is None or (group and group != owner):
-                log.debug('%s: %s: %r is not a filter parameter; skipped', source, node, name)
+                _skipped(source, str(node), name)
                 continue
             values[owner][short] = value
+    if not read:
+        # A bag's metadata.yaml or another tool's file: nothing in it reaches the filter.
+        log.warning('%s: no section for /**, %s: nothing read', source,
+                    ', '.join(PIPELINE_NODES))
     for group, named in values.items():
         for short, value in named.items():
             _require_finite(source, f'{group}.{short}', value)
     for name, value in options.items():
         _require_finite(source, name, value)
+    for name, value in limits.items():
+        _require_finite(source, f'limits.{name}', value)
     built: dict[str, Any] = {}
     try:
         for group, kind in _CONFIG_TYPES.items():
             built[group] = make_config(kind, values[group], source=source)
         run_options = make_config(RunOptions, options, source=source)
+        input_limits = make_config(InputLimits, limits, source=source)
     except CoreError as err:
         raise ParamsFileError(str(err)) from None
     return PipelineParams(
         ekf=built['ekf'], calibration=built['calibration'], detector=built['detector'],
         explicit={**{group: tuple(sorted(v)) for group, v in values.items()},
                   'options': tuple(sorted(options))},
-        options=run_options, lidars=_lidar_mounts(lidar_values, source))
+        options=run_options, lidars=_lidar_mounts(lidar_values, source), limits=input_limits)
+
+
+def _skipped(source: str, node: str, name: str) -> None:
+    """Say a name `run` does not read: a warning when it looks like a misspelt one.
+
+    The nodes' own names (frames, topics, QoS) belong in these sections too, so an unknown
+    name alone is no error; but one a letter or two off a filter parameter would leave
+    that parameter at its default without a word (``gyro_noize_rad_s``).
+    """
+    group, _, short = name.rpartition('.')
+    by_short = group in _CONFIG_TYPES
+    close = difflib.get_close_matches(short if by_short else name, _KNOWN, n=1, cutoff=0.85)
+    if close:
+        meant = f'{group}.{close[0]}' if by_short else close[0]
+        log.warning('%s: %s: %r is not a parameter (did you mean %r?); ignored', source,
+                    node, name, meant)
+    else:
+        log.debug('%s: %s: %r is not a filter parameter; skipped', source, node, name)
 
 
 def _lidar_mounts(values: dict[str, Any], source: str

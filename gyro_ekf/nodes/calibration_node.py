@@ -44,7 +44,7 @@ from gyro_ekf.nodes import qos, wire
 from gyro_ekf.nodes.conversions import (axes_known, bias_message, corrected_imu, drop_reason,
                                         imu_rates, odometry_speed, stamp_ns, TimeOrigin,
                                         to_stamp)
-from gyro_ekf.nodes.params import declare, declare_config, report_removed
+from gyro_ekf.nodes.params import declare, declare_config, report_ignored
 from gyro_ekf.nodes.runtime import run_node
 
 _AXES = 'xyz'
@@ -87,7 +87,7 @@ class CalibrationNode(Node):
             'Serve incoming messages in batches gathered for up to this long (fewer wake-ups '
             'per message, up to this much latency of imu/corrected); 0: each as it comes',
             's', 0.0, 0.1)
-        report_removed(self, REMOVED_PARAMETERS)
+        report_ignored(self, REMOVED_PARAMETERS)
         self.calibrator = StaticWindowCalibrator(self.config)
         self.result: BiasEstimate | None = None
         self.dropped = {'non_finite': 0, 'out_of_range': 0, 'zero_stamp': 0,

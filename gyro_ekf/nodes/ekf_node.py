@@ -129,7 +129,7 @@ from gyro_ekf.nodes.conversions import (drop_reason, EstimateMessages, odometry_
                                         online_corrected_imu, points_of, pose_and_covariance,
                                         pose_problem, quaternion_yaw, stamp_ns, TimeOrigin,
                                         yaw_quaternion)
-from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar, report_removed
+from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar, report_ignored
 from gyro_ekf.nodes.runtime import run_node
 
 DROP_REASONS = ('non_finite', 'out_of_range', 'bad_pose', 'zero_stamp', 'late', 'stamp_jump',
@@ -262,7 +262,7 @@ class EkfNode(Node):
         path_length = declare(self, 'path_length', PATH_LENGTH,
                               'Most poses in ekf/path (one every '
                               f'{PATH_SPACING_S:g} s)', '', 1, 1_000_000)
-        report_removed(self, REMOVED_PARAMETERS)
+        report_ignored(self, REMOVED_PARAMETERS)
 
         landmarks = read_landmarks_file(landmarks_file, limits) if landmarks_file else None
         self.driver = EventDriver(self.config, landmarks=landmarks, pose=sidecar.initial_pose)

@@ -30,7 +30,7 @@ from gyro_ekf.core.validation import scan_geometry_problem
 from gyro_ekf.nodes import qos, wire
 from gyro_ekf.nodes.conversions import (beam_bearings, points_message, scan_arrays,
                                         scan_problem, stamp_ns)
-from gyro_ekf.nodes.params import declare, declare_config
+from gyro_ekf.nodes.params import declare, declare_config, report_ignored
 from gyro_ekf.nodes.runtime import run_node
 
 
@@ -53,6 +53,7 @@ class LandmarkDetectorNode(Node):
                            'QoS (lossless replay, tests)')
         period = declare(self, 'diagnostics_period_s', 1.0,
                          'Period of the /diagnostics status', 's', 0.01, 3600.0)
+        report_ignored(self, {})
         self.scans = 0
         self.poles = 0
         self.dropped = {'zero_stamp': 0, 'bad_scan': 0, 'malformed': 0}

@@ -11,12 +11,13 @@ The bag sidecar (`gyro_ekf.io.sidecar`) is a params file too: `declare_sidecar` 
 its entries (initial pose, LiDAR mounts per scan topic, stated noise, time zero) so a node
 started with `--params-file BAG.params.yaml` gets them with no hand-typed flags.
 
-A parameter a node no longer declares would be ignored by rclpy without a word;
-`report_removed` warns once for each former parameter the node is still given.
+A parameter a node does not declare would be ignored by rclpy without a word;
+`report_ignored` warns once for each former or misspelt parameter the node is given.
 """
 
 from __future__ import annotations
 
+import difflib
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -110,25 +111,38 @@ def declare_config(node: Node, config_type: type[ConfigT], prefix: str = '',
     return make_config(config_type, values, source=f'node {node.get_fully_qualified_name()}')
 
 
-def report_removed(node: Node, removed: Mapping[str, str]) -> list[str]:
-    """Warn once for each former parameter the node was given; return their names.
+def report_ignored(node: Node, removed: Mapping[str, str]) -> list[str]:
+    """Warn once for each former or misspelt parameter the node was given; return them.
 
     rclpy drops a parameter nobody declares without a word, so a user who still sets one
-    (an old params file, a script) would never learn that it does nothing now.
+    (an old params file, a script) would never learn that it does nothing now, nor one who
+    wrote ``gyro_noize_rad_s`` that the gyro noise stayed at its default. A name one or two
+    letters off a declared one is taken as misspelt; other undeclared names are left alone
+    (a ``/**`` section is meant for every node, each declaring only its own).
 
     Args:
-        node: the node, after its declarations.
+        node: the node, after all its declarations.
         removed: former parameter name -> what became of it (shown in the warning).
 
     Returns:
-        The former parameters given, in the order of ``removed``.
+        The former parameters given, in the order of ``removed``, then the misspelt ones.
     """
     # rclpy keeps the -p and --params-file values for this node here and has no public
     # getter for them (undeclared ones never become parameters).
-    given = [name for name in removed if name in node._parameter_overrides]
+    overrides = node._parameter_overrides
+    given = [name for name in removed if name in overrides]
     for name in given:
         node.get_logger().warn(f'parameter {name!r} was removed after gyro_ekf 0.1.0 '
                                f'({removed[name]}); ignored')
+    declared = sorted(node._parameters)
+    for name in overrides:
+        if name in node._parameters or name in removed:
+            continue
+        close = difflib.get_close_matches(name, declared, n=1, cutoff=0.85)
+        if close:
+            node.get_logger().warn(f'parameter {name!r} is not a parameter of this node '
+                                   f'(did you mean {close[0]!r}?); ignored')
+            given.append(name)
     return given
 
 

@@ -178,6 +178,16 @@ def _bag_of(trip, folder: Path) -> Path:
     return write_trip_bag(trip, folder / 'bag')
 
 
+def test_run_checks_the_bag_against_the_limits_of_its_params_file(tmp_path, capsys, sim_trip):
+    # limits.* reached the nodes but `run` skipped them.
+    bag = _bag_of(sim_trip, tmp_path)
+    params = tmp_path / 'slow.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    limits.max_speed_m_s: 0.1\n')
+    _fails(capsys, ['run', str(bag), '-o', str(tmp_path / 'out'), '--params-file', str(params)],
+           'speed.speed_m_s[', 'exceeds the limit 0.1 m/s')
+    assert not (tmp_path / 'out').exists()
+
+
 def test_run_on_a_bag_with_two_nan_imu_messages(tmp_path, capsys, sim_trip):
     rates = sim_trip.imu.angular_velocity_rad_s.copy()
     rates[[300, 301], 2] = np.nan

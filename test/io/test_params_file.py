@@ -102,3 +102,30 @@ def test_a_switch_that_is_not_true_or_false_is_refused(name, value):
         read_params_text(f'/**:\n  ros__parameters:\n    {name}: {value}\n', 'p.yaml')
     options = read_params_text(f'/**:\n  ros__parameters:\n    {name}: true\n').options
     assert getattr(options, name) is True
+
+
+def test_a_misspelt_name_is_warned_about_and_limits_are_read(caplog):
+    # A typo left the parameter at its default with only a debug line; limits.* (which
+    # the nodes take) were skipped by `run`.
+    params = read_params_text(
+        '/**:\n  ros__parameters:\n    gyro_noize_rad_s: 0.02\n    map_frame: world\n'
+        '    limits.max_speed_m_s: 10.0\nekf_nod:\n  ros__parameters:\n'
+        '    gyro_noise_rad_s: 0.5\nlandmark_detector_node:\n  ros__parameters:\n'
+        '    detector.max_widht_m: 0.3\n', 'typo.yaml')
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == 'WARNING']
+    assert warnings == [
+        "typo.yaml: /**: 'gyro_noize_rad_s' is not a parameter (did you mean "
+        "'gyro_noise_rad_s'?); ignored",
+        "typo.yaml: section 'ekf_nod' is not one of the pipeline's nodes (did you mean "
+        "'ekf_node'?); skipped",
+        "typo.yaml: landmark_detector_node: 'detector.max_widht_m' is not a parameter (did "
+        "you mean 'detector.max_width_m'?); ignored"]
+    assert params.ekf.gyro_noise_rad_s == EkfConfig().gyro_noise_rad_s
+    assert params.limits.max_speed_m_s == 10.0
+
+
+def test_a_file_with_no_pipeline_section_says_nothing_was_read(caplog):
+    read_params_text('rosbag2_bagfile_information:\n  version: 5\n', 'metadata.yaml')
+    assert [r.getMessage() for r in caplog.records if r.levelname == 'WARNING'] == [
+        'metadata.yaml: no section for /**, ekf_node, calibration_node, '
+        'landmark_detector_node: nothing read']

@@ -287,6 +287,24 @@ def test_a_former_parameter_is_warned_about_once_by_name_and_ignored(ros_env, tm
 
 
 @pytest.mark.ros
+def test_a_misspelt_parameter_is_warned_about_naming_the_one_meant(ros_env, tmp_path):
+    # rclpy ignores a name nobody declares: the gyro noise stayed at its default unsaid.
+    typo = tmp_path / 'typo.yaml'
+    typo.write_text('/**:\n  ros__parameters:\n    gyro_noize_rad_s: 0.02\n'
+                    '    window_length_s: 2.0\nekf_node:\n  ros__parameters:\n'
+                    '    gate_probabilty: 0.9\n    publish_every_n: 2\n')
+    stderr = _run_until_logged(ros_env, tmp_path, 'ekf_node', ['--params-file', str(typo)],
+                               'EKF ready')
+    assert stderr.count("parameter 'gyro_noize_rad_s' is not a parameter of this node "
+                        "(did you mean 'gyro_noise_rad_s'?); ignored") == 1, stderr
+    assert stderr.count("'gate_probabilty' is not a parameter of this node (did you "
+                        "mean 'gate_probability'?)") == 1, stderr
+    # A name another node declares (the calibration node's window) is no typo here.
+    assert stderr.count('is not a parameter of this node') == 2, stderr
+    assert 'Traceback' not in stderr
+
+
+@pytest.mark.ros
 def test_the_calibration_node_warns_about_its_former_parameters_too(ros_env, tmp_path):
     stderr = _run_until_logged(ros_env, tmp_path, 'calibration_node', [
         '-p', 'confirm_jump_after:=5', '-p', 'limits.max_coordinate_m:=10.0',
