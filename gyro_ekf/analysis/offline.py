@@ -178,6 +178,10 @@ def run_trip(trip: Trip, params: PipelineParams | None = None,
                          detector_config=params.detector)
     if use_calibration is None:
         use_calibration = options.use_calibration
+    if use_calibration and calibration is None:
+        # Asked for, not possible: the run goes on as without it, which the user must know.
+        log.warning('%s: use_calibration: no static window to seed the bias from (%s); '
+                    'the bias starts from its prior and is found online', trip.name, reason)
     if use_calibration and calibration is not None:
         driver.ekf.set_bias(float(calibration.bias_rad_s[2]),
                             options.calibration_bias_sigma_rad_s)

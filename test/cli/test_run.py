@@ -179,6 +179,16 @@ def test_bundled_bags_pass_strict(tmp_path, name, capsys):
     assert capsys.readouterr().out.splitlines()[0].split() == ['verdict', 'ok']
 
 
+def test_use_calibration_without_a_static_window_is_a_warning(tmp_path, caplog):
+    # It was an INFO line: asked for, the seed silently did not happen.
+    code, _ = _run(BAGS / 'sim_moving_start', tmp_path / 'out', '--no-plots', '--no-bag',
+                   '--use-calibration')
+    assert code == 0
+    warned = [r.getMessage() for r in caplog.records if r.levelname == 'WARNING']
+    assert any('use_calibration: no static window to seed the bias from (platform moved'
+               in text for text in warned), warned
+
+
 def test_strict_run_on_a_trip_with_a_mis_mounted_lidar_exits_3_and_still_writes(
         tmp_path, capsys):
     # The rear LiDAR's stated yaw is 6 deg off: it is excluded, the pose stays right, and
