@@ -1,0 +1,103 @@
+"""Bad command-line arguments: one line naming the option (or file), never a traceback.
+
+Each case runs the real CLI through its main(argv) entry and checks the exit code, that
+stderr is a single line holding the option and the value, and that nothing was written.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from gyro_ekf.cli.main import main
+
+REPO = Path(__file__).resolve().parents[2]
+STATIC_BAG = REPO / 'bags' / 'sim_static_start'
+MOVING_BAG = REPO / 'bags' / 'sim_moving_start'
+
+
+def _fails(capsys, argv: list[str], *matches: str, code: int = 1) -> str:
+    """Run the CLI, expect `code` and a one-line error holding every match."""
+    result = main(['-q', *argv])
+    err = capsys.readouterr().err
+    assert result == code, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and 'Traceback' not in err, err
+    for match in matches:
+        assert match in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture
+def no_processes(monkeypatch):
+    """Keep any ROS process a command would start local, and fail the test if one starts."""
+    from gyro_ekf import ros_env
+
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.setenv('ROS_DOMAIN_ID', '64')
+
+    def refuse(self, name, *args):
+        raise AssertionError(f'{name} was started before the arguments were checked')
+    monkeypatch.setattr(ros_env.ChildProcesses, 'start', refuse)
+
+
+# 1. Tracebacks -----------------------------------------------------------------------------
+
+@pytest.mark.parametrize('value', ['nan', 'inf'])
+def test_simulate_refuses_a_duration_that_is_not_finite(tmp_path, capsys, value):
+    _fails(capsys, ['simulate', '-o', str(tmp_path / 's'), '--duration-s', value],
+           f'gyro-ekf simulate: error: --duration-s: {value} is not a finite number')
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize('value,words', [
+    ('nan', "--start-time 'nan': not a finite number"),
+    ('inf', "--start-time 'inf': not a finite number"),
+    ('1e30', "--start-time '1e30': not before 2038-01-19T03:14:08Z"),
+    ('2262-04-12T00:00:00Z', "--start-time '2262-04-12T00:00:00Z': not before 2038"),
+])
+def test_convert_refuses_a_start_time_that_is_not_finite_or_too_late(
+        tmp_path, capsys, value, words):
+    trip = tmp_path / 'trip.npz'
+    assert main(['-q', 'simulate', '-o', str(trip), '--duration-s', '5', '--static-s', '2']) == 0
+    _fails(capsys, ['convert', str(trip), '-o', str(tmp_path / 'bag'), '--start-time', value],
+           'gyro-ekf convert: error: ' + words)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['trip.npz']
+
+
+def test_convert_refuses_a_start_time_whose_log_ends_after_2038(tmp_path, capsys):
+    trip = tmp_path / 'trip.npz'
+    assert main(['-q', 'simulate', '-o', str(trip), '--duration-s', '5', '--static-s', '2']) == 0
+    _fails(capsys, ['convert', str(trip), '-o', str(tmp_path / 'bag'), '--start-time',
+                    '2147483645'],
+           "--start-time '2147483645': the 5 s log would end after 2038-01-19T03:14:08Z")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['trip.npz']
+
+
+@pytest.mark.parametrize('command', ['convert', 'calibrate'])
+def test_an_empty_trip_file_is_refused_naming_it(tmp_path, capsys, command):
+    empty = tmp_path / 'e.npz'
+    empty.write_bytes(b'')
+    argv = [command, str(empty)] + (['-o', str(tmp_path / 'bag')] if command == 'convert'
+                                    else [])
+    _fails(capsys, argv, f'gyro-ekf {command}: error: {empty}: not a readable .npz trip '
+           'file: the file is empty')
+    assert [p.name for p in tmp_path.iterdir()] == ['e.npz']
+
+
+def test_demo_refuses_a_file_as_output_folder(tmp_path, capsys, no_processes):
+    target = tmp_path / 'notes.txt'
+    target.write_text('mine')
+    _fails(capsys, ['demo', str(STATIC_BAG), '-o', str(target)],
+           f'gyro-ekf demo: error: {target}: exists and is not a folder')
+    assert target.read_text() == 'mine'
+
+
+def test_demo_turns_an_output_folder_it_cannot_create_into_one_line(tmp_path, capsys,
+                                                                    no_processes):
+    target = tmp_path / 'notes.txt'
+    target.write_text('mine')
+    _fails(capsys, ['demo', str(STATIC_BAG), '-o', str(target / 'out')],
+           f'gyro-ekf demo: error: {target}/out: cannot write the outputs: not a directory')
+    assert [p.name for p in tmp_path.iterdir()] == ['notes.txt']
