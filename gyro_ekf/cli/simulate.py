@@ -51,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _bounds(field: str, scale: float = 1.0) -> tuple[float, float]:
-    """The simulator's own bounds of a SimulationConfig field, in the option's unit."""
+    """Return the simulator's own bounds of a SimulationConfig field in the option's unit."""
     metadata = next(f for f in dataclasses.fields(SimulationConfig) if f.name == field).metadata
     return metadata['min'] / scale, metadata['max'] / scale
 
