@@ -34,12 +34,18 @@ def no_processes(monkeypatch):
     """Keep any ROS process a command would start local, and fail the test if one starts."""
     from gyro_ekf import ros_env
 
+    import rclpy
+
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     monkeypatch.setenv('ROS_DOMAIN_ID', '64')
 
     def refuse(self, name, *args):
         raise AssertionError(f'{name} was started before the arguments were checked')
+
+    def refuse_init(*args, **kwargs):
+        raise AssertionError('rclpy was started before the arguments were checked')
     monkeypatch.setattr(ros_env.ChildProcesses, 'start', refuse)
+    monkeypatch.setattr(rclpy, 'init', refuse_init)
 
 
 # 1. Tracebacks -----------------------------------------------------------------------------
@@ -101,3 +107,58 @@ def test_demo_turns_an_output_folder_it_cannot_create_into_one_line(tmp_path, ca
     _fails(capsys, ['demo', str(STATIC_BAG), '-o', str(target / 'out')],
            f'gyro-ekf demo: error: {target}/out: cannot write the outputs: not a directory')
     assert [p.name for p in tmp_path.iterdir()] == ['notes.txt']
+
+
+# 2. Numbers that make no sense ---------------------------------------------------------------
+
+@pytest.mark.parametrize('argv,words', [
+    (['--duration-s', '10', '--static-s', '20'],
+     '--static-s: 20 s is longer than the trip (--duration-s 10 s)'),
+    (['--lidar-yaw-error-deg', 'nan'], '--lidar-yaw-error-deg: nan is not a finite number'),
+    (['--lidar-offset-m', 'nan', '0'], '--lidar-offset-m (X): nan is not a finite number'),
+    (['--lidar-offset-m', '0', 'inf'], '--lidar-offset-m (Y): inf is not a finite number'),
+    (['--second-lidar', '--lidar2-yaw-error-deg', 'nan'],
+     '--lidar2-yaw-error-deg: nan is not a finite number'),
+])
+def test_simulate_refuses_numbers_that_make_no_sense(tmp_path, capsys, argv, words):
+    _fails(capsys, ['simulate', '-o', str(tmp_path / 's'), *argv],
+           'gyro-ekf simulate: error: ' + words)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize('argv,words', [
+    (['--duration-s', '-1'], '--duration-s: must be > 0 s, got -1'),
+    (['--flush-s', '0'], '--flush-s: must be > 0 s, got 0'),
+    (['--flush-s', 'nan'], '--flush-s: nan is not a finite number'),
+    (['--idle-exit-s', '-2'], '--idle-exit-s: must be > 0 s, got -2'),
+])
+def test_record_refuses_durations_that_are_not_positive(
+        tmp_path, capsys, no_processes, argv, words):
+    _fails(capsys, ['record', '/gyro_bias', '-o', str(tmp_path / 'r'), *argv],
+           'gyro-ekf record: error: ' + words)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize('argv,words', [
+    (['--start-s', '1000'],
+     f'--start-s: 1000 s is beyond the end of {STATIC_BAG} (the bag lasts 90.000 s)'),
+    (['--start-s', '-5'], '--start-s: must be >= 0 s, got -5'),
+    (['--start-s', 'nan'], '--start-s: nan is not a finite number'),
+    (['--duration-s', '-1'], '--duration-s: must be > 0 s, got -1'),
+    (['--clock', '--clock-hz', '0'], '--clock-hz: must be > 0 Hz, got 0'),
+])
+def test_replay_refuses_a_window_outside_the_bag(capsys, no_processes, argv, words):
+    _fails(capsys, ['replay', str(STATIC_BAG), *argv], 'gyro-ekf replay: error: ' + words)
+
+
+@pytest.mark.parametrize('argv,words', [
+    (['--rate', '-1'], '--rate: must be >= 0, got -1'),
+    (['--rate', 'nan'], '--rate: nan is not a finite number'),
+    (['--publish-every-n', '0'], '--publish-every-n: must be >= 1, got 0'),
+    (['--timeout-s', '0'], '--timeout-s: must be > 0 s, got 0'),
+])
+def test_demo_checks_its_numbers_before_starting_anything(tmp_path, capsys, no_processes,
+                                                          argv, words):
+    _fails(capsys, ['demo', str(STATIC_BAG), '-o', str(tmp_path / 'd'), *argv],
+           'gyro-ekf demo: error: ' + words)
+    assert list(tmp_path.iterdir()) == []
