@@ -162,3 +162,34 @@ def test_demo_checks_its_numbers_before_starting_anything(tmp_path, capsys, no_p
     _fails(capsys, ['demo', str(STATIC_BAG), '-o', str(tmp_path / 'd'), *argv],
            'gyro-ekf demo: error: ' + words)
     assert list(tmp_path.iterdir()) == []
+
+
+# 4. Messages that name the option --------------------------------------------------------
+
+@pytest.mark.parametrize('argv,words', [
+    (['--window-length-s', '-1'], '--window-length-s: must be within [0.1, 10000] s, got -1'),
+    (['--window-length-s', 'nan'], '--window-length-s: nan is not a finite number'),
+    (['--window-start-s', '-5'], '--window-start-s: must be within [0, 1e+06] s, got -5'),
+])
+def test_calibrate_names_a_bad_window_option(capsys, argv, words):
+    _fails(capsys, ['calibrate', str(STATIC_BAG), *argv], 'gyro-ekf calibrate: error: ' + words)
+
+
+def test_calibrate_says_it_takes_one_bag_at_a_time(capsys):
+    _fails(capsys, ['calibrate', str(STATIC_BAG), str(MOVING_BAG)],
+           f'gyro-ekf calibrate: error: {STATIC_BAG}: calibrate takes one bag at a time '
+           '(got 2 sources)')
+
+
+@pytest.mark.parametrize('argv,words', [
+    (['--lidar-yaw-error-deg', '400'],
+     '--lidar-yaw-error-deg: must be within [-180, 180] deg, got 400'),
+    (['--second-lidar', '--lidar2-yaw-error-deg', '-200'],
+     '--lidar2-yaw-error-deg: must be within [-180, 180] deg, got -200'),
+    (['--static-s', 'nan'], '--static-s: nan is not a finite number'),
+    (['--static-s', '-1'], '--static-s: must be within [0, 100000] s, got -1'),
+])
+def test_simulate_names_the_option_in_its_own_unit(tmp_path, capsys, argv, words):
+    _fails(capsys, ['simulate', '-o', str(tmp_path / 's'), *argv],
+           'gyro-ekf simulate: error: ' + words)
+    assert list(tmp_path.iterdir()) == []
