@@ -157,4 +157,8 @@ def run(args: argparse.Namespace) -> int:
     counts = {t.name: t.count for t in node.recorded.values()} if node else {}
     log.info('%s: %d messages %s%s', path, sink.count, counts,
              f' (stopped by {stop.requested})' if stop else '')
+    silent = [name for name, count in counts.items() if count == 0]
+    if silent:
+        log.warning('%s: no message on %s (not published while recording, or a misspelt '
+                    'name?)', path, ', '.join(silent))
     return 0
