@@ -193,3 +193,43 @@ def test_simulate_names_the_option_in_its_own_unit(tmp_path, capsys, argv, words
     _fails(capsys, ['simulate', '-o', str(tmp_path / 's'), *argv],
            'gyro-ekf simulate: error: ' + words)
     assert list(tmp_path.iterdir()) == []
+
+
+# 3. Silent topics and empty bags ---------------------------------------------------------
+
+@pytest.fixture(scope='module')
+def silent_recording(tmp_path_factory):
+    """`record` of two topics nobody publishes, for 1 s (a real process, domain 64)."""
+    import subprocess
+    import sys
+
+    from gyro_ekf.ros_env import child_env
+
+    folder = tmp_path_factory.mktemp('silent')
+    bag = folder / 'bag'
+    result = subprocess.run(
+        [sys.executable, '-m', 'gyro_ekf.cli.main', '-q', 'record', '/never_published',
+         '/also_never:std_msgs/msg/String', '-o', str(bag), '--duration-s', '1'],
+        env=child_env(64, folder / 'ros_log'), cwd=REPO, capture_output=True, text=True,
+        timeout=120)
+    return bag, result
+
+
+@pytest.mark.ros
+def test_record_warns_naming_the_topics_that_got_no_message(silent_recording):
+    bag, result = silent_recording
+    assert result.returncode == 0, result.stderr
+    assert 'Traceback' not in result.stderr
+    warnings = [line for line in result.stderr.splitlines() if line.startswith('WARNING')]
+    assert len(warnings) == 1, result.stderr
+    assert f'{bag}: no message on /never_published, /also_never' in warnings[0], warnings
+
+
+@pytest.mark.ros
+def test_info_on_a_bag_without_messages_says_so(silent_recording, capsys):
+    bag, _ = silent_recording
+    assert main(['info', str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert 'start:     - (the bag has no messages)' in out, out
+    assert '2262' not in out, out
+    assert 'messages:  0' in out, out
