@@ -233,3 +233,41 @@ def test_info_on_a_bag_without_messages_says_so(silent_recording, capsys):
     assert 'start:     - (the bag has no messages)' in out, out
     assert '2262' not in out, out
     assert 'messages:  0' in out, out
+
+
+# 5. demo into a folder that holds files --------------------------------------------------
+
+def _earlier_demo(folder: Path) -> None:
+    """Lay out what a demo leaves in its output folder."""
+    (folder / 'bag').mkdir(parents=True)
+    (folder / 'bag' / 'metadata.yaml').write_text('old')
+    (folder / 'bag' / 'bag.mcap').write_text('old')
+    (folder / 'ros_log').mkdir()
+    (folder / 'ros_log' / 'python3_123_1700000000000.log').write_text('old')
+    for name in ('ekf_node.log', 'replay.log', 'summary.json', 'trajectory.png'):
+        (folder / name).write_text('old')
+
+
+def test_demo_refuses_a_non_empty_folder_without_force(tmp_path, capsys, no_processes):
+    out = tmp_path / 'out'
+    _earlier_demo(out)
+    _fails(capsys, ['demo', str(STATIC_BAG), '-o', str(out)],
+           f'gyro-ekf demo: error: {out}: folder is not empty; use --force')
+    assert (out / 'summary.json').read_text() == 'old'
+
+
+def test_demo_force_refuses_a_folder_holding_user_files(tmp_path, capsys, no_processes):
+    out = tmp_path / 'out'
+    _earlier_demo(out)
+    (out / 'notes.txt').write_text('mine')
+    _fails(capsys, ['demo', str(STATIC_BAG), '-o', str(out), '--force'],
+           f'gyro-ekf demo: error: {out}/notes.txt: is not a product of gyro-ekf demo')
+    assert (out / 'notes.txt').read_text() == 'mine'
+
+
+def test_demo_force_goes_ahead_on_an_earlier_demo_folder(tmp_path, capsys, no_processes):
+    out = tmp_path / 'out'
+    _earlier_demo(out)
+    # The first process it starts is where the (refused) nodes would begin.
+    with pytest.raises(AssertionError, match='calibration_node was started'):
+        main(['-q', 'demo', str(STATIC_BAG), '-o', str(out), '--force'])
