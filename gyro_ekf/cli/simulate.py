@@ -33,8 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--seed', type=_seed, default=0, help='random seed (>= 0)')
     parser.add_argument('--duration-s', type=float, default=defaults.duration_s,
                         help='trip length, s')
-    parser.add_argument('--static-s', type=float, default=defaults.static_s,
-                        help='static window at the start (speed exactly 0), s')
+    parser.add_argument('--static-s', type=float, default=None,
+                        help='static window at the start (speed exactly 0), s, at most '
+                        f'--duration-s (default {defaults.static_s:g} s, or the whole trip '
+                        'when that is shorter)')
     parser.add_argument('--second-lidar', action='store_true',
                         help='add a rear-facing second LiDAR on topic scan2, as in the 2023 logs')
     for which, name in (('lidar', 'first'), ('lidar2', 'second')):
@@ -68,6 +70,8 @@ def check_options(args: argparse.Namespace) -> None:
     from gyro_ekf.cli.main import check_number
 
     check_number('--duration-s', args.duration_s, *_bounds('duration_s'), unit='s')
+    if args.static_s is None:
+        args.static_s = min(SimulationConfig().static_s, args.duration_s)
     check_number('--static-s', args.static_s, *_bounds('static_s'), unit='s')
     if args.static_s > args.duration_s:
         raise GyroEkfError(f'--static-s: {args.static_s:g} s is longer than the trip '

@@ -271,3 +271,11 @@ def test_demo_force_goes_ahead_on_an_earlier_demo_folder(tmp_path, capsys, no_pr
     # The first process it starts is where the (refused) nodes would begin.
     with pytest.raises(AssertionError, match='calibration_node was started'):
         main(['-q', 'demo', str(STATIC_BAG), '-o', str(out), '--force'])
+
+
+def test_simulate_without_static_s_keeps_a_short_trip_static_throughout(tmp_path):
+    from gyro_ekf.io.trip_file import load_trip
+
+    trip = tmp_path / 'short.npz'
+    assert main(['-q', 'simulate', '-o', str(trip), '--duration-s', '5']) == 0
+    assert load_trip(trip).static_duration_s == 5.0
