@@ -8,10 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from gyro_ekf.cli.convert import add_skip_bad_argument, warn_dropped
+from gyro_ekf.cli.convert import add_skip_bad_argument, refuse_empty_trip_files, warn_dropped
 from gyro_ekf.core.calibration import estimate_gyro_bias
 from gyro_ekf.core.config import CalibrationConfig
 from gyro_ekf.core.types import BiasEstimate, Trip
+from gyro_ekf.errors import GyroEkfError
 
 HELP = 'estimate the gyro bias over the static start of a course log or bag'
 
@@ -44,6 +45,7 @@ def load_trip(sources: list[Path], skip_bad: bool = False) -> Trip:
                                      skip_bad=skip_bad)
     else:
         from gyro_ekf.io.sources import load_checked_log
+        refuse_empty_trip_files(sources)
         trip, report = load_checked_log(sources, skip_bad=skip_bad)
     warn_dropped(report)
     return trip
@@ -76,8 +78,28 @@ def estimate_to_dict(estimate: BiasEstimate, axes_known: tuple[bool, bool, bool]
     }
 
 
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse a window option out of CalibrationConfig's bounds, or several bags at once.
+
+    Raises:
+        GyroEkfError: one line naming the option, or the bags.
+    """
+    from gyro_ekf.cli.main import check_number
+
+    for option, field in (('--window-start-s', 'window_start_s'),
+                          ('--window-length-s', 'window_length_s')):
+        metadata = CalibrationConfig.__dataclass_fields__[field].metadata
+        check_number(option, getattr(args, field), metadata['min'], metadata['max'],
+                     unit='s')
+    bags = [p for p in args.source if (p / 'metadata.yaml').is_file()]
+    if bags and len(args.source) > 1:
+        raise GyroEkfError(f'{bags[0]}: calibrate takes one bag at a time (got '
+                           f'{len(args.source)} sources); run it once per bag')
+
+
 def run(args: argparse.Namespace) -> int:
     """Calibrate and print the per-axis bias; a refused window is an error (exit 1)."""
+    check_options(args)
     trip = load_trip(args.source, skip_bad=args.skip_bad)
     config = CalibrationConfig(window_start_s=args.window_start_s,
                                window_length_s=args.window_length_s)

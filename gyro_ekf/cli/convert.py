@@ -25,6 +25,11 @@ HELP = ('convert a course log (2016 trio, 2021 event table + map, 2022/2023 simu
 
 log = logging.getLogger(__name__)
 
+LAST_STAMP_NS = 2**31 * NS_PER_S
+"""Message stamps (builtin_interfaces/Time) hold int32 seconds: none reaches this time."""
+LAST_STAMP_TEXT = '2038-01-19T03:14:08Z'
+"""LAST_STAMP_NS in words."""
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add this command's arguments."""
@@ -69,6 +74,8 @@ def parse_start_time(text: str) -> int:
     """
     try:
         value = Decimal(text)
+        if not value.is_finite():
+            raise BagError(f'--start-time {text!r}: not a finite number of seconds')
         ns = int(value * NS_PER_S)
     except InvalidOperation:
         try:
@@ -82,7 +89,23 @@ def parse_start_time(text: str) -> int:
         ns = (delta.days * 86_400 + delta.seconds) * NS_PER_S + delta.microseconds * 1000
     if ns <= 0:
         raise BagError(f'--start-time {text!r}: must be after 1970-01-01 (0 reads as "unset")')
+    if ns >= LAST_STAMP_NS:
+        raise BagError(f'--start-time {text!r}: not before {LAST_STAMP_TEXT}, the last time '
+                       'a message stamp can hold (int32 seconds)')
     return ns
+
+
+def refuse_empty_trip_files(sources: list[Path]) -> None:
+    """Refuse an empty .npz source in one line (numpy's reader fails on it with EOFError).
+
+    Raises:
+        LogFormatError: naming the file.
+    """
+    from gyro_ekf.io.errors import LogFormatError
+
+    for path in sources:
+        if path.suffix == '.npz' and path.is_file() and path.stat().st_size == 0:
+            raise LogFormatError(f'{path}: not a readable .npz trip file: the file is empty')
 
 
 def _progress_bar() -> tuple[Callable[[int, int], None] | None, Any]:
@@ -115,9 +138,13 @@ def run(args: argparse.Namespace) -> int:
         for existing in (output, sidecar_path(output)):
             if existing.exists():
                 raise BagError(f'{existing}: exists already; use --force to replace it')
+    refuse_empty_trip_files(args.sources)
     began = time.monotonic()
     trip, report = load_checked_log(args.sources, args.map, skip_bad=args.skip_bad)
     warn_dropped(report)
+    if start_ns + trip.end_s * NS_PER_S >= LAST_STAMP_NS:
+        raise BagError(f'--start-time {args.start_time!r}: the {trip.end_s:g} s log would end '
+                       f'after {LAST_STAMP_TEXT}, the last time a message stamp can hold')
     progress, bar = _progress_bar()
     try:
         write_trip_bag(trip, output, storage=args.storage, start_time_ns=start_ns,

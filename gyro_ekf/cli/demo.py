@@ -92,6 +92,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='give up on the replay after this long')
     parser.add_argument('--publish-every-n', type=int, default=4,
                         help='EKF publishes every n-th estimate (one per IMU sample)')
+    parser.add_argument('--force', action='store_true',
+                        help='write into a non-empty output folder, overwriting the products '
+                        'of an earlier demo (never other files)')
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse a bad --rate, --timeout-s or --publish-every-n before anything starts.
+
+    Raises:
+        GyroEkfError: one line naming the option.
+    """
+    from gyro_ekf.cli.main import check_number
+
+    check_number('--rate', args.rate, 0.0)
+    check_number('--timeout-s', args.timeout_s, 0.0, unit='s', above=True)
+    check_number('--publish-every-n', args.publish_every_n, 1)
 
 
 def _environment(output: Path) -> dict[str, str]:
@@ -143,13 +159,15 @@ def run(args: argparse.Namespace) -> int:
     from gyro_ekf.core.stamps import seconds_since
     from gyro_ekf.ros_env import ChildProcesses
 
+    from gyro_ekf.io.output_dir import prepare_demo_dir
+
+    check_options(args)
     started = time.monotonic()
     bag: Path = args.bag
     if not (bag / 'metadata.yaml').exists():
         raise BagError(f'{bag}: no such bag (make it with `make bags` or `gyro-ekf simulate`)')
     params = read_sidecar(bag)
-    output: Path = args.output
-    output.mkdir(parents=True, exist_ok=True)
+    output = prepare_demo_dir(args.output, force=args.force)
     env = _environment(output)
     log.info('discovery: %s, ROS_DOMAIN_ID %s', env['ROS_AUTOMATIC_DISCOVERY_RANGE'],
              env['ROS_DOMAIN_ID'])

@@ -31,11 +31,14 @@ def format_summary(summary: BagSummary) -> str:
     """Render the text `info` prints."""
     from gyro_ekf.core.stamps import seconds_since
 
+    # rosbag2 states the largest int64 as the start of a bag without messages.
+    empty = summary.message_count == 0
     lines = [
         f'bag:       {summary.path}',
         f'storage:   {summary.storage} (rosbag2 metadata version {summary.version})',
+        'start:     - (the bag has no messages)' if empty else
         f'start:     {iso_time(summary.start_time_ns)} ({summary.start_time_ns} ns)',
-        f'duration:  {seconds_since(summary.duration_ns, 0):.4f} s',
+        f'duration:  {0.0 if empty else seconds_since(summary.duration_ns, 0):.4f} s',
         f'messages:  {summary.message_count}',
         f'params:    {summary.sidecar if summary.sidecar is not None else "(none)"}',
         'topics:',

@@ -12,6 +12,7 @@ import gyro_ekf.blas_threads  # noqa: F401
 import argparse
 import importlib
 import logging
+import math
 import sys
 
 from gyro_ekf.errors import GyroEkfError
@@ -20,6 +21,35 @@ COMMANDS = ('convert', 'info', 'simulate', 'calibrate', 'calibrate_mounts', 'run
             'replay', 'record', 'reindex', 'make_bags', 'stress')
 
 log = logging.getLogger('gyro_ekf')
+
+
+def check_number(option: str, value: float | None, low: float | None = None,
+                 high: float | None = None, unit: str = '', above: bool = False) -> None:
+    """Refuse a numeric option that is not finite or out of range, naming the option.
+
+    Args:
+        option: the option as the user typed it (`--duration-s`).
+        value: its value; None (not given) passes.
+        low, high: the accepted range (either may be None); low itself is refused when
+            above is true.
+        unit: the option's unit, for the message.
+
+    Raises:
+        GyroEkfError: one line such as `--duration-s: nan is not a finite number`.
+    """
+    if value is None:
+        return
+    if not math.isfinite(value):
+        raise GyroEkfError(f'{option}: {value} is not a finite number')
+    unit = f' {unit}' if unit else ''
+    if low is not None and high is not None and not above and not low <= value <= high:
+        raise GyroEkfError(f'{option}: must be within [{low:g}, {high:g}]{unit}, got '
+                           f'{value:g}')
+    if low is not None and (value <= low if above else value < low):
+        raise GyroEkfError(f'{option}: must be {">" if above else ">="} {low:g}{unit}, got '
+                           f'{value:g}')
+    if high is not None and value > high:
+        raise GyroEkfError(f'{option}: must be <= {high:g}{unit}, got {value:g}')
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -39,6 +39,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'often, s: what a kill -9 can lose')
 
 
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse a --duration-s, --idle-exit-s or --flush-s that is not a positive number.
+
+    Checked before the bag folder is claimed or rclpy starts.
+
+    Raises:
+        GyroEkfError: one line naming the option.
+    """
+    from gyro_ekf.cli.main import check_number
+
+    for option, value in (('--duration-s', args.duration_s),
+                          ('--idle-exit-s', args.idle_exit_s), ('--flush-s', args.flush_s)):
+        check_number(option, value, 0.0, unit='s', above=True)
+
+
 class BagSink:
     """Writes raw messages into the bag folder where it stays, checkpointed (io.recording)."""
 
@@ -102,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
     from gyro_ekf.errors import GyroEkfError
     from gyro_ekf.nodes.recorder import Recorder
 
+    check_options(args)
     stop = StopRequest()
     sink = BagSink(args.output, args.storage, args.force, args.flush_s)
     print(f'recording into {sink.storage_file} (metadata.yaml refreshed every '
@@ -141,4 +157,8 @@ def run(args: argparse.Namespace) -> int:
     counts = {t.name: t.count for t in node.recorded.values()} if node else {}
     log.info('%s: %d messages %s%s', path, sink.count, counts,
              f' (stopped by {stop.requested})' if stop else '')
+    silent = [name for name, count in counts.items() if count == 0]
+    if silent:
+        log.warning('%s: no message on %s (not published while recording, or a misspelt '
+                    'name?)', path, ', '.join(silent))
     return 0

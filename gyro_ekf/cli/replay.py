@@ -75,6 +75,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'message; exceeded, the replay fails naming the topic')
 
 
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse bad numbers before the bag is opened or rclpy starts (one line each).
+
+    --start-s beyond the bag's end is refused by BagSource, which knows its duration.
+
+    Raises:
+        GyroEkfError: naming the option.
+    """
+    from gyro_ekf.cli.main import check_number
+
+    check_number('--start-s', args.start_s, 0.0, unit='s')
+    check_number('--duration-s', args.duration_s, 0.0, unit='s', above=True)
+    check_number('--clock-hz', args.clock_hz, 0.0, unit='Hz', above=True)
+    check_number('--wait-timeout-s', args.wait_timeout_s, 0.0, unit='s')
+    check_number('--rate', args.rate, 0.0)
+
+
 class BagSource:
     """Raw messages of a bag in stamp order, re-iterable (for --loop)."""
 
@@ -99,6 +116,7 @@ class BagSource:
             with Reader(path) as reader:
                 connections = list(reader.connections)
                 self.start_ns = reader.start_time
+                self.duration_ns = reader.duration if reader.message_count else 0
         except (ReaderError, OSError, KeyError, ValueError) as err:
             raise BagError(f'{path}: cannot read the bag: {err}') from None
         present = {c.topic for c in connections}
@@ -119,6 +137,10 @@ class BagSource:
             self.topics.append(ReplayTopic(connection.topic, connection.msgtype, latched,
                                            reliable))
         self.latched = {t.name for t in self.topics if t.latched}
+        bag_s = self.duration_ns / NS_PER_S
+        if start_s > bag_s:
+            raise BagError(f'--start-s: {start_s:g} s is beyond the end of {path} (the bag '
+                           f'lasts {bag_s:.3f} s)')
         self.from_ns = self.start_ns + int(start_s * NS_PER_S)
         self.until_ns = (None if duration_s is None
                          else self.from_ns + int(duration_s * NS_PER_S))
@@ -153,6 +175,7 @@ def run(args: argparse.Namespace) -> int:
     from gyro_ekf.nodes.replayer import Replayer
 
     # SIGINT/SIGTERM end the replay between two messages: the summary is still printed.
+    check_options(args)
     stop = StopRequest()
     source = BagSource(args.bag, args.topics, args.start_s, args.duration_s)
     rclpy.init(args=['gyro-ekf-replay', *args.ros_args],

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+from gyro_ekf.errors import GyroEkfError
 
 HELP = 'simulate a course-like trip with ground truth and write it as a bag or .npz file'
 
@@ -32,8 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--seed', type=_seed, default=0, help='random seed (>= 0)')
     parser.add_argument('--duration-s', type=float, default=defaults.duration_s,
                         help='trip length, s')
-    parser.add_argument('--static-s', type=float, default=defaults.static_s,
-                        help='static window at the start (speed exactly 0), s')
+    parser.add_argument('--static-s', type=float, default=None,
+                        help='static window at the start (speed exactly 0), s, at most '
+                        f'--duration-s (default {defaults.static_s:g} s, or the whole trip '
+                        'when that is shorter)')
     parser.add_argument('--second-lidar', action='store_true',
                         help='add a rear-facing second LiDAR on topic scan2, as in the 2023 logs')
     for which, name in (('lidar', 'first'), ('lidar2', 'second')):
@@ -49,8 +52,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--force', action='store_true', help='replace an existing output')
 
 
+def _bounds(field: str, scale: float = 1.0) -> tuple[float, float]:
+    """Return the simulator's own bounds of a SimulationConfig field in the option's unit."""
+    metadata = next(f for f in dataclasses.fields(SimulationConfig) if f.name == field).metadata
+    return metadata['min'] / scale, metadata['max'] / scale
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse options that are not finite, beyond the simulator's bounds or inconsistent.
+
+    Each is checked here, in the option's own name and unit, before the simulator sees it
+    (its bounds let NaN pass, and it names its fields in radians).
+
+    Raises:
+        GyroEkfError: one line naming the option.
+    """
+    from gyro_ekf.cli.main import check_number
+
+    check_number('--duration-s', args.duration_s, *_bounds('duration_s'), unit='s')
+    if args.static_s is None:
+        args.static_s = min(SimulationConfig().static_s, args.duration_s)
+    check_number('--static-s', args.static_s, *_bounds('static_s'), unit='s')
+    if args.static_s > args.duration_s:
+        raise GyroEkfError(f'--static-s: {args.static_s:g} s is longer than the trip '
+                           f'(--duration-s {args.duration_s:g} s)')
+    for which in ('lidar', 'lidar2'):
+        check_number(f'--{which}-yaw-error-deg', getattr(args, f'{which}_yaw_error_deg'),
+                     *_bounds(f'{which}_yaw_error_rad', math.radians(1.0)), unit='deg')
+        for axis, value in zip('xy', getattr(args, f'{which}_offset_m')):
+            check_number(f'--{which}-offset-m ({axis.upper()})', value,
+                         *_bounds(f'{which}_{axis}_error_m'), unit='m')
+
+
 def run(args: argparse.Namespace) -> int:
     """Simulate and write the trip; returns the exit code."""
+    check_options(args)
     second = args.second_lidar
     if not second and (args.lidar2_yaw_error_deg or any(args.lidar2_offset_m)):
         raise CoreError('simulate: --lidar2-* mount errors need --second-lidar')

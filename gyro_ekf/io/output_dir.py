@@ -54,6 +54,43 @@ def prepare_output_dir(path: Path | str, force: bool = False) -> Path:
     return path
 
 
+DEMO_PRODUCTS = (SUMMARY_JSON, 'trajectory.png', '*.log')
+"""Files `gyro-ekf demo` writes into its output folder (the processes' logs among them)."""
+
+DEMO_FOLDERS = {'bag': BAG_FILES, 'ros_log': ('*',)}
+"""Folders `gyro-ekf demo` writes into its output folder: the recorded bag, the ROS logs."""
+
+
+def prepare_demo_dir(path: Path | str, force: bool = False) -> Path:
+    """Check and create the output folder of `gyro-ekf demo`: absent, empty, or (force) ours.
+
+    The demo's processes write their logs and the recorded bag into the folder as they run,
+    so it is created here, before any of them starts; with force, the products of an
+    earlier demo are overwritten (never anything else).
+
+    Raises:
+        OutputError: the path is a file, a non-empty folder without force, a folder holding
+            something `gyro-ekf demo` does not write (named), or it cannot be created.
+    """
+    path = Path(path)
+    if path.is_symlink() or (path.exists() and not path.is_dir()):
+        raise OutputError(f'{path}: exists and is not a folder')
+    if path.is_dir() and any(path.iterdir()):
+        if not force:
+            raise OutputError(f'{path}: folder is not empty; use --force to overwrite its '
+                              'products')
+        foreign = first_foreign(path, DEMO_PRODUCTS, DEMO_FOLDERS)
+        if foreign is not None:
+            raise OutputError(f'{foreign}: is not a product of gyro-ekf demo; --force '
+                              'replaces only its own products (summary.json, trajectory.png, '
+                              'the *.log files, bag/, ros_log/): move it away first')
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(f'{path}: cannot write the outputs: {os_reason(err)}') from None
+    return path
+
+
 @contextmanager
 def staged_output_dir(path: Path | str, force: bool = False) -> Iterator[Path]:
     """Yield a staging folder beside path; on success its products replace path's.

@@ -11,6 +11,8 @@ from collections.abc import Callable
 import rclpy
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
+# rclpy exports the C layer's error class only from its extension module.
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.task import Future
 
@@ -51,6 +53,66 @@ def use_writer_profile(environ=os.environ, cwd: Path | None = None) -> bool:
     return True
 
 
+def params_files(argv: list[str]) -> list[str]:
+    """Return the files given with --params-file among the ROS arguments of a command line."""
+    files = []
+    inside = False
+    for i, arg in enumerate(argv):
+        if arg == '--ros-args':
+            inside = True
+        elif arg == '--':
+            inside = False
+        elif inside and arg == '--params-file' and i + 1 < len(argv):
+            files.append(argv[i + 1])
+    return files
+
+
+def params_file_problem(path: str) -> str | None:
+    """Say in one line why rcl would refuse a --params-file (None when it may be fine).
+
+    Covers what rcl's parser refuses with a multi-line traceback: a missing or unreadable
+    file, one that is not UTF-8 text or not YAML, a list where node names go, and a value
+    before `ros__parameters`. rcl remains the judge of the rest (run_node catches its
+    error too).
+    """
+    import yaml
+
+    from gyro_ekf.io.products import os_reason
+
+    try:
+        text = Path(path).read_bytes().decode('utf-8')
+    except FileNotFoundError:
+        return f'--params-file {path}: no such file'
+    except OSError as err:
+        return f'--params-file {path}: cannot read it: {os_reason(err)}'
+    except UnicodeDecodeError:
+        return f'--params-file {path}: not a YAML file (not UTF-8 text)'
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, 'problem_mark', None)
+        where = f' at line {mark.line + 1}' if mark is not None else ''
+        reason = getattr(err, 'problem', None) or type(err).__name__
+        return f'--params-file {path}: not a YAML file: {reason}{where}'
+    shape = 'expected NODE_NAME: {ros__parameters: {NAME: VALUE, ...}}'
+    if isinstance(data, list):
+        return f'--params-file {path}: not a ROS 2 params file: a list, {shape}'
+    pending = [(data, '')] if isinstance(data, dict) else []
+    while pending:
+        mapping, prefix = pending.pop()
+        for key, value in mapping.items():
+            if key == 'ros__parameters':
+                if isinstance(value, dict):
+                    continue
+                return (f'--params-file {path}: not a ROS 2 params file: {prefix}{key} is '
+                        f'not a mapping, {shape}')
+            if not isinstance(value, dict):
+                return (f"--params-file {path}: not a ROS 2 params file: '{prefix}{key}' has "
+                        f'a value where a node name or ros__parameters goes, {shape}')
+            pending.append((value, f'{prefix}{key}.'))
+    return None
+
+
 def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> int:
     """Init rclpy, spin the node until Ctrl-C or shutdown, clean up; return the exit code.
 
@@ -63,7 +125,18 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> in
     # Each reliable sample woke Fast DDS' event thread once per reader: a fifth of the CPU of
     # ekf_node at 1 kHz went to it (fastdds_writer.xml says why and what it changes).
     use_writer_profile()
-    rclpy.init(args=args)
+    for path in params_files(sys.argv if args is None else args):
+        problem = params_file_problem(path)
+        if problem is not None:
+            print(f'[FATAL] {problem}', file=sys.stderr)
+            return 1
+    try:
+        rclpy.init(args=args)
+    except _rclpy.RCLError as err:
+        # rcl refuses its arguments (a params file it cannot parse): its own line, no
+        # traceback. The message ends in C source locations (", at /project/src/...").
+        print(f'[FATAL] {str(err).split(", at /")[0].strip()}', file=sys.stderr)
+        return 1
     node = None
     try:
         # rclpy's EventsExecutor (C++) on the serialized path: the Python executor rebuilds
