@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gyro_ekf.cli.convert import add_skip_bad_argument, refuse_empty_trip_files, warn_dropped
+from gyro_ekf.cli.convert import add_skip_bad_argument, warn_dropped
 from gyro_ekf.core.calibration import estimate_gyro_bias
 from gyro_ekf.core.config import CalibrationConfig
 from gyro_ekf.core.types import BiasEstimate, Trip
@@ -45,7 +45,6 @@ def load_trip(sources: list[Path], skip_bad: bool = False) -> Trip:
                                      skip_bad=skip_bad)
     else:
         from gyro_ekf.io.sources import load_checked_log
-        refuse_empty_trip_files(sources)
         trip, report = load_checked_log(sources, skip_bad=skip_bad)
     warn_dropped(report)
     return trip

@@ -95,19 +95,6 @@ def parse_start_time(text: str) -> int:
     return ns
 
 
-def refuse_empty_trip_files(sources: list[Path]) -> None:
-    """Refuse an empty .npz source in one line (numpy's reader fails on it with EOFError).
-
-    Raises:
-        LogFormatError: naming the file.
-    """
-    from gyro_ekf.io.errors import LogFormatError
-
-    for path in sources:
-        if path.suffix == '.npz' and path.is_file() and path.stat().st_size == 0:
-            raise LogFormatError(f'{path}: not a readable .npz trip file: the file is empty')
-
-
 def _progress_bar() -> tuple[Callable[[int, int], None] | None, Any]:
     if not sys.stderr.isatty():
         return None, None
@@ -138,7 +125,6 @@ def run(args: argparse.Namespace) -> int:
         for existing in (output, sidecar_path(output)):
             if existing.exists():
                 raise BagError(f'{existing}: exists already; use --force to replace it')
-    refuse_empty_trip_files(args.sources)
     began = time.monotonic()
     trip, report = load_checked_log(args.sources, args.map, skip_bad=args.skip_bad)
     warn_dropped(report)

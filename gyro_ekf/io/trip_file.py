@@ -131,7 +131,7 @@ def is_trip_file(path: Path | str) -> bool:
     try:
         with np.load(path, allow_pickle=False) as data:
             return 'format' in data.files and str(data['format']) == FORMAT
-    except (OSError, ValueError, zipfile.BadZipFile):
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError):
         return False
 
 
@@ -175,6 +175,10 @@ def load_trip(path: Path | str) -> Trip:
         data = np.load(path, allow_pickle=False)
     except FileNotFoundError:
         raise LogFormatError(f'{path}: no such file') from None
+    except EOFError:
+        # numpy's reader on an empty file.
+        raise LogFormatError(f'{path}: not a readable .npz trip file: the file is empty'
+                             ) from None
     except (OSError, ValueError, zipfile.BadZipFile) as err:
         raise LogFormatError(f'{path.name}: not a readable .npz trip file: {err}') from err
     with data:
