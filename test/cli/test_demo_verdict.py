@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from gyro_ekf.cli.demo import BIAS_LIMIT_DEG_S, POSITION_LIMIT_M, DemoFailed, verdict
+from gyro_ekf.cli.demo import (BIAS_LIMIT_DEG_S, POSITION_LIMIT_M, DemoFailed, ok_clauses,
+                               verdict)
 from gyro_ekf.errors import GyroEkfError
 
 GOOD = {'online_bias_deg_s': -0.9012, 'true_bias_deg_s': -0.9000,
@@ -57,6 +58,22 @@ def test_without_ground_truth_only_what_can_be_checked_is():
                   has_ground_truth=False)
     assert verdict(result) == []
     assert verdict(dict(result, ekf_resets=2)) != []
+    # The OK line said "within 0.02 deg/s of the truth" with no truth to compare.
+    assert ok_clauses(dict(result, ekf_verdict='ok')) == (
+        "the bag has no ground truth nor true bias to compare with, ekf_node's health "
+        'verdict ok, no filter reset')
+    assert ok_clauses(dict(GOOD, ekf_verdict='degraded')).startswith(
+        'online bias within 0.02 deg/s of the truth, final position within 5 cm, '
+        "ekf_node's health verdict degraded")
+
+
+def test_the_nodes_own_failed_verdict_fails_the_demo():
+    # Without ground truth it is the only judge of the pose (a blind LiDAR ran 60 s).
+    problems = verdict(dict(GOOD, true_bias_deg_s=None, final_position_error_m=None,
+                            has_ground_truth=False, ekf_verdict='failed',
+                            ekf_verdict_reasons='no landmark update in 60.0 s'))
+    assert problems == ["ekf_node judged its run failed: no landmark update in 60.0 s"]
+    assert verdict(dict(GOOD, ekf_verdict='degraded')) == []
 
 
 def test_every_problem_is_listed_and_the_error_is_one_cli_line():
