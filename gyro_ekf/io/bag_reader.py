@@ -26,12 +26,14 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from rosbags.rosbag2 import Reader
+from scipy.spatial import cKDTree
 
 from gyro_ekf import topics
 from gyro_ekf.core.stamps import seconds_since
 from gyro_ekf.core.types import (
     GroundTruth, ImuSeries, LandmarkMap, LidarMount, NoiseFigures, ScanSeries, SpeedSeries,
     Trip)
+from gyro_ekf.core.validation import quaternion_problem
 from gyro_ekf.io import mcap_chunks, messages as msgs
 from gyro_ekf.io.bag_open import (
     GROUND_TRUTH_TOPIC, IMU_TOPIC, INITIAL_POSE_TOPIC, MAP_TOPIC, ODOM_TOPIC, bag_bytes,
@@ -42,8 +44,8 @@ from gyro_ekf.io.bag_sinks import (
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.sidecar import BagParams, read_sidecar, sidecar_path
 
-__all__ = ['BagMessage', 'BagTrip', 'assemble_trip', 'iter_bag_messages', 'read_bag',
-           'read_trip_bag']
+__all__ = ['BagMessage', 'BagTrip', 'DUPLICATE_LANDMARK_M', 'assemble_trip', 'initial_pose_of',
+           'iter_bag_messages', 'landmarks_of_map', 'one_message', 'read_bag', 'read_trip_bag']
 
 log = logging.getLogger(__name__)
 
@@ -153,7 +155,7 @@ def read_bag(path: Path | str, acceleration: bool = True) -> BagTrip:
             if GROUND_TRUTH_TOPIC in by_topic:
                 truth = TruthSink(path, GROUND_TRUTH_TOPIC, counts[GROUND_TRUTH_TOPIC], size)
                 sinks[GROUND_TRUTH_TOPIC] = truth
-            singles: dict[str, Any] = {}
+            singles: dict[str, list[tuple[int, Any]]] = {}
             if mcap_file is None:
                 with reading(path):
                     _read_with_rosbags(path, reader, sinks, singles)
@@ -169,12 +171,14 @@ def read_bag(path: Path | str, acceleration: bool = True) -> BagTrip:
         for sink in sinks.values():
             sink.flush()
             check_stamps(path, sink.topic, sink.stamps[:sink.n], span)
-        for topic, (stamp, _) in singles.items():
-            check_stamp(path, topic, stamp, span)
+        for topic, items in singles.items():
+            for stamp, _ in items:
+                check_stamp(path, topic, stamp, span)
     finally:
         reader.close()
-    landmark_message = singles[MAP_TOPIC][1] if MAP_TOPIC in singles else None
-    pose_message = singles[INITIAL_POSE_TOPIC][1] if INITIAL_POSE_TOPIC in singles else None
+    landmark_message = one_message(path, MAP_TOPIC, [m for _, m in singles.get(MAP_TOPIC, [])])
+    pose_message = one_message(path, INITIAL_POSE_TOPIC,
+                               [m for _, m in singles.get(INITIAL_POSE_TOPIC, [])])
     imu_first = imu.first
     return assemble_trip(
         path, params, int(start),
@@ -182,15 +186,90 @@ def read_bag(path: Path | str, acceleration: bool = True) -> BagTrip:
         rate_variances=imu.rate_variances[:imu.n],
         accel=imu.accel[:imu.n] if imu.accel is not None and imu_first is not None
         and has_acceleration(imu_first) else None,
-        axes_known=(True, True, True) if imu_first is None else msgs.axes_known_of(
-            imu_first.angular_velocity_covariance),
+        axes_known=imu.axes_known or (True, True, True),
         odom_ns=odom.stamps[:odom.n], speeds=odom.speeds[:odom.n],
         speed_variances=odom.speed_variances[:odom.n],
         scans=[d for d in (scans[t].data() for t in scan_topics) if d is not None],
         truth=None if truth is None else (truth.stamps[:truth.n], truth.poses[:truth.n]),
-        landmarks=None if landmark_message is None else msgs.landmarks_of(landmark_message),
-        initial_pose=None if pose_message is None else np.array(
-            msgs.pose_of(pose_message.pose.pose)))
+        landmarks=None if landmark_message is None else landmarks_of_map(path,
+                                                                         landmark_message),
+        initial_pose=None if pose_message is None else initial_pose_of(path, pose_message))
+
+
+DUPLICATE_LANDMARK_M = 1e-3
+"""Two landmarks of a map closer than this, m, are one landmark listed twice."""
+
+
+def _content(topic: str, message: Any) -> np.ndarray:
+    """Return the values the reader takes from a /landmark_map or /initialpose message."""
+    if topic == MAP_TOPIC:
+        return np.array([[p.position.x, p.position.y] for p in message.poses],
+                        dtype=np.float64).reshape(-1, 2)
+    pose = message.pose.pose
+    return np.array([pose.position.x, pose.position.y, pose.position.z, pose.orientation.x,
+                     pose.orientation.y, pose.orientation.z, pose.orientation.w])
+
+
+def one_message(path: Path, topic: str, messages: list[Any]) -> Any:
+    """Return the one message of a topic that must hold one (map, initial pose), or None.
+
+    Copies are fine (a latched topic recorded twice, a map published again with a new
+    stamp): what counts is the content the reader takes. Two different ones leave no way to
+    tell which is meant; taking the last would be a silent guess.
+
+    Raises:
+        BagError: naming the topic and the indexes (from 0) of two messages that differ.
+    """
+    if not messages:
+        return None
+    first = _content(topic, messages[0])
+    for k, message in enumerate(messages[1:], 1):
+        other = _content(topic, message)
+        if first.shape != other.shape or not np.array_equal(first, other, equal_nan=True):
+            raise BagError(f"{path}: topic '{topic}': message index 0 and message index {k} "
+                           'differ; the topic must hold one message (identical copies are '
+                           'fine)')
+    return messages[0]
+
+
+def landmarks_of_map(path: Path, message: Any) -> LandmarkMap:
+    """Return the landmark map of a /landmark_map message; refuse an empty or doubled one.
+
+    Raises:
+        BagError: the map holds no landmark, or two landmarks within DUPLICATE_LANDMARK_M
+            (a landmark listed twice takes half the associations from its copy).
+    """
+    landmarks = msgs.landmarks_of(message)
+    xy = np.asarray(landmarks.xy_m, dtype=np.float64)
+    if not len(xy):
+        # Read as a map, it would give no association at all and, in mount calibration, a
+        # nearest pole out of none.
+        raise BagError(f"{path}: topic '{MAP_TOPIC}': the map holds no landmarks (no landmark "
+                       'map to use); leave the topic out of a bag without a map')
+    finite = np.flatnonzero(np.isfinite(xy).all(axis=1))  # validation names the others
+    pairs = sorted(cKDTree(xy[finite]).query_pairs(DUPLICATE_LANDMARK_M))
+    if pairs:
+        i, j = (int(finite[k]) for k in pairs[0])
+        raise BagError(f"{path}: topic '{MAP_TOPIC}': landmarks {i} and {j} lie within "
+                       f'{DUPLICATE_LANDMARK_M * 1e3:g} mm of each other (at x {xy[i, 0]:.6g} '
+                       f'm, y {xy[i, 1]:.6g} m); list each landmark once')
+    return landmarks
+
+
+def initial_pose_of(path: Path, message: Any) -> np.ndarray:
+    """(x m, y m, yaw rad) of an /initialpose message, refusing a quaternion that is none.
+
+    A zero or far from unit quaternion has no yaw to take (atan2 of zeros gives 0 rad).
+
+    Raises:
+        BagError: naming the topic and the field; the limit is core.validation's.
+    """
+    q = message.pose.pose.orientation
+    problem = quaternion_problem(float(q.x), float(q.y), float(q.z), float(q.w))
+    if problem:
+        raise BagError(f"{path}: topic '{INITIAL_POSE_TOPIC}': pose.pose.orientation: "
+                       f'{problem}')
+    return np.array(msgs.pose_of(message.pose.pose))
 
 
 def _single_mcap_file(path: Path) -> Path | None:
@@ -204,8 +283,8 @@ def _single_mcap_file(path: Path) -> Path | None:
 
 
 def _read_with_rosbags(path: Path, reader: Reader, sinks: dict[str, Sink],
-                       singles: dict[str, tuple[int, Any]]) -> None:
-    """Fill the sinks, and singles with topic -> (stamp, last message), through rosbags."""
+                       singles: dict[str, list[tuple[int, Any]]]) -> None:
+    """Fill the sinks, and singles with topic -> every (stamp, message), through rosbags."""
     wanted = [c for c in reader.connections
               if c.topic in sinks or c.topic in (MAP_TOPIC, INITIAL_POSE_TOPIC)]
     for connection, stamp, data in reader.messages(wanted, *every_time(path)):
@@ -213,12 +292,13 @@ def _read_with_rosbags(path: Path, reader: Reader, sinks: dict[str, Sink],
         if sink is not None:
             sink.add(stamp, data)
         else:
-            singles[connection.topic] = (stamp, deserialize(
-                path, connection.topic, connection.msgtype, stamp, data))
+            singles.setdefault(connection.topic, []).append((stamp, deserialize(
+                path, connection.topic, connection.msgtype, stamp, data)))
 
 
 def _read_mcap_fast(path: Path, mcap_file: Path, by_topic: dict[str, Any],
-                    sinks: dict[str, Sink], singles: dict[str, tuple[int, Any]]) -> None:
+                    sinks: dict[str, Sink], singles: dict[str, list[tuple[int, Any]]]
+                    ) -> None:
     """Read the sink topics with mcap_chunks: the same bytes, a few times faster, verified.
 
     Raises:
@@ -230,10 +310,10 @@ def _read_mcap_fast(path: Path, mcap_file: Path, by_topic: dict[str, Any],
         sink = sinks.get(topic)
         if sink is not None:
             sink.add_many(batch.log_time_ns, batch.payloads)
-        elif len(batch.payloads):
-            stamp = int(batch.log_time_ns[-1])
-            singles[topic] = (stamp, deserialize(path, topic, by_topic[topic].msgtype, stamp,
-                                                 bytes(batch.payloads[-1])))
+        else:
+            for stamp, data in zip(batch.log_time_ns.tolist(), batch.payloads):
+                singles.setdefault(topic, []).append((stamp, deserialize(
+                    path, topic, by_topic[topic].msgtype, stamp, bytes(data))))
 
     wanted = [t for t in by_topic if t in sinks or t in (MAP_TOPIC, INITIAL_POSE_TOPIC)]
     try:

@@ -20,8 +20,8 @@ from gyro_ekf.io import fast_cdr, messages as msgs
 from gyro_ekf.io.bag_open import deserialize
 from gyro_ekf.io.errors import BagError
 
-__all__ = ['BATCH_MESSAGES', 'ImuSink', 'OdomSink', 'ScanData', 'ScanSink', 'Sink',
-           'TruthSink', 'check_scans', 'has_acceleration']
+__all__ = ['BATCH_MESSAGES', 'ImuSink', 'OdomSink', 'SCAN_CHECKED', 'ScanData', 'ScanSink',
+           'Sink', 'TruthSink', 'check_imu_axes', 'check_scans', 'has_acceleration']
 
 _MIN_MESSAGE_BYTES = 35
 """Bytes a stored message takes at least (an MCAP Message record head and a CDR header)."""
@@ -142,8 +142,13 @@ class ImuSink(Sink):
         self.rates = np.zeros((self.count, 3))
         self.rate_variances = np.zeros(self.count)
         self.accel = np.zeros((self.count, 3)) if acceleration else None
+        self.axes_known: tuple[bool, bool, bool] | None = None
+        """The measured axes every message agrees on; None before the first message."""
 
     def store(self, columns: fast_cdr.Columns, rows: slice) -> None:
+        self.axes_known = check_imu_axes(self.path, self.topic, rows.start,
+                                         columns.values['angular_velocity_covariance'],
+                                         self.axes_known)
         self.rates[rows] = columns.values['angular_velocity']
         self.rate_variances[rows] = columns.values['angular_velocity_covariance'][:, 8]
         if self.accel is not None:
@@ -184,7 +189,7 @@ class TruthSink(Sink):
 
 class ScanSink(Sink):
     msgtype = topics.LASER_SCAN_TYPE
-    fields = ('angle_min', 'angle_increment', 'range_min', 'range_max', 'ranges',
+    fields = ('angle_min', 'angle_max', 'angle_increment', 'range_min', 'range_max', 'ranges',
               'intensities')
     grows = ('stamps', 'ranges', 'intensities')
 
@@ -225,24 +230,83 @@ def has_acceleration(imu_message: Any) -> bool:
     return bool(imu_message.linear_acceleration_covariance[0] != -1.0)
 
 
+_AXES = 'xyz'
+
+
+def _axes_text(known: np.ndarray) -> str:
+    measured = [_AXES[i] for i in range(3) if known[i]]
+    return ', '.join(measured) if measured else 'none'
+
+
+def check_imu_axes(path: Path, topic: str, first_row: int, covariances: np.ndarray,
+                   expected: tuple[bool, bool, bool] | None) -> tuple[bool, bool, bool]:
+    """Refuse IMU messages that mark the yaw axis not measured or disagree on the axes.
+
+    Every message is judged (messages.axes_known_rows), not the first alone: one odd first
+    message would otherwise mark an axis unknown for the whole bag, and the values of an
+    axis marked unknown are never checked. Logs converted by `gyro-ekf convert` mark their
+    unmeasured x and y axes the same way in every message, so they pass.
+
+    Args:
+        first_row: index of the first message checked among the topic's messages.
+        covariances: angular_velocity_covariance of each message checked, shape (k, 9).
+        expected: the axes earlier messages marked measured, or None for the first batch.
+
+    Returns:
+        The measured axes every message checked agrees on.
+
+    Raises:
+        BagError: naming the bag, the topic, the field and the message index (from 0).
+    """
+    rows = np.asarray(covariances, dtype=np.float64).reshape(-1, 9)
+    if not len(rows):
+        return (True, True, True) if expected is None else expected
+    known = msgs.axes_known_rows(rows)
+    no_yaw = ~known[:, 2]
+    if no_yaw.any():
+        # The filter integrates the yaw rate: a bag without it has nothing to estimate.
+        i = int(np.argmax(no_yaw))
+        entry = ('[0] = -1 (REP-145: no angular velocity at all)' if rows[i, 0] == -1.0 else
+                 f'[8] = {rows[i, 8]:g} (the variance marking an axis not measured)')
+        raise BagError(f"{path}: topic '{topic}': message index {first_row + i}: "
+                       f'angular_velocity_covariance{entry} says the yaw rate (z) is not '
+                       'measured; the filter needs it')
+    reference = known[0] if expected is None else np.array(expected)
+    differ = (known != reference).any(axis=1)
+    if differ.any():
+        i = int(np.argmax(differ))
+        raise BagError(f"{path}: topic '{topic}': message index {first_row + i}: "
+                       f'angular_velocity_covariance marks the axes {_axes_text(known[i])} '
+                       f'as measured, the messages before it {_axes_text(reference)}; '
+                       'expected one IMU per topic')
+    return (bool(reference[0]), bool(reference[1]), bool(reference[2]))
+
+
 SCAN_GEOMETRY = ('angle_min', 'angle_increment', 'range_min', 'range_max')
 """The LaserScan fields every scan of a topic must share with its first."""
+
+SCAN_CHECKED = SCAN_GEOMETRY + ('angle_max',)
+"""The LaserScan fields check_scans needs of every scan."""
 
 
 def check_scans(path: Path, topic: str, first_row: int, first: Any, range_counts: np.ndarray,
                 geometry: dict[str, np.ndarray], intensity_counts: np.ndarray) -> None:
-    """Refuse scans that change the first scan's beam count or geometry.
+    """Refuse scans whose angles disagree with their ranges, or that change the first scan.
 
-    Intensities, when the first scan has any, must be one per beam as well.
+    Every scan must keep the first scan's beam count and geometry; intensities, when the
+    first scan has any, must be one per beam as well. And REP-117's angle_max is the last
+    beam's bearing: angle_min + (n - 1) * angle_increment must give it within half an
+    increment (float32 fields round; a beam more or less does not).
 
     Args:
         first_row: index of the first scan checked among the topic's scans (for the message).
         first: the topic's first LaserScan message.
         range_counts, intensity_counts: beams of each scan checked.
-        geometry: each SCAN_GEOMETRY field -> its value in each scan checked.
+        geometry: each SCAN_CHECKED field -> its value in each scan checked.
 
     Raises:
-        BagError: naming the bag, the topic and the scan (counted from 1).
+        BagError: naming the bag, the topic and the scan (counted from 1; angle_max: the
+            message index, from 0).
     """
     beams = len(first.ranges)
     same = range_counts == beams
@@ -255,3 +319,17 @@ def check_scans(path: Path, topic: str, first_row: int, first: Any, range_counts
         wrong = int(np.argmax(intensity_counts != beams))
         raise BagError(f"{path}: topic '{topic}': scan {first_row + wrong + 1} has "
                        f'{int(intensity_counts[wrong])} intensities for {beams} beams')
+    counts = np.asarray(range_counts, dtype=np.float64)
+    increment = geometry['angle_increment'].astype(np.float64)
+    last = geometry['angle_min'].astype(np.float64) + (counts - 1.0) * increment
+    angle_max = geometry['angle_max'].astype(np.float64)
+    with np.errstate(invalid='ignore'):
+        # Written so that NaN anywhere is refused too.
+        agree = (counts < 1) | (np.abs(last - angle_max) <= 0.5 * np.abs(increment))
+    if not agree.all():
+        i = int(np.argmin(agree))
+        raise BagError(
+            f"{path}: topic '{topic}': message index {first_row + i}: angle_max "
+            f'{angle_max[i]:.6g} rad disagrees with its {int(counts[i])} ranges: angle_min '
+            f'{geometry["angle_min"][i]:.6g} + ({int(counts[i])} - 1) * angle_increment '
+            f'{increment[i]:.6g} = {last[i]:.6g} rad (more than half an increment apart)')

@@ -122,12 +122,26 @@ def angular_velocity_covariance(axes_known: tuple[bool, bool, bool],
     return np.diag(diagonal).ravel()
 
 
+def axes_known_rows(covariances: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Which axes each Imu.angular_velocity_covariance marks as measured, shape (n, 3).
+
+    An axis is marked not measured by UNKNOWN_AXIS_VARIANCE itself on its diagonal (what
+    the bag writer writes), every axis by REP-145's -1 at element 0. Any other value, NaN,
+    infinite or huge included, is a covariance, good or bad (core.validation ignores and
+    counts a bad one at [8]): its axis counts as measured, so its values are checked.
+
+    Args:
+        covariances: row-major 3x3 covariances, shape (n, 9) or (9,).
+    """
+    rows = np.asarray(covariances, dtype=np.float64).reshape(-1, 9)
+    known = rows[:, [0, 4, 8]] != UNKNOWN_AXIS_VARIANCE
+    known[rows[:, 0] == -1.0] = False
+    return known
+
+
 def axes_known_of(covariance: NDArray[np.float64]) -> tuple[bool, bool, bool]:
-    """Which axes an Imu.angular_velocity_covariance marks as measured."""
-    diagonal = np.asarray(covariance, dtype=np.float64)[[0, 4, 8]]
-    if diagonal[0] == -1.0:
-        return (False, False, False)
-    known = diagonal < UNKNOWN_AXIS_VARIANCE
+    """Which axes an Imu.angular_velocity_covariance marks as measured (axes_known_rows)."""
+    known = axes_known_rows(covariance)[0]
     return (bool(known[0]), bool(known[1]), bool(known[2]))
 
 

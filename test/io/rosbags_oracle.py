@@ -18,8 +18,10 @@ from gyro_ekf.io import messages as msgs
 from gyro_ekf.io.bag_open import (
     GROUND_TRUTH_TOPIC, IMU_TOPIC, INITIAL_POSE_TOPIC, MAP_TOPIC, ODOM_TOPIC, open_bag,
     topic_connections)
-from gyro_ekf.io.bag_reader import BagTrip, assemble_trip, iter_bag_messages
-from gyro_ekf.io.bag_sinks import SCAN_GEOMETRY, ScanData, check_scans, has_acceleration
+from gyro_ekf.io.bag_reader import (
+    BagTrip, assemble_trip, initial_pose_of, iter_bag_messages, landmarks_of_map, one_message)
+from gyro_ekf.io.bag_sinks import (
+    SCAN_CHECKED, SCAN_GEOMETRY, ScanData, check_imu_axes, check_scans, has_acceleration)
 from gyro_ekf.io.sidecar import read_sidecar
 
 
@@ -53,12 +55,14 @@ def read_bag_rosbags(path: Path | str, acceleration: bool = True) -> BagTrip:
     truth_ns: list[int] = []
     truth: list[tuple[float, float, float]] = []
     scans: dict[str, list[tuple[int, Any]]] = {t: [] for t in scan_topics}
-    landmarks = None
-    initial_pose = None
+    singles: dict[str, list[Any]] = {MAP_TOPIC: [], INITIAL_POSE_TOPIC: []}
     for topic, _, stamp, message in iter_bag_messages(path, wanted):
         if topic == IMU_TOPIC:
+            # Every message is judged, as by the reader (bag_sinks.check_imu_axes).
+            axes_known = check_imu_axes(path, topic, len(imu_ns),
+                                        message.angular_velocity_covariance[None],
+                                        axes_known if imu_ns else None)
             if not imu_ns:
-                axes_known = msgs.axes_known_of(message.angular_velocity_covariance)
                 has_accel = has_acceleration(message)
             w, a = message.angular_velocity, message.linear_acceleration
             imu_ns.append(stamp)
@@ -74,10 +78,12 @@ def read_bag_rosbags(path: Path | str, acceleration: bool = True) -> BagTrip:
         elif topic == GROUND_TRUTH_TOPIC:
             truth_ns.append(stamp)
             truth.append(msgs.pose_of(message.pose.pose))
-        elif topic == MAP_TOPIC:
-            landmarks = msgs.landmarks_of(message)
-        elif topic == INITIAL_POSE_TOPIC:
-            initial_pose = np.array(msgs.pose_of(message.pose.pose))
+        elif topic in singles:
+            singles[topic].append(message)
+    map_message = one_message(path, MAP_TOPIC, singles[MAP_TOPIC])
+    pose_message = one_message(path, INITIAL_POSE_TOPIC, singles[INITIAL_POSE_TOPIC])
+    landmarks = None if map_message is None else landmarks_of_map(path, map_message)
+    initial_pose = None if pose_message is None else initial_pose_of(path, pose_message)
 
     def rows(values: list[Any], width: int) -> np.ndarray:
         return np.array(values, dtype=np.float64).reshape(len(values), width)
@@ -100,7 +106,7 @@ def _scan_data(path: Path, topic: str, scans: list[tuple[int, Any]]) -> ScanData
     first = scans[0][1]
     messages = [message for _, message in scans]
     check_scans(path, topic, 0, first, np.array([len(m.ranges) for m in messages]),
-                {name: np.array([getattr(m, name) for m in messages]) for name in SCAN_GEOMETRY},
+                {name: np.array([getattr(m, name) for m in messages]) for name in SCAN_CHECKED},
                 np.array([len(m.intensities) for m in messages]))
     beams = len(first.ranges)
     ranges = np.array([m.ranges for m in messages], dtype=np.float32).reshape(-1, beams)
