@@ -196,6 +196,7 @@ def duplicate_landmark_problem(xy_m: NDArray) -> str | None:
     diff = xy[:, None, :] - xy[None, :, :]
     distance = np.hypot(diff[..., 0], diff[..., 1])
     distance[np.tril_indices(len(xy))] = np.inf
+    distance[np.isnan(distance)] = np.inf  # a NaN landmark is refused by its own check
     i, j = np.unravel_index(int(np.argmin(distance)), distance.shape)
     if not distance[i, j] < DUPLICATE_LANDMARK_M:
         return None

@@ -26,7 +26,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from rosbags.rosbag2 import Reader
-from scipy.spatial import cKDTree
 
 from gyro_ekf import topics
 from gyro_ekf.core.stamps import seconds_since
@@ -44,8 +43,8 @@ from gyro_ekf.io.bag_sinks import (
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.sidecar import BagParams, read_sidecar, sidecar_path
 
-__all__ = ['BagMessage', 'BagTrip', 'DUPLICATE_LANDMARK_M', 'assemble_trip', 'initial_pose_of',
-           'iter_bag_messages', 'landmarks_of_map', 'one_message', 'read_bag', 'read_trip_bag']
+__all__ = ['BagMessage', 'BagTrip', 'assemble_trip', 'initial_pose_of', 'iter_bag_messages',
+           'one_message', 'read_bag', 'read_trip_bag']
 
 log = logging.getLogger(__name__)
 
@@ -191,13 +190,8 @@ def read_bag(path: Path | str, acceleration: bool = True) -> BagTrip:
         speed_variances=odom.speed_variances[:odom.n],
         scans=[d for d in (scans[t].data() for t in scan_topics) if d is not None],
         truth=None if truth is None else (truth.stamps[:truth.n], truth.poses[:truth.n]),
-        landmarks=None if landmark_message is None else landmarks_of_map(path,
-                                                                         landmark_message),
+        landmarks=None if landmark_message is None else msgs.landmarks_of(landmark_message),
         initial_pose=None if pose_message is None else initial_pose_of(path, pose_message))
-
-
-DUPLICATE_LANDMARK_M = 1e-3
-"""Two landmarks of a map closer than this, m, are one landmark listed twice."""
 
 
 def _content(topic: str, message: Any) -> np.ndarray:
@@ -230,30 +224,6 @@ def one_message(path: Path, topic: str, messages: list[Any]) -> Any:
                            'differ; the topic must hold one message (identical copies are '
                            'fine)')
     return messages[0]
-
-
-def landmarks_of_map(path: Path, message: Any) -> LandmarkMap:
-    """Return the landmark map of a /landmark_map message; refuse an empty or doubled one.
-
-    Raises:
-        BagError: the map holds no landmark, or two landmarks within DUPLICATE_LANDMARK_M
-            (a landmark listed twice takes half the associations from its copy).
-    """
-    landmarks = msgs.landmarks_of(message)
-    xy = np.asarray(landmarks.xy_m, dtype=np.float64)
-    if not len(xy):
-        # Read as a map, it would give no association at all and, in mount calibration, a
-        # nearest pole out of none.
-        raise BagError(f"{path}: topic '{MAP_TOPIC}': the map holds no landmarks (no landmark "
-                       'map to use); leave the topic out of a bag without a map')
-    finite = np.flatnonzero(np.isfinite(xy).all(axis=1))  # validation names the others
-    pairs = sorted(cKDTree(xy[finite]).query_pairs(DUPLICATE_LANDMARK_M))
-    if pairs:
-        i, j = (int(finite[k]) for k in pairs[0])
-        raise BagError(f"{path}: topic '{MAP_TOPIC}': landmarks {i} and {j} lie within "
-                       f'{DUPLICATE_LANDMARK_M * 1e3:g} mm of each other (at x {xy[i, 0]:.6g} '
-                       f'm, y {xy[i, 1]:.6g} m); list each landmark once')
-    return landmarks
 
 
 def initial_pose_of(path: Path, message: Any) -> np.ndarray:

@@ -19,7 +19,7 @@ from gyro_ekf.io.bag_open import (
     GROUND_TRUTH_TOPIC, IMU_TOPIC, INITIAL_POSE_TOPIC, MAP_TOPIC, ODOM_TOPIC, open_bag,
     topic_connections)
 from gyro_ekf.io.bag_reader import (
-    BagTrip, assemble_trip, initial_pose_of, iter_bag_messages, landmarks_of_map, one_message)
+    BagTrip, assemble_trip, initial_pose_of, iter_bag_messages, one_message)
 from gyro_ekf.io.bag_sinks import (
     SCAN_CHECKED, SCAN_GEOMETRY, ScanData, check_imu_axes, check_scans, has_acceleration)
 from gyro_ekf.io.sidecar import read_sidecar
@@ -82,7 +82,7 @@ def read_bag_rosbags(path: Path | str, acceleration: bool = True) -> BagTrip:
             singles[topic].append(message)
     map_message = one_message(path, MAP_TOPIC, singles[MAP_TOPIC])
     pose_message = one_message(path, INITIAL_POSE_TOPIC, singles[INITIAL_POSE_TOPIC])
-    landmarks = None if map_message is None else landmarks_of_map(path, map_message)
+    landmarks = None if map_message is None else msgs.landmarks_of(map_message)
     initial_pose = None if pose_message is None else initial_pose_of(path, pose_message)
 
     def rows(values: list[Any], width: int) -> np.ndarray:
