@@ -12,13 +12,14 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+from fnmatch import fnmatch
 import os
 from pathlib import Path
 import shutil
 import tempfile
 
 from gyro_ekf.io.errors import OutputError
-from gyro_ekf.io.products import BAG_FILES, first_foreign, os_reason
+from gyro_ekf.io.products import BAG_FILES, first_foreign, os_reason, STAGING_PATTERNS
 
 ESTIMATES_CSV = 'estimates.csv'
 ESTIMATES_BAG = 'estimates'
@@ -42,7 +43,7 @@ def prepare_output_dir(path: Path | str, force: bool = False) -> Path:
     path = Path(path)
     if path.is_symlink() or (path.exists() and not path.is_dir()):
         raise OutputError(f'{path}: exists and is not a folder')
-    if path.is_dir() and any(path.iterdir()):
+    if path.is_dir() and any(not _staging(entry.name) for entry in path.iterdir()):
         if not force:
             raise OutputError(f'{path}: folder is not empty; use --force to overwrite its '
                               'products')
@@ -75,7 +76,7 @@ def prepare_demo_dir(path: Path | str, force: bool = False) -> Path:
     path = Path(path)
     if path.is_symlink() or (path.exists() and not path.is_dir()):
         raise OutputError(f'{path}: exists and is not a folder')
-    if path.is_dir() and any(path.iterdir()):
+    if path.is_dir() and any(not _staging(entry.name) for entry in path.iterdir()):
         if not force:
             raise OutputError(f'{path}: folder is not empty; use --force to overwrite its '
                               'products')
@@ -106,9 +107,10 @@ def staged_output_dir(path: Path | str, force: bool = False) -> Iterator[Path]:
     path = prepare_output_dir(path, force)
     where = path.absolute()  # `-o .` has no name of its own to stage beside
     try:
-        where.parent.mkdir(parents=True, exist_ok=True)
+        base = _stage_in(where)
+        base.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=f'.{where.name}.', suffix='.staging',
-                                        dir=where.parent))
+                                        dir=base))
     except OSError as err:
         raise OutputError(f'{path}: cannot write the outputs: {os_reason(err)}') from None
     try:
@@ -124,21 +126,42 @@ def staged_output_dir(path: Path | str, force: bool = False) -> Iterator[Path]:
         shutil.rmtree(staging, ignore_errors=True)
 
 
+def _stage_in(where: Path) -> Path:
+    """Return the folder to stage in: beside `where`, or inside it when it is a mount point.
+
+    A rename cannot cross file systems: an output folder that is a mount point of its own
+    (a container's volume) got "invalid cross-device link" from a staging folder beside it.
+    """
+    try:
+        if where.is_dir() and where.stat().st_dev != where.parent.stat().st_dev:
+            return where
+    except OSError:
+        pass
+    return where.parent
+
+
+def _staging(name: str) -> bool:
+    return any(fnmatch(name, pattern) for pattern in STAGING_PATTERNS)
+
+
 def _swap_into_place(staging: Path, path: Path, force: bool) -> None:
     """Move the staged products into path (created if missing); old products are removed.
 
     An existing folder stays (its permissions, a mount point, a shell's cwd): its old
-    products are moved aside first and restored if a move fails.
+    products are moved aside first (beside the staging folder: inside a mount point, beside
+    it otherwise) and restored if a move fails.
     """
     if not path.exists():
         os.replace(staging, path)
         return
     prepare_output_dir(path, force)  # again: nothing foreign appeared during the run
-    old = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.old', dir=path.parent))
+    old = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.old', dir=staging.parent))
     moved_old: list[str] = []
     moved_new: list[str] = []
     try:
         for entry in sorted(path.iterdir()):
+            if entry in (staging, old):
+                continue
             os.replace(entry, old / entry.name)
             moved_old.append(entry.name)
         for entry in sorted(staging.iterdir()):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -47,6 +48,32 @@ def test_output_folder_is_not_overwritten_without_force(tmp_path):
     (tmp_path / 'file').write_text('')
     with pytest.raises(OutputError, match='not a folder'):
         output_dir.prepare_output_dir(tmp_path / 'file')
+
+
+def test_an_output_folder_on_a_file_system_of_its_own_is_staged_inside_it(tmp_path,
+                                                                          monkeypatch):
+    # A container's volume as -o: a rename from a staging folder beside it crossed file
+    # systems ("invalid cross-device link"). Such a folder stages inside itself.
+    out = tmp_path / 'volume'
+    out.mkdir()
+    real_stat = output_dir.Path.stat
+
+    def stat(path, *args, **kwargs):
+        result = real_stat(path, *args, **kwargs)
+        if path != out.absolute():
+            return result
+        fields = list(result[:10])
+        fields[2] += 1  # st_dev: another file system than its parent's
+        return os.stat_result(fields)
+    monkeypatch.setattr(output_dir.Path, 'stat', stat)
+    assert output_dir._stage_in(out.absolute()) == out.absolute()
+    for force, text in ((False, 'first'), (True, 'second')):
+        with output_dir.staged_output_dir(out, force=force) as staging:
+            assert staging.parent == out.absolute()
+            (staging / 'summary.json').write_text(text)
+        assert sorted(p.name for p in out.iterdir()) == ['summary.json']
+        assert (out / 'summary.json').read_text() == text
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['volume']
 
 
 def test_summary_json_turns_nan_into_null(tmp_path):
