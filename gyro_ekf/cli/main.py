@@ -13,6 +13,8 @@ import argparse
 import importlib
 import logging
 import math
+import os
+import signal
 import sys
 
 from gyro_ekf.errors import GyroEkfError
@@ -91,6 +93,11 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        # The reader of stdout went away (`| head`): stop as a command killed by SIGPIPE
+        # would, without a traceback, and keep Python's own final flush from raising again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
 
 
 if __name__ == '__main__':

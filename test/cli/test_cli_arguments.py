@@ -7,6 +7,8 @@ stderr is a single line holding the option and the value, and that nothing was w
 from __future__ import annotations
 
 from pathlib import Path
+import subprocess
+import sys
 
 import pytest
 
@@ -279,3 +281,14 @@ def test_simulate_without_static_s_keeps_a_short_trip_static_throughout(tmp_path
     trip = tmp_path / 'short.npz'
     assert main(['-q', 'simulate', '-o', str(trip), '--duration-s', '5']) == 0
     assert load_trip(trip).static_duration_s == 5.0
+
+
+def test_a_reader_that_goes_away_ends_the_command_without_a_traceback():
+    # `gyro-ekf calibrate BAG --json | head -c 10` ended in a BrokenPipeError traceback.
+    process = subprocess.Popen(
+        [sys.executable, '-m', 'gyro_ekf.cli.main', 'calibrate', str(STATIC_BAG),
+         '--json'], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process.stdout.close()  # before the command writes: its first write finds no reader
+    stderr = process.stderr.read().decode()
+    assert process.wait() == 141, stderr
+    assert 'Traceback' not in stderr and 'Broken pipe' not in stderr, stderr
