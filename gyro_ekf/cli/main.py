@@ -54,11 +54,20 @@ def check_number(option: str, value: float | None, low: float | None = None,
         raise GyroEkfError(f'{option}: must be <= {high:g}{unit}, got {value:g}')
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Show an option's default, but not a None one (its help says what happens then)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the argparse tree of all subcommands."""
     parser = argparse.ArgumentParser(
         prog='gyro-ekf', description='Gyro bias calibration and pose/bias EKF tools.',
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_HelpFormatter)
     parser.add_argument('-v', '--verbose', action='count', default=0, help='more logging')
     parser.add_argument('-q', '--quiet', action='store_true', help='warnings and errors only')
     commands = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
@@ -66,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
         module = importlib.import_module(f'gyro_ekf.cli.{name}')
         sub = commands.add_parser(name.replace('_', '-'), help=module.HELP,
                                   description=module.HELP,
-                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                                  formatter_class=_HelpFormatter)
         module.add_arguments(sub)
         sub.set_defaults(handler=module.run)
     return parser
