@@ -292,3 +292,11 @@ def test_a_reader_that_goes_away_ends_the_command_without_a_traceback():
     stderr = process.stderr.read().decode()
     assert process.wait() == 141, stderr
     assert 'Traceback' not in stderr and 'Broken pipe' not in stderr, stderr
+
+
+@pytest.mark.parametrize('command', ['simulate', 'record', 'stress', 'run', 'convert'])
+def test_help_shows_no_none_default(command, capsys):
+    # `--path-length ... default 600 ... (default: None)`: two defaults, one of them wrong.
+    with pytest.raises(SystemExit):
+        main([command, '--help'])
+    assert '(default: None)' not in capsys.readouterr().out
