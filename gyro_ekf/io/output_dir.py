@@ -41,18 +41,24 @@ def prepare_output_dir(path: Path | str, force: bool = False) -> Path:
             holds something `gyro-ekf run` does not write (named; force never deletes it).
     """
     path = Path(path)
+    _check_products(path, force, 'run', RUN_PRODUCTS, {ESTIMATES_BAG: BAG_FILES},
+                    'summary.json, estimates.csv, estimates/, the PNGs')
+    return path
+
+
+def _check_products(path: Path, force: bool, command: str, files: tuple[str, ...],
+                    folders: dict[str, tuple[str, ...]], listed: str) -> None:
+    """Refuse a file, a non-empty folder without force, or (force) one holding foreign files."""
     if path.is_symlink() or (path.exists() and not path.is_dir()):
         raise OutputError(f'{path}: exists and is not a folder')
     if path.is_dir() and any(not _staging(entry.name) for entry in path.iterdir()):
         if not force:
             raise OutputError(f'{path}: folder is not empty; use --force to overwrite its '
                               'products')
-        foreign = first_foreign(path, RUN_PRODUCTS, {ESTIMATES_BAG: BAG_FILES})
+        foreign = first_foreign(path, files, folders)
         if foreign is not None:
-            raise OutputError(f'{foreign}: is not a product of gyro-ekf run; --force replaces '
-                              'only its own products (summary.json, estimates.csv, estimates/, '
-                              'the PNGs): move it away first')
-    return path
+            raise OutputError(f'{foreign}: is not a product of gyro-ekf {command}; --force '
+                              f'replaces only its own products ({listed}): move it away first')
 
 
 DEMO_PRODUCTS = (SUMMARY_JSON, 'trajectory.png', '*.log')
@@ -74,17 +80,8 @@ def prepare_demo_dir(path: Path | str, force: bool = False) -> Path:
             something `gyro-ekf demo` does not write (named), or it cannot be created.
     """
     path = Path(path)
-    if path.is_symlink() or (path.exists() and not path.is_dir()):
-        raise OutputError(f'{path}: exists and is not a folder')
-    if path.is_dir() and any(not _staging(entry.name) for entry in path.iterdir()):
-        if not force:
-            raise OutputError(f'{path}: folder is not empty; use --force to overwrite its '
-                              'products')
-        foreign = first_foreign(path, DEMO_PRODUCTS, DEMO_FOLDERS)
-        if foreign is not None:
-            raise OutputError(f'{foreign}: is not a product of gyro-ekf demo; --force '
-                              'replaces only its own products (summary.json, trajectory.png, '
-                              'the *.log files, bag/, ros_log/): move it away first')
+    _check_products(path, force, 'demo', DEMO_PRODUCTS, DEMO_FOLDERS,
+                    'summary.json, trajectory.png, the *.log files, bag/, ros_log/')
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as err:
