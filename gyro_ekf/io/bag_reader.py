@@ -266,34 +266,43 @@ def _drop_duplicates(path: Path, sink: Any,
     """Drop the rows of a sink that repeat an earlier message exactly; return how many.
 
     Messages of one topic sharing a header stamp are compared byte for byte (their raw
-    payloads, read again: this happens only when stamps repeat). Copies of an earlier message
-    (a message recorded twice) are dropped, the first kept where it was read.
+    payloads, read again: this happens only when stamps repeat). An exact copy of an earlier
+    one (a message recorded twice) is dropped, the first kept where it was read. A different
+    message with the stamp of the one before it gives two values for one instant, and is
+    refused, unless the topic's time went back earlier: the stamps are then kept in the
+    order read for the validation boundary, which refuses the first step back (naming its
+    index) or, with --skip-bad, drops and counts it.
 
     Raises:
-        BagError: two messages of the topic with one header stamp and different bytes, naming
-            both message indexes (from 0, in the order read).
+        BagError: two messages of the topic with one header stamp and different bytes, the
+            later one right after a message of that stamp, and the topic's stamps not going
+            back before it; naming both message indexes (from 0, in the order read).
     """
     groups = sink.repeated_stamps()
     if not groups:
         return 0
-    rows = sorted({int(i) for group in groups for i in group})
-    data = payloads(sink.topic, rows)
+    data = payloads(sink.topic, sorted({int(i) for group in groups for i in group}))
+    stamps = sink.stamps[:sink.n]
+    back = np.diff(stamps) < 0
+    first_back = int(np.argmax(back)) + 1 if back.any() else sink.n
     keep = np.ones(sink.n, dtype=bool)
     for group in groups:
-        first = int(group[0])
-        for other in group[1:].tolist():
-            if data[other] != data[first]:
+        members = group.tolist()
+        for k, other in enumerate(members[1:], 1):
+            if any(data[other] == data[earlier] for earlier in members[:k]):
+                keep[other] = False
+            elif other < first_back and stamps[other - 1] == stamps[other]:
                 raise BagError(
-                    f"{path}: topic '{sink.topic}': message index {first} and message index "
-                    f'{other} have the same header.stamp ({int(sink.stamps[first])} ns) but '
-                    'different contents; expected one message per stamp (an exact copy '
+                    f"{path}: topic '{sink.topic}': message index {members[0]} and message "
+                    f'index {other} have the same header.stamp ({int(stamps[other])} ns) '
+                    'but different contents; expected one message per stamp (an exact copy '
                     'would be dropped)')
-            keep[other] = False
     dropped = int((~keep).sum())
-    sink.keep_rows(keep)
-    log.warning("%s: topic '%s': dropped %d exact duplicate message(s) (same header stamp and "
-                'bytes as an earlier one; first: message index %d)', path, sink.topic, dropped,
-                int(np.argmin(keep)))
+    if dropped:
+        sink.keep_rows(keep)
+        log.warning("%s: topic '%s': dropped %d exact duplicate message(s) (same header stamp "
+                    'and bytes as an earlier one; first: message index %d)', path, sink.topic,
+                    dropped, int(np.argmin(keep)))
     return dropped
 
 

@@ -55,26 +55,30 @@ class _Topic:
         return np.array(getattr(self, name), dtype=np.int64)
 
     def drop_duplicates(self, path: Path) -> int:
-        """Drop exact copies (same header stamp, same raw bytes); refuse differing ones."""
-        seen: dict[int, int] = {}
-        pairs = []
-        for k, stamp in enumerate(self.stamps):
-            if stamp in seen:
-                pairs.append((seen[stamp], k))
-            else:
-                seen[stamp] = k
-        if not pairs:
-            return 0
-        raw = _raw_payloads(path, self.topic)
+        """Drop exact copies (same header stamp, same raw bytes) of an earlier message.
+
+        A different message with the stamp of the one before it is refused, unless the
+        stamps went back before it (left to the validation boundary).
+        """
+        members: dict[int, list[int]] = {}
+        raw: list[bytes] | None = None
         dropped = set()
-        for first, other in pairs:
-            if raw[first] != raw[other]:
-                raise BagError(
-                    f"{path}: topic '{self.topic}': message index {first} and message index "
-                    f'{other} have the same header.stamp ({self.stamps[first]} ns) but '
-                    'different contents; expected one message per stamp (an exact copy '
-                    'would be dropped)')
-            dropped.add(other)
+        went_back = False
+        for k, stamp in enumerate(self.stamps):
+            earlier = members.setdefault(stamp, [])
+            if earlier:
+                if raw is None:
+                    raw = _raw_payloads(path, self.topic)
+                if any(raw[k] == raw[e] for e in earlier):
+                    dropped.add(k)
+                elif not went_back and self.stamps[k - 1] == stamp:
+                    raise BagError(
+                        f"{path}: topic '{self.topic}': message index {earlier[0]} and "
+                        f'message index {k} have the same header.stamp ({stamp} ns) but '
+                        'different contents; expected one message per stamp (an exact copy '
+                        'would be dropped)')
+            earlier.append(k)
+            went_back = went_back or (k > 0 and stamp < self.stamps[k - 1])
         for name in ('stamps', 'log', 'rows'):
             values = getattr(self, name)
             setattr(self, name, [v for k, v in enumerate(values) if k not in dropped])
