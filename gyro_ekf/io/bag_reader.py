@@ -7,8 +7,8 @@ latency and jitter, a bag recorded from a faster replay or a recorder on another
 change nothing. A topic whose header stamps go back stays in the order read: the validation
 boundary refuses it (or drops and counts with --skip-bad). The time zero (`time_zero_ns`)
 is the sidecar's trip.log_time_zero_ns, the zero the nodes are given, or without a sidecar
-the header stamp of the first stamped message read (what a node takes: the first one it
-receives). Stamps of the returned Trip are seconds since it.
+the header stamp of the first /imu, /odom or scan message read (what a node takes: the
+first one it receives). Stamps of the returned Trip are seconds since it.
 
 Duplicates: a message recorded twice (same topic, header stamp and bytes) is dropped and
 counted (`BagTrip.duplicates`, logged); two messages of a topic with one header stamp and
@@ -201,7 +201,8 @@ def read_bag(path: Path | str, acceleration: bool = True) -> BagTrip:
                 duplicates[sink.topic] = dropped
     finally:
         reader.close()
-    start = time_zero(path, params, list(sinks.values()), int(start))
+    # Not /ground_truth: the nodes do not take it, and it is only compared against.
+    start = time_zero(path, params, [imu, odom, *scans.values()], int(start))
     landmark_message = one_message(path, MAP_TOPIC, [m for _, m in singles.get(MAP_TOPIC, [])])
     pose_message = one_message(path, INITIAL_POSE_TOPIC,
                                [m for _, m in singles.get(INITIAL_POSE_TOPIC, [])])
@@ -232,11 +233,12 @@ def time_zero(path: Path, params: BagParams | None, sinks: list[Any], fallback: 
 
     The sidecar's trip.log_time_zero_ns when there is one: the nodes are given the same, so a
     node and an offline run compute the same seconds. Without one, the header stamp of the
-    first stamped message read (smallest log time; the earlier stamp on a tie): a node takes
-    the first stamp it receives. `fallback` (the bag's start) when no such message exists.
+    first message of the given topics read (smallest log time; the earlier stamp on a tie):
+    a node takes the first stamp it receives. `fallback` (the bag's start) when none exists.
 
     Args:
-        sinks: objects with topic, n, stamps and log_ns (header stamps and log times, ns).
+        sinks: the topics the nodes take (/imu, /odom, the scans): objects with topic, n,
+            stamps and log_ns (header stamps and log times, ns, in the order read).
 
     Raises:
         BagError: the sidecar's zero lies more than ZERO_TOLERANCE_NS from the first header

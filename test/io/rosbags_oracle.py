@@ -143,7 +143,8 @@ def read_bag_rosbags(path: Path | str, acceleration: bool = True) -> BagTrip:
             singles[topic].append(message)
     stamped = [imu, odom, *scans.values()] + ([truth] if GROUND_TRUTH_TOPIC in by_topic else [])
     duplicates = {t.topic: n for t in stamped if (n := t.drop_duplicates(path))}
-    zero = time_zero(path, params, [_Firsts(t) for t in stamped], int(start))
+    zero = time_zero(path, params, [_Firsts(t) for t in (imu, odom, *scans.values())],
+                     int(start))
     map_message = one_message(path, MAP_TOPIC, singles[MAP_TOPIC])
     pose_message = one_message(path, INITIAL_POSE_TOPIC, singles[INITIAL_POSE_TOPIC])
     landmarks = None if map_message is None else msgs.landmarks_of(map_message)

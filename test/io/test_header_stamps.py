@@ -262,3 +262,19 @@ def test_a_header_stamp_that_is_no_time_is_refused(
     bag = rewrite(clean_bag, tmp_path / 'bag', change)
     with pytest.raises(BagError, match=r"bag: topic '/odom': " + match):
         read(bag)
+
+
+@READERS
+def test_without_a_sidecar_ground_truth_does_not_set_the_time_zero(
+        tmp_path, clean_bag, read):  # noqa: F811
+    # The nodes do not take /ground_truth: their zero is the first /imu, /odom or scan stamp.
+    def change(items):
+        truth = of(items, '/ground_truth')[0]
+        truth[2] = min(item[2] for item in items) - 1_000_000
+        _set_header(truth, truth[2])
+        first_imu.append(_header_ns(of(items, '/imu')[0]))
+        return _by_log_time(items)
+    first_imu: list[int] = []
+    bag = rewrite(clean_bag, tmp_path / 'bag', change)
+    sidecar_path(bag).unlink()
+    assert read(bag).start_time_ns == first_imu[0]
