@@ -140,6 +140,10 @@ def run(args: argparse.Namespace) -> int:
                           use_calibration=True if args.use_calibration else None)
     est = result.result.estimates
     summary = summarize(result, report)
+    if bag.duplicates:
+        # Dropped by the reader, with or without --skip-bad (a message recorded twice is no
+        # bad sample): counted beside what the validation boundary dropped.
+        summary['input']['duplicates_dropped'] = dict(bag.duplicates)
     # Stated (by the bag) against used (after a params file's mounts): a calibrated mount
     # shows here.
     summary['mounts'] = {used.topic: {

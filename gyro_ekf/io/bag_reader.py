@@ -1,9 +1,22 @@
 """Read a bag written by `bag_writer` back into a Trip, or stream its messages in stamp order.
 
-Stamps of the returned Trip are seconds since the bag's first message (which the writer puts
-at the log's time zero); `BagTrip.start_time_ns` is that message's stamp. What no message
-carries (LiDAR mounts, stated noise, true bias) comes from the params sidecar beside the bag;
-without a sidecar the mounts default to the platform origin and a warning says so.
+Time, as the nodes take it: each stamped message (/imu, /odom, the LaserScan topics,
+/ground_truth) is timed by its header.stamp; the log time (the recorder's receive time) only
+orders the reading, per topic, and must lie in the bag's stated time range. So receive
+latency and jitter, a bag recorded from a faster replay or a recorder on another clock
+change nothing. A topic whose header stamps go back stays in the order read: the validation
+boundary refuses it (or drops and counts with --skip-bad). The time zero (`time_zero_ns`)
+is the sidecar's trip.log_time_zero_ns, the zero the nodes are given, or without a sidecar
+the header stamp of the first /imu, /odom or scan message read (what a node takes: the
+first one it receives). Stamps of the returned Trip are seconds since it.
+
+Duplicates: a message recorded twice (same topic, header stamp and bytes) is dropped and
+counted (`BagTrip.duplicates`, logged); two messages of a topic with one header stamp and
+different bytes are refused, naming both.
+
+What no message carries (LiDAR mounts, stated noise, true bias) comes from the params
+sidecar beside the bag; without a sidecar the mounts default to the platform origin and a
+warning says so.
 
 `read_bag` takes the raw messages of a single-file MCAP bag from `mcap_chunks` (a small
 chunk reader, several times faster), of any other bag, or one that reader refuses, from
@@ -18,8 +31,8 @@ rosbags, with the reason logged. The checks every reader shares are in `bag_open
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field, replace
 import logging
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -43,8 +56,8 @@ from gyro_ekf.io.bag_sinks import (
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.sidecar import BagParams, read_sidecar, sidecar_path
 
-__all__ = ['BagMessage', 'BagTrip', 'assemble_trip', 'initial_pose_of', 'iter_bag_messages',
-           'one_message', 'read_bag', 'read_trip_bag']
+__all__ = ['BagMessage', 'BagTrip', 'ZERO_TOLERANCE_NS', 'assemble_trip', 'initial_pose_of',
+           'iter_bag_messages', 'one_message', 'read_bag', 'read_trip_bag', 'time_zero']
 
 log = logging.getLogger(__name__)
 
@@ -71,14 +84,17 @@ class BagTrip:
     """A trip read back from a bag.
 
     Attributes:
-        trip: the trip, stamps in s since the bag's first message.
-        start_time_ns: stamp of the bag's first message, ns since the epoch.
+        trip: the trip, stamps in s since the time zero (header stamps, see the module).
+        start_time_ns: the time zero, ns since the epoch (header-stamp clock).
         params: the sidecar contents, or None when the bag has none.
+        duplicates: topic -> messages dropped as exact copies of an earlier one (same
+            header stamp and bytes); only topics that had any.
     """
 
     trip: Trip
     start_time_ns: int
     params: BagParams | None
+    duplicates: dict[str, int] = field(default_factory=dict)
 
 
 def iter_bag_messages(path: Path | str, topic_names: Iterable[str] | None = None
@@ -130,10 +146,14 @@ def read_bag(path: Path | str, acceleration: bool = True) -> BagTrip:
             leaves it None (the EKF does not use it; 48 bytes per sample saved).
 
     Returns:
-        The trip (stamps in s since the first message), the bag start time and the sidecar.
+        The trip (header stamps in s since the time zero), the time zero, the sidecar and
+        the exact duplicates dropped.
 
     Raises:
-        BagError: missing or unreadable bag, no /imu or /odom topic, or inconsistent scans.
+        BagError: missing or unreadable bag, no /imu or /odom topic, inconsistent scans, a
+            header stamp that is no time, two messages of a topic with one header stamp
+            and different bytes, or a sidecar time zero on another clock than the header
+            stamps.
     """
     path = Path(path)
     reader = open_bag(path)
@@ -169,17 +189,25 @@ def read_bag(path: Path | str, acceleration: bool = True) -> BagTrip:
                 mcap_file = None
         for sink in sinks.values():
             sink.flush()
-            check_stamps(path, sink.topic, sink.stamps[:sink.n], span)
+            check_stamps(path, sink.topic, sink.log_ns[:sink.n], span)
         for topic, items in singles.items():
             for stamp, _ in items:
                 check_stamp(path, topic, stamp, span)
+        duplicates = {}
+        for sink in sinks.values():
+            dropped = _drop_duplicates(path, sink, lambda topic, rows: _payloads(
+                path, reader, mcap_file, by_topic[topic], rows))
+            if dropped:
+                duplicates[sink.topic] = dropped
     finally:
         reader.close()
+    # Not /ground_truth: the nodes do not take it, and it is only compared against.
+    start = time_zero(path, params, [imu, odom, *scans.values()], int(start))
     landmark_message = one_message(path, MAP_TOPIC, [m for _, m in singles.get(MAP_TOPIC, [])])
     pose_message = one_message(path, INITIAL_POSE_TOPIC,
                                [m for _, m in singles.get(INITIAL_POSE_TOPIC, [])])
     imu_first = imu.first
-    return assemble_trip(
+    bag_trip = assemble_trip(
         path, params, int(start),
         imu_ns=imu.stamps[:imu.n], rates=imu.rates[:imu.n],
         rate_variances=imu.rate_variances[:imu.n],
@@ -192,6 +220,119 @@ def read_bag(path: Path | str, acceleration: bool = True) -> BagTrip:
         truth=None if truth is None else (truth.stamps[:truth.n], truth.poses[:truth.n]),
         landmarks=None if landmark_message is None else msgs.landmarks_of(landmark_message),
         initial_pose=None if pose_message is None else initial_pose_of(path, pose_message))
+    return replace(bag_trip, duplicates=duplicates) if duplicates else bag_trip
+
+
+ZERO_TOLERANCE_NS = 3600 * 1_000_000_000
+"""How far the sidecar's time zero may lie from the first header stamp (a trip trimmed at
+its start, `replay --from`, starts after its zero); farther, the two are on different clocks."""
+
+
+def time_zero(path: Path, params: BagParams | None, sinks: list[Any], fallback: int) -> int:
+    """Return the time zero of a bag's header stamps, ns since the epoch.
+
+    The sidecar's trip.log_time_zero_ns when there is one: the nodes are given the same, so a
+    node and an offline run compute the same seconds. Without one, the header stamp of the
+    first message of the given topics read (smallest log time; the earlier stamp on a tie):
+    a node takes the first stamp it receives. `fallback` (the bag's start) when none exists.
+
+    Args:
+        sinks: the topics the nodes take (/imu, /odom, the scans): objects with topic, n,
+            stamps and log_ns (header stamps and log times, ns, in the order read).
+
+    Raises:
+        BagError: the sidecar's zero lies more than ZERO_TOLERANCE_NS from the first header
+            stamp: the header stamps run on another clock (a bag recorded with use_sim_time
+            stamps its messages in the simulation's time), and every time would be off by
+            that much.
+    """
+    firsts = [(int(s.log_ns[0]), int(s.stamps[0]), s.topic) for s in sinks if s.n]
+    if not firsts:
+        return fallback if params is None else int(params.log_time_zero_ns)
+    _, stamp, topic = min(firsts)
+    if params is None:
+        return stamp
+    zero = int(params.log_time_zero_ns)
+    if abs(stamp - zero) > ZERO_TOLERANCE_NS:
+        raise BagError(
+            f"{sidecar_path(path)}: trip.log_time_zero_ns = {zero} lies "
+            f"{(stamp - zero) / 1e9:.6g} s from the header stamp of the first message read "
+            f"(topic '{topic}' message index 0, header.stamp {stamp} ns); the header stamps "
+            'run on another clock (recorded with use_sim_time?): set trip.log_time_zero_ns to '
+            'the header stamp of the trip\'s start, or remove it to start at the first message')
+    return zero
+
+
+def _drop_duplicates(path: Path, sink: Any,
+                     payloads: Callable[[str, list[int]], dict[int, bytes]]) -> int:
+    """Drop the rows of a sink that repeat an earlier message exactly; return how many.
+
+    Messages of one topic sharing a header stamp are compared byte for byte (their raw
+    payloads, read again: this happens only when stamps repeat). An exact copy of an earlier
+    one (a message recorded twice) is dropped, the first kept where it was read. A different
+    message with the stamp of the one before it gives two values for one instant, and is
+    refused, unless the topic's time went back earlier: the stamps are then kept in the
+    order read for the validation boundary, which refuses the first step back (naming its
+    index) or, with --skip-bad, drops and counts it.
+
+    Raises:
+        BagError: two messages of the topic with one header stamp and different bytes, the
+            later one right after a message of that stamp, and the topic's stamps not going
+            back before it; naming both message indexes (from 0, in the order read).
+    """
+    groups = sink.repeated_stamps()
+    if not groups:
+        return 0
+    data = payloads(sink.topic, sorted({int(i) for group in groups for i in group}))
+    stamps = sink.stamps[:sink.n]
+    back = np.diff(stamps) < 0
+    first_back = int(np.argmax(back)) + 1 if back.any() else sink.n
+    keep = np.ones(sink.n, dtype=bool)
+    for group in groups:
+        members = group.tolist()
+        for k, other in enumerate(members[1:], 1):
+            if any(data[other] == data[earlier] for earlier in members[:k]):
+                keep[other] = False
+            elif other < first_back and stamps[other - 1] == stamps[other]:
+                raise BagError(
+                    f"{path}: topic '{sink.topic}': message index {members[0]} and message "
+                    f'index {other} have the same header.stamp ({int(stamps[other])} ns) '
+                    'but different contents; expected one message per stamp (an exact copy '
+                    'would be dropped)')
+    dropped = int((~keep).sum())
+    if dropped:
+        sink.keep_rows(keep)
+        log.warning("%s: topic '%s': dropped %d exact duplicate message(s) (same header stamp "
+                    'and bytes as an earlier one; first: message index %d)', path, sink.topic,
+                    dropped, int(np.argmin(keep)))
+    return dropped
+
+
+def _payloads(path: Path, reader: Reader, mcap_file: Path | None, connection: Any,
+              rows: list[int]) -> dict[int, bytes]:
+    """Raw payloads of a topic's messages at some indexes (in the order read), read again."""
+    wanted = set(rows)
+    found: dict[int, bytes] = {}
+    if mcap_file is not None:
+        count = 0
+
+        def consume(topic: str, batch: mcap_chunks.TopicMessages) -> None:
+            nonlocal count
+            for k in wanted.intersection(range(count, count + len(batch.payloads))):
+                found[k] = bytes(batch.payloads[k - count])
+            count += len(batch.payloads)
+
+        try:
+            mcap_chunks.stream_topics(mcap_file, [connection.topic], consume)
+        except (OSError, mcap_chunks.McapError) as err:
+            raise BagError(f'{path}: cannot read the bag again: {err}') from None
+        return found
+    connections = [c for c in reader.connections if c.topic == connection.topic]
+    with reading(path):
+        for k, (_, _, data) in enumerate(reader.messages(connections, *every_time(path))):
+            if k in wanted:
+                found[k] = bytes(data)
+    return found
 
 
 def _content(topic: str, message: Any) -> np.ndarray:

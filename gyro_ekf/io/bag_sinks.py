@@ -1,10 +1,15 @@
 """Decode a bag's sensor topics in batches into numpy arrays (`fast_cdr`), one sink per topic.
 
-A sink takes the raw CDR messages of one topic in stamp order (one by one from rosbags, or
-in batches from `mcap_chunks`), decodes them every `BATCH_MESSAGES` messages or
+A sink takes the raw CDR messages of one topic in log-time order (one by one from rosbags,
+or in batches from `mcap_chunks`), decodes them every `BATCH_MESSAGES` messages or
 `_BATCH_BYTES` bytes and stores the columns it needs in arrays that grow as messages come:
 message counts a bag states are only hints, bounded by what its files can hold. The values
 equal those of rosbags' deserialisation (test/io/rosbags_oracle.py reads a bag that way).
+
+Time: a message's time is its header.stamp, as the nodes take it; the log time (when the
+recorder received it) only orders the reading and is kept to check it against the bag's
+stated time range. Header stamps stay in the order read, going back or not: the validation
+boundary judges them.
 """
 
 from __future__ import annotations
@@ -20,8 +25,9 @@ from gyro_ekf.io import fast_cdr, messages as msgs
 from gyro_ekf.io.bag_open import deserialize
 from gyro_ekf.io.errors import BagError
 
-__all__ = ['BATCH_MESSAGES', 'ImuSink', 'OdomSink', 'SCAN_CHECKED', 'ScanData', 'ScanSink',
-           'Sink', 'TruthSink', 'check_imu_axes', 'check_scans', 'has_acceleration']
+__all__ = ['BATCH_MESSAGES', 'HEADER_STAMP', 'ImuSink', 'OdomSink', 'SCAN_CHECKED', 'ScanData',
+           'ScanSink', 'Sink', 'TruthSink', 'check_imu_axes', 'check_scans', 'has_acceleration',
+           'header_stamps_ns']
 
 _MIN_MESSAGE_BYTES = 35
 """Bytes a stored message takes at least (an MCAP Message record head and a CDR header)."""
@@ -59,18 +65,57 @@ def _grown(array: np.ndarray, used: int, needed: int) -> np.ndarray:
     return bigger
 
 
+HEADER_STAMP = ('header.stamp.sec', 'header.stamp.nanosec')
+"""The fast_cdr fields of a message's header stamp."""
+
+_NS_PER_S = 1_000_000_000
+
+
+def header_stamps_ns(path: Path, topic: str, first_row: int, sec: np.ndarray,
+                     nanosec: np.ndarray) -> np.ndarray:
+    """Integer ns of header stamps (sec, nanosec), refusing one that is no time.
+
+    builtin_interfaces/Time keeps nanosec in [0, 1e9); a stamp of 0 is unset (a driver that
+    does not stamp), and one before the epoch is damage: the reader times messages by their
+    header stamps, so none of these has a time to give.
+
+    Args:
+        first_row: index (from 0) of the first message among the topic's messages.
+
+    Raises:
+        BagError: naming the bag, the topic, the field and the message index.
+    """
+    sec = np.asarray(sec, dtype=np.int64)
+    nanosec = np.asarray(nanosec, dtype=np.int64)
+    stamps = sec * _NS_PER_S + nanosec
+    bad_nanosec = nanosec >= _NS_PER_S
+    if bad_nanosec.any():
+        i = int(np.argmax(bad_nanosec))
+        raise BagError(f"{path}: topic '{topic}': message index {first_row + i}: "
+                       f'header.stamp.nanosec = {int(nanosec[i])} is not below 1e9')
+    unset = stamps <= 0
+    if unset.any():
+        i = int(np.argmax(unset))
+        what = ('is 0 (unset)' if stamps[i] == 0 else
+                f'= {int(sec[i])} s {int(nanosec[i])} ns lies before the epoch')
+        raise BagError(f"{path}: topic '{topic}': message index {first_row + i}: header.stamp "
+                       f'{what}; messages are timed by their header stamps')
+    return stamps
+
+
 class Sink:
     """Raw messages of one topic, decoded in batches into arrays that grow as needed.
 
     Attributes:
-        stamps: bag stamps, ns; the first n are filled.
+        stamps: header stamps, ns since the epoch, in the order read; the first n are filled.
+        log_ns: log (receive) times, ns, in the order read (ascending).
         n: messages decoded so far.
         first: the first message, deserialised by rosbags (for per-topic constants).
     """
 
     msgtype = ''
     fields: tuple[str, ...] = ()
-    grows: tuple[str, ...] = ('stamps',)
+    grows: tuple[str, ...] = ('stamps', 'log_ns')
     """Attributes holding one row per message."""
 
     def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
@@ -82,6 +127,7 @@ class Sink:
         self.count = _capacity(hint, bag_bytes)
         self.n = 0
         self.stamps = np.zeros(self.count, dtype=np.int64)
+        self.log_ns = np.zeros(self.count, dtype=np.int64)
         self.first: Any = None
         self._datas: list[bytes] = []
         self._stamps: list[int] = []
@@ -112,7 +158,8 @@ class Sink:
             self.first = deserialize(self.path, self.topic, self.msgtype, stamps[0], datas[0])
         k = len(datas)
         try:
-            columns = fast_cdr.decode_columns(datas, self.msgtype, self.fields, msgs.TYPESTORE)
+            columns = fast_cdr.decode_columns(datas, self.msgtype, HEADER_STAMP + self.fields,
+                                              msgs.TYPESTORE)
         except fast_cdr.CdrDecodeError as err:
             where = '' if err.index is None else f' at {stamps[err.index]} ns'
             raise BagError(f"{self.path}: topic '{self.topic}': message{where} does not "
@@ -121,9 +168,38 @@ class Sink:
             array = getattr(self, name)
             if array is not None and array.shape[0] < self.n + k:
                 setattr(self, name, _grown(array, self.n, self.n + k))
-        self.stamps[self.n:self.n + k] = stamps
+        self.stamps[self.n:self.n + k] = header_stamps_ns(
+            self.path, self.topic, self.n, columns.values['header.stamp.sec'],
+            columns.values['header.stamp.nanosec'])
+        self.log_ns[self.n:self.n + k] = stamps
         self.store(columns, slice(self.n, self.n + k))
         self.n += k
+
+    def repeated_stamps(self) -> list[np.ndarray]:
+        """Return the groups of row indexes (ascending) sharing a header stamp; usually none.
+
+        Free when the stamps rise strictly (the usual bag): only then is nothing sorted.
+        """
+        stamps = self.stamps[:self.n]
+        if stamps.size < 2 or bool((np.diff(stamps) > 0).all()):
+            return []
+        order = np.argsort(stamps, kind='stable')
+        ordered = stamps[order]
+        same = ordered[1:] == ordered[:-1]
+        if not same.any():
+            return []
+        starts = np.flatnonzero(np.concatenate(([True], ~same)))
+        groups = np.split(order, starts[1:])
+        return [np.sort(g) for g in groups if g.size > 1]
+
+    def keep_rows(self, keep: np.ndarray) -> None:
+        """Keep only the rows marked in keep (shape (n,)), in their order."""
+        rows = np.flatnonzero(keep)
+        for name in self.grows:
+            array = getattr(self, name)
+            if array is not None:
+                setattr(self, name, array[:self.n][rows])
+        self.n = int(rows.size)
 
     def store(self, columns: fast_cdr.Columns, rows: slice) -> None:
         """Copy a decoded batch into the arrays at rows."""
@@ -132,7 +208,7 @@ class Sink:
 
 class ImuSink(Sink):
     msgtype = topics.IMU_TYPE
-    grows = ('stamps', 'rates', 'rate_variances', 'accel')
+    grows = ('stamps', 'log_ns', 'rates', 'rate_variances', 'accel')
 
     def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int,
                  acceleration: bool) -> None:
@@ -158,7 +234,7 @@ class ImuSink(Sink):
 class OdomSink(Sink):
     msgtype = topics.ODOMETRY_TYPE
     fields = ('twist.twist.linear', 'twist.covariance')
-    grows = ('stamps', 'speeds', 'speed_variances')
+    grows = ('stamps', 'log_ns', 'speeds', 'speed_variances')
 
     def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
         super().__init__(path, topic, hint, bag_bytes)
@@ -173,7 +249,7 @@ class OdomSink(Sink):
 class TruthSink(Sink):
     msgtype = topics.ODOMETRY_TYPE
     fields = ('pose.pose.position', 'pose.pose.orientation')
-    grows = ('stamps', 'poses')
+    grows = ('stamps', 'log_ns', 'poses')
 
     def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
         super().__init__(path, topic, hint, bag_bytes)
@@ -191,7 +267,7 @@ class ScanSink(Sink):
     msgtype = topics.LASER_SCAN_TYPE
     fields = ('angle_min', 'angle_max', 'angle_increment', 'range_min', 'range_max', 'ranges',
               'intensities')
-    grows = ('stamps', 'ranges', 'intensities')
+    grows = ('stamps', 'log_ns', 'ranges', 'intensities')
 
     def __init__(self, path: Path, topic: str, hint: int, bag_bytes: int) -> None:
         super().__init__(path, topic, hint, bag_bytes)
