@@ -335,10 +335,11 @@ class _Stream:
 
         With skip_bad a sample older than the last kept one is dropped (the stream went
         back: a counted segment break, its older samples dropped until time passes the
-        last kept stamp again) and a lone sample far ahead of its neighbours (a flipped
-        bit) is dropped. A stream that jumps ahead and stays there is a sensor silent for
-        a while: kept and flagged in the report; whether any stream covers the gap is
-        checked on the whole trip (`_check_timeline`).
+        last kept stamp again) and a lone sample ahead of its neighbours (a flipped bit, a
+        message logged out of place) is dropped, not the samples after it. A stream that
+        jumps ahead and stays there is a sensor silent for a while: kept and flagged in the
+        report; whether any stream covers the gap is checked on the whole trip
+        (`_check_timeline`).
         """
         stamps = self.stamps
         self.flag(f'{self.name}.stamp_s', ~np.isfinite(stamps), NOT_FINITE,
@@ -351,10 +352,23 @@ class _Stream:
             return
         field_name = f'{self.name}.stamp_s'
         times = kept.tolist()
-        last = times[0]
+        last, last_k, before = times[0], 0, None  # before: the kept stamp before last
         going_back = False
         for k in range(1, len(times)):
             t = times[k]
+            if t < last and not going_back and before is not None and before <= t:
+                # One sample ahead of both its neighbours (a message logged out of place, a
+                # bit flipped below the jump limit), not time going back: everything after
+                # it would look older than it and be dropped. It is the one refused.
+                i = int(index[last_k])
+                reason = (f'stamp {last:.6f} s lies {last - t:.6g} s ahead of the samples '
+                          f'around it ({before:.6f} s and {t:.6f} s)')
+                if not self.report.skip_bad:
+                    raise InvalidInputError(self.source, field_name, i, reason)
+                self.report.count(field_name, JUMPED_AHEAD, i, 1)
+                self.keep[i] = False
+                last, last_k = t, k
+                continue
             if t < last:
                 problem = (TIME_WENT_BACK, f'time went back {last - t:.6g} s '
                                            f'(from {last:.6f} s to {t:.6f} s)')
@@ -368,12 +382,12 @@ class _Stream:
                           f'{t:.6f} s; the limit is {jump:g} s)')
                 if after is not None and t <= after <= t + jump:
                     self.report.gaps.append(f'{field_name}[{int(index[k])}]: {reason}')
-                    last = t
+                    before, last, last_k = last, t, k
                     going_back = False
                     continue
                 problem = (JUMPED_AHEAD, reason)
             else:
-                last = t
+                before, last, last_k = last, t, k
                 going_back = False
                 continue
             i = int(index[k])

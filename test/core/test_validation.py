@@ -256,6 +256,28 @@ def test_ekf_refuses_a_non_finite_start():
         GyroBiasEkf(covariance=np.full((4, 4), np.nan))
 
 
+def test_one_imu_sample_ahead_of_its_neighbours_is_the_one_refused_or_dropped():
+    # A message logged 10 s out of place (below the 30 s jump limit) made every later
+    # sample look older than it: --skip-bad dropped the 10 s behind it, and the error
+    # named the first of those instead of the sample out of place.
+    trip = _trip()
+    stamps = trip.imu.stamp_s.copy()
+    stamps[1000] += 8.0
+    bad = _with_imu(trip, stamps=stamps)
+    with pytest.raises(InvalidInputError) as caught:
+        validate_trip(bad, 'x')
+    assert str(caught.value) == ('x: imu.stamp_s[1000]: stamp 13.000000 s lies 7.995 s ahead of '
+                                 'the samples around it (4.995000 s and 5.005000 s)')
+    checked, report = validate_trip(bad, 'x', skip_bad=True)
+    assert report.samples_dropped == {'imu': 1}
+    assert len(checked.imu.stamp_s) == len(stamps) - 1
+    # Time that really goes back (a segment break) is still that.
+    stamps = trip.imu.stamp_s.copy()
+    stamps[1000:] -= 8.0
+    with pytest.raises(InvalidInputError, match=re.escape('imu.stamp_s[1000]: time went back')):
+        validate_trip(_with_imu(trip, stamps=stamps), 'x')
+
+
 def test_a_trip_without_speed_samples_is_refused_and_its_span_still_known():
     # A bag with /odom declared but empty once crashed in the summary (start_s indexed the
     # empty speed stamps) and, in calibrate-mounts, fitted a mount to a platform held still.
