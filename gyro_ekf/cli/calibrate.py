@@ -10,7 +10,7 @@ import numpy as np
 
 from gyro_ekf.cli.convert import add_skip_bad_argument, warn_dropped
 from gyro_ekf.core.calibration import estimate_gyro_bias
-from gyro_ekf.core.config import CalibrationConfig
+from gyro_ekf.core.config import CalibrationConfig, field_bounds
 from gyro_ekf.core.types import BiasEstimate, Trip
 from gyro_ekf.errors import GyroEkfError
 
@@ -87,8 +87,7 @@ def check_options(args: argparse.Namespace) -> None:
 
     for option, field in (('--window-start-s', 'window_start_s'),
                           ('--window-length-s', 'window_length_s')):
-        metadata = CalibrationConfig.__dataclass_fields__[field].metadata
-        check_number(option, getattr(args, field), metadata['min'], metadata['max'],
+        check_number(option, getattr(args, field), *field_bounds(CalibrationConfig, field),
                      unit='s')
     bags = [p for p in args.source if (p / 'metadata.yaml').is_file()]
     if bags and len(args.source) > 1:

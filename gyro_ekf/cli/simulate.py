@@ -8,6 +8,7 @@ import logging
 import math
 from pathlib import Path
 
+from gyro_ekf.core.config import field_bounds
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 from gyro_ekf.errors import GyroEkfError
@@ -52,12 +53,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--force', action='store_true', help='replace an existing output')
 
 
-def _bounds(field: str, scale: float = 1.0) -> tuple[float, float]:
-    """Return the simulator's own bounds of a SimulationConfig field in the option's unit."""
-    metadata = next(f for f in dataclasses.fields(SimulationConfig) if f.name == field).metadata
-    return metadata['min'] / scale, metadata['max'] / scale
-
-
 def check_options(args: argparse.Namespace) -> None:
     """Refuse options that are not finite, beyond the simulator's bounds or inconsistent.
 
@@ -69,19 +64,22 @@ def check_options(args: argparse.Namespace) -> None:
     """
     from gyro_ekf.cli.main import check_number
 
-    check_number('--duration-s', args.duration_s, *_bounds('duration_s'), unit='s')
+    check_number('--duration-s', args.duration_s, *field_bounds(SimulationConfig, 'duration_s'),
+                 unit='s')
     if args.static_s is None:
         args.static_s = min(SimulationConfig().static_s, args.duration_s)
-    check_number('--static-s', args.static_s, *_bounds('static_s'), unit='s')
+    check_number('--static-s', args.static_s, *field_bounds(SimulationConfig, 'static_s'),
+                 unit='s')
     if args.static_s > args.duration_s:
         raise GyroEkfError(f'--static-s: {args.static_s:g} s is longer than the trip '
                            f'(--duration-s {args.duration_s:g} s)')
     for which in ('lidar', 'lidar2'):
         check_number(f'--{which}-yaw-error-deg', getattr(args, f'{which}_yaw_error_deg'),
-                     *_bounds(f'{which}_yaw_error_rad', math.radians(1.0)), unit='deg')
+                     *field_bounds(SimulationConfig, f'{which}_yaw_error_rad',
+                                   math.radians(1.0)), unit='deg')
         for axis, value in zip('xy', getattr(args, f'{which}_offset_m')):
             check_number(f'--{which}-offset-m ({axis.upper()})', value,
-                         *_bounds(f'{which}_{axis}_error_m'), unit='m')
+                         *field_bounds(SimulationConfig, f'{which}_{axis}_error_m'), unit='m')
 
 
 def run(args: argparse.Namespace) -> int:

@@ -302,6 +302,12 @@ def config_fields(config_type: type) -> list[dataclasses.Field]:
     return list(dataclasses.fields(config_type))
 
 
+def field_bounds(config_type: type, name: str, scale: float = 1.0) -> tuple[float, float]:
+    """Return a config field's (min, max) from its metadata, divided by scale (a unit)."""
+    metadata = next(f for f in dataclasses.fields(config_type) if f.name == name).metadata
+    return metadata['min'] / scale, metadata['max'] / scale
+
+
 def make_config(config_type: type[ConfigT], values: dict[str, Any],
                 source: str = 'parameters') -> ConfigT:
     """Build a config from a name->value mapping, checking names, types and bounds.
