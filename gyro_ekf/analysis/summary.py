@@ -24,7 +24,9 @@ Definitions (see `metrics` for the band and the interpolation):
   use, estimated online (`core/odometry_online.py`), with the start check and the last
   fit of the odometry path against the filter's positions.
 - *Input*: what the validation boundary dropped (with --skip-bad): samples per stream,
-  counts per field and reason with the first index, and how often a stream's time went back.
+  counts per field and reason with the first index, and how often a stream's time went back;
+  for a bag `convert --skip-bad` wrote, the same figures of what the conversion dropped from
+  the log (``dropped_when_converted``, from the bag's sidecar; indexes in the log).
 - *Ground truth* (only when the trip has it): position RMSE and max error, heading RMSE
   over the estimates inside the truth's span; pose NEES (3 dof) mean and share inside the
   band; bias error (estimate minus the known injected bias) at the end and averaged over
@@ -178,6 +180,9 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
     section = summary['input']
     dropped = {} if section is None else {f'{stream} samples': int(n) for stream, n
                                           in section['samples_dropped'].items()}
+    converted = None if section is None else section.get('dropped_when_converted')
+    dropped_when_converted = {} if converted is None else {
+        f'{stream} samples': int(n) for stream, n in converted['samples_dropped'].items()}
     stats = run.result.stats
     figures = health.RunFigures(
         # Excluded LiDARs' detections have their own reason, not the share's.
@@ -185,6 +190,8 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         matched=int(stats.outcomes.get('matched', 0)),
         updates=int(stats.updates), nis_mean=summary['nis']['mean'],
         longest_gap_s=longest, start_gap_s=start_gap, sensors=sensors, dropped=dropped,
+        dropped_when_converted=dropped_when_converted,
+        converted_from='' if converted is None else converted['source'],
         final_bias_rad_s=summary['online_bias']['final_rad_s'],
         unmapped=int(stats.unmapped), scans=int(stats.scans), finished=True,
         input_gaps_s={'gyro': _longest_interval(run.trip.imu.stamp_s, start, end),

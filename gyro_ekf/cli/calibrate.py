@@ -39,10 +39,8 @@ def load_trip(sources: list[Path], skip_bad: bool = False) -> Trip:
     counted with skip_bad.
     """
     if len(sources) == 1 and (sources[0] / 'metadata.yaml').is_file():
-        from gyro_ekf.core.validation import validate_trip
-        from gyro_ekf.io.bag_reader import read_trip_bag
-        trip, report = validate_trip(read_trip_bag(sources[0]), sources[0].name,
-                                     skip_bad=skip_bad)
+        from gyro_ekf.io.bag_reader import read_bag, validate_bag
+        trip, report = validate_bag(read_bag(sources[0]), sources[0].name, skip_bad=skip_bad)
     else:
         from gyro_ekf.io.sources import load_checked_log
         trip, report = load_checked_log(sources, skip_bad=skip_bad)

@@ -96,8 +96,7 @@ def run(args: argparse.Namespace) -> int:
     from gyro_ekf.io.errors import OutputError
     from gyro_ekf.io.output_dir import staged_file
     from gyro_ekf.core.mount_calibration import MountSettings
-    from gyro_ekf.core.validation import validate_trip
-    from gyro_ekf.io.bag_reader import read_bag
+    from gyro_ekf.io.bag_reader import read_bag, validate_bag
 
     output: Path | None = args.output
     if output is not None and (output.is_dir() or (output.exists() and not args.force)):
@@ -108,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         raise OutputError(f'{output}: cannot write: no such file or directory')
     bag = read_bag(args.bag, acceleration=False)
     source = str(args.bag)
-    trip, report = validate_trip(bag.trip, Path(args.bag).name, skip_bad=args.skip_bad)
+    trip, report = validate_bag(bag, Path(args.bag).name, skip_bad=args.skip_bad)
     warn_dropped(report)
     found = estimate_mounts(trip, source, MountSettings(min_improvement=args.min_improvement))
     reference = trip.scans[0]

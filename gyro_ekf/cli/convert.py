@@ -133,8 +133,9 @@ def run(args: argparse.Namespace) -> int:
                        f'after {LAST_STAMP_TEXT}, the last time a message stamp can hold')
     progress, bar = _progress_bar()
     try:
+        # What --skip-bad dropped goes into the sidecar: a run on the bag counts it too.
         write_trip_bag(trip, output, storage=args.storage, start_time_ns=start_ns,
-                       force=args.force, progress=progress)
+                       force=args.force, progress=progress, converted=report)
     finally:
         if bar is not None:
             bar.close()

@@ -41,8 +41,13 @@ def format_summary(summary: BagSummary) -> str:
         f'duration:  {0.0 if empty else seconds_since(summary.duration_ns, 0):.4f} s',
         f'messages:  {summary.message_count}',
         f'params:    {summary.sidecar if summary.sidecar is not None else "(none)"}',
-        'topics:',
     ]
+    converted = summary.converted
+    if converted is not None and converted.total_dropped:
+        lines.append(f'dropped:   when {converted.source} was converted, --skip-bad '
+                     f'{converted.dropped_text(indexes=True)}; indexes count in the log, '
+                     'these samples are not in the bag')
+    lines.append('topics:')
     rows = [('topic', 'type', 'count', 'durability')] + [
         (t.name, t.msgtype, str(t.count), t.durability) for t in summary.topics]
     widths = [max(len(row[i]) for row in rows) for i in range(3)]

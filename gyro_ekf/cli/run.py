@@ -116,15 +116,14 @@ def run(args: argparse.Namespace) -> int:
     from gyro_ekf.analysis.offline import event_count, run_trip
     from gyro_ekf.io.params_file import PipelineParams, read_params_file
     from gyro_ekf.analysis.summary import summarize
-    from gyro_ekf.core.validation import validate_trip
-    from gyro_ekf.io.bag_reader import read_bag
+    from gyro_ekf.io.bag_reader import read_bag, validate_bag
 
     params = read_params_file(args.params_file) if args.params_file else PipelineParams()
     began = time.perf_counter()
     bag = read_bag(args.bag, acceleration=False)  # the EKF does not use it
     # Checked before the output folder exists, so refused input leaves nothing behind.
-    trip, report = validate_trip(bag.trip, Path(args.bag).name, params.limits,
-                                 skip_bad=args.skip_bad)
+    trip, report = validate_bag(bag, Path(args.bag).name, params.limits,
+                                skip_bad=args.skip_bad)
     warn_dropped(report)
     read_s = time.perf_counter() - began
     folder = output_dir.prepare_output_dir(args.output, force=args.force)

@@ -567,6 +567,10 @@ class RunFigures:
         sensors: HealthMonitor.report().
         resets: filter resets.
         dropped: input samples or messages dropped by the validation boundary, per reason.
+        dropped_when_converted: input samples `gyro-ekf convert --skip-bad` dropped from
+            the log the bag was written from (its sidecar), per reason: missing from the
+            input as much as those dropped now.
+        converted_from: the log those were dropped from (its file names).
         final_bias_rad_s: the bias estimate now / at the end (nan when unknown).
         unmapped: of ``detections``, those unmatched and far from every mapped pole
             (DriverStats.unmapped): objects the map does not list, left out of the share.
@@ -597,6 +601,8 @@ class RunFigures:
     sensors: list[dict[str, Any]]
     resets: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
+    dropped_when_converted: dict[str, int] = field(default_factory=dict)
+    converted_from: str = ''
     final_bias_rad_s: float = math.nan
     unmapped: int = 0
     input_gaps_s: dict[str, float] = field(default_factory=dict)
@@ -753,6 +759,12 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
     dropped = {k: v for k, v in figures.dropped.items() if v}
     if dropped:
         add(DEGRADED, f'input dropped by validation: {sum(dropped.values())} ('
+            + ', '.join(f'{k} {v}' for k, v in sorted(dropped.items())) + '), more than 0')
+    dropped = {k: v for k, v in figures.dropped_when_converted.items() if v}
+    if dropped:
+        add(DEGRADED, f'input dropped when the log was converted (gyro-ekf convert '
+            f'--skip-bad on {figures.converted_from or "the log"}): '
+            f'{sum(dropped.values())} ('
             + ', '.join(f'{k} {v}' for k, v in sorted(dropped.items())) + '), more than 0')
     if abs(figures.final_bias_rad_s) > VERDICT_MAX_BIAS_RAD_S:
         add(FAILED, f'gyro bias estimate {math.degrees(figures.final_bias_rad_s):+.2f} deg/s '

@@ -244,6 +244,11 @@ class InputReport:
             noise (imu.angular_velocity_covariance[8], speed.twist.covariance[0]).
         covariances_ignored: field -> samples whose variance was NaN, negative or beyond
             its limit: the configured noise is used for them (the sample itself is kept).
+        converted: for a bag that `gyro-ekf convert --skip-bad` wrote, what that conversion
+            dropped from the log (its source, dropped, first_index, samples_dropped and
+            time_breaks; indexes in the log's series), as the bag's params sidecar records
+            it; None otherwise. Those samples are not in the bag, so this check cannot see
+            them again.
     """
 
     source: str
@@ -255,11 +260,21 @@ class InputReport:
     gaps: list[str] = field(default_factory=list)
     covariances_used: dict[str, int] = field(default_factory=dict)
     covariances_ignored: dict[str, int] = field(default_factory=dict)
+    converted: InputReport | None = None
 
     @property
     def total_dropped(self) -> int:
         """Samples dropped over all streams."""
         return sum(self.samples_dropped.values())
+
+    def dropped_text(self, indexes: bool = False) -> str:
+        """Return 'dropped N samples: n field (reason), ...', with first indexes if asked."""
+        parts = ', '.join(
+            f'{n} {field_name} ({reason}' + (
+                f', first at index {self.first_index[(field_name, reason)]}' if indexes
+                else '') + ')'
+            for (field_name, reason), n in self.dropped.items())
+        return f'dropped {self.total_dropped} samples: {parts}'
 
     def count(self, field_name: str, reason: str, first: int, n: int) -> None:
         """Record n dropped samples of one field for one reason."""
@@ -270,10 +285,11 @@ class InputReport:
     def warning(self) -> str | None:
         """One line for the user when anything was dropped or flagged, else None."""
         lines = []
+        if self.converted is not None and self.converted.total_dropped:
+            lines.append(f'when {self.converted.source} was converted, --skip-bad '
+                         + self.converted.dropped_text())
         if self.dropped:
-            parts = ', '.join(f'{n} {field_name} ({reason})'
-                              for (field_name, reason), n in self.dropped.items())
-            lines.append(f'--skip-bad dropped {self.total_dropped} samples: {parts}')
+            lines.append('--skip-bad ' + self.dropped_text())
         if self.gaps:
             lines.append(f'{len(self.gaps)} long gap(s) in a stream: {"; ".join(self.gaps)}')
         if self.covariances_ignored:
@@ -293,7 +309,15 @@ class InputReport:
                         for (f, r), n in self.dropped.items()],
             'time_breaks': dict(self.time_breaks), 'gaps': list(self.gaps),
             'covariances_used': dict(self.covariances_used),
-            'covariances_ignored': dict(self.covariances_ignored)}
+            'covariances_ignored': dict(self.covariances_ignored),
+            'dropped_when_converted': None if self.converted is None else {
+                'source': self.converted.source,
+                'samples_dropped_total': self.converted.total_dropped,
+                'samples_dropped': dict(self.converted.samples_dropped),
+                'dropped': [{'field': f, 'reason': r, 'count': n,
+                             'first_index': self.converted.first_index[(f, r)]}
+                            for (f, r), n in self.converted.dropped.items()],
+                'time_breaks': dict(self.converted.time_breaks)}}
 
 
 class _Stream:

@@ -5,9 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import NamedTuple
 
+from gyro_ekf.core.validation import InputReport
 from gyro_ekf.io.bag_open import metadata, open_bag
 from gyro_ekf.io.errors import BagError
-from gyro_ekf.io.sidecar import sidecar_path
+from gyro_ekf.io.sidecar import read_sidecar, sidecar_path
 
 __all__ = ['BagSummary', 'TopicSummary', 'bag_summary']
 
@@ -22,7 +23,11 @@ class TopicSummary(NamedTuple):
 
 
 class BagSummary(NamedTuple):
-    """What `gyro-ekf info` prints about a bag."""
+    """What `gyro-ekf info` prints about a bag.
+
+    `converted` is what `convert --skip-bad` dropped from the log the bag was written from
+    (the sidecar's record), or None.
+    """
 
     path: Path
     storage: str
@@ -32,13 +37,14 @@ class BagSummary(NamedTuple):
     message_count: int
     topics: list[TopicSummary]
     sidecar: Path | None
+    converted: InputReport | None = None
 
 
 def bag_summary(path: Path | str) -> BagSummary:
     """Topics, types, counts, start time and duration of a bag (from its metadata).
 
     Raises:
-        BagError: missing or unreadable bag.
+        BagError: missing or unreadable bag, or a sidecar that cannot be read or parsed.
     """
     path = Path(path)
     reader = open_bag(path)
@@ -51,6 +57,7 @@ def bag_summary(path: Path | str) -> BagSummary:
                                           connection.msgcount, durability))
     finally:
         reader.close()
+    params = read_sidecar(path)
     meta = metadata(path)
     try:
         return BagSummary(
@@ -58,6 +65,7 @@ def bag_summary(path: Path | str) -> BagSummary:
             start_time_ns=int(meta['starting_time']['nanoseconds_since_epoch']),
             duration_ns=int(meta['duration']['nanoseconds']),
             message_count=int(meta['message_count']), topics=summaries,
-            sidecar=sidecar_path(path) if sidecar_path(path).exists() else None)
+            sidecar=sidecar_path(path) if params is not None else None,
+            converted=None if params is None else params.converted)
     except (KeyError, TypeError, ValueError) as err:
         raise BagError(f'{path / "metadata.yaml"}: missing or invalid entry {err}') from None

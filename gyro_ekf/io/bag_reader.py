@@ -16,7 +16,9 @@ different bytes are refused, naming both.
 
 What no message carries (LiDAR mounts, stated noise, true bias) comes from the params
 sidecar beside the bag; without a sidecar the mounts default to the platform origin and a
-warning says so.
+warning says so. So does what `convert --skip-bad` dropped from the log the bag was written
+from: `validate_bag` puts it on the validation's report (`InputReport.converted`), so a run
+counts those samples as if it had dropped them itself.
 
 `read_bag` takes the raw messages of a single-file MCAP bag from `mcap_chunks` (a small
 chunk reader, several times faster), of any other bag, or one that reader refuses, from
@@ -45,7 +47,8 @@ from gyro_ekf.core.stamps import seconds_since
 from gyro_ekf.core.types import (
     GroundTruth, ImuSeries, LandmarkMap, LidarMount, NoiseFigures, ScanSeries, SpeedSeries,
     Trip)
-from gyro_ekf.core.validation import quaternion_problem
+from gyro_ekf.core.config import InputLimits
+from gyro_ekf.core.validation import InputReport, quaternion_problem, validate_trip
 from gyro_ekf.io import mcap_chunks, messages as msgs
 from gyro_ekf.io.bag_open import (
     GROUND_TRUTH_TOPIC, IMU_TOPIC, INITIAL_POSE_TOPIC, MAP_TOPIC, ODOM_TOPIC, bag_bytes,
@@ -57,7 +60,8 @@ from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.sidecar import BagParams, read_sidecar, sidecar_path
 
 __all__ = ['BagMessage', 'BagTrip', 'ZERO_TOLERANCE_NS', 'assemble_trip', 'initial_pose_of',
-           'iter_bag_messages', 'one_message', 'read_bag', 'read_trip_bag', 'time_zero']
+           'iter_bag_messages', 'one_message', 'read_bag', 'read_trip_bag', 'time_zero',
+           'validate_bag']
 
 log = logging.getLogger(__name__)
 
@@ -95,6 +99,27 @@ class BagTrip:
     start_time_ns: int
     params: BagParams | None
     duplicates: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def converted(self) -> InputReport | None:
+        """What `convert --skip-bad` dropped from the bag's log (sidecar), or None."""
+        return None if self.params is None else self.params.converted
+
+
+def validate_bag(bag: BagTrip, source: str, limits: InputLimits | None = None,
+                 skip_bad: bool = False) -> tuple[Trip, InputReport]:
+    """Pass a bag's trip through the validation boundary (`core.validation.validate_trip`).
+
+    The report also carries what `convert --skip-bad` dropped from the log the bag was
+    written from (`InputReport.converted`, from the sidecar): those samples are missing
+    from the bag, and a run on it is as degraded as one that dropped them itself.
+
+    Raises:
+        InvalidInputError: as validate_trip.
+    """
+    trip, report = validate_trip(bag.trip, source, limits or InputLimits(), skip_bad=skip_bad)
+    report.converted = bag.converted
+    return trip, report
 
 
 def iter_bag_messages(path: Path | str, topic_names: Iterable[str] | None = None

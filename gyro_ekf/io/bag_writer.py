@@ -40,6 +40,7 @@ from rosbags.rosbag2.errors import WriterError
 from gyro_ekf import topics
 from gyro_ekf.core.stamps import NS_PER_S, ns_at
 from gyro_ekf.core.types import Trip
+from gyro_ekf.core.validation import InputReport
 from gyro_ekf.io import messages as msgs
 from gyro_ekf.io.defaults import DEFAULT_EPOCH_NS, STORAGE_NAMES
 from gyro_ekf.io.batch_write import enable_chunk_crcs
@@ -222,7 +223,8 @@ def merged(plans: list[TopicPlan]) -> Iterator[tuple[int, int, int]]:
 
 def write_trip_bag(trip: Trip, path: Path | str, storage: str = 'mcap',
                    start_time_ns: int = DEFAULT_EPOCH_NS, force: bool = False,
-                   progress: ProgressCallback | None = None, compress: bool = False) -> Path:
+                   progress: ProgressCallback | None = None, compress: bool = False,
+                   converted: InputReport | None = None) -> Path:
     """Write a trip as a rosbag2 folder plus its params sidecar beside it.
 
     Args:
@@ -234,6 +236,9 @@ def write_trip_bag(trip: Trip, path: Path | str, storage: str = 'mcap',
         progress: optional progress(messages_written, messages_total) callback.
         compress: zstd-compress the storage (mcap chunks, as rosbag2's zstd presets do;
             sqlite3 compresses each message). Deterministic for the pinned libraries.
+        converted: the report of the validation the trip passed when read from a log;
+            what it dropped (--skip-bad) goes into the sidecar, so a run on the bag still
+            counts it.
 
     Returns:
         The bag folder.
@@ -250,7 +255,7 @@ def write_trip_bag(trip: Trip, path: Path | str, storage: str = 'mcap',
                        '(0 reads as "unset" in ROS)')
     params_path = claim_bag_target(path, force)
     plans = plan_topics(trip, int(start_time_ns))
-    params = params_of_trip(trip, int(start_time_ns))
+    params = params_of_trip(trip, int(start_time_ns), converted)
     check_finite(params)
     total = sum(p.stamps_ns.size for p in plans)
 

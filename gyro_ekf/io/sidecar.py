@@ -10,6 +10,15 @@ exactly what rosbag2 expects). It is a ROS 2 parameters file, so nodes take it w
           name: data019b
           log_time_zero_ns: 1700000000000000000   # bag stamp of the log's time zero
           static_duration_s: 0.0
+          dropped_when_converted:                 # only when convert --skip-bad dropped any
+            source: data019b.mat
+            streams: [imu]                        # per stream: samples dropped, time breaks
+            samples: [10]
+            time_breaks: [0]
+            fields: [imu.angular_velocity.z]      # per field and reason: count, first index
+            reasons: [not finite]
+            counts: [10]
+            first_indexes: [20000]                # in the log's series
         initial_pose: {x_m: 2.780846, y_m: 11.278871, yaw_rad: -0.0206156}
         lidar:
           topics: [scan]                          # scan topics in the bag (no slash)
@@ -21,7 +30,9 @@ exactly what rosbag2 expects). It is a ROS 2 parameters file, so nodes take it w
         true_gyro_bias_rad_s: [0.0, 0.0, 0.005235988]   # only when known
 
 All values are SI; names end in their unit. Unknown entries are left out (ROS parameters have
-no null).
+no null). `trip.dropped_when_converted` keeps what `convert --skip-bad` dropped from the log
+with the bag, so a run on the bag counts it (parallel lists: ROS parameters hold no lists of
+mappings; no node declares these names, and none is close to one a node declares).
 """
 
 from __future__ import annotations
@@ -35,7 +46,8 @@ import numpy as np
 import yaml
 
 from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures, Trip
-from gyro_ekf.core.validation import duration_problem, initial_pose_problem, mount_problem
+from gyro_ekf.core.validation import (InputReport, duration_problem, initial_pose_problem,
+                                      mount_problem)
 from gyro_ekf.io.errors import BagError
 
 SUFFIX = '.params.yaml'
@@ -54,6 +66,9 @@ class BagParams:
         lidars: scan topic (no slash) -> (frame_id, mount).
         noise: noise figures the log states.
         true_gyro_bias_rad_s: shape (3,), rad/s, or None when not known.
+        converted: what `convert --skip-bad` dropped from the log the bag was written from
+            (an InputReport with source, dropped, first_index, samples_dropped and
+            time_breaks), or None when it dropped nothing.
     """
 
     name: str
@@ -63,6 +78,7 @@ class BagParams:
     lidars: dict[str, tuple[str, LidarMount]] = field(default_factory=dict)
     noise: NoiseFigures = field(default_factory=NoiseFigures)
     true_gyro_bias_rad_s: FloatArray | None = None
+    converted: InputReport | None = None
 
 
 def sidecar_path(bag_path: Path | str) -> Path:
@@ -71,8 +87,13 @@ def sidecar_path(bag_path: Path | str) -> Path:
     return bag_path.parent / (bag_path.name + SUFFIX)
 
 
-def params_of_trip(trip: Trip, log_time_zero_ns: int) -> BagParams:
-    """Collect the sidecar contents of a trip whose time zero is at `log_time_zero_ns`."""
+def params_of_trip(trip: Trip, log_time_zero_ns: int,
+                   converted: InputReport | None = None) -> BagParams:
+    """Collect the sidecar contents of a trip whose time zero is at `log_time_zero_ns`.
+
+    `converted` is the report of the validation the trip passed on its way from a log; what
+    it dropped is recorded (a report that dropped nothing is left out).
+    """
     return BagParams(
         name=trip.name, log_time_zero_ns=int(log_time_zero_ns),
         static_duration_s=float(trip.static_duration_s),
@@ -80,7 +101,62 @@ def params_of_trip(trip: Trip, log_time_zero_ns: int) -> BagParams:
         lidars={s.topic: (s.frame_id, s.mount) for s in trip.scans},
         noise=trip.noise,
         true_gyro_bias_rad_s=None if trip.true_gyro_bias_rad_s is None else np.asarray(
-            trip.true_gyro_bias_rad_s, dtype=np.float64))
+            trip.true_gyro_bias_rad_s, dtype=np.float64),
+        converted=converted if converted is not None and converted.total_dropped else None)
+
+
+_CONVERTED = 'trip.dropped_when_converted'
+
+
+def _converted_values(report: InputReport) -> dict[str, Any]:
+    streams = list(report.samples_dropped)
+    keys = list(report.dropped)
+    return {'source': report.source, 'streams': streams,
+            'samples': [int(report.samples_dropped[s]) for s in streams],
+            'time_breaks': [int(report.time_breaks.get(s, 0)) for s in streams],
+            'fields': [f for f, _ in keys], 'reasons': [r for _, r in keys],
+            'counts': [int(report.dropped[k]) for k in keys],
+            'first_indexes': [int(report.first_index[k]) for k in keys]}
+
+
+def _parse_converted(tree: dict[str, Any], path: Path) -> InputReport | None:
+    """Read `trip.dropped_when_converted` back into an InputReport, or None without it.
+
+    Raises:
+        BagError: an entry missing, of the wrong type, a negative count, or lists of
+            different lengths.
+    """
+    trip = tree.get('trip')
+    if not isinstance(trip, dict) or 'dropped_when_converted' not in trip:
+        return None
+    source = _get(tree, f'{_CONVERTED}.source', str, path)
+    lists = {}
+    for key, kind in (('streams', str), ('samples', int), ('time_breaks', int),
+                      ('fields', str), ('reasons', str), ('counts', int),
+                      ('first_indexes', int)):
+        values = _get(tree, f'{_CONVERTED}.{key}', list, path)
+        for value in values:
+            if not isinstance(value, kind) or isinstance(value, bool) or (
+                    kind is int and value < 0):
+                what = 'texts' if kind is str else 'non-negative whole numbers'
+                raise BagError(f"{path.name}: parameter '{_CONVERTED}.{key}' must be a "
+                               f'list of {what}, got {value!r} in it')
+        lists[key] = values
+    for group in (('streams', 'samples', 'time_breaks'),
+                  ('fields', 'reasons', 'counts', 'first_indexes')):
+        lengths = {len(lists[key]) for key in group}
+        if len(lengths) != 1 or not lists[group[0]]:
+            raise BagError(f"{path.name}: parameter '{_CONVERTED}': "
+                           f"{', '.join(group)} must be lists of one non-zero length")
+    report = InputReport(source=source, skip_bad=True)
+    for stream, n, breaks in zip(lists['streams'], lists['samples'], lists['time_breaks']):
+        report.samples_dropped[stream] = n
+        if breaks:
+            report.time_breaks[stream] = breaks
+    for field_name, reason, n, first in zip(lists['fields'], lists['reasons'],
+                                            lists['counts'], lists['first_indexes']):
+        report.count(field_name, reason, first, n)
+    return report
 
 
 def to_yaml(params: BagParams) -> str:
@@ -91,6 +167,8 @@ def to_yaml(params: BagParams) -> str:
                  'static_duration_s': float(params.static_duration_s)},
         'initial_pose': {'x_m': x, 'y_m': y, 'yaw_rad': yaw},
     }
+    if params.converted is not None and params.converted.total_dropped:
+        values['trip']['dropped_when_converted'] = _converted_values(params.converted)
     if params.lidars:
         lidar: dict[str, Any] = {'topics': list(params.lidars)}
         for topic, (frame_id, mount) in params.lidars.items():
@@ -186,7 +264,8 @@ def parse_yaml(text: str, path: Path) -> BagParams:
         lidars=lidars,
         noise=NoiseFigures(**{k: float(noise[k]) if k in noise else None
                               for k in NOISE_KEYS}),
-        true_gyro_bias_rad_s=bias)
+        true_gyro_bias_rad_s=bias,
+        converted=_parse_converted(tree, path))
 
 
 def read_sidecar(bag_path: Path | str) -> BagParams | None:

@@ -357,3 +357,47 @@ def test_message_covariances_replace_the_noise_unless_ignored(tmp_path, sim_trip
         yaw_variance[bool(flags)] = rows[-1, header.index('var_yaw')]
     # The noisier gyro leaves more doubt about the heading.
     assert yaw_variance[False] > yaw_variance[True]
+
+
+def test_what_convert_skip_bad_dropped_counts_in_every_command_on_the_bag(
+        tmp_path, capsys, caplog):
+    # The bag convert --skip-bad wrote carried no trace of the samples it dropped: run on it
+    # said ok where run --skip-bad on the same samples in a bag says degraded.
+    from gyro_ekf.io.trip_file import save_trip
+    trip = simulate_trip(SimulationConfig(duration_s=20.0, static_s=8.0, second_lidar=True),
+                         seed=4)
+    rates = trip.imu.angular_velocity_rad_s.copy()
+    rates[[600, 601], 2] = np.nan
+    log = save_trip(dataclasses.replace(trip, imu=dataclasses.replace(
+        trip.imu, angular_velocity_rad_s=rates)), tmp_path / 'trip.npz')
+    bag = tmp_path / 'bag'
+    assert main(['-q', 'convert', str(log), '-o', str(bag), '--skip-bad']) == 0
+    capsys.readouterr()
+    warning = ('bag: when trip.npz was converted, --skip-bad dropped 2 samples: '
+               '2 imu.angular_velocity.z (not finite)')
+
+    out = tmp_path / 'out'
+    caplog.clear()
+    assert main(['run', str(bag), '-o', str(out), '--no-plots', '--no-bag', '--no-progress',
+                 '--strict']) == 3
+    assert warning in caplog.text
+    summary = _strict_json((out / 'summary.json').read_text())
+    assert summary['input']['samples_dropped_total'] == 0       # nothing dropped now ...
+    assert summary['input']['dropped_when_converted'] == {      # ... but at the conversion
+        'source': 'trip.npz', 'samples_dropped_total': 2, 'samples_dropped': {'imu': 2},
+        'dropped': [{'field': 'imu.angular_velocity.z', 'reason': 'not finite', 'count': 2,
+                     'first_index': 600}],
+        'time_breaks': {}}
+    assert summary['health']['verdict'] == 'degraded'
+    assert ('input dropped when the log was converted (gyro-ekf convert --skip-bad on '
+            'trip.npz): 2 (imu samples 2), more than 0') in summary['health']['reasons']
+
+    assert main(['info', str(bag)]) == 0
+    assert ('dropped:   when trip.npz was converted, --skip-bad dropped 2 samples: 2 '
+            'imu.angular_velocity.z (not finite, first at index 600); indexes count in the '
+            'log, these samples are not in the bag') in capsys.readouterr().out.splitlines()
+    for command in (['calibrate', str(bag)], ['calibrate-mounts', str(bag)]):
+        caplog.clear()
+        assert main(command) == 0
+        assert warning in caplog.text, command
+    capsys.readouterr()

@@ -294,3 +294,61 @@ def test_memory_stays_bounded_by_the_trip(tmp_path):
     bag_bytes = sum(p.stat().st_size for p in Path(bag).iterdir())
     print(f'bag {bag_bytes / 1e6:.1f} MB, peak traced {peak / 1e6:.1f} MB')
     assert peak < bag_bytes / 2
+
+
+def _report_that_dropped_samples():
+    from gyro_ekf.core.validation import InputReport
+    report = InputReport(source='IMU_dataC.mat, Speed_dataC.mat', skip_bad=True)
+    report.count('imu.angular_velocity.z', 'not finite', 20000, 10)
+    report.count('imu.stamp_s', 'time went back', 30000, 5)
+    report.count('speed.speed_m_s', 'beyond limit', 7, 1)
+    report.samples_dropped.update({'imu': 15, 'speed': 1})
+    report.time_breaks['imu'] = 1
+    return report
+
+
+def test_what_a_conversion_dropped_is_kept_in_the_sidecar_as_ros_parameters(
+        tmp_path, synthetic_trip):
+    # convert --skip-bad used to leave no trace of the samples it dropped in the bag.
+    dropped = _report_that_dropped_samples()
+    bag = write_trip_bag(synthetic_trip, tmp_path / 'bag', converted=dropped)
+    back = read_bag(bag)
+    assert back.converted is not None and back.params.converted is back.converted
+    assert back.converted.source == dropped.source
+    assert back.converted.dropped == dropped.dropped
+    assert back.converted.first_index == dropped.first_index
+    assert back.converted.samples_dropped == {'imu': 15, 'speed': 1}
+    assert back.converted.time_breaks == {'imu': 1}
+    # A ROS 2 params file still: flat names with scalar or homogeneous list values.
+    rclpy_parameter = pytest.importorskip('rclpy.parameter')
+    flat = rclpy_parameter.parameter_dict_from_yaml_file(str(sidecar_path(bag)),
+                                                         use_wildcard=True)
+    values = {k: rclpy_parameter.parameter_value_to_python(v.value) for k, v in flat.items()}
+    assert values['trip.dropped_when_converted.counts'] == [10, 5, 1]
+    assert values['trip.dropped_when_converted.reasons'] == ['not finite', 'time went back',
+                                                             'beyond limit']
+    # Nothing dropped, nothing written.
+    from gyro_ekf.core.validation import InputReport
+    clean = write_trip_bag(synthetic_trip, tmp_path / 'clean',
+                           converted=InputReport(source='x.mat', skip_bad=True))
+    assert 'dropped_when_converted' not in sidecar_path(clean).read_text()
+    assert read_bag(clean).converted is None
+
+
+@pytest.mark.parametrize('old, new, match', [
+    ('counts:\n        - 10', 'counts:\n        - -10', r"'trip.dropped_when_converted.counts' "
+     'must be a list of non-negative whole numbers, got -10'),
+    ('reasons:\n        - not finite\n', 'reasons:\n', r"'trip.dropped_when_converted': "
+     'fields, reasons, counts, first_indexes must be lists of one non-zero length'),
+    ('        source: IMU_dataC.mat, Speed_dataC.mat\n', '',
+     r"'trip.dropped_when_converted.source' is missing"),
+])
+def test_a_damaged_conversion_record_in_the_sidecar_names_the_parameter(
+        tmp_path, synthetic_trip, old, new, match):
+    bag = write_trip_bag(synthetic_trip, tmp_path / 'bag',
+                         converted=_report_that_dropped_samples())
+    text = sidecar_path(bag).read_text()
+    assert text.count(old) == 1, text
+    sidecar_path(bag).write_text(text.replace(old, new))
+    with pytest.raises(BagError, match='bag.params.yaml: parameter ' + match):
+        read_sidecar(bag)

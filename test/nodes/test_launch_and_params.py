@@ -305,6 +305,30 @@ def test_a_misspelt_parameter_is_warned_about_naming_the_one_meant(ros_env, tmp_
 
 
 @pytest.mark.ros
+def test_a_sidecar_recording_what_convert_dropped_is_taken_without_a_warning(
+        ros_env, tmp_path):
+    # The record of what convert --skip-bad dropped is no parameter of any node: rclpy
+    # must parse it, and no name of it may pass for a misspelt parameter.
+    from gyro_ekf.core.validation import InputReport
+    from gyro_ekf.io.sidecar import BagParams, sidecar_path, to_yaml
+
+    dropped = InputReport(source='IMU_dataC.mat, Speed_dataC.mat', skip_bad=True)
+    dropped.count('imu.angular_velocity.z', 'not finite', 20000, 10)
+    dropped.count('speed.stamp_s', 'time went back', 300, 2)
+    dropped.samples_dropped.update({'imu': 10, 'speed': 2})
+    dropped.time_breaks['speed'] = 1
+    sidecar = sidecar_path(tmp_path / 'bag')
+    sidecar.write_text(to_yaml(BagParams(name='trip', log_time_zero_ns=1_700_000_000 * 10**9,
+                                         converted=dropped)))
+    assert 'dropped_when_converted' in sidecar.read_text()
+    stderr = _run_until_logged(ros_env, tmp_path, 'ekf_node', ['--params-file', str(sidecar)],
+                               'EKF ready')
+    assert 'is not a parameter of this node' not in stderr, stderr
+    assert 'was removed after' not in stderr, stderr
+    assert '[FATAL]' not in stderr and 'Traceback' not in stderr, stderr
+
+
+@pytest.mark.ros
 def test_the_calibration_node_warns_about_its_former_parameters_too(ros_env, tmp_path):
     stderr = _run_until_logged(ros_env, tmp_path, 'calibration_node', [
         '-p', 'confirm_jump_after:=5', '-p', 'limits.max_coordinate_m:=10.0',
