@@ -1,4 +1,9 @@
-"""`gyro-ekf info`: topics, types, counts, duration and start time of a bag (to stdout)."""
+"""`gyro-ekf info`: topics, types, counts, duration and start time of a bag (to stdout).
+
+It also reads the bag's storage files through and checks them as `run` does (CRCs,
+lengths, log times; `io.bag_info.verify_bag`): a damaged bag is a one-line error naming the
+file and the chunk, exit 1, and nothing is printed. `--no-verify` reads the metadata only.
+"""
 
 from __future__ import annotations
 
@@ -8,14 +13,19 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from gyro_ekf.io.bag_info import BagSummary
+    from gyro_ekf.io.bag_info import BagSummary, FileCheck
 
-HELP = 'print the topics, types, message counts, duration and start time of a bag'
+HELP = ('print the topics, types, message counts, duration and start time of a bag, after '
+        'checking its bytes (CRCs) as run does')
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add this command's arguments."""
     parser.add_argument('bag', type=Path, metavar='BAG', help='rosbag2 folder')
+    parser.add_argument('--no-verify', action='store_true',
+                        help='read the metadata only; by default every storage file is read '
+                        'through and its CRCs, lengths and log times are checked (about 1-2 s '
+                        'per hour of bag)')
 
 
 def iso_time(stamp_ns: int) -> str:
@@ -27,8 +37,26 @@ def iso_time(stamp_ns: int) -> str:
     return moment.strftime('%Y-%m-%dT%H:%M:%S') + f'.{nanoseconds:09d}Z'
 
 
-def format_summary(summary: BagSummary) -> str:
-    """Render the text `info` prints."""
+def format_check(check: FileCheck) -> str:
+    """Say what was checked in one storage file."""
+    verified = check.verified
+    if verified is None:
+        return f'{check.name}: not checked ({check.why_not})'
+    crcs = []
+    if verified.data_crc:
+        crcs.append('data section (covers every chunk)')
+    elif verified.chunk_crcs:
+        crcs.append(f'{verified.chunk_crcs} of {verified.chunks} chunks')
+    if verified.summary_crc:
+        crcs.append('summary')
+    said = (f'CRCs match: {", ".join(crcs)}' if crcs else
+            'the file carries no CRCs, so only lengths and log times were checked')
+    chunks = f'{verified.chunks} chunk' + ('' if verified.chunks == 1 else 's')
+    return f'{check.name}: {chunks} read; {said}'
+
+
+def format_summary(summary: BagSummary, checks: list[FileCheck] | None = None) -> str:
+    """Render the text `info` prints; checks None: the files were not read (--no-verify)."""
     from gyro_ekf.core.stamps import seconds_since
 
     # rosbag2 states the largest int64 as the start of a bag without messages.
@@ -47,6 +75,10 @@ def format_summary(summary: BagSummary) -> str:
         lines.append(f'dropped:   when {converted.source} was converted, --skip-bad '
                      f'{converted.dropped_text(indexes=True)}; indexes count in the log, '
                      'these samples are not in the bag')
+    if checks is None:
+        lines.append('checked:   not checked (--no-verify)')
+    for k, check in enumerate(checks or ()):
+        lines.append(('checked:   ' if k == 0 else ' ' * 11) + format_check(check))
     lines.append('topics:')
     rows = [('topic', 'type', 'count', 'durability')] + [
         (t.name, t.msgtype, str(t.count), t.durability) for t in summary.topics]
@@ -59,12 +91,15 @@ def format_summary(summary: BagSummary) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
-    from gyro_ekf.io.bag_info import bag_summary
+    from gyro_ekf.io.bag_info import bag_summary, verify_bag
     from gyro_ekf.io.errors import BagError
     from gyro_ekf.io.reindex import needs_reindex
 
     reason = needs_reindex(args.bag)
     if reason is not None:
         raise BagError(f'{args.bag}: {reason}; run `gyro-ekf reindex {args.bag}`')
-    print(format_summary(bag_summary(args.bag)))
+    summary = bag_summary(args.bag)
+    # Checked before anything is printed: a damaged bag gets its one line only.
+    checks = None if args.no_verify else verify_bag(args.bag)
+    print(format_summary(summary, checks))
     return 0

@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ['ChannelInfo', 'CorruptMcap', 'MAGIC', 'McapError', 'TopicMessages',
-           'UnsupportedMcap', 'read_records', 'stream_topics']
+           'UnsupportedMcap', 'Verified', 'read_records', 'stream_topics', 'verify_file']
 
 MAGIC = b'\x89MCAP0\r\n'
 """Leading and trailing magic of an MCAP (major version 0) file."""
@@ -142,6 +142,23 @@ class ChannelInfo:
     msgtype: str
     metadata: bytes
     compressions: frozenset[str] = frozenset()
+
+
+@dataclass(frozen=True, slots=True)
+class Verified:
+    """What verify_file checked in a file that passed.
+
+    Attributes:
+        chunks: Chunk records read (each decompressed and walked).
+        chunk_crcs: of those, the chunks that carry their own CRC.
+        data_crc: the DataEnd record carries a data-section CRC (it covers every chunk).
+        summary_crc: the Footer carries a summary CRC.
+    """
+
+    chunks: int
+    chunk_crcs: int
+    data_crc: bool
+    summary_crc: bool
 
 
 @dataclass(slots=True)
@@ -270,6 +287,10 @@ class _Scan:
         # True once a data-section CRC covers every byte of the chunks (then their own
         # CRCs add nothing).
         self.data_crc = False
+        # What the file carries: chunks read, chunks with a CRC, a summary CRC.
+        self.chunk_count = 0
+        self.chunk_crc_count = 0
+        self.summary_crc = False
         # The chunk being read: its file offset and [start, end] log-time range.
         self.chunk_at: int | None = None
         self.chunk_times: tuple[int, int] | None = None
@@ -346,6 +367,7 @@ class _Scan:
                 self.crcs.check_in_pieces(buf, data_end, data_crc,
                                           f'data section (bytes 0 to {data_end})', 0)
         if summary_crc:
+            self.summary_crc = True
             begin = summary_start or footer
             self.crcs.check(buf[begin:footer + _FOOTER_CRC_AT], summary_crc,
                             f'summary section at offset {begin}', begin)
@@ -456,6 +478,8 @@ class _Scan:
                 raise self.corrupt(f'the chunk holds {len(records)} bytes, its header says '
                                    f'{uncompressed_size}')
         self.compressions.add(compression)
+        self.chunk_count += 1
+        self.chunk_crc_count += bool(crc)
         if crc and not self.data_crc:
             self.crcs.check(records, crc, f'chunk at offset {at}', at)
         # (0, 0) is what the spec asks of a chunk without messages; some writers leave it
@@ -775,6 +799,27 @@ def stream_topics(path: Path | str, topics: Collection[str],
     scan = _Scan(Path(path), topics, consumer, batch_messages)
     _scan_file(scan, scan.emit)
     return scan.msgtypes()
+
+
+def verify_file(path: Path | str) -> Verified:
+    """Check a whole MCAP file as stream_topics does, keeping no message.
+
+    Every chunk is decompressed and walked, and every check of stream_topics applies: the
+    CRCs the file carries (data section, summary, and each chunk's where no data-section
+    CRC covers it), lengths within the bytes present, DataEnd and Footer, log times within
+    their chunk's range, channels and schemas. Pages are released chunk by chunk, so a
+    long bag is never resident as a whole.
+
+    Returns:
+        What the file carries (how many chunks, which CRCs).
+
+    Raises:
+        CorruptMcap, UnsupportedMcap: as stream_topics (a damaged chunk is named by offset).
+        OSError: the file cannot be read.
+    """
+    scan = _Scan(Path(path), (), lambda topic, batch: None, batch_messages=0)
+    _scan_file(scan, scan.emit)
+    return Verified(scan.chunk_count, scan.chunk_crc_count, scan.data_crc, scan.summary_crc)
 
 
 def _scan_file(scan: _Scan, finish: Callable[[], _T]) -> _T:

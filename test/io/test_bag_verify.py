@@ -141,6 +141,69 @@ def test_without_a_data_section_crc_the_chunk_crc_names_the_chunk(crc_bag):
         read_bag(crc_bag)
 
 
+def _info(capsys, bag, *flags) -> tuple[int, str, str]:
+    from gyro_ekf.cli.main import main
+    code = main(['-q', 'info', str(bag), *flags])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+@pytest.mark.parametrize('data_crc', [True, False], ids=['data-section CRC', 'chunk CRCs only'])
+def test_info_refuses_a_bag_with_a_flipped_bit_as_run_does(crc_bag, capsys, data_crc):
+    # A user checks a bag with info: it used to print the summary of a bag run refuses.
+    trip = big_trip()
+    mcap = mcap_of(crc_bag)
+    data = mcap.read_bytes()
+    if not data_crc:
+        put(mcap, data_end(data).offset + 9, bytes(4))       # DataEnd: "no CRC"
+    value = imu_value_offset(data, trip)
+    chunk = next(c for c in chunks(data) if c.offset < value < c.end)
+    flip(mcap, value + 7, bit=6)
+    code, out, err = _info(capsys, crc_bag)
+    assert code == 1 and out == ''
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and 'Traceback' not in err, err
+    assert f'crc.mcap: chunk at offset {chunk.offset}: CRC mismatch (stored ' in lines[0]
+    assert lines[0].startswith(f'gyro-ekf info: error: {mcap}: ')
+    with pytest.raises(BagError) as raised:      # what run says
+        read_bag(crc_bag)
+    assert str(raised.value) in lines[0]
+
+
+@pytest.mark.parametrize('data_crc', [True, False], ids=['data-section CRC', 'chunk CRCs only'])
+def test_info_says_which_crcs_it_checked(crc_bag, capsys, data_crc):
+    mcap = mcap_of(crc_bag)
+    data = mcap.read_bytes()
+    n = len(chunks(data))
+    if not data_crc:
+        put(mcap, data_end(data).offset + 9, bytes(4))
+    code, out, _ = _info(capsys, crc_bag)
+    assert code == 0
+    said = ('data section (covers every chunk), summary' if data_crc
+            else f'{n} of {n} chunks, summary')
+    assert f'checked:   crc.mcap: {n} chunks read; CRCs match: {said}' in out.splitlines()
+    # Asked not to read the data, info reads the metadata only, and says so.
+    flip(mcap, imu_value_offset(data, big_trip()) + 7, bit=6)
+    code, out, _ = _info(capsys, crc_bag, '--no-verify')
+    assert code == 0 and 'checked:   not checked (--no-verify)' in out.splitlines()
+
+
+def test_info_on_a_bag_without_crcs_checks_lengths_and_log_times(plain_bag, capsys):
+    mcap = mcap_of(plain_bag)
+    data = mcap.read_bytes()
+    offset, _ = messages_in_chunk(data, chunks(data)[1])[10]
+    flip(mcap, offset + 9 + 6 + 5, bit=3)       # log time += 2^43 ns (about 2.4 h)
+    code, out, err = _info(capsys, plain_bag)
+    assert code == 1 and out == '' and len(err.strip().splitlines()) == 1, err
+    assert f"plain.mcap: chunk at offset {chunks(data)[1].offset}" in err
+    assert "outside its chunk's range" in err
+    mcap.write_bytes(data)
+    code, out, _ = _info(capsys, plain_bag)
+    assert code == 0
+    assert ('the file carries no CRCs, so only lengths and log times were checked'
+            in out), out
+
+
 @pytest.mark.parametrize('which, match', [('crc_bag', 'CRC mismatch'),
                                           ('plain_bag', "outside its chunk's range")])
 def test_a_flipped_log_time_is_refused_with_or_without_crcs(request, which, match):

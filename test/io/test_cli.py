@@ -41,6 +41,7 @@ def test_convert_then_info(tmp_path, capsys):
     assert re.search(r'/landmark_map\s+geometry_msgs/msg/PoseArray\s+1\s+transient_local',
                      text)
     assert 'bag.params.yaml' in text
+    assert 'bag.db3: not checked (sqlite3 storage carries no CRCs)' in text
 
 
 def test_info_on_missing_bag(tmp_path, capsys):
