@@ -360,10 +360,14 @@ class _Stream:
         With skip_bad a sample older than the last kept one is dropped (the stream went
         back: a counted segment break, its older samples dropped until time passes the
         last kept stamp again) and a lone sample ahead of its neighbours (a flipped bit, a
-        message logged out of place) is dropped, not the samples after it. A stream that
-        jumps ahead and stays there is a sensor silent for a while: kept and flagged in the
-        report; whether any stream covers the gap is checked on the whole trip
-        (`_check_timeline`).
+        message logged out of place) is dropped, not the samples after it. A sample that
+        comes back to the very stamp of the last kept one after samples were dropped in
+        between (time went back, or a lone sample ahead) is dropped too, counted as time
+        going back: it would give that instant a second value, which a bag refuses (two
+        messages of a topic with one stamp; equal stamps side by side stay, as without
+        skip_bad). A stream that jumps ahead and stays there is a sensor silent for a
+        while: kept and flagged in the report; whether any stream covers the gap is
+        checked on the whole trip (`_check_timeline`).
         """
         stamps = self.stamps
         self.flag(f'{self.name}.stamp_s', ~np.isfinite(stamps), NOT_FINITE,
@@ -376,7 +380,8 @@ class _Stream:
             return
         field_name = f'{self.name}.stamp_s'
         times = kept.tolist()
-        last, last_k, before = times[0], 0, None  # before: the kept stamp before last
+        # before: the kept stamp before last (before_k its position), when known.
+        last, last_k, before, before_k = times[0], 0, None, 0
         going_back = False
         for k in range(1, len(times)):
             t = times[k]
@@ -391,7 +396,21 @@ class _Stream:
                     raise InvalidInputError(self.source, field_name, i, reason)
                 self.report.count(field_name, JUMPED_AHEAD, i, 1)
                 self.keep[i] = False
-                last, last_k = t, k
+                if t > before:
+                    last, last_k = t, k
+                    continue
+                # t repeats the stamp kept before the lone sample: judged below.
+                last, last_k, before = before, before_k, None
+            if t == last and last_k != k - 1:
+                # Back at the last kept stamp after dropped samples: a second value for
+                # one instant (kept side by side, equal stamps would be fine).
+                i = int(index[k])
+                problem = (f'stamp {t:.6f} s repeats the last kept sample\'s after the '
+                           'stream went back: a second value for one instant')
+                if not self.report.skip_bad:
+                    raise InvalidInputError(self.source, field_name, i, problem)
+                self.report.count(field_name, TIME_WENT_BACK, i, 1)
+                self.keep[i] = False
                 continue
             if t < last:
                 problem = (TIME_WENT_BACK, f'time went back {last - t:.6g} s '
@@ -406,12 +425,12 @@ class _Stream:
                           f'{t:.6f} s; the limit is {jump:g} s)')
                 if after is not None and t <= after <= t + jump:
                     self.report.gaps.append(f'{field_name}[{int(index[k])}]: {reason}')
-                    before, last, last_k = last, t, k
+                    before, before_k, last, last_k = last, last_k, t, k
                     going_back = False
                     continue
                 problem = (JUMPED_AHEAD, reason)
             else:
-                before, last, last_k = last, t, k
+                before, before_k, last, last_k = last, last_k, t, k
                 going_back = False
                 continue
             i = int(index[k])

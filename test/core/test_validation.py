@@ -178,9 +178,10 @@ def test_time_going_back_ten_seconds():
                                                 r'\(from 9.995000 s to 0.000000 s\)'):
         validate_trip(bad, 'x')
     checked, report = validate_trip(bad, 'x', skip_bad=True)
-    # The older samples are dropped until time passes the last kept stamp again.
-    assert np.all(np.diff(checked.imu.stamp_s) >= 0)
-    assert report.dropped == {('imu.stamp_s', TIME_WENT_BACK): 1999}
+    # The older samples are dropped until time passes the last kept stamp again; sample
+    # 3999 comes back to that very stamp (9.995 s) with other values and goes too.
+    assert np.all(np.diff(checked.imu.stamp_s) > 0)
+    assert report.dropped == {('imu.stamp_s', TIME_WENT_BACK): 2000}
     assert report.first_index[('imu.stamp_s', TIME_WENT_BACK)] == 2000
     assert report.time_breaks == {'imu': 1}
     assert checked.imu.stamp_s[-1] == stamps[-1]
@@ -276,6 +277,38 @@ def test_one_imu_sample_ahead_of_its_neighbours_is_the_one_refused_or_dropped():
     stamps[1000:] -= 8.0
     with pytest.raises(InvalidInputError, match=re.escape('imu.stamp_s[1000]: time went back')):
         validate_trip(_with_imu(trip, stamps=stamps), 'x')
+
+
+def test_with_skip_bad_a_sample_back_at_the_last_kept_stamp_is_dropped_not_kept_twice():
+    # After the stamps stepped back, a sample at exactly the last kept stamp was kept: two
+    # values for one instant, which a bag refuses (two messages with one stamp).
+    trip = _trip()
+    rates = trip.imu.angular_velocity_rad_s
+    stamps = trip.imu.stamp_s.copy()                 # 0.005 s steps
+    stamps[1000:] -= 0.05                            # back 0.05 s after 4.995 s (index 999)
+    assert stamps[1009] == stamps[999] and rates[1009, 2] != rates[999, 2]
+    checked, report = validate_trip(_with_imu(trip, stamps=stamps), 'x', skip_bad=True)
+    assert np.all(np.diff(checked.imu.stamp_s) > 0)
+    assert report.dropped == {('imu.stamp_s', TIME_WENT_BACK): 10}      # 1000 to 1009
+    assert report.time_breaks == {'imu': 1}
+    np.testing.assert_array_equal(checked.imu.stamp_s[999:1001], [stamps[999], stamps[1010]])
+    assert checked.imu.angular_velocity_rad_s[999, 2] == rates[999, 2]
+    # A lone sample ahead, then one at the stamp kept before it: both dropped.
+    stamps = trip.imu.stamp_s.copy()
+    stamps[1000] += 8.0
+    stamps[1001] = stamps[999]
+    checked, report = validate_trip(_with_imu(trip, stamps=stamps), 'x', skip_bad=True)
+    assert np.all(np.diff(checked.imu.stamp_s) > 0)
+    assert report.dropped == {('imu.stamp_s', JUMPED_AHEAD): 1,
+                              ('imu.stamp_s', TIME_WENT_BACK): 1}
+    assert report.first_index[('imu.stamp_s', TIME_WENT_BACK)] == 1001
+    assert len(checked.imu.stamp_s) == len(stamps) - 2
+    # Equal stamps side by side stay, with --skip-bad or without (a log's own repeat).
+    stamps = trip.imu.stamp_s.copy()
+    stamps[1001] = stamps[1000]
+    for skip_bad in (False, True):
+        checked, report = validate_trip(_with_imu(trip, stamps=stamps), 'x', skip_bad=skip_bad)
+        assert report.dropped == {} and len(checked.imu.stamp_s) == len(stamps)
 
 
 def test_a_trip_without_speed_samples_is_refused_and_its_span_still_known():

@@ -154,6 +154,21 @@ def test_run_refuses_imu_header_stamps_going_back_in_one_line(
     assert not (tmp_path / 'out').exists()
 
 
+@READERS
+def test_with_skip_bad_a_message_back_at_the_last_kept_stamp_is_dropped(
+        tmp_path, clean_bag, read):  # noqa: F811
+    # Message 299 takes message 199's stamp, with other contents: the reader leaves it to
+    # the validation boundary (the stamps went back at 200), where --skip-bad kept it, a
+    # second value for one instant that the reader refuses when the stamps did not go back.
+    bag = rewrite(clean_bag, tmp_path / 'bag', _imu_back_onto_earlier_stamps)
+    trip = read(bag).trip
+    assert trip.imu.stamp_s[299] == trip.imu.stamp_s[199]
+    checked, report = validate_trip(trip, bag.name, skip_bad=True)
+    assert np.all(np.diff(checked.imu.stamp_s) > 0)
+    assert report.dropped == {('imu.stamp_s', 'time went back'): 100}    # 200 to 299
+    assert report.samples_dropped == {'imu': 100}
+
+
 def _duplicates(items):
     # Every 25th message, when it is an IMU one, recorded twice in a row; one odometry
     # message once more at the end of the bag (received again much later).
