@@ -105,7 +105,12 @@ def params_of_trip(trip: Trip, log_time_zero_ns: int,
         converted=converted if converted is not None and converted.total_dropped else None)
 
 
-_CONVERTED = 'trip.dropped_when_converted'
+CONVERTED_PARAMETER = 'trip.dropped_when_converted'
+"""Where what `convert --skip-bad` dropped from the log is recorded."""
+CONVERTED_KEYS = (('source', str), ('streams', str), ('samples', int), ('time_breaks', int),
+                  ('fields', str), ('reasons', str), ('counts', int), ('first_indexes', int))
+"""The entries of `trip.dropped_when_converted` and their (element) types: source is a text,
+the others are lists."""
 
 
 def _converted_values(report: InputReport) -> dict[str, Any]:
@@ -123,30 +128,43 @@ def _parse_converted(tree: dict[str, Any], path: Path) -> InputReport | None:
     """Read `trip.dropped_when_converted` back into an InputReport, or None without it.
 
     Raises:
-        BagError: an entry missing, of the wrong type, a negative count, or lists of
-            different lengths.
+        BagError: as converted_report.
     """
     trip = tree.get('trip')
     if not isinstance(trip, dict) or 'dropped_when_converted' not in trip:
         return None
-    source = _get(tree, f'{_CONVERTED}.source', str, path)
+    return converted_report(trip['dropped_when_converted'], path.name)
+
+
+def converted_report(record: Any, where: str) -> InputReport:
+    """Check a `trip.dropped_when_converted` record and return it as an InputReport.
+
+    Args:
+        record: its entries by name (CONVERTED_KEYS: source, streams, samples, ...), as the
+            sidecar holds them or a node received them as parameters.
+        where: what an error names first (the sidecar's file name, or the node).
+
+    Raises:
+        BagError: an entry missing, of the wrong type, a negative count, or lists of
+            different lengths.
+    """
+    tree = {'trip': {'dropped_when_converted': record}}
+    source = _get(tree, f'{CONVERTED_PARAMETER}.source', str, where)
     lists = {}
-    for key, kind in (('streams', str), ('samples', int), ('time_breaks', int),
-                      ('fields', str), ('reasons', str), ('counts', int),
-                      ('first_indexes', int)):
-        values = _get(tree, f'{_CONVERTED}.{key}', list, path)
+    for key, kind in CONVERTED_KEYS[1:]:
+        values = _get(tree, f'{CONVERTED_PARAMETER}.{key}', list, where)
         for value in values:
             if not isinstance(value, kind) or isinstance(value, bool) or (
                     kind is int and value < 0):
                 what = 'texts' if kind is str else 'non-negative whole numbers'
-                raise BagError(f"{path.name}: parameter '{_CONVERTED}.{key}' must be a "
+                raise BagError(f"{where}: parameter '{CONVERTED_PARAMETER}.{key}' must be a "
                                f'list of {what}, got {value!r} in it')
         lists[key] = values
     for group in (('streams', 'samples', 'time_breaks'),
                   ('fields', 'reasons', 'counts', 'first_indexes')):
         lengths = {len(lists[key]) for key in group}
         if len(lengths) != 1 or not lists[group[0]]:
-            raise BagError(f"{path.name}: parameter '{_CONVERTED}': "
+            raise BagError(f"{where}: parameter '{CONVERTED_PARAMETER}': "
                            f"{', '.join(group)} must be lists of one non-zero length")
     report = InputReport(source=source, skip_bad=True)
     for stream, n, breaks in zip(lists['streams'], lists['samples'], lists['time_breaks']):
@@ -187,15 +205,17 @@ def to_yaml(params: BagParams) -> str:
                                    default_flow_style=False)
 
 
-def _get(tree: dict[str, Any], dotted: str, kind: type | tuple[type, ...], path: Path
-         ) -> Any:
+def _get(tree: dict[str, Any], dotted: str, kind: type | tuple[type, ...],
+         path: Path | str) -> Any:
+    """Return the entry at a dotted name; an error names path (its file name) and the entry."""
+    where = path.name if isinstance(path, Path) else path
     value: Any = tree
     for part in dotted.split('.'):
         if not isinstance(value, dict) or part not in value:
-            raise BagError(f"{path.name}: parameter '{dotted}' is missing")
+            raise BagError(f"{where}: parameter '{dotted}' is missing")
         value = value[part]
     if not isinstance(value, kind) or isinstance(value, bool):
-        raise BagError(f"{path.name}: parameter '{dotted}' = {value!r} has the wrong type")
+        raise BagError(f"{where}: parameter '{dotted}' = {value!r} has the wrong type")
     return value
 
 
