@@ -178,11 +178,11 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
     monitor = run.result.health
     sensors = [] if monitor is None else monitor.report()
     section = summary['input']
-    dropped = {} if section is None else {f'{stream} samples': int(n) for stream, n
-                                          in section['samples_dropped'].items()}
+    dropped = {} if section is None else health.samples_dropped_figures(
+        section['samples_dropped'])
     converted = None if section is None else section.get('dropped_when_converted')
-    dropped_when_converted = {} if converted is None else {
-        f'{stream} samples': int(n) for stream, n in converted['samples_dropped'].items()}
+    dropped_when_converted = {} if converted is None else health.samples_dropped_figures(
+        converted['samples_dropped'])
     stats = run.result.stats
     figures = health.RunFigures(
         # Excluded LiDARs' detections have their own reason, not the share's.

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Mapping
 from statistics import NormalDist
 from dataclasses import dataclass, field
 from typing import Any, Hashable
@@ -615,6 +616,15 @@ class RunFigures:
     odometry: dict[str, Any] | None = None
     scans: int = 0
     finished: bool = False
+
+
+def samples_dropped_figures(samples_dropped: Mapping[str, int]) -> dict[str, int]:
+    """Return RunFigures.dropped / dropped_when_converted of samples dropped per stream.
+
+    '<stream> samples' -> count, the names the verdict's reason lists (for `gyro-ekf run`
+    and the EKF node alike).
+    """
+    return {f'{stream} samples': int(n) for stream, n in samples_dropped.items()}
 
 
 def _whiteness_reasons(sensors: list[dict[str, Any]]) -> list[tuple[str, str]]:
