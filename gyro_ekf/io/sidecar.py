@@ -31,8 +31,8 @@ exactly what rosbag2 expects). It is a ROS 2 parameters file, so nodes take it w
 
 All values are SI; names end in their unit. Unknown entries are left out (ROS parameters have
 no null). `trip.dropped_when_converted` keeps what `convert --skip-bad` dropped from the log
-with the bag, so a run on the bag counts it (parallel lists: ROS parameters hold no lists of
-mappings; no node declares these names, and none is close to one a node declares).
+with the bag, so a run on the bag counts it, and so does the EKF node, which declares these
+names (nodes/params.py; parallel lists: ROS parameters hold no lists of mappings).
 """
 
 from __future__ import annotations

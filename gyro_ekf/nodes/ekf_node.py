@@ -28,7 +28,10 @@ to their landmark and its other detections, 2 Hz), latched `landmark_markers` (t
 and with `publish_tf` TF `map -> base_link` (or `map -> odom_frame`, robot_localization's
 rule) where the install has tf2_msgs. `/diagnostics`
 reports the bias and its sigma in deg/s, associated/rejected observations, mean NIS, input
-rates, time since the last associated landmark, the drop counts, the matched readers of
+rates, time since the last associated landmark, the drop counts (with what `gyro-ekf
+convert --skip-bad` dropped from the bag's log, as its sidecar records it:
+`dropped_when_converted`, `dropped_when_converted_<stream>`, `converted_from`; the verdict
+counts it as `gyro-ekf run` does), the matched readers of
 ekf/odometry and ekf/bias (`odometry_readers`, `bias_readers`: neither is published without
 one, to save the CPU), the zero-rate updates
 (`standing_still`: they are being applied now, core/events.py), the health verdict
@@ -223,6 +226,12 @@ class EkfNode(Node):
             config = with_stated_noise(config, sidecar.noise)
         self.config = config
         self._sidecar = sidecar
+        # What convert --skip-bad dropped from the log this bag was written from (its
+        # sidecar): missing from the input, counted by the verdict as `gyro-ekf run` does.
+        converted = sidecar.converted
+        self._dropped_when_converted = {} if converted is None else dict(
+            converted.samples_dropped)
+        self._converted_from = '' if converted is None else converted.source
         self._use_message_covariance = options.use_message_covariance
         self._use_calibration = options.use_calibration
         self._calibration_sigma = options.calibration_bias_sigma_rad_s
@@ -772,6 +781,9 @@ class EkfNode(Node):
             longest_gap_s=max(stats.longest_gap_s, since or 0.0), start_gap_s=start_gap,
             sensors=self.driver.health.report(), resets=self.resets,
             dropped={k: self.dropped[k] for k in VERDICT_DROP_REASONS},
+            dropped_when_converted=health.samples_dropped_figures(
+                self._dropped_when_converted),
+            converted_from=self._converted_from,
             final_bias_rad_s=self.driver.ekf.bias_rad_s, unmapped=stats.unmapped,
             scans=stats.scans, bias_openings=stats.bias_openings,
             bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s,
@@ -831,6 +843,11 @@ class EkfNode(Node):
                 'replayed_events': str(self._lagged.stats.replayed_events),
                 'refused_held_observations': str(self._lagged.stats.refused)}),
             **{f'dropped_{k}': str(v) for k, v in self.dropped.items()},
+            # What convert --skip-bad dropped from the bag's log (its sidecar), per stream.
+            'dropped_when_converted': str(sum(self._dropped_when_converted.values())),
+            **{f'dropped_when_converted_{stream}': str(n)
+               for stream, n in self._dropped_when_converted.items()},
+            'converted_from': self._converted_from,
             # The mounts in use (from the params files, e.g. calibrate-mounts' output, or
             # estimated online) and the online estimators' state.
             **{f'mount_{topic}_{key}': value

@@ -8,8 +8,9 @@ from them once) and builds the config back from the values the node received
 (`--params-file`, `-p name:=value` or the defaults).
 
 The bag sidecar (`gyro_ekf.io.sidecar`) is a params file too: `declare_sidecar` declares
-its entries (initial pose, LiDAR mounts per scan topic, stated noise, time zero) so a node
-started with `--params-file BAG.params.yaml` gets them with no hand-typed flags.
+its entries (initial pose, LiDAR mounts per scan topic, stated noise, time zero, what
+`convert --skip-bad` dropped from the log) so a node started with `--params-file
+BAG.params.yaml` gets them with no hand-typed flags.
 
 A parameter a node does not declare would be ignored by rclpy without a word;
 `report_ignored` warns once for each former or misspelt parameter the node is given.
@@ -31,6 +32,8 @@ from rclpy.parameter import Parameter
 from gyro_ekf.core.config import config_fields, ConfigT, make_config
 from gyro_ekf.core.config import STATED_NOISE_FIELDS as NOISE_FIELDS
 from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures
+from gyro_ekf.core.validation import InputReport
+from gyro_ekf.io.sidecar import CONVERTED_KEYS, CONVERTED_PARAMETER, converted_report
 
 
 def _range(low: float | None, high: float | None, integer: bool) -> dict[str, Any]:
@@ -58,7 +61,8 @@ def declare(node: Node, name: str, default: Any, description: str, unit: str = '
         node: the node.
         name: parameter name (dots for nesting).
         default: default value; its type is the parameter's type. Parameter.Type.STRING_ARRAY
-            declares a string list that defaults to empty (ROS cannot infer the type of []).
+            or INTEGER_ARRAY declares a list that defaults to empty (ROS cannot infer the
+            type of []).
         description: what it does (shown by `ros2 param describe`).
         unit: unit appended to the description, if any.
         low: smallest allowed value, or None.
@@ -74,7 +78,7 @@ def declare(node: Node, name: str, default: Any, description: str, unit: str = '
         description=text, read_only=read_only, dynamic_typing=is_float,
         **_range(low, high, isinstance(default, int) and not isinstance(default, bool)))
     value = node.declare_parameter(name, default, descriptor).value
-    if default is Parameter.Type.STRING_ARRAY:
+    if default is Parameter.Type.STRING_ARRAY or default is Parameter.Type.INTEGER_ARRAY:
         return list(value or [])
     if is_float and isinstance(value, int) and not isinstance(value, bool):
         value = float(value)
@@ -155,12 +159,16 @@ class SidecarParams:
         initial_pose: shape (3,): x m, y m, yaw rad in `map`.
         lidars: scan topic -> (frame_id, mount).
         noise: stated noise figures (None = not stated).
+        converted: what `gyro-ekf convert --skip-bad` dropped from the log the bag was
+            written from (`trip.dropped_when_converted`: source, samples_dropped per stream,
+            dropped per field and reason, ...), or None when nothing was recorded.
     """
 
     time_zero_ns: int
     initial_pose: FloatArray
     lidars: dict[str, tuple[str, LidarMount]] = field(default_factory=dict)
     noise: NoiseFigures = field(default_factory=NoiseFigures)
+    converted: InputReport | None = None
 
     def mount_for_frame(self, frame_id: str) -> LidarMount | None:
         """Mount of the LiDAR whose frame is frame_id, or None when no LiDAR has it."""
@@ -180,6 +188,13 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
         noise: declare `noise.{gyro_rad_s,speed_m_s,range_m,bearing_rad}` (0 = not stated)
             and `noise.landmark_m` (negative = not stated: 0 states an exact map).
         pose: declare `initial_pose.{x_m,y_m,yaw_rad}`.
+
+    `trip.dropped_when_converted.*` (what `convert --skip-bad` dropped from the log) is
+    always declared.
+
+    Raises:
+        BagError: a `trip.dropped_when_converted` record given in part or damaged (the
+            sidecar's own check, naming the node and the parameter).
     """
     zero_ns = declare(node, 'trip.log_time_zero_ns', 0,
                       'Stamp of the log\'s time zero; stamps are converted to seconds since '
@@ -221,4 +236,37 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
                             'use_stated_noise is true. 0 = not stated', '', 0.0, None)
             stated[key] = value if value > 0.0 else None
         figures = NoiseFigures(**stated)
-    return SidecarParams(int(zero_ns), np.array(initial, dtype=np.float64), mounts, figures)
+    return SidecarParams(int(zero_ns), np.array(initial, dtype=np.float64), mounts, figures,
+                         _declare_converted(node))
+
+
+CONVERTED_DESCRIPTIONS = {
+    'source': 'the log it read (file names); empty = no record',
+    'streams': 'the streams it dropped samples of (imu, speed, lidar.<topic>, ...)',
+    'samples': 'samples dropped, per stream of streams',
+    'time_breaks': 'times the stream\'s time went back, per stream of streams',
+    'fields': 'the field of each count (with reasons, counts, first_indexes)',
+    'reasons': 'the reason of each count',
+    'counts': 'samples dropped, per field and reason',
+    'first_indexes': 'the first index dropped, per field and reason, in the log\'s series',
+}
+"""What each entry of `trip.dropped_when_converted` says (written by `convert --skip-bad`)."""
+
+
+def _declare_converted(node: Node) -> InputReport | None:
+    """Declare `trip.dropped_when_converted.*`; return the record given, or None."""
+    record = {}
+    for key, kind in CONVERTED_KEYS:
+        description = ('What gyro-ekf convert --skip-bad dropped from the bag\'s log (the '
+                       f'verdict counts it): {CONVERTED_DESCRIPTIONS[key]}')
+        if key == 'source':
+            value = declare(node, f'{CONVERTED_PARAMETER}.{key}', '', description)
+        else:
+            value = declare(node, f'{CONVERTED_PARAMETER}.{key}',
+                            Parameter.Type.STRING_ARRAY if kind is str
+                            else Parameter.Type.INTEGER_ARRAY, description)
+        if value:  # an entry not given is left out: the check names it as missing
+            record[key] = value
+    if not record:
+        return None
+    return converted_report(record, f'node {node.get_fully_qualified_name()}')

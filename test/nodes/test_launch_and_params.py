@@ -307,8 +307,8 @@ def test_a_misspelt_parameter_is_warned_about_naming_the_one_meant(ros_env, tmp_
 @pytest.mark.ros
 def test_a_sidecar_recording_what_convert_dropped_is_taken_without_a_warning(
         ros_env, tmp_path):
-    # The record of what convert --skip-bad dropped is no parameter of any node: rclpy
-    # must parse it, and no name of it may pass for a misspelt parameter.
+    # The record of what convert --skip-bad dropped: rclpy must parse it, the EKF node
+    # declares it, and no name of it may pass for a misspelt parameter.
     from gyro_ekf.core.validation import InputReport
     from gyro_ekf.io.sidecar import BagParams, sidecar_path, to_yaml
 
