@@ -91,6 +91,40 @@ def share_inside(values: FloatArray, low: float, high: float) -> float:
     return float(np.mean((values >= low) & (values <= high)))
 
 
+def covariance_rank(covariances: FloatArray) -> NDArray[np.int64]:
+    """Rank of each covariance (n, d, d) -> (n,): its eigenvalues above 1e-12 of the largest."""
+    P = np.asarray(covariances, dtype=np.float64)
+    if P.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    eigenvalues = np.linalg.eigvalsh(P)
+    largest = np.maximum(eigenvalues[:, -1:], np.finfo(float).tiny)
+    return np.sum(eigenvalues > 1e-12 * largest, axis=1).astype(np.int64)
+
+
+def nees_band_outcome(nees: FloatArray, dof: NDArray[np.int64],
+                      probability: float = BAND_PROBABILITY
+                      ) -> tuple[BoolArray, BoolArray, BoolArray]:
+    """Return (inside, below, above) the two-sided band of each NEES sample's own dof.
+
+    A consistent filter's NEES is chi-square with as many dof as its covariance has rank
+    (the error lies in P's range; ``normalized_squared_error`` uses the pseudo-inverse
+    there). So each sample is judged against the band of its rank: 3 for a pose the filter
+    is unsure of in every direction; 1 where it holds the position exactly and only the
+    heading is uncertain; 0 where it claims the whole pose exactly, when the only
+    consistent NEES is 0 (a held start pose, ``core/held_start.py``: the claim holds, and
+    a zero error is no sign of a covariance too large). An error where P says none can be
+    is inf, above every band.
+    """
+    nees = np.asarray(nees, dtype=np.float64)
+    dof = np.asarray(dof, dtype=np.int64)
+    low, high = np.zeros(nees.shape), np.zeros(nees.shape)
+    for rank in np.unique(dof).tolist():
+        if rank > 0:
+            low[dof == rank], high[dof == rank] = chi_square_band(rank, probability)
+    below, above = nees < low, nees > high
+    return ~(below | above), below, above
+
+
 def pose_errors(estimated_pose: FloatArray, true_pose: FloatArray) -> FloatArray:
     """Return estimate minus truth, shape (n, 3): x m, y m, yaw rad (wrapped)."""
     est = np.asarray(estimated_pose, dtype=np.float64).reshape(-1, 3)
@@ -282,13 +316,16 @@ class TruthComparison:
         stamp_s: shape (g,), s.
         errors: estimate minus truth, shape (g, 3): x m, y m, yaw rad.
         sigmas: filter standard deviations of x, y, yaw, shape (g, 3): m, m, rad.
-        nees: pose NEES (3 dof), shape (g,).
+        nees: pose NEES, shape (g,).
+        dof: the rank of each pose covariance, the NEES's dof (3 unless the filter holds
+            some of the pose exactly), shape (g,).
     """
 
     stamp_s: FloatArray
     errors: FloatArray
     sigmas: FloatArray
     nees: FloatArray
+    dof: NDArray[np.int64]
 
     @property
     def position_error_m(self) -> FloatArray:
@@ -316,4 +353,5 @@ def compare_with_truth(stamp_s: FloatArray, state: FloatArray, covariance: Float
     sigmas = np.sqrt(np.maximum(np.einsum('nii->ni', P), 0.0))
     return TruthComparison(stamp_s=np.asarray(truth_stamp_s, dtype=np.float64)[inside],
                            errors=errors, sigmas=sigmas,
-                           nees=normalized_squared_error(errors, P))
+                           nees=normalized_squared_error(errors, P),
+                           dof=covariance_rank(P))

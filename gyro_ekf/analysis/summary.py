@@ -28,9 +28,11 @@ Definitions (see `metrics` for the band and the interpolation):
   for a bag `convert --skip-bad` wrote, the same figures of what the conversion dropped from
   the log (``dropped_when_converted``, from the bag's sidecar; indexes in the log).
 - *Ground truth* (only when the trip has it): position RMSE and max error, heading RMSE
-  over the estimates inside the truth's span; pose NEES (3 dof) mean and share inside the
-  band; bias error (estimate minus the known injected bias) at the end and averaged over
-  the second half; settling time: the last time the bias error is outside +-0.05 deg/s.
+  over the estimates inside the truth's span; pose NEES mean and the shares inside, below
+  and above the band of each sample's dof (the rank of its covariance: 3, or fewer where
+  the filter holds part of the pose exactly; `metrics.nees_band_outcome`); bias error
+  (estimate minus the known injected bias) at the end and averaged over the second half;
+  settling time: the last time the bias error is outside +-0.05 deg/s.
 """
 
 from __future__ import annotations
@@ -215,6 +217,11 @@ def _longest_interval(stamps: FloatArray, start: float, end: float) -> float:
     return float(np.max(np.diff(inside), initial=0.0))
 
 
+def _share(flags: np.ndarray) -> float:
+    """Share of True among flags (nan when there are none)."""
+    return float(np.mean(flags)) if flags.size else math.nan
+
+
 def _truth_summary(run: OfflineRun, last_half: np.ndarray) -> dict[str, Any]:
     estimates = run.result.estimates
     truth = run.trip.ground_truth
@@ -222,6 +229,7 @@ def _truth_summary(run: OfflineRun, last_half: np.ndarray) -> dict[str, Any]:
     comparison = metrics.compare_with_truth(estimates.stamp_s, estimates.state,
                                             estimates.covariance, truth.stamp_s, truth.pose)
     band = metrics.chi_square_band(3)
+    inside, below, above = metrics.nees_band_outcome(comparison.nees, comparison.dof)
     updates = run.result.updates.stamp_s
     first_update = float(updates[0]) if updates.size else math.inf
     position = comparison.position_error_m
@@ -231,16 +239,17 @@ def _truth_summary(run: OfflineRun, last_half: np.ndarray) -> dict[str, Any]:
         'position_max_error_m': float(position.max()) if position.size else math.nan,
         'heading_rmse_rad': metrics.rmse(comparison.errors[:, 2]),
         'heading_rmse_deg': _deg(metrics.rmse(comparison.errors[:, 2])),
+        # Each sample is judged in the band of its covariance's rank (3, unless the
+        # filter holds part of the pose exactly: a held start pose); nees_band is 3 dof's.
         'nees_dof': 3, 'nees_band': band,
+        'nees_samples_by_dof': {str(d): int(np.sum(comparison.dof == d)) for d in range(4)},
         'nees_mean': float(np.mean(comparison.nees)) if comparison.nees.size else math.nan,
-        'nees_share_in_band': metrics.share_inside(comparison.nees, *band),
+        'nees_share_in_band': _share(inside),
         # Before any landmark is seen only the priors speak; this share leaves that out.
-        'nees_share_in_band_after_first_update': metrics.share_inside(
-            comparison.nees[comparison.stamp_s >= first_update], *band),
-        'nees_share_below_band': float(np.mean(comparison.nees < band[0]))
-        if comparison.nees.size else math.nan,
-        'nees_share_above_band': float(np.mean(comparison.nees > band[1]))
-        if comparison.nees.size else math.nan,
+        'nees_share_in_band_after_first_update': _share(
+            inside[comparison.stamp_s >= first_update]),
+        'nees_share_below_band': _share(below),
+        'nees_share_above_band': _share(above),
     }
     true_bias = run.trip.true_gyro_bias_rad_s
     if true_bias is not None:

@@ -63,6 +63,38 @@ def test_nees_of_a_singular_covariance_uses_the_pseudo_inverse():
     assert math.isinf(nees[1])
 
 
+def test_each_nees_sample_is_judged_in_the_band_of_its_covariance_rank():
+    rng = np.random.default_rng(7)
+    n = 20_000
+    # A filter sure of the position (held exactly) and unsure of the heading, consistent:
+    # its NEES is chi-square with 1 dof, which the 3-dof band would call too small.
+    sigma = 0.01
+    errors = np.zeros((n, 3))
+    errors[:, 2] = rng.normal(size=n) * sigma
+    P = np.zeros((n, 3, 3))
+    P[:, 2, 2] = sigma ** 2
+    nees = metrics.normalized_squared_error(errors, P)
+    dof = metrics.covariance_rank(P)
+    assert set(dof.tolist()) == {1}
+    inside, below, above = metrics.nees_band_outcome(nees, dof)
+    assert inside.mean() == pytest.approx(0.95, abs=0.01)
+    assert below.mean() == pytest.approx(0.025, abs=0.005)
+    assert metrics.share_inside(nees, *metrics.chi_square_band(3)) < 0.7
+    # A pose claimed exact (P = 0): a zero error is the claim holding, any other is inf.
+    exact = np.zeros((2, 3, 3))
+    nees = metrics.normalized_squared_error(np.array([[0.0, 0.0, 0.0], [1e-3, 0.0, 0.0]]),
+                                            exact)
+    inside, below, above = metrics.nees_band_outcome(nees, metrics.covariance_rank(exact))
+    assert inside.tolist() == [True, False] and above.tolist() == [False, True]
+    # Full rank: the 3-dof band, as share_inside.
+    full = np.tile(np.diag([4e-4, 1e-4, 2.5e-5]), (3, 1, 1))
+    assert metrics.covariance_rank(full).tolist() == [3, 3, 3]
+    nees = np.array([0.1, 3.0, 10.0])
+    inside, below, above = metrics.nees_band_outcome(nees, metrics.covariance_rank(full))
+    assert (inside.tolist(), below.tolist(), above.tolist()) == (
+        [False, True, False], [True, False, False], [False, False, True])
+
+
 def test_estimates_are_interpolated_to_truth_stamps_and_exact_on_shared_stamps():
     stamps = np.array([0.0, 0.1, 0.1, 0.2])
     state = np.array([[0.0, 0.0, math.pi - 0.05, 0.0], [1.0, 0.0, math.pi - 0.01, 0.0],
