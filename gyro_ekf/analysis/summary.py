@@ -27,6 +27,9 @@ Definitions (see `metrics` for the band and the interpolation):
   counts per field and reason with the first index, and how often a stream's time went back;
   for a bag `convert --skip-bad` wrote, the same figures of what the conversion dropped from
   the log (``dropped_when_converted``, from the bag's sidecar; indexes in the log).
+- *Held start*: a start pose given exactly, held until the platform moved
+  (`core/held_start.py`): whether it is still held, when and why the hold ended, and
+  each LiDAR's NIS sum over its first looks at the poles from it.
 - *Ground truth* (only when the trip has it): position RMSE and max error, heading RMSE
   over the estimates inside the truth's span; pose NEES mean and the shares inside, below
   and above the band of each sample's dof (the rank of its covariance: 3, or fewer where
@@ -160,6 +163,7 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     odometry = run.result.odometry
     summary['online_odometry'] = None if odometry is None else odometry.report()
     summary['online_noise'] = {lidar['name']: lidar for lidar in run.result.noise or ()}
+    summary['held_start'] = run.result.held_start
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)

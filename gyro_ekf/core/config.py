@@ -119,6 +119,11 @@ class EkfConfig:
         'with the spread of the stop\'s samples as its sigma, but never less than this (a '
         'quantised or noiseless gyro shows no spread; MEMS gyros show 0.05-0.5 deg/s per '
         'sample).', 1e-9, 1.0)
+    hold_exact_start: bool = config_field(
+        True, '', 'A start pose given with no uncertainty (initial_position_sigma_m and '
+        'initial_yaw_sigma_rad 0) is held, pose and covariance unchanged and only the bias '
+        'learned, until the odometry reads a speed or the gyro a turn, and only while the '
+        'LiDARs\' looks at the poles agree with it (core/held_start.py).')
     # Sensor health (core/health.py). A LiDAR that disagrees with the map while another
     # LiDAR vouches for the pose is excluded until a window of re-checks agrees again. The
     # shared logs' worst 5 s windows (2016, 2022, 2023): share >= 0.83, |bearing mean| <=

@@ -393,6 +393,25 @@ class GyroBiasEkf:
         """
         self._p[_PACKED[BIAS, BIAS]] += float(variance)
 
+    def hold_still(self, dt_s: float) -> None:
+        """Propagate over dt_s seconds standing still at a pose known exactly: only b moves.
+
+        The platform has not left a start pose given with no uncertainty
+        (``core/held_start.py``): x, y and yaw neither move nor grow uncertain (a gyro at
+        rest shows its bias and noise, not a turn), and with P of the pose 0 a landmark
+        update moves nothing but judges the pose. The bias keeps its random walk and rate;
+        the zero-rate updates learn it.
+        """
+        if dt_s <= 0.0:
+            return
+        bias_walk = self._q_b2
+        if self.bias_walk_found:
+            bias_walk += self.bias_walk_found / dt_s
+        # As predict's Q for b (T^2 times the walk density), with J = I.
+        self._p[_PACKED[BIAS, BIAS]] += dt_s * dt_s * bias_walk
+        if self.bias_rate_found:
+            self._s[BIAS] += dt_s * self.bias_rate_found
+
     def predict(self, speed_m_s: float, rate_rad_s: float, dt_s: float,
                 speed_variance: float | None = None, rate_variance: float | None = None,
                 hold_position: bool = False) -> None:

@@ -49,6 +49,7 @@ from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
+from gyro_ekf.core.held_start import HeldStart
 from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
 from gyro_ekf.core.noise_online import NoiseMatch
@@ -110,6 +111,8 @@ class EventDriver:
             prior_scale_sigma=self.config.odometry_scale_sigma,
             scale_time_s=self.config.odometry_scale_time_s))
         self.odometry.start_at(self._trusted(pose))
+        self.held_start = HeldStart(self.config.hold_exact_start
+                                    and self._trusted(pose) is not None)
         self._measured_speed_m_s = 0.0
         # Stamp up to which the odometry path's distance is summed, the distance not yet
         # laid along the heading, and the heading at the last scan (_integrate_path).
@@ -168,6 +171,8 @@ class EventDriver:
         self.mounts.reset()
         self.odometry.reset()
         self.odometry.start_at(self._trusted(pose))
+        self.held_start = HeldStart(self.config.hold_exact_start
+                                    and self._trusted(pose) is not None)
         self._measured_speed_m_s = 0.0
         self._path_s, self._path_m, self._path_yaw = None, 0.0, 0.0
         self.stamp_s = None
@@ -212,7 +217,7 @@ class EventDriver:
                 self.speed_variance, self.rate_variance, self._first_scan_s,
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
-                 self.zero_rate), self.mounts.save(),
+                 self.zero_rate, self.held_start.copy()), self.mounts.save(),
                 (self.bias_watch.copy(), self.bias_rate.copy(), self._block_bias),
                 self.held_rate.save(), self._rate_stamp_s, self._heading_dt2,
                 (self.odometry.save(), self._measured_speed_m_s, self._path_s,
@@ -239,7 +244,8 @@ class EventDriver:
         self.ekf.odometry_walk = self.odometry.walk_density(self.speed_m_s)
         self.mounts.restore(mounts)
         (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
-         self.zero_rate) = stop
+         self.zero_rate, held_start) = stop
+        self.held_start = held_start.copy()
         self._rest_updates = dict(rest_updates)
         self.health.restore(health)
         self.ekf.restore(ekf)
@@ -266,6 +272,10 @@ class EventDriver:
             step = dt_s / MAX_PREDICTION_STEPS
             self.stats.long_gaps += 1
         speed_variance, rate_variance = self.speed_variance, self.rate_variance
+        if self.held_start.held:
+            self.ekf.hold_still(dt_s)
+            self.stamp_s = stamp_s
+            return
         hold = self.zero_rate
         while dt_s > step:
             self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance, hold)
@@ -318,6 +328,8 @@ class EventDriver:
         self.stats.speed += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
+        if abs(speed_m_s) > self.config.rest_speed_m_s:
+            self.held_start.release(stamp_s, 'the odometry read a speed')
         if abs(speed_m_s) <= self.config.rest_speed_m_s:
             if self._stop_since_s is None and self.config.zero_rate_max_spread_rad_s > 0.0:
                 self._stop_since_s = stamp_s
@@ -368,6 +380,7 @@ class EventDriver:
             # Vibration, a push or a turn on the spot: not still after all. The spread is
             # of the whole stop, so a shaken stop stays shaken.
             self.zero_rate = False
+            self.held_start.release(stamp_s, 'the gyro showed a turn or a shake')
             self.bias_rate.end_rest()
             return
         if not self.zero_rate:
@@ -500,7 +513,10 @@ class EventDriver:
         for match in result.associations:
             outcomes[_OUTCOME_KEYS[match.outcome]] += 1
             if match.outcome is AssociationOutcome.UNMATCHED:
-                self._count_unmapped(prior, points[match.detection_index], mount)
+                near = self._count_unmapped(prior, points[match.detection_index], mount)
+                if near is not None and self.held_start.held:
+                    # Outside the gate of the pole it lies near: the strongest disagreement.
+                    self.held_start.look(key, near, match.mahalanobis_sq, stamp_s)
             if match.outcome is AssociationOutcome.MATCHED:
                 scale = base
                 if at_rest:
@@ -518,7 +534,12 @@ class EventDriver:
                     # At the LiDAR's plain R: not a repeated look at rest, nor a mount on
                     # probation (their R is scaled; the first's error repeats).
                     noise.add(y, S, variances)
-                if scale == base:  # not a repeated look at rest
+                if self.held_start.held:
+                    # Judging the held start pose (and, with P of the pose 0, moving
+                    # nothing): no test of the innovations' whiteness, as for repeated looks.
+                    if scale == base:
+                        self.held_start.look(key, match.landmark_index, nis[-1], stamp_s)
+                elif scale == base:  # not a repeated look at rest
                     self.health.innovation(key, stamp_s, y, S,
                                            z[match.detection_index])
                     if not at_rest:
@@ -534,6 +555,7 @@ class EventDriver:
                 moved = self.odometry.observe(stamp_s, self.ekf.x.tolist())
                 if moved is not None:
                     self._first_lidar_moved(key, moved)
+        self.held_start.judge(stamp_s, 1 + len(self.mounts.trackers))
         nis_sum = float(sum(nis))
         self._judged(key, self.health.record(key, stamp_s, points.shape[0], len(nis),
                                              nis_sum, float(bearing_sum), sensor))
@@ -558,6 +580,11 @@ class EventDriver:
                 config.lidar_noise_window, config.lidar_noise_min_updates,
                 config.lidar_noise_limit)
         return noise
+
+    def held_start_report(self) -> dict:
+        """Return the held start's figures (``HeldStart.report``), LiDARs by name."""
+        return self.held_start.report({key: self.health.sensor(key).name
+                                       for key in self.held_start.looks})
 
     def noise_report(self) -> list[dict]:
         """Return each LiDAR's measured noise (``NoiseMatch.report``) with its name."""
@@ -693,16 +720,37 @@ class EventDriver:
                 matched += 1
                 nis_sum += match.mahalanobis_sq
                 bearing_sum += float(y[1])
+                self.held_start.look(key, match.landmark_index, match.mahalanobis_sq, stamp_s)
+            elif match.outcome is AssociationOutcome.UNMATCHED and self.held_start.held:
+                near = self._nearest_landmark(prior, points[match.detection_index], mount)
+                if near is not None:
+                    self.held_start.look(key, near, match.mahalanobis_sq, stamp_s)
+        self.held_start.judge(stamp_s, 1 + len(self.mounts.trackers))
         self._judged(key, self.health.record(key, stamp_s, points.shape[0], matched,
                                              nis_sum, bearing_sum, sensor, readmit))
         return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
 
-    def _count_unmapped(self, prior: FloatArray, point: FloatArray, mount: LidarMount) -> None:
-        """Count an unmatched detection that lies far from every landmark of the map."""
-        x, y = sensor_point_to_map(prior, float(point[0]), float(point[1]), mount)
-        limit = self.config.recovery_max_distance_m ** 2
-        if all((lx - x) ** 2 + (ly - y) ** 2 > limit for lx, ly in self._landmark_xy):
+    def _count_unmapped(self, prior: FloatArray, point: FloatArray, mount: LidarMount
+                        ) -> int | None:
+        """Count an unmatched detection that lies far from every landmark of the map.
+
+        Returns the nearest landmark's index when one lies within the recovery distance.
+        """
+        nearest = self._nearest_landmark(prior, point, mount)
+        if nearest is None:
             self.stats.unmapped += 1
+        return nearest
+
+    def _nearest_landmark(self, prior: FloatArray, point: FloatArray, mount: LidarMount
+                          ) -> int | None:
+        """Index of the landmark nearest a detection, if within the recovery distance."""
+        x, y = sensor_point_to_map(prior, float(point[0]), float(point[1]), mount)
+        nearest, best = None, self.config.recovery_max_distance_m ** 2
+        for k, (lx, ly) in enumerate(self._landmark_xy):
+            d2 = (lx - x) ** 2 + (ly - y) ** 2
+            if d2 <= best:
+                nearest, best = k, d2
+        return nearest
 
     def _still(self) -> bool:
         """Whether the platform is known to stand still (speed and turn rate near zero)."""

@@ -110,6 +110,8 @@ class TripRun:
         mounts: the online mount estimates of every LiDAR but the first.
         odometry: the online odometry speed-scale estimate (core/odometry_online.py).
         noise: each LiDAR's measured noise at the end (EventDriver.noise_report).
+        held_start: the start pose held until the platform moved (EventDriver
+            .held_start_report, core/held_start.py).
     """
 
     estimates: Estimates
@@ -119,6 +121,7 @@ class TripRun:
     mounts: OnlineMounts | None = None
     odometry: OdometryTracker | None = None
     noise: list[dict] | None = None
+    held_start: dict | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -220,4 +223,5 @@ def drive_trip(trip: Trip, driver: EventDriver,
                                      np.frombuffer(update_y, dtype=np.float64)]),
         nis=np.frombuffer(update_nis, dtype=np.float64))
     return TripRun(Estimates(stamps, states, covariances), updates, driver.stats,
-                   driver.health, driver.mounts, driver.odometry, driver.noise_report())
+                   driver.health, driver.mounts, driver.odometry, driver.noise_report(),
+                   driver.held_start_report())

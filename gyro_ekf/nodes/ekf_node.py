@@ -34,7 +34,9 @@ convert --skip-bad` dropped from the bag's log, as its sidecar records it:
 counts it as `gyro-ekf run` does), the matched readers of
 ekf/odometry and ekf/bias (`odometry_readers`, `bias_readers`: neither is published without
 one, to save the CPU), the zero-rate updates
-(`standing_still`: they are being applied now, core/events.py), the health verdict
+(`standing_still`: they are being applied now, core/events.py), the start pose held
+(`start_pose_held`, and why the hold ended, `start_pose_released`: core/held_start.py),
+the health verdict
 of the run since the start or the last reset (`verdict`, `verdict_reasons`: core.health's,
 as `gyro-ekf run` writes it in summary.json; level WARN when degraded, ERROR when failed),
 with each LiDAR's window figures (`lidar_<scan topic>_*`, `excluded` true while its
@@ -879,6 +881,9 @@ class EkfNode(Node):
             # A ramping bias followed (core/bias_rate.py): its rate in use, 0 when none.
             'bias_rate_deg_s_per_min': f'{math.degrees(stats.bias_rate_rad_s2) * 60.0:.4f}',
             'standing_still': str(self.driver.zero_rate).lower(),
+            # The start pose given exactly, held until the platform moved (core/held_start.py).
+            'start_pose_held': str(self.driver.held_start.held).lower(),
+            'start_pose_released': self.driver.held_start.reason,
         }
         verdict = self._verdict(since)
         values['verdict'] = verdict['verdict']

@@ -59,6 +59,20 @@ def test_holding_the_position_moves_only_the_heading():
     assert np.allclose(ekf.P[:2, :2], P[:2, :2] + walk * np.eye(2), rtol=0, atol=1e-18)
 
 
+def test_holding_still_at_an_exact_pose_moves_only_the_bias():
+    ekf = GyroBiasEkf(EkfConfig(bias_random_walk_rad_s2=1e-4), pose=np.array([1.0, 2.0, 0.3]),
+                      bias_rad_s=0.01)
+    ekf.bias_rate_found = 2e-3
+    x, P = ekf.x, ekf.P
+    ekf.hold_still(0.1)
+    # As predict with speed 0, the heading not integrated and no noise but the bias's.
+    assert ekf.x[:3].tolist() == x[:3].tolist()
+    assert ekf.x[3] == pytest.approx(0.01 + 0.1 * 2e-3)
+    grown = P.copy()
+    grown[3, 3] += 0.1 ** 2 * 1e-4 ** 2
+    assert np.array_equal(ekf.P[:3], grown[:3]) and ekf.P[3, 3] == pytest.approx(grown[3, 3])
+
+
 @pytest.fixture(scope='module')
 def stops():
     """A 60 s simulated trip with three 5 s stops, run with and without zero-rate updates."""
