@@ -141,8 +141,10 @@ def run(args: argparse.Namespace) -> int:
     summary = summarize(result, report)
     if bag.duplicates:
         # Dropped by the reader, with or without --skip-bad (a message recorded twice is no
-        # bad sample): counted beside what the validation boundary dropped.
-        summary['input']['duplicates_dropped'] = dict(bag.duplicates)
+        # bad sample): counted beside what the validation boundary dropped (by topic; the
+        # exact repeats the validation boundary dropped, if any, by stream).
+        summary['input']['duplicates_dropped'] = {
+            **bag.duplicates, **summary['input'].get('duplicates_dropped', {})}
     # Stated (by the bag) against used (after a params file's mounts): a calibrated mount
     # shows here.
     summary['mounts'] = {used.topic: {

@@ -221,6 +221,7 @@ BEYOND_LIMIT = 'beyond limit'
 NEGATIVE = 'negative'
 TIME_WENT_BACK = 'time went back'
 JUMPED_AHEAD = 'stamp jumped ahead'
+SAME_STAMP = 'same stamp as the previous sample, other values'
 
 
 @dataclass
@@ -231,12 +232,17 @@ class InputReport:
         source: the file or bag the trip came from.
         skip_bad: whether bad samples were dropped (True) or refused (False).
         dropped: (field, reason) -> number of samples dropped for it; reasons are the short
-            keys NOT_FINITE, BEYOND_LIMIT, NEGATIVE, TIME_WENT_BACK, JUMPED_AHEAD. A sample
-            is counted once, under the first check it failed.
+            keys NOT_FINITE, BEYOND_LIMIT, NEGATIVE, TIME_WENT_BACK, JUMPED_AHEAD,
+            SAME_STAMP. A sample is counted once, under the first check it failed.
         first_index: (field, reason) -> index of the first such sample in the source series.
         samples_dropped: stream ('imu', 'speed', 'scan', 'ground_truth') -> samples dropped.
         time_breaks: stream -> how many times its stamps went back (each a segment whose
             older samples were dropped).
+        duplicates: stream -> samples dropped as exact repeats of the sample kept before
+            them (same stamp, same values: a sample recorded twice), with or without
+            skip_bad, as the bag reader drops a message recorded twice; no bad sample, so
+            not in `dropped` or `samples_dropped` (summary.json `duplicates_dropped`).
+        duplicate_first_index: stream -> index of the first such repeat in the source series.
         gaps: forward jumps beyond the limit that a stream stays after (a sensor silent for
             a while); kept, since the other streams carry the filter through them, and
             flagged: one text per gap.
@@ -257,6 +263,8 @@ class InputReport:
     first_index: dict[tuple[str, str], int] = field(default_factory=dict)
     samples_dropped: dict[str, int] = field(default_factory=dict)
     time_breaks: dict[str, int] = field(default_factory=dict)
+    duplicates: dict[str, int] = field(default_factory=dict)
+    duplicate_first_index: dict[str, int] = field(default_factory=dict)
     gaps: list[str] = field(default_factory=list)
     covariances_used: dict[str, int] = field(default_factory=dict)
     covariances_ignored: dict[str, int] = field(default_factory=dict)
@@ -290,6 +298,12 @@ class InputReport:
                          + self.converted.dropped_text())
         if self.dropped:
             lines.append('--skip-bad ' + self.dropped_text())
+        if self.duplicates:
+            parts = ', '.join(f'{n} {stream} (first at index '
+                              f'{self.duplicate_first_index[stream]})'
+                              for stream, n in self.duplicates.items())
+            lines.append(f'dropped {sum(self.duplicates.values())} exact repeat(s) of the '
+                         f'sample before (same stamp and values, kept once): {parts}')
         if self.gaps:
             lines.append(f'{len(self.gaps)} long gap(s) in a stream: {"; ".join(self.gaps)}')
         if self.covariances_ignored:
@@ -299,7 +313,11 @@ class InputReport:
         return f'{self.source}: ' + '; '.join(lines) if lines else None
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready view (the `input` section of summary.json)."""
+        """JSON-ready view (the `input` section of summary.json).
+
+        `duplicates_dropped` (stream -> exact repeats dropped) is there only when any were,
+        as `gyro-ekf run` adds the bag reader's (topic -> messages recorded twice).
+        """
         return {
             'source': self.source, 'skip_bad': self.skip_bad,
             'samples_dropped_total': self.total_dropped,
@@ -317,7 +335,8 @@ class InputReport:
                 'dropped': [{'field': f, 'reason': r, 'count': n,
                              'first_index': self.converted.first_index[(f, r)]}
                             for (f, r), n in self.converted.dropped.items()],
-                'time_breaks': dict(self.converted.time_breaks)}}
+                'time_breaks': dict(self.converted.time_breaks)},
+            **({'duplicates_dropped': dict(self.duplicates)} if self.duplicates else {})}
 
 
 class _Stream:
@@ -331,6 +350,51 @@ class _Stream:
         self.source = source
         self.limits = limits
         self.report = report
+        # (field, per-sample values) that tell two samples with one stamp apart.
+        self.compared: list[tuple[str, NDArray]] = []
+        self.repeats = 0
+
+    def compare(self, field_name: str, values: NDArray | None) -> None:
+        """Judge samples with one stamp by `values` too (first axis: the sample), if any."""
+        if values is not None:
+            self.compared.append((field_name, np.asarray(values)))
+
+    def _differs(self, i: int, j: int) -> str | None:
+        """Name the first compared field whose values differ between rows i and j, or None.
+
+        NaN equals NaN here (no return in a scan, a variance not given): the values as
+        read, the way the bag reader compares two messages byte for byte.
+        """
+        for field_name, values in self.compared:
+            if not np.array_equal(values[i], values[j], equal_nan=True):
+                return field_name
+        return None
+
+    def _same_stamp(self, i: int, previous: int) -> None:
+        """Drop sample i, which has the stamp of the kept sample `previous`.
+
+        Same values: an exact repeat (a sample recorded twice), dropped and counted in
+        `InputReport.duplicates` with or without skip_bad, as the bag reader drops a message
+        recorded twice. Other values: two values for one instant (the filter would take one
+        and then the other after a prediction of length 0), refused naming both samples, or
+        with skip_bad dropped and counted as SAME_STAMP.
+        """
+        field_name = f'{self.name}.stamp_s'
+        differs = self._differs(i, previous)
+        if differs is None:
+            report = self.report
+            report.duplicates[self.name] = report.duplicates.get(self.name, 0) + 1
+            report.duplicate_first_index.setdefault(self.name, i)
+            self.repeats += 1
+        else:
+            if not self.report.skip_bad:
+                raise InvalidInputError(
+                    self.source, field_name, i,
+                    f'stamp {self.stamps[i]:.6f} s is that of sample {previous}, but '
+                    f'{differs} differs: two values for one instant (an exact repeat would '
+                    'be dropped)')
+            self.report.count(field_name, SAME_STAMP, i, 1)
+        self.keep[i] = False
 
     def flag(self, field_name: str, bad: BoolArray, reason: str,
              describe: Callable[[int], str]) -> None:
@@ -364,10 +428,13 @@ class _Stream:
         comes back to the very stamp of the last kept one after samples were dropped in
         between (time went back, or a lone sample ahead) is dropped too, counted as time
         going back: it would give that instant a second value, which a bag refuses (two
-        messages of a topic with one stamp; equal stamps side by side stay, as without
-        skip_bad). A stream that jumps ahead and stays there is a sensor silent for a
-        while: kept and flagged in the report; whether any stream covers the gap is
-        checked on the whole trip (`_check_timeline`).
+        messages of a topic with one stamp). Equal stamps side by side are judged by the
+        values (`_same_stamp`): an exact repeat is dropped and counted as a duplicate, with
+        or without skip_bad, as is a repeat of the last kept sample after dropped ones;
+        other values are refused, or with skip_bad the later sample is dropped (SAME_STAMP).
+        A stream that jumps ahead and stays there is a sensor silent for a while: kept and
+        flagged in the report; whether any stream covers the gap is checked on the whole
+        trip (`_check_timeline`).
         """
         stamps = self.stamps
         self.flag(f'{self.name}.stamp_s', ~np.isfinite(stamps), NOT_FINITE,
@@ -376,13 +443,15 @@ class _Stream:
         kept = stamps[index]
         steps = np.diff(kept)
         jump = self.limits.max_stamp_jump_s
-        if not steps.size or (steps.min() >= 0.0 and steps.max() <= jump):
+        if not steps.size or (steps.min() > 0.0 and steps.max() <= jump):
             return
         field_name = f'{self.name}.stamp_s'
         times = kept.tolist()
         # before: the kept stamp before last (before_k its position), when known.
         last, last_k, before, before_k = times[0], 0, None, 0
         going_back = False
+        # Whether the time checks dropped samples since the last kept one.
+        skipped = False
         for k in range(1, len(times)):
             t = times[k]
             if t < last and not going_back and before is not None and before <= t:
@@ -397,13 +466,19 @@ class _Stream:
                 self.report.count(field_name, JUMPED_AHEAD, i, 1)
                 self.keep[i] = False
                 if t > before:
-                    last, last_k = t, k
+                    last, last_k, skipped = t, k, False
                     continue
                 # t repeats the stamp kept before the lone sample: judged below.
-                last, last_k, before = before, before_k, None
-            if t == last and last_k != k - 1:
+                last, last_k, before, skipped = before, before_k, None, True
+            if t == last and (not skipped or self._differs(int(index[k]),
+                                                           int(index[last_k])) is None):
+                # Side by side with the last kept sample (or an exact repeat of it after
+                # dropped samples): judged by the values.
+                self._same_stamp(int(index[k]), int(index[last_k]))
+                continue
+            if t == last and skipped:
                 # Back at the last kept stamp after dropped samples: a second value for
-                # one instant (kept side by side, equal stamps would be fine).
+                # one instant.
                 i = int(index[k])
                 problem = (f'stamp {t:.6f} s repeats the last kept sample\'s after the '
                            'stream went back: a second value for one instant')
@@ -426,26 +501,32 @@ class _Stream:
                 if after is not None and t <= after <= t + jump:
                     self.report.gaps.append(f'{field_name}[{int(index[k])}]: {reason}')
                     before, before_k, last, last_k = last, last_k, t, k
-                    going_back = False
+                    going_back = skipped = False
                     continue
                 problem = (JUMPED_AHEAD, reason)
             else:
                 before, before_k, last, last_k = last, last_k, t, k
-                going_back = False
+                going_back = skipped = False
                 continue
             i = int(index[k])
             if not self.report.skip_bad:
                 raise InvalidInputError(self.source, field_name, i, problem[1])
             self.report.count(field_name, problem[0], i, 1)
             self.keep[i] = False
+            skipped = True
 
     def finish(self) -> NDArray | None:
-        """Row indices to keep, or None when every row is kept; counts the dropped rows."""
+        """Row indices to keep, or None when every row is kept; counts the dropped rows.
+
+        Exact repeats are counted apart (`InputReport.duplicates`), not as dropped samples.
+        """
         dropped = int((~self.keep).sum())
         if not dropped:
             return None
-        self.report.samples_dropped[self.name] = \
-            self.report.samples_dropped.get(self.name, 0) + dropped
+        bad = dropped - self.repeats
+        if bad:
+            self.report.samples_dropped[self.name] = \
+                self.report.samples_dropped.get(self.name, 0) + bad
         return np.flatnonzero(self.keep)
 
 
@@ -490,6 +571,9 @@ def _check_imu(imu: ImuSeries, stream: _Stream, limits: InputLimits) -> ImuSerie
         for axis in range(3):
             stream.values(f'imu.linear_acceleration.{"xyz"[axis]}', accel[:, axis], math.inf,
                           'm/s^2')
+    stream.compare('imu.angular_velocity', rates)
+    stream.compare('imu.linear_acceleration', imu.linear_acceleration_m_s2)
+    stream.compare(_RATE_VARIANCE, imu.yaw_rate_variance)
     stream.time()
     keep = stream.finish()
     if keep is None:
@@ -526,6 +610,8 @@ def _check_scans(scan: ScanSeries, stream: _Stream, source: str,
         stream.flag(f'{prefix}.intensities', bad.any(axis=1), NOT_FINITE, lambda i: (
             f'intensity {intensities[i][bad[i]][0]} at beam {int(np.argmax(bad[i]))} is not '
             'finite'))
+    stream.compare(f'{prefix}.ranges_m', ranges)
+    stream.compare(f'{prefix}.intensities', scan.intensities)
     stream.time()
     keep = stream.finish()
     if keep is None:
@@ -596,9 +682,11 @@ def validate_trip(trip: Trip, source: str, limits: InputLimits = LIMITS,
 
     Per sample (IMU rows, speed samples, scans, ground-truth poses): finite values within
     `limits`, ranges not negative (+inf/NaN mean no return), intensities finite, stamps
-    finite and non-decreasing with forward steps within `limits.max_stamp_jump_s`. Once per
-    trip: beam geometry, LiDAR mounts, landmark map, initial pose, stated noise figures,
-    the known bias; these have nothing to skip, so they are always refused.
+    finite and non-decreasing with forward steps within `limits.max_stamp_jump_s`, one
+    sample per stamp in a stream (an exact repeat is dropped and counted as a duplicate;
+    other values at the stamp of the sample before are refused). Once per trip: beam
+    geometry, LiDAR mounts, landmark map, initial pose, stated noise figures, the known
+    bias; these have nothing to skip, so they are always refused.
 
     Args:
         trip: the trip as read.
@@ -625,6 +713,8 @@ def validate_trip(trip: Trip, source: str, limits: InputLimits = LIMITS,
     stream.values('speed.speed_m_s', trip.speed.speed_m_s, limits.max_speed_m_s, 'm/s')
     variances = _variances(trip.speed.speed_variance, limits.max_speed_m_s, _SPEED_VARIANCE,
                            report)
+    stream.compare('speed.speed_m_s', trip.speed.speed_m_s)
+    stream.compare(_SPEED_VARIANCE, trip.speed.speed_variance)
     stream.time()
     keep = stream.finish()
     speed = trip.speed if keep is None else SpeedSeries(
@@ -647,6 +737,7 @@ def validate_trip(trip: Trip, source: str, limits: InputLimits = LIMITS,
                                           (1, 'y', limits.max_coordinate_m, 'm'),
                                           (2, 'yaw', limits.max_angle_rad, 'rad')):
             stream.values(f'ground_truth.pose.{name}', pose[:, column], limit, unit)
+        stream.compare('ground_truth.pose', pose)
         stream.time()
         keep = stream.finish()
         if keep is not None:
@@ -654,7 +745,8 @@ def validate_trip(trip: Trip, source: str, limits: InputLimits = LIMITS,
 
     _check_timeline([('imu', imu.stamp_s), ('speed', speed.stamp_s)]
                     + [(s.topic, s.stamp_s) for s in scans], source, limits)
-    if not report.samples_dropped and imu is trip.imu and speed is trip.speed:
+    if (not report.samples_dropped and not report.duplicates and imu is trip.imu
+            and speed is trip.speed):
         return trip, report
     return dataclasses.replace(trip, imu=imu, speed=speed, scans=scans,
                                ground_truth=truth), report

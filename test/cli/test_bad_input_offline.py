@@ -287,6 +287,49 @@ def test_trip_file_whose_time_goes_back_10_s(tmp_path, capsys, caplog, sim_trip)
     assert 'speed.stamp_s (time went back)' in caplog.text
 
 
+def test_trip_file_with_two_speeds_at_one_stamp_or_a_sample_recorded_twice(
+        tmp_path, capsys, caplog, sim_trip):
+    # Two odometry samples at one stamp with other speeds were converted without a word
+    # (a bag with two such messages is refused); a sample recorded twice was written twice.
+    import yaml
+
+    from gyro_ekf.io.bag_reader import read_bag
+    from gyro_ekf.io.trip_file import save_trip
+    stamps = sim_trip.speed.stamp_s.copy()
+    speeds = sim_trip.speed.speed_m_s.copy()
+    stamps[1001] = stamps[1000]
+    speeds[1001] = speeds[1000] + 0.1
+    path = save_trip(dataclasses.replace(sim_trip, speed=dataclasses.replace(
+        sim_trip.speed, stamp_s=stamps, speed_m_s=speeds)), tmp_path / 'trip.npz')
+    bag = tmp_path / 'bag'
+    _fails(capsys, ['convert', str(path), '-o', str(bag)],
+           f'error: trip.npz: speed.stamp_s[1001]: stamp {stamps[1000]:.6f} s is that of '
+           'sample 1000, but speed.speed_m_s differs: two values for one instant')
+    assert leftovers(tmp_path) == ['trip.npz']
+    assert main(['-q', 'convert', str(path), '-o', str(bag), '--skip-bad']) == 0
+    assert ('--skip-bad dropped 1 samples: 1 speed.stamp_s (same stamp as the previous '
+            'sample, other values)') in caplog.text
+    speed = read_bag(bag).trip.speed
+    assert len(speed.stamp_s) == len(stamps) - 1 and np.all(np.diff(speed.stamp_s) > 0)
+    assert speed.speed_m_s[1000] == speeds[1000]        # the first value is the one kept
+
+    # The same sample twice: dropped and counted with or without --skip-bad.
+    imu = sim_trip.imu
+    twice = {name: np.insert(values, 501, values[500], axis=0) for name, values in (
+        ('stamp_s', imu.stamp_s), ('angular_velocity_rad_s', imu.angular_velocity_rad_s),
+        ('linear_acceleration_m_s2', imu.linear_acceleration_m_s2)) if values is not None}
+    path = save_trip(dataclasses.replace(sim_trip, imu=dataclasses.replace(imu, **twice)),
+                     tmp_path / 'twice.npz')
+    caplog.clear()
+    assert main(['-q', 'convert', str(path), '-o', str(tmp_path / 'bag2')]) == 0
+    assert ('twice.npz: dropped 1 exact repeat(s) of the sample before (same stamp and '
+            'values, kept once): 1 imu (first at index 501)') in caplog.text
+    topics = yaml.safe_load((tmp_path / 'bag2' / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']['topics_with_message_count']
+    assert {t['topic_metadata']['name']: t['message_count'] for t in topics}['/imu'] \
+        == len(imu.stamp_s)
+
+
 def test_run_on_a_bag_whose_last_imu_stamp_jumped_300000_s_ends(tmp_path, capsys, sim_trip):
     stamps = sim_trip.imu.stamp_s.copy()
     stamps[-1] += 300_000.0     # nothing after it comes back: only the jump limit catches it

@@ -15,7 +15,7 @@ from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CalibrationError, CoreError, InvalidInputError
 from gyro_ekf.core.types import (GroundTruth, ImuSeries, LandmarkMap, LidarMount, NoiseFigures,
                                  ScanSeries, SpeedSeries, Trip)
-from gyro_ekf.core.validation import (JUMPED_AHEAD, NOT_FINITE, TIME_WENT_BACK,
+from gyro_ekf.core.validation import (JUMPED_AHEAD, NOT_FINITE, SAME_STAMP, TIME_WENT_BACK,
                                       validate_trip)
 
 
@@ -303,12 +303,154 @@ def test_with_skip_bad_a_sample_back_at_the_last_kept_stamp_is_dropped_not_kept_
                               ('imu.stamp_s', TIME_WENT_BACK): 1}
     assert report.first_index[('imu.stamp_s', TIME_WENT_BACK)] == 1001
     assert len(checked.imu.stamp_s) == len(stamps) - 2
-    # Equal stamps side by side stay, with --skip-bad or without (a log's own repeat).
+    # Equal stamps side by side: test_two_values_at_one_stamp_are_refused_or_dropped_...
+
+
+_VALUES = {'imu': ('angular_velocity_rad_s', 'yaw_rate_variance'),
+           'speed': ('speed_m_s', 'speed_variance'), 'ground_truth': ('pose',),
+           'scan': ('ranges_m', 'intensities')}
+
+
+def _series(trip: Trip, stream: str):
+    """A trip's series by stream: 'imu', 'speed', 'ground_truth' or a scan index ('0')."""
+    return getattr(trip, stream) if stream in _VALUES else trip.scans[int(stream)]
+
+
+def _repeat_sample(trip: Trip, stream: str, i: int, change=None) -> Trip:
+    """Give sample i of a stream the stamp of sample i - 1 and, unless `change` alters
+    them (change(arrays, i) on copies), the values of sample i - 1 too."""
+    series = _series(trip, stream)
+    names = _VALUES.get(stream, _VALUES['scan'])
+    arrays = {n: getattr(series, n).copy() for n in names if getattr(series, n) is not None}
+    stamps = series.stamp_s.copy()
+    stamps[i] = stamps[i - 1]
+    for values in arrays.values():
+        values[i] = values[i - 1]
+    if change is not None:
+        change(arrays, i)
+    series = dataclasses.replace(series, stamp_s=stamps, **arrays)
+    if stream in ('imu', 'speed', 'ground_truth'):
+        return dataclasses.replace(trip, **{stream: series})
+    scans = list(trip.scans)
+    scans[int(stream)] = series
+    return dataclasses.replace(trip, scans=tuple(scans))
+
+
+def _bump(name, column=None):
+    def change(arrays, i):
+        if column is None:
+            arrays[name][i] += 0.125
+        else:
+            arrays[name][i, column] += 0.125
+    return change
+
+
+def _with_variances(trip: Trip) -> Trip:
+    n = len(trip.imu.stamp_s)
+    return dataclasses.replace(trip, imu=dataclasses.replace(
+        trip.imu, yaw_rate_variance=np.full(n, 1e-4)))
+
+
+@pytest.mark.parametrize('stream, i, change, field, value_field', [
+    ('imu', 1001, _bump('angular_velocity_rad_s', 2), 'imu.stamp_s',
+     'imu.angular_velocity'),
+    ('imu', 1001, _bump('yaw_rate_variance'), 'imu.stamp_s',
+     'imu.angular_velocity_covariance[8]'),
+    ('speed', 700, _bump('speed_m_s'), 'speed.stamp_s', 'speed.speed_m_s'),
+    ('0', 21, _bump('ranges_m', 40), 'lidar.scan.stamp_s', 'lidar.scan.ranges_m'),
+    ('ground_truth', 21, _bump('pose', 2), 'ground_truth.stamp_s', 'ground_truth.pose'),
+])
+def test_two_values_at_one_stamp_are_refused_or_dropped_and_counted(
+        stream, i, change, field, value_field):
+    # A course log or trip file with two samples of one stream at one stamp and other
+    # values was accepted (equal stamps side by side stayed): the filter took one value,
+    # then the other after a prediction of length 0. A bag with such messages is refused.
+    trip = _repeat_sample(_with_variances(_trip()), stream, i, change)
+    stamp = _series(trip, stream).stamp_s[i]
+    with pytest.raises(InvalidInputError) as caught:
+        validate_trip(trip, 'trip.npz')
+    assert caught.value.field == field and caught.value.index == i
+    assert str(caught.value) == (
+        f'trip.npz: {field}[{i}]: stamp {stamp:.6f} s is that of sample {i - 1}, but '
+        f'{value_field} differs: two values for one instant (an exact repeat would be '
+        'dropped)')
+
+    checked, report = validate_trip(trip, 'trip.npz', skip_bad=True)
+    name = field.rsplit('.', 1)[0]
+    assert report.dropped == {(field, SAME_STAMP): 1}
+    assert report.first_index == {(field, SAME_STAMP): i}
+    assert report.samples_dropped == {name: 1} and report.duplicates == {}
+    assert f'1 {field} (same stamp as the previous sample, other values)' in report.warning()
+    assert report.to_dict()['dropped'] == [
+        {'field': field, 'reason': 'same stamp as the previous sample, other values',
+         'count': 1, 'first_index': i}]
+    series, given = _series(checked, stream), _series(trip, stream)
+    assert np.all(np.diff(series.stamp_s) > 0)
+    assert len(series.stamp_s) == len(given.stamp_s) - 1
+    values = _VALUES.get(stream, _VALUES['scan'])[0]    # the first value is the one kept
+    np.testing.assert_array_equal(getattr(series, values)[i - 1:i + 1],
+                                  getattr(given, values)[[i - 1, i + 1]])
+
+
+def test_a_third_sample_at_one_stamp_is_judged_against_the_one_kept():
+    # a, b, a at one stamp: b is the conflict; with --skip-bad it goes and the second a is
+    # an exact repeat of the kept one.
+    trip = _trip()
+    rates = trip.imu.angular_velocity_rad_s.copy()
     stamps = trip.imu.stamp_s.copy()
-    stamps[1001] = stamps[1000]
+    stamps[1001:1003] = stamps[1000]
+    rates[1002] = rates[1000]
+    rates[1001, 2] = rates[1000, 2] + 0.5
+    bad = _with_imu(trip, rates, stamps)
+    with pytest.raises(InvalidInputError, match=re.escape(
+            'x: imu.stamp_s[1001]: stamp 5.000000 s is that of sample 1000, but '
+            'imu.angular_velocity differs')):
+        validate_trip(bad, 'x')
+    checked, report = validate_trip(bad, 'x', skip_bad=True)
+    assert report.dropped == {('imu.stamp_s', SAME_STAMP): 1}
+    assert report.duplicates == {'imu': 1} and report.duplicate_first_index == {'imu': 1002}
+    assert report.samples_dropped == {'imu': 1}
+    assert np.all(np.diff(checked.imu.stamp_s) > 0)
+    np.testing.assert_array_equal(checked.imu.angular_velocity_rad_s[1000], rates[1000])
+
+
+def test_an_exact_repeat_is_dropped_and_counted_as_a_duplicate_with_or_without_skip_bad():
+    # A sample recorded twice (same stamp, same values) was kept twice; a bag's copy of a
+    # message is dropped and counted (summary.json input.duplicates_dropped), not refused.
+    # The two LiDARs scan at the same instants (separate streams), as gyro and odometry
+    # sample at the same instants: no repeat there.
+    trip = _trip()
+    second = dataclasses.replace(trip.scans[0], topic='scan2', frame_id='laser2')
+    trip = dataclasses.replace(trip, scans=(trip.scans[0], second))
+    assert np.array_equal(trip.imu.stamp_s, trip.speed.stamp_s)
+    repeated = _repeat_sample(_repeat_sample(trip, 'imu', 1001), '0', 21)
+    assert np.isnan(repeated.scans[0].ranges_m[21]).any()     # no return equals no return
     for skip_bad in (False, True):
-        checked, report = validate_trip(_with_imu(trip, stamps=stamps), 'x', skip_bad=skip_bad)
-        assert report.dropped == {} and len(checked.imu.stamp_s) == len(stamps)
+        checked, report = validate_trip(repeated, 'trip.npz', skip_bad=skip_bad)
+        assert report.duplicates == {'imu': 1, 'lidar.scan': 1}
+        assert report.duplicate_first_index == {'imu': 1001, 'lidar.scan': 21}
+        assert report.dropped == {} and report.samples_dropped == {}
+        assert report.total_dropped == 0
+        assert report.to_dict()['duplicates_dropped'] == {'imu': 1, 'lidar.scan': 1}
+        assert report.warning() == (
+            'trip.npz: dropped 2 exact repeat(s) of the sample before (same stamp and values, '
+            'kept once): 1 imu (first at index 1001), 1 lidar.scan (first at index 21)')
+        assert len(checked.imu.stamp_s) == len(trip.imu.stamp_s) - 1
+        assert np.all(np.diff(checked.imu.stamp_s) > 0)
+        assert len(checked.speed.stamp_s) == len(trip.speed.stamp_s)
+        assert [len(s.stamp_s) for s in checked.scans] == [39, 40]
+        np.testing.assert_array_equal(np.delete(repeated.scans[0].ranges_m, 21, axis=0),
+                                      checked.scans[0].ranges_m)
+    assert 'duplicates_dropped' not in validate_trip(trip, 'x')[1].to_dict()
+    # After the stamps went back, a copy of the last kept sample is a repeat too.
+    rates = trip.imu.angular_velocity_rad_s.copy()
+    stamps = trip.imu.stamp_s.copy()
+    stamps[1000:] -= 0.05                            # back 0.05 s after 4.995 s (index 999)
+    rates[1009] = rates[999]
+    checked, report = validate_trip(_with_imu(trip, rates, stamps), 'x', skip_bad=True)
+    assert report.dropped == {('imu.stamp_s', TIME_WENT_BACK): 9}       # 1000 to 1008
+    assert report.duplicates == {'imu': 1} and report.samples_dropped == {'imu': 9}
+    assert np.all(np.diff(checked.imu.stamp_s) > 0)
 
 
 def test_a_trip_without_speed_samples_is_refused_and_its_span_still_known():
