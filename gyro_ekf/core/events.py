@@ -538,7 +538,8 @@ class EventDriver:
                     # Judging the held start pose (and, with P of the pose 0, moving
                     # nothing): no test of the innovations' whiteness, as for repeated looks.
                     if scale == base:
-                        self.held_start.look(key, match.landmark_index, nis[-1], stamp_s)
+                        self.held_start.look(key, match.landmark_index, nis[-1], stamp_s,
+                                             y[1] / math.sqrt(S[2]))
                 elif scale == base:  # not a repeated look at rest
                     self.health.innovation(key, stamp_s, y, S,
                                            z[match.detection_index])
@@ -715,12 +716,13 @@ class EventDriver:
             if not excluded:
                 outcomes[_OUTCOME_KEYS[match.outcome]] += 1
             if match.outcome is AssociationOutcome.MATCHED:
-                y, _, _ = self.ekf.innovation(z[match.detection_index],
+                y, S, _ = self.ekf.innovation(z[match.detection_index],
                                               self.landmarks.xy_m[match.landmark_index], mount)
                 matched += 1
                 nis_sum += match.mahalanobis_sq
                 bearing_sum += float(y[1])
-                self.held_start.look(key, match.landmark_index, match.mahalanobis_sq, stamp_s)
+                self.held_start.look(key, match.landmark_index, match.mahalanobis_sq, stamp_s,
+                                     float(y[1]) / math.sqrt(float(S[1, 1])))
             elif match.outcome is AssociationOutcome.UNMATCHED and self.held_start.held:
                 near = self._nearest_landmark(prior, points[match.detection_index], mount)
                 if near is not None:

@@ -30,9 +30,44 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from collections.abc import Mapping
+import math
+from statistics import NormalDist
 from typing import Any, Hashable
 
 from gyro_ekf.core.health import chi_square_tail
+
+
+@dataclass(frozen=True, slots=True)
+class Looks:
+    """One LiDAR's first looks at the poles from the held pose.
+
+    Attributes:
+        nis_sum: sum of their NIS (each chi-square with 2 dof if the pose is exact).
+        poles: how many poles (landmark indexes in ``seen``).
+        bearing_z_sum: sum of their normalised bearing innovations y_b / sqrt(S_bb) (each
+            standard normal if the pose is exact; a heading error shifts them all alike).
+        bearings: how many looks gave one (a detection outside every gate gives none).
+        seen: the poles' landmark indexes.
+    """
+
+    nis_sum: float = 0.0
+    poles: int = 0
+    bearing_z_sum: float = 0.0
+    bearings: int = 0
+    seen: frozenset[int] = frozenset()
+
+    def chance_if_exact(self) -> float:
+        """Chance of looks this far off if the held pose were exact (two tests, Bonferroni).
+
+        The NIS sum against chi-square with 2 dof a pole (any error); the bearings' mean
+        against the normal (a heading error: it shifts every bearing the same way, which a
+        NIS sum sees only as much as 1 dof among 2k).
+        """
+        chance = chi_square_tail(self.nis_sum, 2 * self.poles) if self.poles else 1.0
+        if self.bearings:
+            z = abs(self.bearing_z_sum) / math.sqrt(self.bearings)
+            chance = min(chance, 2.0 * (1.0 - NormalDist().cdf(z)))
+        return min(1.0, 2.0 * chance)
 
 
 @dataclass(slots=True)
@@ -41,26 +76,28 @@ class HeldStart:
 
     Attributes:
         held: the pose is held now.
+        significance: the chance below which a LiDAR's looks disagree with the pose.
+        min_poles: a LiDAR is judged once it has looked at this many poles.
+        decide_after_s: how long after the first look the other LiDARs are waited for.
         since_s: stamp of the first look at the held pose, s (None before it).
         released_s: stamp the hold ended at, s (None while held or never held).
-        reason: why it ended ('moved', 'turned', 'map disagrees', ...).
-        looks: LiDAR -> (NIS sum, poles looked at, their landmark indexes).
+        reason: why it ended.
+        looks: LiDAR -> its first looks.
     """
 
     held: bool
-    significance: float = 1e-4
+    significance: float = 1e-3
     min_poles: int = 3
     decide_after_s: float = 0.5
     since_s: float | None = None
     released_s: float | None = None
     reason: str = ''
-    looks: dict[Hashable, tuple[float, int, frozenset[int]]] = field(default_factory=dict)
+    looks: dict[Hashable, Looks] = field(default_factory=dict)
 
     def copy(self) -> HeldStart:
         """Return an independent duplicate (for the driver's save and restore)."""
         return HeldStart(self.held, self.significance, self.min_poles, self.decide_after_s,
-                         self.since_s, self.released_s, self.reason,
-                         dict(self.looks))
+                         self.since_s, self.released_s, self.reason, dict(self.looks))
 
     def release(self, stamp_s: float | None, reason: str) -> None:
         """End the hold (no-op when not held)."""
@@ -69,16 +106,25 @@ class HeldStart:
             self.released_s = stamp_s
             self.reason = reason
 
-    def look(self, key: Hashable, landmark: int, nis: float, stamp_s: float) -> None:
-        """Add a LiDAR's look at a pole from the held pose (only its first look counts)."""
+    def look(self, key: Hashable, landmark: int, nis: float, stamp_s: float,
+             bearing_z: float | None = None) -> None:
+        """Add a LiDAR's look at a pole from the held pose (only its first look counts).
+
+        bearing_z: the look's bearing innovation over its sigma, y_b / sqrt(S_bb), when
+        known (None for a detection outside every gate: its NIS says enough).
+        """
         if not self.held:
             return
         if self.since_s is None:
             self.since_s = stamp_s
-        total, count, seen = self.looks.get(key, (0.0, 0, frozenset()))
-        if landmark in seen:
+        looks = self.looks.get(key, Looks())
+        if landmark in looks.seen:
             return
-        self.looks[key] = (total + nis, count + 1, seen | {landmark})
+        z = 0.0 if bearing_z is None else bearing_z
+        self.looks[key] = Looks(looks.nis_sum + nis, looks.poles + 1,
+                                looks.bearing_z_sum + z,
+                                looks.bearings + (bearing_z is not None),
+                                looks.seen | {landmark})
 
     def judge(self, stamp_s: float, expected: int) -> None:
         """End the hold when every LiDAR that has looked disagrees with the held pose.
@@ -87,14 +133,12 @@ class HeldStart:
         """
         if not self.held or self.since_s is None:
             return
-        judged = [(total, count) for total, count, _ in self.looks.values()
-                  if count >= self.min_poles]
+        judged = [looks for looks in self.looks.values() if looks.poles >= self.min_poles]
         if not judged:
             return
         if len(judged) < expected and stamp_s - self.since_s < self.decide_after_s:
             return  # another LiDAR may yet vouch for the pose
-        if all(chi_square_tail(total, 2 * count) < self.significance
-               for total, count in judged):
+        if all(looks.chance_if_exact() < self.significance for looks in judged):
             self.release(stamp_s, 'the map disagrees with the start pose')
 
     def report(self, names: Mapping[Hashable, str] | None = None) -> dict[str, Any]:
@@ -103,6 +147,8 @@ class HeldStart:
         return {'held': self.held, 'first_look_s': self.since_s,
                 'released_s': self.released_s, 'reason': self.reason,
                 'lidars': {names.get(key, str(key)): {
-                    'nis_sum': total, 'poles': count,
-                    'chance_if_exact': chi_square_tail(total, 2 * count)}
-                    for key, (total, count, _) in self.looks.items() if count}}
+                    'poles': looks.poles, 'nis_sum': looks.nis_sum,
+                    'bearing_z_mean': (looks.bearing_z_sum / looks.bearings
+                                       if looks.bearings else None),
+                    'chance_if_exact': looks.chance_if_exact()}
+                    for key, looks in self.looks.items() if looks.poles}}
