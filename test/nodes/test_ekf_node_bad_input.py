@@ -79,7 +79,9 @@ def test_bad_message_covariances_are_ignored_and_counted_and_good_ones_used(star
 
     ekf = start_ekf('covariances')
     start = 1_700_000_100 * 10 ** 9
-    ekf.send_pairs(start, 0, 20)
+    # Moving: standing at its exactly given start pose the filter would hold the pose and
+    # its covariance (core/held_start.py), and no variance would grow.
+    ekf.send_pairs(start, 0, 20, speed=1.0)
     for i, (rate_variance, speed_variance) in enumerate(
             [(math.nan, -3.0), (1e9, math.inf), (-1.0, 0.0), (0.25, 0.04)]):
         ns = start + (20 + i) * STEP_NS
