@@ -17,9 +17,10 @@ of those fixed errors, far below or above its band.
 
 The start pose is only held while the map agrees with it. Each LiDAR's first look at each
 pole at the held pose gives a NIS (the pose exact, S is the sensor and map noise alone);
-their sum over k poles is chi-square with 2k dof. Once the LiDARs have looked (every known
-LiDAR has seen ``min_poles`` poles, or ``decide_after_s`` passed) and no LiDAR's sum stays
-within the ``significance`` quantile, the start pose is wrong (the real 2016 log's
+their sum over k poles is chi-square with 2k dof, and the mean of their normalised bearing
+innovations is normal (a heading error shifts every bearing alike: ``Looks``). Once the
+LiDARs have looked (every known LiDAR has seen ``min_poles`` poles, or ``decide_after_s``
+passed) and no LiDAR's looks stay within chance (``significance``), the start pose is wrong (the real 2016 log's
 conventional heading is 0.45 deg off what its poles say) and the hold ends: the filter
 goes on as from any start, the walk and the looks correcting the pose. A LiDAR that
 disagrees while another agrees is a mount problem, which the health monitor and the start
