@@ -66,6 +66,11 @@ MAX_PREDICTION_STEPS = 1000
 """Most prediction steps for one gap (100 s at the default 0.1 s step): a longer gap is split
 into this many equal steps, so a stamp 1e6 s ahead costs what 100 s costs, not 52 s of CPU."""
 
+HOLD_WITHOUT_ODOMETRY_S = 1.0
+"""Longest a start pose is held on gyro samples alone, before any odometry message (s): the
+zero-rate logic needs 0.5 s of zero speed to call the platform still, and without odometry
+nothing says it is."""
+
 
 class EventDriver:
     """Holds the inputs and drives a GyroBiasEkf event by event.
@@ -357,10 +362,35 @@ class EventDriver:
         if stamp_s >= held.next_check_s:
             held.sample(stamp_s, yaw_rate_rad_s)
         self.stats.imu += 1
+        if self.held_start.held:
+            self._judge_held_rate(stamp_s, yaw_rate_rad_s, variance)
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
         if self._stop_since_s is not None:
             self._zero_rate_update(stamp_s, yaw_rate_rad_s)
+
+    def _judge_held_rate(self, stamp_s: float, rate_rad_s: float, variance: float | None
+                         ) -> None:
+        """End the held start on a gyro sample that is a turn, or with no odometry to tell.
+
+        The zero-rate logic judges a stop by its mean over 0.5 s and more, and only once the
+        odometry says the speed is 0; a turn on the spot faster than a sample's noise and
+        the bias's uncertainty allow is seen at once, and a platform with no odometry
+        message yet is not known to stand still.
+        """
+        held, config = self.held_start, self.config
+        if held.first_input_s is None:
+            held.first_input_s = stamp_s
+        if self.stats.speed == 0:
+            if stamp_s - held.first_input_s > HOLD_WITHOUT_ODOMETRY_S:
+                held.release(stamp_s, 'no odometry message to tell that the platform stands '
+                             'still')
+            return
+        sigma_w = math.sqrt(variance) if variance else config.gyro_noise_rad_s
+        ekf = self.ekf
+        if abs(rate_rad_s - ekf.bias_rad_s) > (config.rest_yaw_rate_rad_s + 4.0 * sigma_w
+                                               + 3.0 * math.sqrt(max(ekf.bias_var, 0.0))):
+            held.release(stamp_s, 'the gyro showed a turn')
 
     def _zero_rate_update(self, stamp_s: float, rate_rad_s: float) -> None:
         """Add a gyro sample to the stop; apply it as a zero-rate update once still."""

@@ -20,11 +20,15 @@ pole at the held pose gives a NIS (the pose exact, S is the sensor and map noise
 their sum over k poles is chi-square with 2k dof, and the mean of their normalised bearing
 innovations is normal (a heading error shifts every bearing alike: ``Looks``). Once the
 LiDARs have looked (every known LiDAR has seen ``min_poles`` poles, or ``decide_after_s``
-passed) and no LiDAR's looks stay within chance (``significance``), the start pose is wrong (the real 2016 log's
-conventional heading is 0.45 deg off what its poles say) and the hold ends: the filter
-goes on as from any start, the walk and the looks correcting the pose. A LiDAR that
-disagrees while another agrees is a mount problem, which the health monitor and the start
-check (``core/odometry_online.py``) handle; the pose stays held.
+passed) and no LiDAR's looks stay within chance (``significance``), the start pose is
+wrong (the real 2016 log's conventional heading is 0.45 deg off what its poles say) and the
+hold ends: the filter goes on as from any start, the walk and the looks correcting the
+pose. A LiDAR that disagrees while another agrees is a mount problem, which the health
+monitor and the start check (``core/odometry_online.py``) handle; the pose stays held.
+
+The hold also ends at the first gyro sample beyond the rest rate plus four sample sigmas
+and three bias sigmas (a turn on the spot at zero speed), and after 1 s of gyro samples
+with no odometry message (nothing says the platform stands still).
 """
 
 from __future__ import annotations
@@ -81,6 +85,7 @@ class HeldStart:
         min_poles: a LiDAR is judged once it has looked at this many poles.
         decide_after_s: how long after the first look the other LiDARs are waited for.
         since_s: stamp of the first look at the held pose, s (None before it).
+        first_input_s: stamp of the first gyro sample while held, s (None before it).
         released_s: stamp the hold ended at, s (None while held or never held).
         reason: why it ended.
         looks: LiDAR -> its first looks.
@@ -94,11 +99,13 @@ class HeldStart:
     released_s: float | None = None
     reason: str = ''
     looks: dict[Hashable, Looks] = field(default_factory=dict)
+    first_input_s: float | None = None
 
     def copy(self) -> HeldStart:
         """Return an independent duplicate (for the driver's save and restore)."""
         return HeldStart(self.held, self.significance, self.min_poles, self.decide_after_s,
-                         self.since_s, self.released_s, self.reason, dict(self.looks))
+                         self.since_s, self.released_s, self.reason, dict(self.looks),
+                         self.first_input_s)
 
     def release(self, stamp_s: float | None, reason: str) -> None:
         """End the hold (no-op when not held)."""

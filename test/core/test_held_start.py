@@ -109,19 +109,42 @@ def test_a_start_pose_given_with_a_sigma_is_not_held():
     assert run.estimates.covariance[np.flatnonzero(still)[-1], 0, 0] > 0.0
 
 
-def test_a_turn_on_the_spot_releases_the_hold():
+def test_a_shaken_stop_releases_the_hold():
     config = EkfConfig()
     driver = EventDriver(config, pose=np.zeros(3))
     assert driver.held_start.held
-    rate = math.radians(20.0)   # speed 0, but turning: its mean is no bias
+    # Speed 0, but the gyro spreads 3 deg/s (a push, vibration): no sample alone is a turn,
+    # the stop's spread says the platform is not still.
     for k in range(400):
         t = 0.005 * k
         if k % 10 == 0:
             driver.on_speed(t, 0.0)
-        driver.on_imu(t, rate)
+        driver.on_imu(t, math.radians(3.0) * (-1) ** k)
     assert not driver.held_start.held
     assert driver.held_start.reason == 'the gyro showed a turn or a shake'
-    assert driver.ekf.x[2] > math.radians(1.0)   # the turn is integrated again
+    assert driver.held_start.released_s == pytest.approx(config.zero_rate_min_still_s)
+
+
+def test_a_fast_turn_releases_the_hold_at_its_first_sample():
+    config = EkfConfig()
+    driver = EventDriver(config, pose=np.zeros(3))
+    driver.on_speed(0.0, 0.0)
+    driver.on_imu(0.0, 0.0)
+    assert driver.held_start.held
+    turn = config.rest_yaw_rate_rad_s + 4.0 * config.gyro_noise_rad_s + 3.0 * math.sqrt(
+        driver.ekf.bias_var)
+    driver.on_imu(0.005, 1.01 * turn)
+    assert not driver.held_start.held and driver.held_start.released_s == 0.005
+    assert driver.held_start.reason == 'the gyro showed a turn'
+
+
+def test_without_odometry_the_pose_is_not_held_for_long():
+    driver = EventDriver(EkfConfig(), pose=np.zeros(3))
+    for k in range(400):    # 2 s of a still gyro, no odometry message
+        driver.on_imu(0.005 * k, 0.0)
+    assert not driver.held_start.held
+    assert driver.held_start.released_s == pytest.approx(1.005)
+    assert driver.held_start.reason.startswith('no odometry message')
 
 
 def test_save_and_restore_bring_the_hold_back():
