@@ -25,8 +25,10 @@ $(STAMP): setup.py package.xml
 	$(BIN)/pip install -qq -e '.[ros,test,bench]'
 	touch $@
 
+# --force: a second `make demo` replaces the first one's products (only those: demo refuses
+# a folder holding anything else).
 demo: $(STAMP)
-	$(BIN)/gyro-ekf demo $(DEMO_BAG) -o results/demo
+	$(BIN)/gyro-ekf demo $(DEMO_BAG) -o results/demo --force
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q test
