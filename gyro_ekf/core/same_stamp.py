@@ -34,7 +34,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ['DUPLICATE', 'SAME_STAMP', 'Repeat', 'SameStampCheck', 'same_values']
+__all__ = ['DUPLICATE', 'SAME_STAMP', 'Repeat', 'SameStampCheck', 'describe_repeat',
+           'same_values']
 
 DUPLICATE = 'duplicate'
 """Drop reason of an exact repeat: the stamp and the values of the message taken."""
@@ -79,6 +80,20 @@ def same_values(a: Any, b: Any) -> bool:
     if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
         return True
     return bool(a == b)
+
+
+def describe_repeat(repeat: Repeat, topic: str, stamp_ns: int, stamp_s: float,
+                    fields: tuple[str, ...]) -> str:
+    """Say what was dropped: the topic, the stamp (ns since the epoch and s) and the field.
+
+    fields: the names of the values judged, in their order.
+    """
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    at = f'stamp {sec}.{nanosec:09d} ({stamp_s:.6f} s)'
+    if repeat.reason == DUPLICATE:
+        return f'{topic}: an exact repeat of the message taken at {at} dropped'
+    return (f'{topic}: a second message at {at} with another {fields[repeat.field]} than the '
+            'one taken: two values for one instant, the later dropped')
 
 
 class SameStampCheck:

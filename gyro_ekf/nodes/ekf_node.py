@@ -129,7 +129,8 @@ from gyro_ekf.core import health
 from gyro_ekf.core.event_records import Estimate, EventKind
 from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
-from gyro_ekf.core.same_stamp import DUPLICATE, Repeat, SAME_STAMP, SameStampCheck
+from gyro_ekf.core.same_stamp import describe_repeat, DUPLICATE, Repeat, SAME_STAMP, \
+    SameStampCheck
 from gyro_ekf.core.stream_order import StreamMerger
 from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import LandmarkMap, LidarMount
@@ -627,20 +628,16 @@ class EkfNode(Node):
                   stream: str) -> None:
         """Count (and log) a message dropped at the stamp of the one taken on its input."""
         self.dropped[repeat.reason] += 1
-        sec, nanosec = divmod(ns, 1_000_000_000)
-        at = f'stamp {sec}.{nanosec:09d} ({stamp_s:.6f} s)'
-        if kind is EventKind.OBSERVATION:
-            at += f' in frame {stream!r}'
         topic = self.resolve_topic_name(what)
+        if kind is EventKind.OBSERVATION:
+            topic += f' (frame {stream!r})'
+        text = describe_repeat(repeat, topic, ns, stamp_s, _FIELDS[kind])
         if repeat.reason == DUPLICATE:
-            self.get_logger().info(
-                f'{topic}: an exact repeat of the message taken at {at} dropped; such copies '
-                'are counted in /diagnostics dropped_duplicate', once=True)
-            return
-        self.get_logger().warn(
-            f'{topic}: a second message at {at} with another {_FIELDS[kind][repeat.field]} '
-            'than the one taken: two values for one instant, the later dropped (counts '
-            f'{self.dropped})', throttle_duration_sec=5.0)
+            self.get_logger().info(f'{text}; such copies are counted in /diagnostics '
+                                   'dropped_duplicate', once=True)
+        else:
+            self.get_logger().warn(f'{text} (counts {self.dropped})',
+                                   throttle_duration_sec=5.0)
 
     def _process(self, events) -> None:
         # With late observations replayed, only speed and IMU samples come through here.

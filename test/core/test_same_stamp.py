@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from gyro_ekf.core.same_stamp import DUPLICATE, Repeat, SAME_STAMP, SameStampCheck, \
-    same_values
+from gyro_ekf.core.same_stamp import describe_repeat, DUPLICATE, Repeat, SAME_STAMP, \
+    SameStampCheck, same_values
 
 
 def test_an_exact_repeat_is_a_duplicate_and_other_values_are_same_stamp():
@@ -67,3 +67,15 @@ def test_values_compare_as_read_nan_equal_to_nan():
     assert check.judge('scan', 5, (moved, 'mount')) == Repeat(SAME_STAMP, 0)
     assert check.judge('scan', 5, (points, 'other mount')) == Repeat(SAME_STAMP, 1)
     assert check.judge('scan', 5, (points,)) == Repeat(SAME_STAMP, 0)  # fewer values
+
+
+def test_the_description_names_topic_stamp_and_field():
+    fields = ('angular_velocity.z', 'angular_velocity_covariance[8]')
+    ns = 1_700_000_000 * 10 ** 9 + 70_000_000
+    assert describe_repeat(Repeat(SAME_STAMP, 1), '/robot/imu', ns, 0.7, fields) == (
+        '/robot/imu: a second message at stamp 1700000000.070000000 (0.700000 s) with another '
+        'angular_velocity_covariance[8] than the one taken: two values for one instant, the '
+        'later dropped')
+    assert describe_repeat(Repeat(DUPLICATE), '/robot/imu', ns, 0.7, fields) == (
+        '/robot/imu: an exact repeat of the message taken at stamp 1700000000.070000000 '
+        '(0.700000 s) dropped')
