@@ -74,7 +74,7 @@ when `use_message_covariance`) it is an exact repeat, `duplicate`: counted only,
 input (not in the verdict, no WARN status, as offline). With other values it is
 `same_stamp`: warned about naming the topic, the stamp and the field that differs, and in
 the verdict as the other drops (offline, `--skip-bad` drops such a sample and the run is
-degraded).
+degraded). `ekf/imu` still carries a corrected copy of every IMU message as it came.
 
 Time: a message stamped more than `limits.max_stamp_jump_s` ahead of the inputs' common time
 is held, not predicted through (core StampGate). It is taken, with the gap, when another
