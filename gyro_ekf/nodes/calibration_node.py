@@ -17,8 +17,14 @@ Bad input is dropped and counted per reason in /diagnostics: `zero_stamp`, `non_
 nodes/wire.py) and, while collecting, `stamp_jump`: a stamp more than
 `limits.max_stamp_jump_s` ahead of the inputs is held until odom confirms it or ten IMU
 messages (StampGate's default) go on from it, so a lone message far ahead can neither end a
-window nor set where the next one starts. A former parameter still given is warned about
-once and ignored (REMOVED_PARAMETERS).
+window nor set where the next one starts. While collecting, a message of imu or odom at the
+stamp of the newest one the window took from it is dropped, so the window never takes a
+sample twice (core/same_stamp.py, as ekf_node and the offline readers): with the same values
+(rates and angular_velocity_covariance diagonal, or speed) as `duplicate`, with other values
+as `same_stamp` and a throttled warning naming the topic, the stamp and the field; the first
+message is the one kept. The IMU messages republished on `imu/corrected` after the window
+are not judged: each input message gives its corrected copy. A former parameter still given
+is warned about once and ignored (REMOVED_PARAMETERS).
 """
 
 from __future__ import annotations
@@ -37,6 +43,8 @@ from gyro_ekf import topics
 from gyro_ekf.core.calibration import StaticWindowCalibrator
 from gyro_ekf.core.config import CalibrationConfig, InputLimits
 from gyro_ekf.core.errors import CalibrationError
+from gyro_ekf.core.same_stamp import describe_repeat, DUPLICATE, Repeat, SAME_STAMP, \
+    SameStampCheck
 from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import BiasEstimate
 from gyro_ekf.core.validation import rate_problem, speed_problem
@@ -48,6 +56,10 @@ from gyro_ekf.nodes.params import declare, declare_config, report_ignored
 from gyro_ekf.nodes.runtime import run_node
 
 _AXES = 'xyz'
+
+_FIELDS = {'imu': ('angular_velocity', 'angular_velocity_covariance'),
+           'odom': ('twist.twist.linear.x',)}
+"""The message fields of each input's values the window takes, in their order."""
 
 LIMITS_USED = ('max_yaw_rate_rad_s', 'max_speed_m_s', 'max_stamp_jump_s')
 """The InputLimits fields this node checks (declared as limits.*)."""
@@ -91,9 +103,11 @@ class CalibrationNode(Node):
         self.calibrator = StaticWindowCalibrator(self.config)
         self.result: BiasEstimate | None = None
         self.dropped = {'non_finite': 0, 'out_of_range': 0, 'zero_stamp': 0,
-                        'stamp_jump': 0, 'malformed': 0}
+                        'stamp_jump': 0, 'malformed': 0, SAME_STAMP: 0, DUPLICATE: 0}
         self._origin = TimeOrigin()
         self._gate = StampGate(self._limits.max_stamp_jump_s)
+        # One sample per instant and input in the window (after the gate, as in ekf_node).
+        self._same_stamp = SameStampCheck()
         self._window_from_s: float | None = None
         self._axes_known: tuple[bool, bool, bool] | None = None
         self._imu_count = 0
@@ -162,7 +176,7 @@ class CalibrationNode(Node):
 
     def _take_speed(self, ns: int, speed: float) -> None:
         if self.calibrator.collecting and self._usable(ns, speed_problem(speed, self._limits)):
-            self._offer('odom', ns, speed)
+            self._offer('odom', ns, speed, (speed,))
 
     def _on_imu(self, message: Imu) -> None:
         covariance = message.angular_velocity_covariance
@@ -225,21 +239,41 @@ class CalibrationNode(Node):
                 self._send_corrected(corrected(self.result.bias_rad_s))
                 self._corrected_count += 1
             return
-        self._offer('imu', ns, (rates, (stamp, frame_id, covariance)))
+        self._offer('imu', ns, (rates, (stamp, frame_id, covariance)), (rates, covariance))
 
-    def _offer(self, stream: str, ns: int, payload) -> None:
-        """Pass a sample through the stamp gate to the calibrator."""
-        passed, dropped = self._gate.offer(stream, self._origin.seconds(ns), payload)
+    def _offer(self, stream: str, ns: int, payload, values: tuple) -> None:
+        """Pass a sample through the stamp gate to the calibrator.
+
+        values: what the window takes from the message, compared when a second message of
+        the stream comes at the stamp of the newest one taken (core.same_stamp).
+        """
+        passed, dropped = self._gate.offer(stream, self._origin.seconds(ns),
+                                           (ns, values, payload))
         for name, stamp_s, _ in dropped:
             self._drop('stamp_jump', f'{name} stamp {stamp_s:.3f} s is more than '
                        f'{self._gate.max_jump_s:g} s (limits.max_stamp_jump_s) ahead of the '
                        'other samples and its input did not go on from it')
-        for name, stamp_s, value in passed:
-            if name == 'odom':
+        for name, stamp_s, (taken_ns, taken, value) in passed:
+            repeat = self._same_stamp.judge(name, taken_ns, taken)
+            if repeat is not None:
+                self._repeated(repeat, name, taken_ns, stamp_s)
+            elif name == 'odom':
                 if self.calibrator.collecting:
                     self.calibrator.add_speed(stamp_s, value)
             elif self.result is None:
                 self._collect(stamp_s, *value)
+
+    def _repeated(self, repeat: Repeat, stream: str, ns: int, stamp_s: float) -> None:
+        """Count (and log) a sample dropped at the stamp of the one taken on its input."""
+        self.dropped[repeat.reason] += 1
+        topic = self.resolve_topic_name(topics.IMU if stream == 'imu' else topics.ODOM)
+        text = describe_repeat(repeat, topic, ns, stamp_s, _FIELDS[stream])
+        if repeat.reason == DUPLICATE:
+            self.get_logger().info(f'{text}; such copies are counted in /diagnostics '
+                                   'dropped_duplicate', once=True)
+        else:
+            self.get_logger().warn(f'{text} (counts {self.dropped})',
+                                   throttle_duration_sec=5.0)
 
     def _collect(self, stamp_s: float, rates: tuple[float, float, float],
                  message: tuple) -> None:
@@ -290,6 +324,7 @@ class CalibrationNode(Node):
         self.result = None
         self._window_from_s = None
         self._gate.clear()
+        self._same_stamp.clear()
         self._subscribe_odom()
         self.get_logger().info(f'{why}: collecting a new static window')
 

@@ -65,7 +65,16 @@ dropped and counted per reason in /diagnostics with a throttled warning: `non_fi
 (NaN/inf), `out_of_range` (a yaw rate, speed or coordinate beyond its limit), `bad_pose` (an
 initialpose whose quaternion is not of unit norm or whose covariance is not symmetric
 positive semi-definite), `zero_stamp`, `late` (older than what the filter already
-processed), `stamp_jump`, and `empty_map`, `unknown_frame`, `filter_error`.
+processed), `stamp_jump`, and `empty_map`, `unknown_frame`, `filter_error`. A message of an
+input (imu, odom, each LiDAR's detections, told apart by their frame_id as the merger does)
+at the stamp of the newest message taken from it is dropped, the first one kept
+(core/same_stamp.py: the offline rule of core.validation and the bag reader). With the
+values the filter took from that one (yaw rate, speed or points, and the message's variance
+when `use_message_covariance`) it is an exact repeat, `duplicate`: counted only, no bad
+input (not in the verdict, no WARN status, as offline). With other values it is
+`same_stamp`: warned about naming the topic, the stamp and the field that differs, and in
+the verdict as the other drops (offline, `--skip-bad` drops such a sample and the run is
+degraded). `ekf/imu` still carries a corrected copy of every IMU message as it came.
 
 Time: a message stamped more than `limits.max_stamp_jump_s` ahead of the inputs' common time
 is held, not predicted through (core StampGate). It is taken, with the gap, when another
@@ -120,6 +129,8 @@ from gyro_ekf.core import health
 from gyro_ekf.core.event_records import Estimate, EventKind
 from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
+from gyro_ekf.core.same_stamp import describe_repeat, DUPLICATE, Repeat, SAME_STAMP, \
+    SameStampCheck
 from gyro_ekf.core.stream_order import StreamMerger
 from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import LandmarkMap, LidarMount
@@ -138,10 +149,20 @@ from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar, repo
 from gyro_ekf.nodes.runtime import run_node
 
 DROP_REASONS = ('non_finite', 'out_of_range', 'bad_pose', 'zero_stamp', 'late', 'stamp_jump',
-                'empty_map', 'bad_map', 'unknown_frame', 'filter_error', 'malformed')
-VERDICT_DROP_REASONS = tuple(r for r in DROP_REASONS if r != 'late')
+                'empty_map', 'bad_map', 'unknown_frame', 'filter_error', 'malformed',
+                SAME_STAMP, DUPLICATE)
+VERDICT_DROP_REASONS = tuple(r for r in DROP_REASONS if r not in ('late', DUPLICATE))
 """Drops the health verdict counts: all but late messages, which a live node under load
-drops by design (the merger's window), not because the input was bad."""
+drops by design (the merger's window), not because the input was bad, and exact repeats
+(nothing lost: offline a sample recorded twice is dropped without a degraded verdict too).
+A message at a stamp already taken with other values counts, as `run --skip-bad` dropping
+it does."""
+QUIET_DROP_REASONS = (DUPLICATE,)
+"""Drops that do not turn the status WARN ("dropping input"): no input was lost."""
+_FIELDS = {EventKind.IMU: ('angular_velocity.z', 'angular_velocity_covariance[8]'),
+           EventKind.SPEED: ('twist.twist.linear.x', 'twist.covariance[0]'),
+           EventKind.OBSERVATION: ('poses', 'LiDAR mount')}
+"""The message fields of each input's values the filter takes (event value order)."""
 _LEVELS = {health.OK: DiagnosticStatus.OK, health.DEGRADED: DiagnosticStatus.WARN,
            health.FAILED: DiagnosticStatus.ERROR}
 
@@ -299,6 +320,9 @@ class EkfNode(Node):
             expected_streams=expected,
             stale_wall_s=STALE_RELIABLE_INPUT_WALL_S if lossless else STALE_INPUT_S)
         self._gate = StampGate(limits.max_stamp_jump_s)
+        # One value per instant on each input (after the gate: an outlier far ahead never
+        # becomes the newest stamp of its input).
+        self._same_stamp = SameStampCheck()
         self._lagged = (LaggedObservations(self.driver, history_s, MAX_BUFFERED_EVENTS,
                                            on_refused=self._observation_refused)
                         if history_s > 0.0 else None)
@@ -376,8 +400,9 @@ class EkfNode(Node):
             self.create_subscription(Odometry, topics.ODOM, self._on_odom, sensor_qos)
             self.create_subscription(Imu, topics.IMU, self._on_imu, sensor_qos)
         for name in landmark_topics:
-            self.create_subscription(PoseArray, name, self._on_landmarks,
-                                     qos.stream_output(lossless))
+            self.create_subscription(
+                PoseArray, name, lambda message, topic=name: self._on_landmarks(message, topic),
+                qos.stream_output(lossless))
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_timer(period, self._publish_diagnostics)
         self.create_timer(PATH_PERIOD_S, self._publish_path)
@@ -500,7 +525,7 @@ class EkfNode(Node):
                                    throttle_duration_sec=5.0)
         return variance
 
-    def _on_landmarks(self, message: PoseArray) -> None:
+    def _on_landmarks(self, message: PoseArray, topic: str = topics.LANDMARKS) -> None:
         self._received['landmarks'] += 1
         mount = self._mount(message.header.frame_id)
         if mount is None:
@@ -510,7 +535,7 @@ class EkfNode(Node):
                         'landmarks hold a bad point'):
             return
         self._push(stamp_ns(message.header.stamp), EventKind.OBSERVATION, (points, mount),
-                   'landmarks', message.header.frame_id)
+                   topic, message.header.frame_id)
 
     def _observe_lagged(self, stamp_s: float, points: np.ndarray, mount: LidarMount) -> None:
         # Not an input that ends the idle wait: held scans wait for the speed and IMU
@@ -570,6 +595,10 @@ class EkfNode(Node):
 
     def _merge(self, stream: str, stamp_s: float, payload: tuple) -> None:
         kind, ns, value, what = payload
+        repeat = self._same_stamp.judge(stream, ns, value)
+        if repeat is not None:
+            self._repeated(repeat, kind, ns, stamp_s, what, stream)
+            return
         if kind is EventKind.OBSERVATION and self._lagged is not None:
             self._observe_lagged(stamp_s, *value)
             return
@@ -594,6 +623,21 @@ class EkfNode(Node):
             return
         self._late_streak, self._late_streams = 0, set()
         self._process(ready)
+
+    def _repeated(self, repeat: Repeat, kind: EventKind, ns: int, stamp_s: float, what: str,
+                  stream: str) -> None:
+        """Count (and log) a message dropped at the stamp of the one taken on its input."""
+        self.dropped[repeat.reason] += 1
+        topic = self.resolve_topic_name(what)
+        if kind is EventKind.OBSERVATION:
+            topic += f' (frame {stream!r})'
+        text = describe_repeat(repeat, topic, ns, stamp_s, _FIELDS[kind])
+        if repeat.reason == DUPLICATE:
+            self.get_logger().info(f'{text}; such copies are counted in /diagnostics '
+                                   'dropped_duplicate', once=True)
+        else:
+            self.get_logger().warn(f'{text} (counts {self.dropped})',
+                                   throttle_duration_sec=5.0)
 
     def _process(self, events) -> None:
         # With late observations replayed, only speed and IMU samples come through here.
@@ -711,6 +755,7 @@ class EkfNode(Node):
             self.driver.ekf.set_bias(self._calibrated_bias, self._calibration_sigma)
         self._buffer.clear()
         self._gate.clear()
+        self._same_stamp.clear()
         if self._lagged is not None:
             self._lagged.reset()
         self._late_streak, self._late_streams = 0, set()
@@ -913,7 +958,8 @@ class EkfNode(Node):
                 prefix + 'noise_updates': str(lidar['updates'])})
         status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: gyro bias EKF',
                                   hardware_id=self.resolve_topic_name(topics.IMU))
-        rising = sorted(k for k, v in self.dropped.items() if v > self._reported_drops[k])
+        rising = sorted(k for k, v in self.dropped.items()
+                        if v > self._reported_drops[k] and k not in QUIET_DROP_REASONS)
         self._reported_drops = dict(self.dropped)
         if rising:
             status.level = DiagnosticStatus.WARN

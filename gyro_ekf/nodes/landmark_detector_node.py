@@ -12,6 +12,8 @@ core.validation's scan check) would place poles at made-up bearings: it is dropp
 counted as `dropped_bad_scan` in /diagnostics, as is a scan with a zero stamp
 (`dropped_zero_stamp`) and bytes that are not a LaserScan (`dropped_malformed`: scans are read
 serialized, nodes/wire.py). Ranges themselves may be inf or NaN (REP-117: no return).
+Each scan is passed on as it comes: two scans with one stamp give two landmarks messages
+with that stamp, and ekf_node keeps the first (core/same_stamp.py).
 """
 
 from __future__ import annotations

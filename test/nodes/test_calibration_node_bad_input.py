@@ -57,3 +57,84 @@ def test_bad_rates_and_a_first_stamp_far_ahead_leave_the_window_intact(
     assert values['dropped_non_finite'] == '1'
     assert values['dropped_stamp_jump'] == '1'
     assert values['refused_windows'] == '0'
+
+
+def test_the_static_window_takes_one_sample_per_stamp(ros_processes, diagnostics_of):
+    """Two nodes fed one still platform, one with a second message at four stamps.
+
+    Per input: an exact repeat is counted as a duplicate, other values as same_stamp, and
+    the window takes the first message alone. Before, it took both: an IMU sample twice
+    moved the mean, and a second odometry speed of 1 m/s at a stamp refused the window.
+    """
+    import re
+
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Vector3Stamped
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import Imu
+
+    from gyro_ekf.nodes import qos
+
+    processes, probe = ros_processes
+    diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
+    start = 1_700_003_100 * 10 ** 9
+    nodes = {}
+    for name in ('calibration_once', 'calibration_twice'):
+        processes.node('calibration_node', '-r', f'__ns:=/{name}',
+                       '-p', 'reliable_inputs:=true', '-p', 'diagnostics_period_s:=0.1',
+                       name=name)
+        imu = probe.node.create_publisher(Imu, f'/{name}/imu', qos.LOSSLESS)
+        odom = probe.node.create_publisher(Odometry, f'/{name}/odom', qos.LOSSLESS)
+        bias = probe.subscribe(Vector3Stamped, f'/{name}/gyro_bias', qos.LATCHED)
+        probe.spin_until(lambda: imu.get_subscription_count() > 0
+                         and odom.get_subscription_count() > 0, 20, f'the node {name}')
+        nodes[name] = (imu, odom, bias)
+
+    def speed(stamp_ns: int, speed_m_s: float):
+        message = Odometry()
+        message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp_ns, 10 ** 9)
+        message.twist.twist.linear.x = speed_m_s
+        return message
+
+    def rates(k: int, more: float = 0.0) -> tuple[float, float, float]:
+        return (0.01, -0.02, 0.03 + 0.002 * (k % 5 - 2) + more)  # a repeat moves the mean
+
+    for name, (imu, odom, _) in nodes.items():
+        twice = name == 'calibration_twice'
+        for k in range(1200):  # 12 s at 100 Hz: a window refused at 5 s is taken again
+            stamp = start + k * 10_000_000
+            odom.publish(speed(stamp, 0.0))
+            if twice and k in (200, 210):  # moving at 1 m/s; an exact repeat
+                odom.publish(speed(stamp, 1.0 if k == 200 else 0.0))
+            imu.publish(_imu(stamp, rates(k)))
+            if twice and k in (300, 303):  # another rate; an exact repeat (off the mean)
+                imu.publish(_imu(stamp, rates(k, 0.01 if k == 300 else 0.0)))
+    for name, (_, _, bias) in nodes.items():
+        probe.spin_until(lambda: bias, 30, f'the bias of {name}')
+    once, twice = ([b.vector.x, b.vector.y, b.vector.z] for _, _, (b, *_) in nodes.values())
+    assert twice == once  # the same window, from the first message at each stamp
+    assert once == pytest.approx([0.01, -0.02, 0.03], abs=1e-4)
+
+    def samples(name: str) -> str:
+        found = re.search(r'gyro bias from (\d+) samples over ([\d.]+) s',
+                          processes.log(name))
+        assert found, processes.log(name)
+        return found.groups()
+
+    assert samples('calibration_twice') == samples('calibration_once')
+    counted = {}
+    for name, n in (('calibration_once', '0'), ('calibration_twice', '2')):
+        key = f'/{name}/calibration_node: gyro calibration'
+        probe.spin_until(lambda: (diagnostics_of(diagnostics, key) or {}).get(
+            'dropped_duplicate') == n and diagnostics_of(diagnostics, key).get(
+            'dropped_same_stamp') == n, 20, f'the counts of {name}')
+        counted[name] = diagnostics_of(diagnostics, key)
+    values = counted['calibration_twice']
+    assert values['refused_windows'] == '0' and values['state'] == 'calibrated'
+    assert all(v == '0' for k, v in values.items() if k.startswith('dropped_')
+               and k not in ('dropped_duplicate', 'dropped_same_stamp')), values
+    log = processes.log('calibration_twice')
+    assert any(f'/calibration_twice/{topic}: a second message at stamp 17000031{k // 100:02d}.'
+               f'{k % 100:02d}0000000 ({k / 100:.6f} s) with another {field} than the one '
+               'taken' in log for topic, k, field in (('odom', 200, 'twist.twist.linear.x'),
+                                                      ('imu', 300, 'angular_velocity'))), log

@@ -261,3 +261,105 @@ def test_clock_going_backwards_resets_once_with_the_reason_logged(start_ekf):
         ekf.probe.node.destroy_timer(timer)
     assert values['resets'] == '1'
     assert ekf.processes.log('clock').count('filter reset') == 1
+
+
+def test_a_second_message_at_a_stamp_taken_is_dropped_and_the_first_one_used(
+        start_ekf, tmp_path):
+    """Two nodes fed one stream, one with a second message at six stamps: the same estimates.
+
+    Per input (imu, odom, the LiDAR's detections): an exact repeat is counted as a
+    duplicate, other values as same_stamp (in the verdict, as run --skip-bad counts them).
+    Before, the filter took both: an estimate more per IMU copy, the second rate or speed
+    held until the next stamp, and a second update from the second detections.
+    """
+    from geometry_msgs.msg import Pose, PoseArray
+
+    from gyro_ekf.nodes import qos
+
+    poles = [(6.0, 3.0), (6.0, -3.0), (9.0, 0.5)]
+    landmarks_file = tmp_path / 'poles.yaml'
+    landmarks_file.write_text('landmarks: ' + str([list(p) for p in poles]) + '\n')
+    params = ('lidar.topics:=[scan]', f'landmarks_file:={landmarks_file}')
+    start = 1_700_002_000 * 10 ** 9
+    rate = 0.01  # rad/s: a gyro bias to learn at rest
+    nodes = {}
+    for name in ('same_clean', 'same_twice'):
+        ekf = start_ekf(name, *params)
+        ekf.landmarks = ekf.probe.node.create_publisher(PoseArray, f'/{name}/landmarks',
+                                                        qos.LOSSLESS)
+        ekf.probe.spin_until(lambda: ekf.landmarks.get_subscription_count() > 0, 20,
+                             f'{name} reading landmarks')
+        nodes[name] = ekf
+
+    def detections(i: int, shift_m: float = 0.0):
+        x = max(0, i - 100) * 0.01  # still for 1 s, then 1 m/s along x
+        message = PoseArray()
+        message.header.frame_id = 'scan'
+        for px, py in poles:
+            pose = Pose()
+            pose.position.x, pose.position.y = px - x + shift_m, py
+            message.poses.append(pose)
+        return stamped(message, start + i * STEP_NS)
+
+    def feed(ekf, twice: bool) -> None:
+        for i in range(200):
+            ns = start + i * STEP_NS
+            speed = 0.0 if i < 100 else 1.0
+            ekf.send_odom(ns, speed)
+            if twice and i in (130, 140):  # other speed; an exact repeat
+                ekf.send_odom(ns, 3.0 if i == 130 else speed)
+            ekf.send_imu(ns, rate)
+            if twice and i in (60, 70):  # an exact repeat at rest; another rate
+                ekf.send_imu(ns, rate if i == 60 else 5.0)
+            if i % 10 == 0:
+                ekf._publish(ekf.landmarks, detections(i))
+                if twice and i in (150, 160):  # poles 0.3 m further; an exact repeat
+                    ekf._publish(ekf.landmarks, detections(i, 0.3 if i == 150 else 0.0))
+
+    feed(nodes['same_clean'], False)
+    feed(nodes['same_twice'], True)
+    stamps = [start + i * STEP_NS for i in range(200)]
+
+    def estimates(ekf) -> list:
+        ekf.probe.spin_until(lambda: len(ekf.estimates_at(stamps[-1:])) >= 1, 30,
+                             f'the last estimate of {ekf.name}')
+        return [(m.header.stamp.sec, m.header.stamp.nanosec, tuple(m.pose.covariance),
+                 m.pose.pose.position.x, m.pose.pose.position.y, m.pose.pose.orientation.z,
+                 m.pose.pose.orientation.w, m.twist.twist.linear.x, m.twist.twist.angular.z,
+                 tuple(m.twist.covariance)) for m in ekf.estimates_at(stamps)]
+
+    clean, twice = (estimates(nodes[name]) for name in ('same_clean', 'same_twice'))
+    assert len(clean) == 200
+    # One estimate per IMU stamp, each the one the first messages alone give.
+    assert twice == clean
+    counted = {}
+    for name, n in (('same_clean', 0), ('same_twice', 3)):
+        counted[name] = nodes[name].wait_for(
+            lambda v, n=n: _count('estimates', 200)(v) and _count('dropped_duplicate', n)(v)
+            and _count('dropped_same_stamp', n)(v), f'the counts of {name}')
+    clean_values, values = counted['same_clean'], counted['same_twice']
+    assert values['estimates'] == '200'
+    assert values['dropped_duplicate'] == '3' and values['dropped_same_stamp'] == '3'
+    assert clean_values['dropped_duplicate'] == '0' == clean_values['dropped_same_stamp']
+    for key in ('bias_deg_s', 'bias_sigma_deg_s', 'associated', 'rejected', 'mean_nis',
+                'zero_rate_updates', 'x_m', 'y_m', 'yaw_deg'):
+        assert values[key] == clean_values[key], key
+    assert int(values['associated']) > 0 and int(values['zero_rate_updates']) > 0
+    # Other values at a stamp taken are bad input, in the verdict as run --skip-bad counts
+    # them; exact repeats lose nothing and are not.
+    reasons = set(values['verdict_reasons'].split(' | ')) - {''}
+    clean_reasons = set(clean_values['verdict_reasons'].split(' | ')) - {''}
+    assert reasons - clean_reasons == {
+        'input dropped by validation: 3 (same_stamp 3), more than 0'}, reasons
+    assert clean_reasons <= reasons
+    # Warned about naming the topic, the stamp and the field (once in 5 s: the first of the
+    # three); the first exact repeat is logged once, the others only counted.
+    log = nodes['same_twice'].log()
+    assert any(f'/same_twice/{topic}: a second message at stamp 1700002000.{i}00000000 '
+               f'({i / 10:.6f} s) with another {field} than the one taken' in log
+               for topic, i, field in (('imu', 7, 'angular_velocity.z'),
+                                       ('odom', 13, 'twist.twist.linear.x'),
+                                       ("landmarks (frame 'scan')", 15, 'poses'))), log
+    assert any(f'/same_twice/{topic}: an exact repeat of the message taken at stamp '
+               f'1700002000.{i}00000000' in log
+               for topic, i in (('imu', 6), ('odom', 14), ("landmarks (frame 'scan')", 16))), log
