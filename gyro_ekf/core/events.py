@@ -333,7 +333,7 @@ class EventDriver:
         self.stats.speed += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
-        if abs(speed_m_s) > self.config.rest_speed_m_s:
+        if self.held_start.held and abs(speed_m_s) > self.config.rest_speed_m_s:
             self.held_start.release(stamp_s, 'the odometry read a speed')
         if abs(speed_m_s) <= self.config.rest_speed_m_s:
             if self._stop_since_s is None and self.config.zero_rate_max_spread_rad_s > 0.0:
