@@ -53,7 +53,7 @@ from gyro_ekf.nodes.conversions import (axes_known, bias_message, corrected_imu,
                                         imu_rates, odometry_speed, stamp_ns, TimeOrigin,
                                         to_stamp)
 from gyro_ekf.nodes.params import declare, declare_config, report_ignored
-from gyro_ekf.nodes.runtime import run_node
+from gyro_ekf.nodes.runtime import log_repeat, run_node
 
 _AXES = 'xyz'
 
@@ -267,13 +267,8 @@ class CalibrationNode(Node):
         """Count (and log) a sample dropped at the stamp of the one taken on its input."""
         self.dropped[repeat.reason] += 1
         topic = self.resolve_topic_name(topics.IMU if stream == 'imu' else topics.ODOM)
-        text = describe_repeat(repeat, topic, ns, stamp_s, _FIELDS[stream])
-        if repeat.reason == DUPLICATE:
-            self.get_logger().info(f'{text}; such copies are counted in /diagnostics '
-                                   'dropped_duplicate', once=True)
-        else:
-            self.get_logger().warn(f'{text} (counts {self.dropped})',
-                                   throttle_duration_sec=5.0)
+        log_repeat(self, repeat.reason == DUPLICATE,
+                   describe_repeat(repeat, topic, ns, stamp_s, _FIELDS[stream]), self.dropped)
 
     def _collect(self, stamp_s: float, rates: tuple[float, float, float],
                  message: tuple) -> None:

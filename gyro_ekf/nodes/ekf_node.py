@@ -146,7 +146,7 @@ from gyro_ekf.nodes.conversions import (drop_reason, EstimateMessages, odometry_
                                         pose_problem, quaternion_yaw, stamp_ns, TimeOrigin,
                                         yaw_quaternion)
 from gyro_ekf.nodes.params import declare, declare_config, declare_sidecar, report_ignored
-from gyro_ekf.nodes.runtime import run_node
+from gyro_ekf.nodes.runtime import log_repeat, run_node
 
 DROP_REASONS = ('non_finite', 'out_of_range', 'bad_pose', 'zero_stamp', 'late', 'stamp_jump',
                 'empty_map', 'bad_map', 'unknown_frame', 'filter_error', 'malformed',
@@ -631,13 +631,8 @@ class EkfNode(Node):
         topic = self.resolve_topic_name(what)
         if kind is EventKind.OBSERVATION:
             topic += f' (frame {stream!r})'
-        text = describe_repeat(repeat, topic, ns, stamp_s, _FIELDS[kind])
-        if repeat.reason == DUPLICATE:
-            self.get_logger().info(f'{text}; such copies are counted in /diagnostics '
-                                   'dropped_duplicate', once=True)
-        else:
-            self.get_logger().warn(f'{text} (counts {self.dropped})',
-                                   throttle_duration_sec=5.0)
+        log_repeat(self, repeat.reason == DUPLICATE,
+                   describe_repeat(repeat, topic, ns, stamp_s, _FIELDS[kind]), self.dropped)
 
     def _process(self, events) -> None:
         # With late observations replayed, only speed and IMU samples come through here.

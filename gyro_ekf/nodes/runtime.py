@@ -201,3 +201,16 @@ def _spin_events(node: Node, executor, batch_s: float = 0.0) -> None:
     finally:
         executor.remove_node(node)
         executor.shutdown()
+
+
+def log_repeat(node: Node, duplicate: bool, text: str, counts: dict[str, int]) -> None:
+    """Log a message dropped at the stamp of the one taken on its input (core/same_stamp.py).
+
+    An exact repeat (``duplicate``) lost nothing: said once, at info. Another value for one
+    instant is bad input: a warning naming it with the drop counts, at most every 5 s.
+    """
+    if duplicate:
+        node.get_logger().info(f'{text}; such copies are counted in /diagnostics '
+                               'dropped_duplicate', once=True)
+    else:
+        node.get_logger().warn(f'{text} (counts {counts})', throttle_duration_sec=5.0)
