@@ -73,6 +73,10 @@ REPO = Path(__file__).resolve().parents[1]
 LANDMARKS_XY_M = ((5.0, 0.0), (0.0, 5.0), (-5.0, 0.0), (0.0, -5.0), (7.0, 7.0))
 STAMP_ZERO_NS = 1_800_000_000 * 1_000_000_000
 _CLOCK = time.perf_counter
+DRAIN_S = 10.0
+"""Default longest wait after the last send for the measured outputs, s."""
+NODE_REPORT_S = 3.0
+"""Default longest wait after the drain for ekf_node's report of all its estimates, s."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -204,8 +208,11 @@ def _percentiles(values_s: np.ndarray) -> dict[str, float | None]:
             'mean': float(ms.mean())}
 
 
-def _pose_stamp_ns(data: bytes) -> int:
-    """Header stamp of a serialized PoseWithCovarianceStamped (CDR, little endian), ns."""
+def _stamp_ns(data: bytes) -> int:
+    """Header stamp of a serialized message that begins with a std_msgs/Header, ns.
+
+    A pose, an Imu, a PoseArray: CDR, little endian, after the 4-byte encapsulation header.
+    """
     sec, nanosec = struct.unpack_from('<iI', data, 4)
     return sec * 1_000_000_000 + nanosec
 
@@ -279,7 +286,7 @@ class _Session:
 
     def _on_pose(self, data: bytes) -> None:
         now = _CLOCK()
-        self.received.append((_pose_stamp_ns(data), now))
+        self.received.append((_stamp_ns(data), now))
 
     def _on_diagnostics(self, message: Any) -> None:
         for status in message.status:
@@ -409,19 +416,26 @@ def _warnings(path: Path, most: int = 10) -> list[str]:
     return [line[:300] for line in lines if '[WARN]' in line or '[ERROR]' in line][-most:]
 
 
-def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
-            ) -> dict[str, Any]:
+def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0,
+            settle_timeout_s: float | None = None) -> dict[str, Any]:
     """Run ekf_node in a child process and measure one case (see the module docstring).
 
     Args:
         case: rate, length and node settings.
         env: environment from ros_environment() (this process must run inside it).
         startup_timeout_s: longest wait for matched endpoints and the first poses, s.
+        settle_timeout_s: longest wait after the last send for the measured poses (the
+            drain, which also ends after 1.5 s without a pose), and then for the node's
+            report counting every IMU message from the first it answered, s. None:
+            DRAIN_S and NODE_REPORT_S, short, so that a run that lost messages ends soon
+            (its figures say what came back). Either way the newest report is taken.
 
     Returns:
         JSON-ready results: the case, counts (sent, received, missing), latency and
         completion latency percentiles (ms), node CPU (s, us per step and per message) and
-        the node's own diagnostics counters; 'error' when the run could not be measured.
+        the node's own diagnostics counters ('node_report_complete': whether they count
+        every IMU message sent from the first one answered); 'error' when the run could not
+        be measured.
     """
     work = Path(env['GYRO_EKF_LIVE_WORK'])
     map_file = work / 'map.yaml'
@@ -487,7 +501,8 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
         # Drain: until every measured pose is in, or none came for longer than the node's
         # idle flush (0.5 s) needs, bounded. The CPU window ends at the last pose received
         # (not after the quiet wait that follows a drop).
-        drain_deadline = send_end + 10.0
+        drain_s = DRAIN_S if settle_timeout_s is None else settle_timeout_s
+        drain_deadline = send_end + drain_s
         last = [len(session.received), _CLOCK(), cpu_seconds(child.pid),
                 time.process_time()]
 
@@ -496,13 +511,28 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
                 last[:] = [len(session.received), _CLOCK(), cpu_seconds(child.pid),
                            time.process_time()]
             return all_in() or _CLOCK() - last[1] > 1.5 or _CLOCK() > drain_deadline
-        session.spin_until(drained, 11.0)
+        session.spin_until(drained, drain_s + 1.0)
         _, wall_after, cpu_after, own_after = last
         own_cpu_s = own_after - own_before
-        # Newest node counters, from a diagnostics message sent after the drain.
-        drain_end = _CLOCK()
-        session.spin_until(lambda: bool(session.diagnostics)
-                           and session.diagnostics[-1][0] > drain_end, 3.0)
+
+        # The node's counters, from a report with an estimate for every IMU message sent
+        # from the first one it answered (the earliest pose stamp; the messages before it
+        # were lost while its reader matched this process's writer): made after its last
+        # estimate. The drain may end while the node still works, and a report received
+        # after it may predate its last estimates. (Had the first poses been lost instead,
+        # this asks for a few estimates too few.) A message lost later never lets a report
+        # count them all: then the newest, after the wait.
+        first_pose = [min(stamp for stamp, _ in session.received), len(session.received)]
+
+        def complete() -> bool:
+            for stamp, _ in session.received[first_pose[1]:]:
+                first_pose[0] = min(first_pose[0], stamp)
+            first_pose[1] = len(session.received)
+            answered = sender.step - (first_pose[0] - zero_ns) // sender.period_ns
+            return bool(session.diagnostics) and int(
+                session.diagnostics[-1][1].get('estimates') or 0) >= answered
+        report_complete = session.spin_until(
+            complete, NODE_REPORT_S if settle_timeout_s is None else settle_timeout_s)
         result.update(_summarize(case, sender, session, measured, zero_ns, first_measured,
                                  send_end - wall_before))
         cpu_s = cpu_after - cpu_before
@@ -524,6 +554,7 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
                                          'replayed_observations', 'replayed_events')
                               or key.startswith('dropped_')}
             result['node']['imu_sent_total'] = sender.step
+            result['node_report_complete'] = report_complete
             result['node']['imu_lost_incl_warmup'] = sender.step - result['node'].get(
                 'estimates', 0)
         if child.poll() is not None:
@@ -657,8 +688,8 @@ def _scan_message(stamp_ns: int) -> Any:
     return scan
 
 
-def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float = 30.0
-                 ) -> dict[str, Any]:
+def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float = 30.0,
+                 settle_timeout_s: float | None = None) -> dict[str, Any]:
     """Run calibration_node or landmark_detector_node in a child; CPU per input message.
 
     With `reliable_inputs` every message sent is processed and the output count checks it;
@@ -667,9 +698,14 @@ def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float =
     (CALIBRATION_WINDOW_S of still IMU samples) is timed on its own
     (`window_cpu_us_per_message`), then `duration_s` of corrected IMU messages.
 
+    `settle_timeout_s` bounds the waits for the node: for the bias (beyond the window's
+    stamps) and for the outputs of the measured messages. None: 30 and 10 s, short, so that
+    a run that lost messages ends soon (the counts say so).
+
     Returns:
-        JSON-ready results: the case, messages sent and outputs received, node CPU (s, us
-        per message, share of a core); 'error' when the run could not be measured.
+        JSON-ready results: the case, messages sent and outputs received (of those
+        messages, told by stamp), node CPU (s, us per message, share of a core); 'error'
+        when the run could not be measured.
     """
     import rclpy
     from geometry_msgs.msg import PoseArray, Vector3Stamped
@@ -690,10 +726,16 @@ def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float =
         executor.add_node(node)
         calibration = case.node == 'calibration_node'
         received = [0]
+        # Outputs of the measured messages, told by their stamps (the input's): an output
+        # of the warm-up that comes late is not one of them.
+        measured_from_ns: list[int | None] = [None]
+        measured_outputs = [0]
         bias: list[bytes] = []
 
-        def count(_: bytes) -> None:
+        def count(data: bytes) -> None:
             received[0] += 1
+            if measured_from_ns[0] is not None and _stamp_ns(data) >= measured_from_ns[0]:
+                measured_outputs[0] += 1
         if calibration:
             publisher = node.create_publisher(Imu, topics.IMU,
                                               qos.sensor_input(case.reliable_inputs))
@@ -773,7 +815,8 @@ def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float =
         if calibration:
             # The static window: from the first sample to the published bias.
             cpu_before, wall_before = node_cpu_s(), _CLOCK()
-            send(lambda: bool(bias), round(case.rate_hz * (CALIBRATION_WINDOW_S + 30.0)))
+            send(lambda: bool(bias), round(case.rate_hz * (CALIBRATION_WINDOW_S + (
+                30.0 if settle_timeout_s is None else settle_timeout_s))))
             if not bias:
                 result['error'] = 'calibration_node published no bias'
                 result['node_log_tail'] = _tail(node_log)
@@ -784,17 +827,21 @@ def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float =
                            'window_wall_s': _CLOCK() - wall_before})
         else:  # warm-up: the first scans load code and fill caches
             send(lambda: False, max(10, round(case.rate_hz)))
+        # Let the node catch up with the warm-up before its CPU is measured (bounded: the
+        # count below goes by stamp, whatever of the warm-up is still to come).
         spin_until(lambda: received[0] >= sent[0] - (1 if calibration else 0), 5.0)
-        first_sent, first_received = sent[0], received[0]
+        first_sent = sent[0]
+        measured_from_ns[0] = STAMP_ZERO_NS + first_sent * period_ns
         messages = max(1, round(case.rate_hz * case.duration_s))
         next_s[0] = _CLOCK()  # a new schedule: no burst to catch up after the waits
         cpu_before, wall_before = node_cpu_s(), _CLOCK()
         send(lambda: False, messages)
-        spin_until(lambda: received[0] - first_received >= messages, 10.0)
+        spin_until(lambda: measured_outputs[0] >= messages,
+                   10.0 if settle_timeout_s is None else settle_timeout_s)
         cpu_s, wall_s = node_cpu_s() - cpu_before, _CLOCK() - wall_before
         result.update({
             'messages_sent': sent[0] - first_sent,
-            'outputs_received': received[0] - first_received,
+            'outputs_received': measured_outputs[0],
             'node_cpu_s': cpu_s, 'wall_s': wall_s, 'node_cpu_share': cpu_s / wall_s,
             'node_cpu_us_per_message': cpu_s / messages * 1e6,
             'cpu_clock_tick_s': 1.0 / os.sysconf('SC_CLK_TCK'),
@@ -825,13 +872,16 @@ paths."""
 
 
 def live_suite(cases: tuple[LiveCase, ...] = DEFAULT_CASES, domain_id: int | None = None,
-               node_cases: tuple[NodeCase, ...] = ()) -> dict[str, Any]:
+               node_cases: tuple[NodeCase, ...] = (), startup_timeout_s: float = 30.0,
+               settle_timeout_s: float | None = None) -> dict[str, Any]:
     """Measure every case, each with a fresh ekf_node child, in one ROS environment.
 
     Args:
         cases: what to measure.
         domain_id: ROS domain; None claims a free one (gyro_ekf.ros_env).
         node_cases: calibration_node and landmark_detector_node cases (measure_node).
+        startup_timeout_s, settle_timeout_s: passed to measure and measure_node (tests on
+            a busy machine give long ones; the defaults are the bench's).
 
     Returns:
         {'measured': True when every case was, 'domain_id', 'runs': [per-case results],
@@ -842,7 +892,7 @@ def live_suite(cases: tuple[LiveCase, ...] = DEFAULT_CASES, domain_id: int | Non
         for case in cases:
             log.info('live ekf_node latency: %s for %.0f s', case.name, case.duration_s)
             try:
-                runs.append(measure(case, env))
+                runs.append(measure(case, env, startup_timeout_s, settle_timeout_s))
             except Exception as err:  # noqa: BLE001 - one failed case must not end the bench
                 log.warning('live case %s failed: %s', case.name, err)
                 runs.append({'case': asdict(case), 'name': case.name, 'measured': False,
@@ -851,7 +901,8 @@ def live_suite(cases: tuple[LiveCase, ...] = DEFAULT_CASES, domain_id: int | Non
         for node_case in node_cases:
             log.info('live %s for %.0f s', node_case.name, node_case.duration_s)
             try:
-                node_runs.append(measure_node(node_case, env))
+                node_runs.append(measure_node(node_case, env, startup_timeout_s,
+                                              settle_timeout_s))
             except Exception as err:  # noqa: BLE001 - one failed case must not end the bench
                 log.warning('live case %s failed: %s', node_case.name, err)
                 node_runs.append({'case': asdict(node_case), 'name': node_case.name,
