@@ -468,10 +468,18 @@ class EventDriver:
             mount = self.odometry.first_mount(mount)
             if self.landmarks is not None and len(points):
                 # Moving by the odometry (the bias is not known yet to judge the gyro).
+                checking = self.odometry.checked_at is None
                 moved = self.odometry.observe_start(
                     stamp_s, points, mount, self.landmarks.xy_m,
                     abs(self._measured_speed_m_s) > self.config.rest_speed_m_s)
-                if moved is not None:
+                # The start check's fit takes the scans of a stop as one (their errors
+                # repeat), so a first LiDAR 2-3 cm off can stay within its 3 sigmas; its
+                # first look at each pole from the held start pose cannot hide it. When
+                # those disagree with the pose and another LiDAR's agree, it is this one's
+                # mount (a wrong pose would shift both): the check closing says so too.
+                off_alone = (moved is None and checking and self.odometry.checked_at
+                             is not None and self.held_start.disagrees_alone(key))
+                if moved is not None or off_alone:
                     if self._hand_over(key, stamp_s, self.odometry.checked_at):
                         # Off its mount at the trusted start pose, and another LiDAR agrees
                         # with the map there: that one defines the body frame, this one's
@@ -480,6 +488,7 @@ class EventDriver:
                         if still_at is not None:
                             self.ekf.reset(np.array(still_at), self.ekf.bias_rad_s, self.ekf.P)
                         return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
+                if moved is not None:
                     self.odometry.apply(moved)
                     self._first_lidar_moved(key, moved)
                     still_at = self.odometry.still_at

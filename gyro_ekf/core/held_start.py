@@ -24,7 +24,10 @@ passed) and no LiDAR's looks stay within chance (``significance``), the start po
 wrong (the real 2016 log's conventional heading is 0.45 deg off what its poles say) and the
 hold ends: the filter goes on as from any start, the walk and the looks correcting the
 pose. A LiDAR that disagrees while another agrees is a mount problem, which the health
-monitor and the start check (``core/odometry_online.py``) handle; the pose stays held.
+monitor and the start check (``core/odometry_online.py``) handle; the pose stays held. When
+that LiDAR defines the body frame, the start check hands the frame over to the one that
+agrees as it closes (``disagrees_alone``), even when its own fit, which takes the stop's
+scans as one, stays within its sigmas.
 
 The hold also ends at the first gyro sample beyond the rest rate plus four sample sigmas
 and three bias sigmas (a turn on the spot at zero speed), and after 1 s of gyro samples
@@ -148,6 +151,20 @@ class HeldStart:
             return  # another LiDAR may yet vouch for the pose
         if all(looks.chance_if_exact() < self.significance for looks in judged):
             self.release(stamp_s, 'the map disagrees with the start pose')
+
+    def disagrees_alone(self, key: Hashable) -> bool:
+        """Whether `key`'s looks disagree with the start pose while another LiDAR's agree.
+
+        Each judged (``min_poles``) against ``significance``: a wrong start pose would shift
+        every LiDAR's looks, a LiDAR off its mount only its own. Looks taken while held
+        count after the hold ended too.
+        """
+        mine = self.looks.get(key)
+        if mine is None or mine.poles < self.min_poles or (
+                mine.chance_if_exact() >= self.significance):
+            return False
+        return any(looks.poles >= self.min_poles and looks.chance_if_exact() >= self.significance
+                   for other, looks in self.looks.items() if other != key)
 
     def report(self, names: Mapping[Hashable, str] | None = None) -> dict[str, Any]:
         """JSON-ready figures for summary.json and /diagnostics (names: LiDAR -> its name)."""

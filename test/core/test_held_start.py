@@ -165,6 +165,8 @@ def test_every_lidar_that_looked_must_disagree_to_release():
         held.look('a', landmark, 0.0, 0.1)    # a repeated look does not count again
     held.judge(0.1, expected=2)
     assert held.held
+    # A mount problem of 'a' (a wrong pose would shift both): the start check hands over.
+    assert held.disagrees_alone('a') and not held.disagrees_alone('b')
     held.judge(0.1, expected=2)
     lone = HeldStart(True)
     for landmark in range(3):
@@ -173,6 +175,7 @@ def test_every_lidar_that_looked_must_disagree_to_release():
     assert lone.held
     lone.judge(0.6, expected=2)       # ... but not after decide_after_s
     assert not lone.held and lone.released_s == 0.6
+    assert not lone.disagrees_alone('a')  # nobody agrees: the pose, not a mount
 
 
 def test_a_heading_error_shifting_every_bearing_alike_releases_before_the_nis_sum_would():
