@@ -191,15 +191,21 @@ needs_unshare = pytest.mark.skipif(not _unshare_works(),
                                    reason='unshare -rm with mounts is not allowed here')
 
 
-def _in_namespace(setup: str, command: list[str], after: str) -> subprocess.CompletedProcess:
-    """Run setup, the gyro-ekf command and after in a private mount namespace."""
+def _in_namespace(setup: str, command: list[str], after: str, work: Path
+                  ) -> subprocess.CompletedProcess:
+    """Run setup, the gyro-ekf command and after in a private mount namespace.
+
+    The command's stderr goes to a file in `work` (the test's own folder, outside what the
+    setup mounts): in a shared folder a second copy of the suite would write the same file.
+    """
     gyro = ' '.join(shlex.quote(a) for a in [sys.executable, '-m', 'gyro_ekf.cli.main', '-q',
                                              *command])
-    script = f'set -e; {setup}; {gyro} 2>err.txt && echo EXIT=0 || echo EXIT=$?; ' \
-             f'echo STDERR; cat err.txt; echo AFTER; {after}'
+    err = shlex.quote(str(work / 'err.txt'))
+    script = f'set -e; {setup}; {gyro} 2>{err} && echo EXIT=0 || echo EXIT=$?; ' \
+             f'echo STDERR; cat {err}; echo AFTER; {after}'
     env = dict(os.environ, PYTHONPATH=str(REPO), MPLBACKEND='Agg')
     return subprocess.run(['unshare', '-rm', 'sh', '-c', script], capture_output=True,
-                          text=True, env=env, timeout=300, cwd='/tmp')
+                          text=True, env=env, timeout=300, cwd=work)
 
 
 @needs_unshare
@@ -210,7 +216,8 @@ def test_run_on_a_full_disk_gives_one_line_and_keeps_the_old_output(short_bag, t
              f"echo '{{\"earlier\": true}}' > {disk}/out/summary.json")
     result = _in_namespace(setup, ['run', str(short_bag), '-o', f'{disk}/out', '--force',
                                    '--no-progress'],
-                           f'ls -A {disk}; ls -A {disk}/out; cat {disk}/out/summary.json')
+                           f'ls -A {disk}; ls -A {disk}/out; cat {disk}/out/summary.json',
+                           tmp_path)
     stdout = result.stdout
     assert 'EXIT=1' in stdout, stdout + result.stderr
     error = stdout.split('STDERR\n')[1].split('AFTER\n')[0].strip()
@@ -231,12 +238,13 @@ def test_convert_and_run_on_a_read_only_file_system_give_one_line(short_bag, sho
     (disk / 'out' / 'summary.json').write_text('{}')
     setup = f'mount --bind {disk} {disk}; mount -o remount,ro,bind {disk}'
     run = _in_namespace(setup, ['run', str(short_bag), '-o', f'{disk}/out', '--force',
-                                '--no-progress'], f'ls -A {disk} {disk}/out')
+                                '--no-progress'], f'ls -A {disk} {disk}/out', tmp_path)
     assert 'EXIT=1' in run.stdout, run.stdout + run.stderr
     error = run.stdout.split('STDERR\n')[1].split('AFTER\n')[0].strip()
     assert error == f'gyro-ekf run: error: {disk}/out: cannot write the outputs: ' \
                     'read-only file system'
-    convert = _in_namespace(setup, ['convert', str(short_npz), '-o', f'{disk}/bag'], 'true')
+    convert = _in_namespace(setup, ['convert', str(short_npz), '-o', f'{disk}/bag'], 'true',
+                            tmp_path)
     assert 'EXIT=1' in convert.stdout, convert.stdout + convert.stderr
     error = convert.stdout.split('STDERR\n')[1].split('AFTER\n')[0].strip()
     assert error == f'gyro-ekf convert: error: {disk}/bag: cannot write the bag: ' \
