@@ -473,10 +473,10 @@ class EventDriver:
                     stamp_s, points, mount, self.landmarks.xy_m,
                     abs(self._measured_speed_m_s) > self.config.rest_speed_m_s)
                 # The start check's fit takes the scans of a stop as one (their errors
-                # repeat), so a first LiDAR 2-3 cm off can stay within its 3 sigmas; its
-                # first look at each pole from the held start pose cannot hide it. When
-                # those disagree with the pose and another LiDAR's agree, it is this one's
-                # mount (a wrong pose would shift both): the check closing says so too.
+                # repeat), so a first LiDAR 2-3 cm off can stay within its 3 sigmas, where
+                # its first look at each pole from the held start pose may already show it.
+                # When those disagree with the pose and another LiDAR's agree, it is this
+                # one's mount (a wrong pose would shift both): the check closing acts on it.
                 off_alone = (moved is None and checking and self.odometry.checked_at
                              is not None and self.held_start.disagrees_alone(key))
                 if moved is not None or off_alone:
