@@ -89,6 +89,13 @@ class EkfUnderTest:
     def values(self) -> dict[str, str]:
         return self.diagnostics_of(self.diagnostics, self.key) or {}
 
+    def node_clock_ns(self) -> int:
+        """The node's ROS time when it sent its newest diagnostics received (their stamp)."""
+        for array in reversed(self.diagnostics):
+            if any(self.key in status.name for status in array.status):
+                return array.header.stamp.sec * 10 ** 9 + array.header.stamp.nanosec
+        raise AssertionError(f'no diagnostics from {self.name}')
+
     def wait_for(self, condition, what: str, timeout_s: float = 30.0) -> dict[str, str]:
         self.probe.spin_until(lambda: condition(self.values()), timeout_s, what)
         return self.values()

@@ -34,13 +34,6 @@ class EkfUnderTest(_Harness):
             self.send_odom(start_ns + i * STEP_NS, speed)
             self.send_imu(start_ns + i * STEP_NS)
 
-    def node_clock_ns(self) -> int:
-        """The node's ROS time when it sent its newest diagnostics received (their stamp)."""
-        for array in reversed(self.diagnostics):
-            if any(self.key in status.name for status in array.status):
-                return array.header.stamp.sec * 10 ** 9 + array.header.stamp.nanosec
-        raise AssertionError(f'no diagnostics from {self.name}')
-
     def estimates_at(self, stamps_ns) -> list:
         wanted = set(stamps_ns)
         return [m for m in self.odometry

@@ -72,13 +72,6 @@ class SimTimeEkf(EkfUnderTest):
     def wait_for(self, condition, what: str, timeout_s: float = 60.0) -> dict[str, str]:
         return super().wait_for(condition, what, timeout_s)
 
-    def node_clock_ns(self) -> int:
-        """The node's ROS time when it sent its newest diagnostics received (their stamp)."""
-        for array in reversed(self.diagnostics):
-            if any(self.key in status.name for status in array.status):
-                return array.header.stamp.sec * NS + array.header.stamp.nanosec
-        raise AssertionError(f'no diagnostics from {self.name}')
-
     def estimate_at(self, stamp_ns: int):
         found = [m for m in self.odometry
                  if m.header.stamp.sec * NS + m.header.stamp.nanosec == stamp_ns]
