@@ -522,13 +522,9 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
         # after it may predate its last estimates. (Had the first poses been lost instead,
         # this asks for a few estimates too few.) A message lost later never lets a report
         # count them all: then the newest, after the wait.
-        first_pose = [min(stamp for stamp, _ in session.received), len(session.received)]
-
         def complete() -> bool:
-            for stamp, _ in session.received[first_pose[1]:]:
-                first_pose[0] = min(first_pose[0], stamp)
-            first_pose[1] = len(session.received)
-            answered = sender.step - (first_pose[0] - zero_ns) // sender.period_ns
+            first_pose_ns = min(stamp for stamp, _ in session.received)
+            answered = sender.step - (first_pose_ns - zero_ns) // sender.period_ns
             return bool(session.diagnostics) and int(
                 session.diagnostics[-1][1].get('estimates') or 0) >= answered
         report_complete = session.spin_until(
