@@ -43,6 +43,9 @@ BOUNDS = {'position_rmse_m': POSITION_RMSE_BOUND_M,
           'bias_error_final_deg_s': BIAS_ERROR_BOUND_DEG_S,
           'nees_share_in_band': NEES_SHARE_BOUND}
 
+_Z95 = 1.959963984540054
+"""The standard normal's two-sided 95 % quantile (the pass and silent shares' intervals)."""
+
 DEFAULT_DURATION_S = 120.0
 """Trip length: the simulator's default (a 2016-like trip: 8 s static, then driving)."""
 MAX_STATIC_SHARE = 0.5
@@ -244,6 +247,25 @@ def _median(values: list[float | None]) -> float | None:
     return float(np.median(kept)) if kept else None
 
 
+def wilson_interval(count: int, trips: int) -> list[float] | None:
+    """Return the two-sided 95 % Wilson score interval [low, high] of a share count / trips.
+
+    25 trips say little about a share near 95 %: 24 of 25 passed is 80-99 %, and no silent
+    failure in 25 trips only bounds its share below 13 %. The Wilson interval keeps within
+    [0, 1] and is not empty at 0 or 25 of 25, where the normal one is.
+    """
+    if trips <= 0:
+        return None
+    z2 = _Z95 * _Z95
+    share = count / trips
+    centre = (share + z2 / (2.0 * trips)) / (1.0 + z2 / trips)
+    half = (_Z95 / (1.0 + z2 / trips)
+            * math.sqrt(share * (1.0 - share) / trips + z2 / (4.0 * trips * trips)))
+    # At 0 and all of trips the bound is exactly 0 or 1 (the formula leaves rounding).
+    return [0.0 if count == 0 else max(0.0, centre - half),
+            1.0 if count == trips else min(1.0, centre + half)]
+
+
 def _class_summary(stress_class: StressClass, records: list[dict[str, Any]]
                    ) -> dict[str, Any]:
     n = len(records)
@@ -252,7 +274,9 @@ def _class_summary(stress_class: StressClass, records: list[dict[str, Any]]
     return {
         'description': stress_class.description, 'trips': n,
         'passed': passed, 'pass_rate': passed / n if n else None,
+        'pass_rate_ci95': wilson_interval(passed, n),
         'silent_failures': len(silent), 'silent_rate': len(silent) / n if n else None,
+        'silent_rate_ci95': wilson_interval(len(silent), n),
         'errors': sum('error' in r for r in records),
         'verdicts': dict(Counter(str(r['verdict']) for r in records)),
         # Verdict not ok on a trip within the bounds: a false alarm on clean data, a fair
@@ -303,6 +327,8 @@ def run_suite(trips_per_class: int, seed: int = 0, workers: int = 2,
     classes = {c.name: _class_summary(c, [r for r in records if r['class'] == c.name])
                for c in CLASSES}
     total = len(records)
+    passed = sum(r['passed'] for r in records)
+    silent = sum(r['silent'] for r in records)
     return {
         'suite': {'trips_per_class': trips_per_class, 'seed': seed, 'workers': workers,
                   'duration_s': duration_s,
@@ -310,9 +336,9 @@ def run_suite(trips_per_class: int, seed: int = 0, workers: int = 2,
                   'trips': total, 'elapsed_s': elapsed,
                   'trip_seconds_per_second': total * duration_s / elapsed if elapsed else None},
         'bounds': BOUNDS,
-        'totals': {'passed': sum(r['passed'] for r in records),
-                   'pass_rate': sum(r['passed'] for r in records) / total if total else None,
-                   'silent_failures': sum(r['silent'] for r in records),
+        'totals': {'passed': passed, 'pass_rate': passed / total if total else None,
+                   'pass_rate_ci95': wilson_interval(passed, total),
+                   'silent_failures': silent, 'silent_rate_ci95': wilson_interval(silent, total),
                    'silent_nees_below_band': sum(c['silent_nees_below_band']
                                                  for c in classes.values()),
                    'errors': sum('error' in r for r in records)},
@@ -325,9 +351,17 @@ def _percent(value: float | None) -> str:
     return 'n/a' if value is None else f'{100.0 * value:.0f} %'
 
 
+def _with_interval(value: float | None, interval: list[float] | None) -> str:
+    if value is None or interval is None:
+        return _percent(value)
+    low, high = interval
+    return f'{100.0 * value:.0f} % ({100.0 * low:.0f}-{100.0 * high:.0f})'
+
+
 def table(results: dict[str, Any]) -> str:
     """Return the per-class figures, pass and silent-failure shares first, as text."""
-    header = ('class', 'trips', 'pass', 'silent', 'verdict ok/deg/fail', 'RMSE med (cm)',
+    header = ('class', 'trips', 'pass (95 % CI)', 'silent (95 % CI)', 'verdict ok/deg/fail',
+              'RMSE med (cm)',
               '|bias err| med (deg/s)', 'NEES med')
     rows = []
     for name, c in results['classes'].items():
@@ -335,8 +369,9 @@ def table(results: dict[str, Any]) -> str:
         rmse = c['median_position_rmse_m']
         bias = c['median_abs_bias_error_deg_s']
         nees = c['median_nees_share_in_band']
-        rows.append((name, str(c['trips']), _percent(c['pass_rate']),
-                     _percent(c['silent_rate']),
+        rows.append((name, str(c['trips']),
+                     _with_interval(c['pass_rate'], c.get('pass_rate_ci95')),
+                     _with_interval(c['silent_rate'], c.get('silent_rate_ci95')),
                      '/'.join(str(verdicts.get(v, 0)) for v in ('ok', 'degraded', 'failed')),
                      'n/a' if rmse is None else f'{100.0 * rmse:.2f}',
                      'n/a' if bias is None else f'{bias:.4f}',
@@ -349,13 +384,18 @@ def table(results: dict[str, Any]) -> str:
     below = (f" ({totals['silent_nees_below_band']} of them the NEES share alone missed below "
              f"the band: a covariance larger than the error)"
              if totals.get('silent_nees_below_band') else '')
+    silent_interval = totals.get('silent_rate_ci95')
+    silent_share = ('' if silent_interval is None else
+                    f" (share {100.0 * silent_interval[0]:.1f}-{100.0 * silent_interval[1]:.1f} "
+                    f"%, 95 % CI)")
     lines.append(f"{suite['trips']} trips of {suite['duration_s']:g} s ("
                  f"{suite['static_s']:g} s static start), seed {suite['seed']}: "
-                 f"{_percent(totals['pass_rate'])} within the bounds (RMSE <= "
+                 f"{_with_interval(totals['pass_rate'], totals.get('pass_rate_ci95'))} "
+                 f"within the bounds (RMSE <= "
                  f"{100 * POSITION_RMSE_BOUND_M:g} cm, |final bias error| <= "
                  f"{BIAS_ERROR_BOUND_DEG_S:g} deg/s, NEES share in band >= "
                  f"{NEES_SHARE_BOUND:g}); {totals['silent_failures']} silent failure(s)"
-                 f"{below}; "
+                 f"{silent_share}{below}; "
                  f"{totals['errors']} error(s); {suite['elapsed_s']:.0f} s on "
                  f"{suite['workers']} worker(s)")
     return '\n'.join(lines)

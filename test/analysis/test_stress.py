@@ -123,3 +123,45 @@ def test_silent_misses_below_the_band_are_counted_apart():
                'totals': {'pass_rate': 0.2, 'silent_failures': 3, 'errors': 0,
                           'silent_nees_below_band': 1}}
     assert '3 silent failure(s) (1 of them the NEES share alone missed below' in table(results)
+
+
+def test_share_intervals_are_wilson_scores():
+    from statistics import NormalDist
+
+    from gyro_ekf.analysis.stress import _Z95, wilson_interval
+    assert _Z95 == pytest.approx(NormalDist().inv_cdf(0.975), abs=1e-12)
+    z2 = _Z95 * _Z95
+    # At the ends the Wilson interval has closed forms: 0 of n up to z^2 / (n + z^2),
+    # n of n down from n / (n + z^2) (25 trips: 13.3 % and 86.7 %).
+    assert wilson_interval(0, 25) == pytest.approx([0.0, z2 / (25 + z2)], abs=1e-12)
+    assert wilson_interval(25, 25) == pytest.approx([25 / (25 + z2), 1.0], abs=1e-12)
+    # Symmetric about a half; k and n - k mirror each other.
+    low, high = wilson_interval(10, 20)
+    assert low + high == pytest.approx(1.0, abs=1e-12)
+    low, high = wilson_interval(19, 25)
+    assert wilson_interval(6, 25) == pytest.approx([1.0 - high, 1.0 - low], abs=1e-12)
+    # The share inside, the interval narrower with more trips.
+    assert low < 19 / 25 < high
+    low4, high4 = wilson_interval(76, 100)
+    assert low < low4 < 0.76 < high4 < high
+    assert wilson_interval(0, 0) is None
+
+
+def test_the_table_prints_each_share_with_its_interval():
+    from gyro_ekf.analysis.stress import _class_summary, table
+    records = [{'passed': k < 24, 'silent': False, 'verdict': 'ok' if k < 24 else 'degraded',
+                'missed': [] if k < 24 else ['nees_share_in_band']} for k in range(25)]
+    summary = _class_summary(CLASSES[0], records)
+    assert summary['pass_rate_ci95'] == pytest.approx([0.8046, 0.9929], abs=1e-4)
+    assert summary['silent_rate_ci95'][0] == 0.0
+    results = {'classes': {'clean': summary},
+               'suite': {'trips': 25, 'duration_s': 120.0, 'static_s': 8.0, 'seed': 0,
+                         'elapsed_s': 1.0, 'workers': 1},
+               'totals': {'pass_rate': 0.96, 'pass_rate_ci95': summary['pass_rate_ci95'],
+                          'silent_failures': 0, 'silent_rate_ci95': [0.0, 0.1332],
+                          'errors': 0}}
+    text = table(results)
+    assert '96 % (80-99)' in text
+    assert '0 % (0-13)' in text
+    assert 'seed 0: 96 % (80-99) within the bounds' in text
+    assert '0 silent failure(s) (share 0.0-13.3 %, 95 % CI)' in text
