@@ -352,11 +352,15 @@ def _percent(value: float | None) -> str:
     return 'n/a' if value is None else f'{100.0 * value:.0f} %'
 
 
+def _span(interval: list[float], digits: int = 0) -> str:
+    low, high = interval
+    return f'{100.0 * low:.{digits}f}-{100.0 * high:.{digits}f}'
+
+
 def _with_interval(value: float | None, interval: list[float] | None) -> str:
     if value is None or interval is None:
         return _percent(value)
-    low, high = interval
-    return f'{100.0 * value:.0f} % ({100.0 * low:.0f}-{100.0 * high:.0f})'
+    return f'{_percent(value)} ({_span(interval)})'
 
 
 def table(results: dict[str, Any]) -> str:
@@ -385,9 +389,8 @@ def table(results: dict[str, Any]) -> str:
              f"the band: a covariance larger than the error)"
              if totals.get('silent_nees_below_band') else '')
     silent_interval = totals.get('silent_rate_ci95')
-    silent_share = ('' if silent_interval is None else
-                    f" (share {100.0 * silent_interval[0]:.1f}-{100.0 * silent_interval[1]:.1f} "
-                    f"%, 95 % CI)")
+    silent_share = ('' if silent_interval is None
+                    else f' (share {_span(silent_interval, 1)} %, 95 % CI)')
     lines.append(f"{suite['trips']} trips of {suite['duration_s']:g} s ("
                  f"{suite['static_s']:g} s static start), seed {suite['seed']}: "
                  f"{_with_interval(totals['pass_rate'], totals.get('pass_rate_ci95'))} "
