@@ -106,6 +106,17 @@ def effective_config(noise: NoiseFigures, params: PipelineParams | None = None,
         for key, target in STATED_NOISE_FIELDS.items():
             if getattr(noise, key) is not None:
                 sources[target] = 'log'
+        # A sigma the user wrote that the log's figure replaces: said, not silently lost.
+        replaced = [(target, getattr(params.ekf, target), getattr(config, target))
+                    for target, source in sources.items()
+                    if source == 'log' and target in explicit
+                    and getattr(params.ekf, target) != getattr(config, target)]
+        if replaced:
+            log.warning('the params file sets %s, but the log states %s, used while '
+                        'use_stated_noise is true; to use the file\'s, set '
+                        'use_stated_noise: false in it (or run --ignore-stated-noise)',
+                        ', '.join(f'{name} = {mine:g}' for name, mine, _ in replaced),
+                        ', '.join(f'{name} = {used:g}' for name, _, used in replaced))
     return config, sources
 
 

@@ -8,6 +8,7 @@ estimates bag, summary.json and the figures into OUTDIR. stdout gets a short sum
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import logging
 import math
 from pathlib import Path
@@ -114,13 +115,14 @@ def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
     from gyro_ekf.io import output_dir, results
     from gyro_ekf.analysis.offline import event_count, run_trip
-    from gyro_ekf.io.params_file import PipelineParams, read_params_file
+    from gyro_ekf.io.params_file import PipelineParams, read_params_file, with_initial_pose
     from gyro_ekf.analysis.summary import summarize
     from gyro_ekf.io.bag_reader import read_bag, validate_bag
 
     params = read_params_file(args.params_file) if args.params_file else PipelineParams()
     began = time.perf_counter()
     bag = read_bag(args.bag, acceleration=False)  # the EKF does not use it
+    bag = replace(bag, trip=with_initial_pose(bag.trip, params, bag.pose_from_message))
     # Checked before the output folder exists, so refused input leaves nothing behind.
     trip, report = validate_bag(bag, Path(args.bag).name, params.limits,
                                 skip_bad=args.skip_bad)

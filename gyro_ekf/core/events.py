@@ -450,7 +450,10 @@ class EventDriver:
         """
         self.last_transition = None
         if sensor is None:
-            sensor = self.sensor_names.get(mount)
+            # Unnamed (a node with no sidecar): by its mount, never the dataclass's repr.
+            sensor = self.sensor_names.get(mount) or (
+                f'mounted at ({mount.x_m:g} m, {mount.y_m:g} m, '
+                f'{math.degrees(mount.yaw_rad):g} deg)')
         self._advance(stamp_s, 'observation')
         self.stats.scans += 1
         if self._first_scan_s is None:

@@ -93,12 +93,15 @@ class BagTrip:
         params: the sidecar contents, or None when the bag has none.
         duplicates: topic -> messages dropped as exact copies of an earlier one (same
             header stamp and bytes); only topics that had any.
+        pose_from_message: whether the trip's initial pose is the bag's /initialpose
+            message's (else the sidecar's, or the origin).
     """
 
     trip: Trip
     start_time_ns: int
     params: BagParams | None
     duplicates: dict[str, int] = field(default_factory=dict)
+    pose_from_message: bool = False
 
     @property
     def converted(self) -> InputReport | None:
@@ -245,7 +248,7 @@ def read_bag(path: Path | str, acceleration: bool = True) -> BagTrip:
         truth=None if truth is None else (truth.stamps[:truth.n], truth.poses[:truth.n]),
         landmarks=None if landmark_message is None else msgs.landmarks_of(landmark_message),
         initial_pose=None if pose_message is None else initial_pose_of(path, pose_message))
-    return replace(bag_trip, duplicates=duplicates) if duplicates else bag_trip
+    return replace(bag_trip, duplicates=duplicates, pose_from_message=pose_message is not None)
 
 
 ZERO_TOLERANCE_NS = 3600 * 1_000_000_000

@@ -15,8 +15,8 @@ Sections of the pipeline's nodes (`/**`, `ekf_node`, `calibration_node`,
 section, a name (after an optional `ekf.`, `calibration.` or `detector.` group prefix) that
 is a field of EkfConfig, CalibrationConfig or DetectorConfig sets that field, and a bare
 name that is a field of RunOptions (`use_stated_noise`, `use_calibration`, ...) sets that
-option; other names (the bag sidecar's `initial_pose.*`, the nodes' own frames, topics
-and QoS) belong to someone else and are skipped. A value set in a node section overrides
+option; other names (the nodes' own frames, topics and QoS) belong to someone else and
+are skipped. A value set in a node section overrides
 the same value under `/**`. Values are checked by `core.config.make_config` (a switch
 takes true or false only), and every error names the file and parameter. Defaults are
 the dataclasses' own, as for the nodes.
@@ -25,6 +25,11 @@ LiDAR mounts are read in the EKF node's (and the bag sidecar's) layout, `lidar.t
 `lidar.<topic>.{frame_id, x_m, y_m, yaw_rad}` (x, y and yaw required, frame_id optional);
 `gyro-ekf calibrate-mounts` writes them. `with_lidar_mounts` puts them on a trip's scans,
 overriding the mounts the bag states for those topics.
+
+The start pose is read as the EKF node declares it, `initial_pose.{x_m, y_m, yaw_rad}` (all
+three, in `map`). `with_initial_pose` starts a trip there unless the bag holds an
+`/initialpose` message: the node, given the same file, starts there too, and a replay of the
+bag then sets its pose from that message, so `run` keeps the message's pose and says so.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from gyro_ekf.io.errors import ParamsFileError
@@ -44,7 +50,7 @@ from gyro_ekf.core.config import (CalibrationConfig, DetectorConfig, EkfConfig, 
                                   make_config, RunOptions)
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.types import LidarMount, Trip
-from gyro_ekf.core.validation import mount_problem
+from gyro_ekf.core.validation import initial_pose_problem, mount_problem
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +80,7 @@ class PipelineParams:
         options: the run options (defaults where the file sets none).
         lidars: scan topic (no slash) -> (frame_id or None, mount) the file sets.
         limits: the plausible input ranges (``limits.*``, as the nodes take them).
+        initial_pose: (x m, y m, yaw rad) in `map` the file sets, or None.
     """
 
     ekf: EkfConfig = field(default_factory=EkfConfig)
@@ -83,6 +90,7 @@ class PipelineParams:
     options: RunOptions = field(default_factory=RunOptions)
     lidars: dict[str, tuple[str | None, LidarMount]] = field(default_factory=dict)
     limits: InputLimits = field(default_factory=InputLimits)
+    initial_pose: tuple[float, float, float] | None = None
 
 
 def _flatten(tree: dict[str, Any], prefix: str = '') -> dict[str, Any]:
@@ -132,6 +140,7 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
     values: dict[str, dict[str, Any]] = {group: {} for group in _CONFIG_TYPES}
     options: dict[str, Any] = {}
     lidar_values: dict[str, Any] = {}
+    pose_values: dict[str, Any] = {}
     limits: dict[str, Any] = {}
     read = 0
     for node, body in sections:
@@ -151,6 +160,9 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
         for name, value in _flatten(body['ros__parameters']).items():
             if name.startswith('lidar.'):
                 lidar_values[name[len('lidar.'):]] = value
+                continue
+            if name.startswith('initial_pose.'):
+                pose_values[name] = value
                 continue
             group, _, short = name.rpartition('.')
             if short in _OPTIONS and not group:
@@ -187,7 +199,8 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
         ekf=built['ekf'], calibration=built['calibration'], detector=built['detector'],
         explicit={**{group: tuple(sorted(v)) for group, v in values.items()},
                   'options': tuple(sorted(options))},
-        options=run_options, lidars=_lidar_mounts(lidar_values, source), limits=input_limits)
+        options=run_options, lidars=_lidar_mounts(lidar_values, source), limits=input_limits,
+        initial_pose=_initial_pose(pose_values, source, input_limits))
 
 
 def _skipped(source: str, node: str, name: str) -> None:
@@ -199,13 +212,77 @@ def _skipped(source: str, node: str, name: str) -> None:
     """
     group, _, short = name.rpartition('.')
     by_short = group in _CONFIG_TYPES
-    close = difflib.get_close_matches(short if by_short else name, _KNOWN, n=1, cutoff=0.85)
+    owner = _FIELD_OWNER.get(short)
+    if by_short and owner is not None:
+        # A parameter of another group behind this group's prefix (detector.gyro_noise_rad_s):
+        # the name is right, the prefix is not.
+        log.warning('%s: %s: %r is not a parameter (%r is one of %s.*: write it bare or as '
+                    '%r); ignored', source, node, name, short, owner, f'{owner}.{short}')
+        return
+    wanted = short if by_short else name
+    close = difflib.get_close_matches(wanted, _KNOWN, n=1, cutoff=0.85)
+    if not close:
+        # A unit suffix left out (gyro_noise for gyro_noise_rad_s) is too short a name for
+        # the closeness cut-off, and as wrong: the value would be taken in no unit at all.
+        close = [known for known in _KNOWN if known.startswith(wanted + '_')][:1]
     if close:
         meant = f'{group}.{close[0]}' if by_short else close[0]
         log.warning('%s: %s: %r is not a parameter (did you mean %r?); ignored', source,
                     node, name, meant)
     else:
         log.debug('%s: %s: %r is not a filter parameter; skipped', source, node, name)
+
+
+_POSE_NAMES = ('initial_pose.x_m', 'initial_pose.y_m', 'initial_pose.yaw_rad')
+
+
+def _number(source: str, name: str, value: Any) -> float:
+    """Return a finite number as a float (an int too), or raise a ParamsFileError naming it."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParamsFileError(f"{source}: parameter '{name}' must be a number, got "
+                              f'{value!r}')
+    _require_finite(source, name, float(value))
+    return float(value)
+
+
+_YAW_LIMIT_RAD = 2.0 * math.pi
+"""The range the nodes declare for `initial_pose.yaw_rad` and `lidar.<topic>.yaw_rad`."""
+
+
+def _yaw(source: str, name: str, value: float) -> float:
+    """Return a yaw within the nodes' declared range (they would refuse it too), or raise."""
+    if abs(value) > _YAW_LIMIT_RAD:
+        raise ParamsFileError(f"{source}: parameter '{name}' = {value:g} rad lies outside "
+                              f'[-{_YAW_LIMIT_RAD:g}, {_YAW_LIMIT_RAD:g}] rad, the range the '
+                              'nodes declare (a yaw in degrees?)')
+    return value
+
+
+def _initial_pose(values: dict[str, Any], source: str, limits: InputLimits
+                  ) -> tuple[float, float, float] | None:
+    """Return the start pose of the flattened `initial_pose.*` names (None when none is set).
+
+    All three are required: a file that set x and y only would start the filter at yaw 0
+    where the bag states another heading, with nothing said.
+    """
+    if not values:
+        return None
+    for name in sorted(set(values) - set(_POSE_NAMES)):
+        close = difflib.get_close_matches(name, _POSE_NAMES, n=1, cutoff=0.8)
+        hint = f' (did you mean {close[0]!r}?)' if close else ''
+        raise ParamsFileError(f"{source}: parameter '{name}' is not one of "
+                              f"{', '.join(_POSE_NAMES)}{hint}")
+    pose = []
+    for name in _POSE_NAMES:
+        if name not in values:
+            raise ParamsFileError(f"{source}: parameter '{name}' is missing (a start pose "
+                                  f"takes {', '.join(_POSE_NAMES)})")
+        pose.append(_number(source, name, values[name]))
+    _yaw(source, _POSE_NAMES[2], pose[2])
+    problem = initial_pose_problem(*pose, limits)
+    if problem:
+        raise ParamsFileError(f"{source}: parameter 'initial_pose': {problem}")
+    return pose[0], pose[1], pose[2]
 
 
 def _lidar_mounts(values: dict[str, Any], source: str
@@ -225,11 +302,8 @@ def _lidar_mounts(values: dict[str, Any], source: str
             value = values.get(f'{topic}.{key}')
             if value is None:
                 raise ParamsFileError(f"{source}: parameter '{name}' is missing")
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ParamsFileError(f"{source}: parameter '{name}' must be a number, got "
-                                      f'{value!r}')
-            _require_finite(source, name, float(value))
-            numbers.append(float(value))
+            numbers.append(_number(source, name, value))
+        _yaw(source, f'lidar.{topic}.yaw_rad', numbers[2])
         problem = mount_problem(*numbers)
         if problem:
             raise ParamsFileError(f"{source}: parameter 'lidar.{topic}': {problem}")
@@ -263,6 +337,34 @@ def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
         log.warning("%s: the params file sets a mount for LiDAR '%s', which has no scans in "
                     'this trip; ignored', trip.name, topic)
     return dataclasses.replace(trip, scans=tuple(scans))
+
+
+def with_initial_pose(trip: Trip, params: PipelineParams, stated_by_message: bool) -> Trip:
+    """Return the trip started at the params file's pose, as the EKF node starts.
+
+    Args:
+        trip: the trip as read (its pose from the bag's /initialpose message, its sidecar,
+            or the origin).
+        params: the params file read.
+        stated_by_message: whether the trip's pose came from an /initialpose message in the
+            bag: the node sets its pose from that message when the bag is replayed, so it
+            is kept (and the file's pose named in a warning).
+    """
+    if params.initial_pose is None:
+        return trip
+    wanted = np.asarray(params.initial_pose, dtype=np.float64)
+    stated = np.asarray(trip.initial_pose, dtype=np.float64)
+    if np.array_equal(wanted, stated):
+        return trip
+    if stated_by_message:
+        log.warning('%s: the params file sets initial_pose (%g m, %g m, %g rad), but the '
+                    "bag's /initialpose message states (%g m, %g m, %g rad): the run starts "
+                    'there, as ekf_node does once a replay of the bag publishes it',
+                    trip.name, *wanted.tolist(), *stated.tolist())
+        return trip
+    log.info('%s: start pose from the params file (%g m, %g m, %g rad); the bag states '
+             '(%g m, %g m, %g rad)', trip.name, *wanted.tolist(), *stated.tolist())
+    return dataclasses.replace(trip, initial_pose=wanted)
 
 
 def read_params_file(path: Path | str) -> PipelineParams:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 
 from health_trips import two_lidar_trip
@@ -14,7 +15,8 @@ from gyro_ekf.io.params_file import PipelineParams
 from gyro_ekf.analysis.summary import summarize
 from gyro_ekf.core import health
 from gyro_ekf.core.config import EkfConfig
-from gyro_ekf.core.types import LidarMount
+from gyro_ekf.core.events import EventDriver
+from gyro_ekf.core.types import LandmarkMap, LidarMount
 
 # Rules that can never fire: what the filter does without the monitor.
 NO_EXCLUSION = {'health_min_association_share': 0.0, 'health_bearing_bias_sigmas': 1e6,
@@ -171,3 +173,14 @@ def test_verdict_says_when_the_gyro_was_noisier_than_configured():
     assert len(result['reasons']) == 1
     assert result['reasons'][0].startswith('the gyro was noisier than configured')
     assert 'up to 3.5 times' in result['reasons'][0]
+
+
+def test_a_lidar_the_driver_has_no_name_for_is_named_by_its_mount():
+    # A live node given no sidecar has no topic per mount: its health reasons read
+    # "LiDAR LidarMount(x_m=0.0, y_m=0.0, yaw_rad=0.0) disagreed with the map".
+    driver = EventDriver(landmarks=LandmarkMap(np.array([[5.0, 0.0], [0.0, 5.0]])))
+    mount = LidarMount(0.46, -0.1, math.pi)
+    driver.on_detections(0.1, np.array([[2.0, 1.0]]), mount)
+    driver.on_detections(0.2, np.array([[2.0, 1.0]]), LidarMount(), 'scan2')
+    assert [s.name for s in driver.health.sensors.values()] == [
+        'mounted at (0.46 m, -0.1 m, 180 deg)', 'scan2']

@@ -14,12 +14,11 @@ import dataclasses
 import functools
 import math
 from pathlib import Path
-import shutil
 from typing import Any
 
+from bag_edit import Item, of, rewrite
 import numpy as np
 import pytest
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags_oracle import read_bag_rosbags
 from synthetic_logs import make_trip
 
@@ -29,12 +28,7 @@ from gyro_ekf.core.validation import validate_trip
 from gyro_ekf.io import bag_reader, messages as msgs
 from gyro_ekf.io.bag_reader import read_bag
 from gyro_ekf.io.bag_writer import write_trip_bag
-from gyro_ekf.io.batch_write import enable_chunk_crcs
 from gyro_ekf.io.errors import BagError
-from gyro_ekf.io.sidecar import sidecar_path
-
-Item = list[Any]
-"""[topic, msgtype, log time ns, message object or raw CDR bytes] of one message."""
 
 
 @functools.lru_cache(maxsize=1)
@@ -46,32 +40,6 @@ def _trip():
 def clean_bag(tmp_path_factory) -> Path:
     """The synthetic trip as the project's writer writes it."""
     return write_trip_bag(_trip(), tmp_path_factory.mktemp('clean') / 'clean')
-
-
-def rewrite(source: Path, dest: Path, change: Callable[[list[Item]], list[Item] | None]
-            ) -> Path:
-    """Copy a bag message by message in file order after change(items), with its sidecar."""
-    with Reader(source) as reader:
-        qos = {c.topic: (c.msgtype, c.ext.offered_qos_profiles) for c in reader.connections}
-        items = [[c.topic, c.msgtype, t, msgs.deserialize(d, c.msgtype)]
-                 for c, t, d in reader.messages()]
-    items = change(items) or items
-    writer = Writer(dest, version=9, storage_plugin=StoragePlugin.MCAP)
-    enable_chunk_crcs(writer)
-    with writer:
-        connections = {topic: writer.add_connection(topic, msgtype, typestore=msgs.TYPESTORE,
-                                                    offered_qos_profiles=profiles)
-                       for topic, (msgtype, profiles) in qos.items()}
-        for topic, msgtype, stamp, message in items:
-            data = message if isinstance(message, bytes) else msgs.serialize(message)
-            writer.write(connections[topic], stamp, data)
-    shutil.copy(sidecar_path(source), sidecar_path(dest))
-    return dest
-
-
-def of(items: list[Item], topic: str) -> list[Item]:
-    """The items of one topic, in file order."""
-    return [item for item in items if item[0] == topic]
 
 
 def _read_rosbags_path(path: Path) -> Any:

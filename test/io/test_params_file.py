@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import json
 import math
 
+from bag_edit import rewrite
+import numpy as np
 import pytest
 
+from gyro_ekf.cli.main import main
+from gyro_ekf.io.bag_reader import read_bag
 from gyro_ekf.io.errors import ParamsFileError
 from gyro_ekf.io.params_file import read_params_file, read_params_text
 from gyro_ekf.core.config import EkfConfig, RunOptions
@@ -129,3 +134,101 @@ def test_a_file_with_no_pipeline_section_says_nothing_was_read(caplog):
     assert [r.getMessage() for r in caplog.records if r.levelname == 'WARNING'] == [
         'metadata.yaml: no section for /**, ekf_node, calibration_node, '
         'landmark_detector_node: nothing read']
+
+
+# The start pose: read as the EKF node declares it, used by `run` as the node uses it.
+
+def test_an_initial_pose_is_read_whole_and_checked_as_the_node_declares_it():
+    assert read_params_text(TEXT).initial_pose == (1.0, 2.0, 0.5)
+    assert read_params_text('/**:\n  ros__parameters:\n    gate_probability: 0.99\n'
+                            ).initial_pose is None
+    for body, message in [
+            ('{x_m: 1.0, y_m: 2.0}', "'initial_pose.yaw_rad' is missing"),
+            ('{x_m: 1.0, y_m: 2.0, yaw_deg: 30}',
+             "'initial_pose.yaw_deg' is not one of .* \\(did you mean 'initial_pose.yaw_rad'"),
+            ('{x_m: 1.0, y_m: two, yaw_rad: 0.0}', "'initial_pose.y_m' must be a number"),
+            ('{x_m: .nan, y_m: 0.0, yaw_rad: 0.0}', "'initial_pose.x_m' = nan is not finite"),
+            # Degrees where radians belong: the node's declared range refuses it too.
+            ('{x_m: 0.0, y_m: 0.0, yaw_rad: 90}',
+             "'initial_pose.yaw_rad' = 90 rad lies outside \\[-6.28319, 6.28319\\] rad")]:
+        with pytest.raises(ParamsFileError, match=f'p.yaml: parameter {message}'):
+            read_params_text(f'/**:\n  ros__parameters:\n    initial_pose: {body}\n', 'p.yaml')
+    with pytest.raises(ParamsFileError, match="'lidar.scan2.yaw_rad' = 183 rad lies outside"):
+        read_params_text('/**:\n  ros__parameters:\n    lidar:\n      topics: [scan2]\n'
+                         '      scan2: {x_m: -0.4, y_m: 0.0, yaw_rad: 183.0}\n', 'p.yaml')
+
+
+def test_a_unit_left_out_or_a_parameter_behind_another_group_is_warned_about(caplog):
+    read_params_text('/**:\n  ros__parameters:\n    gyro_noise: 0.5\n'
+                     '    detector.gyro_noise_rad_s: 0.5\n    frame_prefix: robot\n', 'p.yaml')
+    assert [r.getMessage() for r in caplog.records if r.levelname == 'WARNING'] == [
+        "p.yaml: /**: 'gyro_noise' is not a parameter (did you mean 'gyro_noise_rad_s'?); "
+        "ignored",
+        "p.yaml: /**: 'detector.gyro_noise_rad_s' is not a parameter ('gyro_noise_rad_s' is "
+        "one of ekf.*: write it bare or as 'ekf.gyro_noise_rad_s'); ignored"]
+
+
+def _first_pose(out):
+    return np.loadtxt(out / 'estimates.csv', delimiter=',', skiprows=1, max_rows=1)[1:4]
+
+
+def test_run_starts_at_the_params_files_pose_unless_the_bag_states_one(tmp_path, caplog):
+    # `run --params-file` used to skip initial_pose.* without a word, where ekf_node, given
+    # the same file, starts there.
+    stated = tmp_path / 'stated'
+    assert main(['-q', 'simulate', '-o', str(stated), '--seed', '3', '--duration-s', '12'
+                 ]) == 0
+    without = rewrite(stated, tmp_path / 'without',
+                      lambda items: [i for i in items if i[0] != '/initialpose'])
+    trip = read_bag(stated).trip
+    bag_pose = trip.initial_pose
+    mine = bag_pose + np.array([0.5, -0.25, 0.1])
+    params = tmp_path / 'robot.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    initial_pose: {x_m: %r, y_m: %r, '
+                      'yaw_rad: %r}\n' % tuple(mine.tolist()))
+    runs = {}
+    for bag in (stated, without):
+        caplog.clear()
+        out = tmp_path / f'out_{bag.name}'
+        assert main(['-q', 'run', str(bag), '-o', str(out), '--params-file', str(params),
+                     '--no-plots', '--no-bag', '--no-progress']) == 0
+        runs[bag.name] = (_first_pose(out), [r.getMessage() for r in caplog.records
+                                             if r.levelname == 'WARNING'])
+    # At rest the first estimate is the start pose (the simulated trip stands still first).
+    pose, warnings = runs['without']
+    np.testing.assert_allclose(pose, mine, atol=1e-6)
+    assert not [w for w in warnings if 'initial_pose' in w]
+    # The bag's /initialpose message wins, as in ekf_node once a replay publishes it: said.
+    pose, warnings = runs['stated']
+    np.testing.assert_allclose(pose, bag_pose, atol=1e-6)
+    figures = (trip.name, *mine.tolist(), *bag_pose.tolist())
+    assert [w for w in warnings if 'initial_pose' in w] == [
+        "%s: the params file sets initial_pose (%g m, %g m, %g rad), but the bag's "
+        '/initialpose message states (%g m, %g m, %g rad): the run starts there, as ekf_node '
+        'does once a replay of the bag publishes it' % figures]
+
+
+def test_a_sigma_the_stated_noise_replaces_is_named(tmp_path, caplog):
+    bag = tmp_path / 'sim'
+    assert main(['-q', 'simulate', '-o', str(bag), '--seed', '4', '--duration-s', '10']) == 0
+    params = tmp_path / 'noise.yaml'
+    params.write_text('ekf_node:\n  ros__parameters:\n    gyro_noise_rad_s: 1.0\n'
+                      '    gate_probability: 0.99\n')
+    runs = {}
+    for extra in ((), ('--ignore-stated-noise',)):
+        caplog.clear()
+        out = tmp_path / f'out{len(extra)}'
+        assert main(['-q', 'run', str(bag), '-o', str(out), '--params-file', str(params),
+                     '--no-plots', '--no-bag', '--no-progress', *extra]) == 0
+        summary = json.loads((out / 'summary.json').read_text())
+        runs[extra] = (summary, [r.getMessage() for r in caplog.records
+                                 if 'use_stated_noise' in r.getMessage()])
+    summary, said = runs[()]
+    used = summary['config']['ekf']['gyro_noise_rad_s']
+    assert used != 1.0 and summary['config']['sources']['gyro_noise_rad_s'] == 'log'
+    assert said == [f'the params file sets gyro_noise_rad_s = 1, but the log states '
+                    f'gyro_noise_rad_s = {used:g}, used while use_stated_noise is true; to '
+                    "use the file's, set use_stated_noise: false in it (or run "
+                    '--ignore-stated-noise)']
+    summary, said = runs[('--ignore-stated-noise',)]
+    assert summary['config']['ekf']['gyro_noise_rad_s'] == 1.0 and said == []
