@@ -60,16 +60,25 @@ def calibrate_trip(trip: Trip, config: CalibrationConfig,
 
 
 def estimate_to_dict(estimate: BiasEstimate, axes_known: tuple[bool, bool, bool]) -> dict:
-    """JSON-ready view: SI values plus degrees for people."""
+    """JSON-ready view: SI values plus degrees for people.
+
+    An axis the source does not measure (x and y of the yaw-rate-only 2021 log) is None
+    (JSON null) in every per-axis list: the estimator reports 0 there, which would read as
+    a bias and a noise known to be exactly zero.
+    """
     known = list(axes_known)
+
+    def measured(values: np.ndarray) -> list[float | None]:
+        return [float(v) if k else None for v, k in zip(values, known)]
+
     return {
         'axes': ['x', 'y', 'z'],
         'axes_known': known,
-        'bias_rad_s': estimate.bias_rad_s.tolist(),
-        'sigma_rad_s': estimate.sigma_rad_s.tolist(),
-        'bias_deg_s': np.rad2deg(estimate.bias_rad_s).tolist(),
-        'sigma_deg_s': np.rad2deg(estimate.sigma_rad_s).tolist(),
-        'standard_error_deg_s': np.rad2deg(estimate.bias_standard_error_rad_s).tolist(),
+        'bias_rad_s': measured(estimate.bias_rad_s),
+        'sigma_rad_s': measured(estimate.sigma_rad_s),
+        'bias_deg_s': measured(np.rad2deg(estimate.bias_rad_s)),
+        'sigma_deg_s': measured(np.rad2deg(estimate.sigma_rad_s)),
+        'standard_error_deg_s': measured(np.rad2deg(estimate.bias_standard_error_rad_s)),
         'n_samples': estimate.n_samples,
         'window_s': [estimate.window_start_s, estimate.window_end_s],
     }

@@ -2,7 +2,9 @@
 
 It also reads the bag's storage files through and checks them as `run` does (CRCs,
 lengths, log times; `io.bag_info.verify_bag`): a damaged bag is a one-line error naming the
-file and the chunk, exit 1, and nothing is printed. `--no-verify` reads the metadata only.
+file and the chunk, exit 1, and nothing is printed. The counts, start and duration
+metadata.yaml states must be what that read found (`io.bag_info.check_metadata`), or it is
+a one-line error naming each field with both values. `--no-verify` reads the metadata only.
 """
 
 from __future__ import annotations
@@ -91,7 +93,7 @@ def format_summary(summary: BagSummary, checks: list[FileCheck] | None = None) -
 
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
-    from gyro_ekf.io.bag_info import bag_summary, verify_bag
+    from gyro_ekf.io.bag_info import bag_summary, check_metadata, verify_bag
     from gyro_ekf.io.errors import BagError
     from gyro_ekf.io.reindex import needs_reindex
 
@@ -101,5 +103,7 @@ def run(args: argparse.Namespace) -> int:
     summary = bag_summary(args.bag)
     # Checked before anything is printed: a damaged bag gets its one line only.
     checks = None if args.no_verify else verify_bag(args.bag)
+    if checks is not None:
+        check_metadata(summary, checks)
     print(format_summary(summary, checks))
     return 0

@@ -11,6 +11,7 @@ import argparse
 import logging
 from pathlib import Path
 import sys
+import tempfile
 
 HELP = ('run seeded simulated trips per perturbation class offline; print the share within '
         'the bounds and the silent failures; write JSON')
@@ -55,6 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from gyro_ekf.analysis.stress import DEFAULT_DURATION_S
     parser.add_argument('-o', '--output', type=Path, default=Path('results/stress.json'),
                         help='JSON file to write')
+    parser.add_argument('--force', action='store_true', help='replace an existing output')
     parser.add_argument('--trips-per-class', type=_at_least(1), default=25,
                         help='seeded trips per perturbation class')
     parser.add_argument('--seed', type=_at_least(0), default=0, help='base seed of the suite')
@@ -65,6 +67,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--static-s', type=_static, default=None,
                         help='static start of every trip, s, at most half the trip (default: '
                         "the simulator's 8 s, or a quarter of a trip shorter than 32 s)")
+
+
+def check_output(output: Path, force: bool) -> None:
+    """Refuse an output the suite may not or cannot write, before any trip runs.
+
+    The trips take about 2 CPU-minutes at the default size; a refusal after them lost that.
+    A missing folder is created (`make stress` writes into results/, gone after `make
+    clean`).
+
+    Raises:
+        OutputError: a folder or other non-file, an existing file without force, or a
+            folder in which no file can be created (read-only, no permission, not a folder).
+    """
+    from gyro_ekf.io.errors import OutputError
+    from gyro_ekf.io.products import os_reason
+
+    if output.exists() and not output.is_file():
+        raise OutputError(f'{output}: is a folder; give a JSON file name' if output.is_dir()
+                          else f'{output}: is not a file; give a JSON file name')
+    if output.exists() and not force:
+        raise OutputError(f'{output}: exists; --force replaces a file')
+    try:
+        output.parent.mkdir(parents=True, exist_ok=True)
+        # A file created and dropped there: permissions and a read-only mount both show.
+        with tempfile.TemporaryFile(dir=output.parent):
+            pass
+    except FileExistsError:
+        raise OutputError(f'{output}: cannot write: {output.parent} is not a folder') from None
+    except OSError as err:
+        raise OutputError(f'{output}: cannot write: {os_reason(err)}') from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -83,12 +115,13 @@ def run(args: argparse.Namespace) -> int:
         raise GyroEkfError(f'--static-s {args.static_s:g}: at most {MAX_STATIC_SHARE:g} of '
                            f'--duration-s {args.duration_s:g} (the rest of each trip is driven)'
                            ) from None
+    check_output(args.output, args.force)
     total = args.trips_per_class * len(CLASSES)
     with tqdm(total=total, unit='trip', desc='stress', leave=False, file=sys.stderr,
               disable=not sys.stderr.isatty()) as bar:
         results = run_suite(args.trips_per_class, args.seed, args.workers, args.duration_s,
                             progress=bar.update, static_s=args.static_s)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
+    # Staged beside the output and renamed onto it: an earlier file stays whole until then.
     write_summary_json(args.output, results)
     print(table(results), flush=True)
     log.info('wrote %s', args.output)

@@ -4,7 +4,9 @@
 carries, lengths and log times, so a damaged bag fails `info` as it fails `run`, naming the
 file and the chunk's offset. It reads the whole data section: about 0.5 s for a one-hour
 uncompressed bag (750 MB) and 1.6 s for the same bag zstd-compressed (118 MB) on the
-project's 2-core machine, where the metadata alone takes 0.3 s.
+project's 2-core machine, where the metadata alone takes 0.3 s. `check_metadata` then holds
+what metadata.yaml states (the counts, start and duration `info` prints) to the messages
+that read found, so `info` never prints a count or a time range the data contradicts.
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ from gyro_ekf.io.bag_open import metadata, open_bag
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.sidecar import read_sidecar, sidecar_path
 
-__all__ = ['BagSummary', 'FileCheck', 'TopicSummary', 'bag_summary', 'verify_bag']
+__all__ = ['BagSummary', 'FileCheck', 'TopicSummary', 'bag_summary', 'check_metadata',
+           'verify_bag']
 
 
 class TopicSummary(NamedTuple):
@@ -96,6 +99,77 @@ def verify_bag(path: Path | str) -> list[FileCheck]:
         except OSError as err:
             raise BagError(f'{path / name}: cannot read: {err.strerror or err}') from None
     return checks
+
+
+def check_metadata(summary: BagSummary, checks: list[FileCheck]) -> None:
+    """Refuse metadata.yaml stating other counts, start or duration than the data holds.
+
+    `run` takes the counts as hints but refuses a message outside the stated time range
+    ([start, start + duration]); `info` prints all of them, so each must be what the
+    storage files hold. Only when every file was read through (`verify_bag`): a file read
+    by rosbags alone (sqlite3, compressed as a whole) gives no count of its own.
+
+    Raises:
+        BagError: one line naming metadata.yaml and, for each field that disagrees, the
+            field, the value stated and the value found.
+    """
+    verified = [check.verified for check in checks]
+    if not verified or any(v is None for v in verified):
+        return
+    held: dict[str, int] = {}
+    first = last = None
+    for v in verified:
+        assert v is not None
+        for topic, count in v.counts.items():
+            held[topic] = held.get(topic, 0) + count
+        if v.log_times is not None:
+            first = v.log_times[0] if first is None else min(first, v.log_times[0])
+            last = v.log_times[1] if last is None else max(last, v.log_times[1])
+    stated: dict[str, list[object]] = {}
+    for topic in summary.topics:
+        stated.setdefault(topic.name, []).append(topic.count)
+    wrong = []
+    total = sum(held.values())
+    if summary.message_count != total:
+        wrong.append(f'message_count {summary.message_count}, but the data holds {total}')
+    for name in sorted(stated.keys() | held.keys()):
+        count = held.get(name, 0)
+        said = _stated_count(stated.get(name, []))
+        if said is None and count:
+            wrong.append(f"topic '{name}' is not in topics_with_message_count, but the data "
+                         f'holds {count} messages of it')
+        elif said is not None and said != count:
+            wrong.append(f"topic '{name}': message_count {said}, but the data holds {count}")
+    # A bag stating no messages has no start (rosbag2 writes the largest int64); the
+    # count above already says what is wrong.
+    if first is not None and last is not None and summary.message_count:
+        start, duration = summary.start_time_ns, summary.duration_ns
+        if start != first:
+            wrong.append(f'starting_time {start} ns, but the first message is at {first} ns')
+        if duration != last - first:
+            wrong.append(f'duration {duration} ns, but the messages span {last - first} ns')
+        # In run's words for a message it refuses (bag_open.check_stamp).
+        for which, stamp in (('first', first), ('last', last)):
+            if not start <= stamp <= start + duration:
+                wrong.append(f'the {which} message, at {stamp} ns, lies outside the time range '
+                             f'the bag states, [{start}, {start + duration + 1}) ns, which run '
+                             'refuses')
+    if wrong:
+        raise BagError(f"{summary.path / 'metadata.yaml'}: states what the storage files do "
+                       f"not hold: {'; '.join(wrong)}")
+
+
+def _stated_count(counts: list[object]) -> object:
+    """Return a topic's count as metadata.yaml states it: its entries' sum, None without one.
+
+    A value that is no count (None, 'many', inf) is kept as it is, to be named.
+    """
+    if not counts:
+        return None
+    ints = [c for c in counts if isinstance(c, int) and not isinstance(c, bool)]
+    if len(ints) == len(counts):
+        return sum(ints)
+    return counts[0] if len(counts) == 1 else ' + '.join(map(repr, counts))
 
 
 def bag_summary(path: Path | str) -> BagSummary:

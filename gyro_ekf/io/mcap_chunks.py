@@ -153,12 +153,17 @@ class Verified:
         chunk_crcs: of those, the chunks that carry their own CRC.
         data_crc: the DataEnd record carries a data-section CRC (it covers every chunk).
         summary_crc: the Footer carries a summary CRC.
+        counts: topic -> Message records of it in the data section (the walk's own count,
+            not the summary's statistics, which are not checked against the data).
+        log_times: the first and last message log time in ns, or None without messages.
     """
 
     chunks: int
     chunk_crcs: int
     data_crc: bool
     summary_crc: bool
+    counts: dict[str, int]
+    log_times: tuple[int, int] | None
 
 
 @dataclass(slots=True)
@@ -294,6 +299,10 @@ class _Scan:
         # The chunk being read: its file offset and [start, end] log-time range.
         self.chunk_at: int | None = None
         self.chunk_times: tuple[int, int] | None = None
+        # verify_file only: messages per channel id and the log-time range of every message,
+        # what the data holds, for `info` to hold metadata.yaml to.
+        self.tally: NDArray[np.int64] | None = None
+        self.log_times: tuple[int, int] | None = None
 
     def check_orphans(self) -> None:
         """Refuse messages of a channel no Channel record in the data section defines.
@@ -621,6 +630,7 @@ class _Scan:
         if np.any(short):
             raise self.corrupt('a Message record is too short',
                                int(starts[int(np.argmax(short))]))
+        times = None
         if self.chunk_times is not None:
             # A message outside its chunk's time range is damage (one flipped bit in a log
             # time would otherwise become a gap of years).
@@ -633,6 +643,15 @@ class _Scan:
                                    f'chunk\'s range [{low}, {high}]', int(starts[k]))
         channel_ids = (octets[starts + _CHANNEL_ID_AT].astype(np.int32)
                        | (octets[starts + _CHANNEL_ID_AT + 1].astype(np.int32) << 8))
+        if self.tally is not None and starts.size:
+            if times is None:
+                times = words[starts + _LOG_TIME_AT].view('<u8').ravel()
+            counts = np.bincount(channel_ids)
+            self.tally[:counts.size] += counts
+            first, last = int(times.min()), int(times.max())
+            if self.log_times is not None:
+                first, last = min(first, self.log_times[0]), max(last, self.log_times[1])
+            self.log_times = (first, last)
         indexes = self.table[channel_ids]
         unknown = indexes == _UNKNOWN
         if np.any(unknown):
@@ -811,15 +830,23 @@ def verify_file(path: Path | str) -> Verified:
     long bag is never resident as a whole.
 
     Returns:
-        What the file carries (how many chunks, which CRCs).
+        What the file carries (how many chunks, which CRCs) and holds (messages per topic,
+        first and last log time).
 
     Raises:
         CorruptMcap, UnsupportedMcap: as stream_topics (a damaged chunk is named by offset).
         OSError: the file cannot be read.
     """
     scan = _Scan(Path(path), (), lambda topic, batch: None, batch_messages=0)
+    scan.tally = np.zeros(1 << 16, dtype=np.int64)
     _scan_file(scan, scan.emit)
-    return Verified(scan.chunk_count, scan.chunk_crc_count, scan.data_crc, scan.summary_crc)
+    counts: dict[str, int] = {}
+    # check_orphans has refused messages of a channel no record defines.
+    for channel_id in np.flatnonzero(scan.tally).tolist():
+        topic = scan.channels[channel_id].topic
+        counts[topic] = counts.get(topic, 0) + int(scan.tally[channel_id])
+    return Verified(scan.chunk_count, scan.chunk_crc_count, scan.data_crc, scan.summary_crc,
+                    counts, scan.log_times)
 
 
 def _scan_file(scan: _Scan, finish: Callable[[], _T]) -> _T:

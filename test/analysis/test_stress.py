@@ -4,11 +4,19 @@ from __future__ import annotations
 
 import json
 import math
+import os
+from pathlib import Path
+import shlex
+import shutil
+import subprocess
+import sys
 
 import pytest
 
 from gyro_ekf.analysis.stress import BOUNDS, CLASSES, trip_jobs
 from gyro_ekf.cli.main import main
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_stress_runs_one_trip_per_class_and_writes_json(tmp_path, capsys):
@@ -100,6 +108,69 @@ def test_static_start_beyond_half_the_trip_is_refused(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(['stress', '-o', str(output), '--static-s', '-2'])
     assert exit_info.value.code == 2
+
+
+def _no_trip(*args, **kwargs):
+    raise AssertionError('a trip ran before the output was checked')
+
+
+@pytest.mark.parametrize('case', ['existing file', 'folder', 'fifo', 'parent is a file'])
+def test_an_output_it_may_not_or_cannot_write_is_refused_before_any_trip(
+        tmp_path, capsys, monkeypatch, case):
+    # stress used to overwrite any file, and to fail on a folder or an unwritable one only
+    # after every trip had run (about 2 CPU-minutes at the default size).
+    from gyro_ekf.analysis import stress
+
+    monkeypatch.setattr(stress, 'run_suite', _no_trip)
+    mine = tmp_path / 'mine.json'
+    mine.write_text('{"mine": true}')
+    output, said = {
+        'existing file': (mine, f'{mine}: exists; --force replaces a file'),
+        'folder': (tmp_path, f'{tmp_path}: is a folder; give a JSON file name'),
+        'fifo': (tmp_path / 'pipe', f"{tmp_path / 'pipe'}: is not a file; give a JSON file "
+                 'name'),
+        'parent is a file': (mine / 'stress.json',
+                             f"{mine / 'stress.json'}: cannot write: {mine} is not a folder"),
+    }[case]
+    if case == 'fifo':
+        os.mkfifo(output)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(['stress', '-o', str(output), '--trips-per-class', '1', '--duration-s', '20',
+                 '--workers', '1']) == 1
+    assert capsys.readouterr().err == f'gyro-ekf stress: error: {said}\n'
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert mine.read_text() == '{"mine": true}'
+
+
+def test_force_replaces_an_existing_output_whole(tmp_path, capsys):
+    output = tmp_path / 'stress.json'
+    output.write_text('{"earlier": true}')
+    assert main(['-q', 'stress', '-o', str(output), '--force', '--trips-per-class', '1',
+                 '--duration-s', '20', '--workers', '1']) == 0
+    results = json.loads(output.read_text())
+    assert results['suite']['trips'] == len(CLASSES) == len(results['trips'])
+    assert [p.name for p in tmp_path.iterdir()] == ['stress.json']   # no staged file left
+
+
+@pytest.mark.skipif(shutil.which('unshare') is None or subprocess.run(
+    ['unshare', '-rm', 'sh', '-c', 'mount -t tmpfs tmpfs /mnt'], capture_output=True
+).returncode != 0, reason='unshare -rm with mounts is not allowed here')
+def test_a_read_only_folder_is_refused_before_any_trip(tmp_path):
+    # A real read-only bind mount in a private mount namespace (as test/cli/test_writes.py).
+    folder = tmp_path / 'ro'
+    folder.mkdir()
+    script = ('import sys; from gyro_ekf.analysis import stress; from gyro_ekf.cli.main '
+              'import main; stress.run_suite = None; '   # a trip would be a TypeError
+              f"sys.exit(main(['stress', '-o', {str(folder / 'stress.json')!r}]))")
+    command = ' '.join(shlex.quote(a) for a in [sys.executable, '-c', script])
+    result = subprocess.run(
+        ['unshare', '-rm', 'sh', '-c', f'mount --bind {folder} {folder}; '
+         f'mount -o remount,ro,bind {folder} {folder}; {command}'],
+        capture_output=True, text=True, timeout=300, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert result.returncode == 1, result.stderr
+    assert result.stderr == (f"gyro-ekf stress: error: {folder / 'stress.json'}: cannot "
+                             'write: read-only file system\n')
+    assert list(folder.iterdir()) == []
 
 
 def test_silent_misses_below_the_band_are_counted_apart():

@@ -204,6 +204,72 @@ def test_info_on_a_bag_without_crcs_checks_lengths_and_log_times(plain_bag, caps
             in out), out
 
 
+def _held(bag) -> tuple[dict[str, int], int, int]:
+    """Messages per topic and the first and last log time, as the mcap package reads them."""
+    with open(mcap_of(bag), 'rb') as stream:
+        messages = [(c.topic, m.log_time) for _, c, m in
+                    make_reader(stream).iter_messages(log_time_order=False)]
+    counts: dict[str, int] = {}
+    for topic, _ in messages:
+        counts[topic] = counts.get(topic, 0) + 1
+    times = [t for _, t in messages]
+    return counts, min(times), max(times)
+
+
+def _topic_entry(info, topic):
+    return next(e for e in info['topics_with_message_count']
+                if e['topic_metadata']['name'] == topic)
+
+
+@pytest.mark.parametrize('edit', ['imu count', 'total', 'duration', 'start', 'topic left out'])
+def test_info_refuses_metadata_the_data_contradicts(crc_bag, capsys, edit):
+    # info used to print what metadata.yaml stated (a duration run then refused, a count
+    # other than the messages run reads) and exit 0.
+    counts, first, last = _held(crc_bag)
+    n = big_trip().imu.stamp_s.size
+    assert counts['/imu'] == n and _info(capsys, crc_bag)[0] == 0
+    stated = first + (last - first) // 2
+    if edit == 'imu count':
+        _edit_metadata(crc_bag, lambda info: _topic_entry(info, '/imu').update(
+            message_count=n - 1000))
+        said = [f"topic '/imu': message_count {n - 1000}, but the data holds {n}"]
+    elif edit == 'total':
+        _edit_metadata(crc_bag, lambda info: info.update(message_count=sum(counts.values())
+                                                         + 1))
+        said = [f'message_count {sum(counts.values()) + 1}, but the data holds '
+                f'{sum(counts.values())}']
+    elif edit == 'duration':
+        _edit_metadata(crc_bag, lambda info: info.update(duration={'nanoseconds': stated - first}))
+        said = [f'duration {stated - first} ns, but the messages span {last - first} ns',
+                f'the last message, at {last} ns, lies outside the time range the bag states, '
+                f'[{first}, {stated + 1}) ns, which run refuses']
+    elif edit == 'start':
+        _edit_metadata(crc_bag, lambda info: info.update(
+            starting_time={'nanoseconds_since_epoch': first + 1}))
+        said = [f'starting_time {first + 1} ns, but the first message is at {first} ns',
+                f'the first message, at {first} ns, lies outside the time range the bag '
+                f'states, [{first + 1}, {last + 2}) ns, which run refuses']
+    else:
+        _edit_metadata(crc_bag, lambda info: info['topics_with_message_count'].remove(
+            _topic_entry(info, '/ground_truth')))
+        said = ["topic '/ground_truth' is not in topics_with_message_count, but the data "
+                f"holds {counts['/ground_truth']} messages of it"]
+    code, out, err = _info(capsys, crc_bag)
+    assert code == 1 and out == '', out
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and 'Traceback' not in err, err
+    assert lines[0].startswith(f"gyro-ekf info: error: {crc_bag / 'metadata.yaml'}: states "
+                               'what the storage files do not hold: ')
+    assert lines[0].endswith('; '.join(said)), lines[0]
+    if edit in ('duration', 'start'):
+        with pytest.raises(BagError, match='outside the time range the bag states'):
+            read_bag(crc_bag)
+    elif edit == 'imu count':
+        assert read_bag(crc_bag).trip.imu.stamp_s.size == n     # what run reads
+    # --no-verify reads the metadata only, as its help says.
+    assert _info(capsys, crc_bag, '--no-verify')[0] == 0
+
+
 @pytest.mark.parametrize('which, match', [('crc_bag', 'CRC mismatch'),
                                           ('plain_bag', "outside its chunk's range")])
 def test_a_flipped_log_time_is_refused_with_or_without_crcs(request, which, match):
