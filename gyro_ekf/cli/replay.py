@@ -96,7 +96,8 @@ class BagSource:
     """Raw messages of a bag in stamp order, re-iterable (for --loop).
 
     The bag's bytes are checked when it is opened, as `info` and `run` check them, so a
-    damaged bag is refused before a message is published.
+    damaged bag is refused before a message is published; reading is still guarded, since
+    a bag the check cannot cover (sqlite3) or one changed since can fail mid-replay.
     """
 
     def __init__(self, path: Path, topic_names: list[str] | None, start_s: float,
@@ -156,22 +157,41 @@ class BagSource:
                          else self.from_ns + int(duration_s * NS_PER_S))
 
     def __call__(self) -> Iterator[tuple[str, int, bytes]]:
-        """Iterate afresh over (topic, stamp ns, CDR bytes) in stamp order."""
+        """Iterate afresh over (topic, stamp ns, CDR bytes) in stamp order.
+
+        Raises:
+            BagError: the bag cannot be read on (naming it, and how many messages of this
+                pass were handed out before).
+        """
         from rosbags.rosbag2 import Reader
 
+        from gyro_ekf.io.bag_open import reading
+        from gyro_ekf.io.errors import BagError
+
         held: dict[str, tuple[str, int, bytes]] = {}
-        with Reader(self.path) as reader:
-            for connection, stamp, data in reader.messages(connections=self.connections):
-                if stamp < self.from_ns:
-                    if connection.topic in self.latched:
-                        held[connection.topic] = (connection.topic, stamp, bytes(data))
-                    continue
-                if held:
-                    yield from sorted(held.values(), key=lambda m: m[1])
-                    held.clear()
-                if self.until_ns is not None and stamp > self.until_ns:
-                    return
-                yield connection.topic, stamp, bytes(data)
+        sent = 0
+        try:
+            # Whatever rosbags raises on bytes it cannot read (ReaderError, ZstdError, ...)
+            # becomes a BagError naming the bag: one line, not a traceback.
+            with reading(self.path), Reader(self.path) as reader:
+                for connection, stamp, data in reader.messages(connections=self.connections):
+                    if stamp < self.from_ns:
+                        if connection.topic in self.latched:
+                            held[connection.topic] = (connection.topic, stamp, bytes(data))
+                        continue
+                    if held:
+                        for message in sorted(held.values(), key=lambda m: m[1]):
+                            yield message
+                            sent += 1
+                        held.clear()
+                    if self.until_ns is not None and stamp > self.until_ns:
+                        return
+                    yield connection.topic, stamp, bytes(data)
+                    sent += 1
+        except BagError as err:
+            # The messages before the damage are out already: say how far the replay got.
+            raise BagError(f'{err} (the replay stopped after {sent} messages of this pass)'
+                           ) from None
 
 
 def run(args: argparse.Namespace) -> int:

@@ -2,7 +2,9 @@
 
 A copy of the bundled bag gets one flipped bit in a chunk halfway through. The replay checks
 the bag's bytes as `info` and `run` do before it publishes anything (it used to publish the
-chunks before the damage, then end in rosbags' "Chunk checksum mismatch" traceback).
+chunks before the damage, then end in rosbags' "Chunk checksum mismatch" traceback). A bag
+damaged after that check is still read through rosbags: what it raises then is one line
+naming the bag and how far the replay got.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'io'))
 from mcap_layout import chunks, flip, mcap_of  # noqa: E402
 
 from gyro_ekf.cli.main import main  # noqa: E402
+from gyro_ekf.cli.replay import BagSource  # noqa: E402
+from gyro_ekf.errors import GyroEkfError  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 BAG = REPO / 'bags' / 'sim_static_start'
@@ -91,3 +95,18 @@ def test_a_damaged_bag_is_refused_in_one_line_before_anything_is_published(
     assert published > 0, output
     probe.spin_until(lambda: len(received) >= published, 60, 'the intact replay')
     assert len(received) == published
+
+
+def test_a_bag_damaged_after_the_check_ends_the_replay_in_one_line(tmp_path):
+    bag = copy_of_bag(tmp_path)
+    source = BagSource(bag, ['imu'], 0.0, None)  # checked: intact
+    damage_middle_chunk(bag)  # say, written over while it is replayed
+    sent = 0
+    with pytest.raises(GyroEkfError) as raised:  # what main prints as one line
+        for _ in source():
+            sent += 1
+    message = str(raised.value)
+    assert sent > 0
+    assert message.startswith(f'{bag}: cannot read the bag (ReaderError): '), message
+    assert message.endswith(f'(the replay stopped after {sent} messages of this pass)'), message
+    assert '\n' not in message
