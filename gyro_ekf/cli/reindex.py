@@ -1,7 +1,8 @@
 """`gyro-ekf reindex`: make a bag whose recorder was killed readable again (to stdout).
 
 Rebuilds the MCAP summary of a .mcap cut short and the bag's metadata.yaml, keeping every
-complete chunk; a bag that needs nothing is left untouched (see `gyro_ekf.io.reindex`).
+complete chunk; a bag that needs nothing is left untouched, and one with no message to
+recover (an empty .mcap) is refused with nothing written (see `gyro_ekf.io.reindex`).
 """
 
 from __future__ import annotations

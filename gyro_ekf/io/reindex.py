@@ -8,7 +8,9 @@ dropped with everything after it), writes every message it found into a new bag 
 rosbags' Writer (metadata version 9, chunk CRCs on) in a hidden folder inside the bag, and
 moves its files into place with `os.replace`, so a failure leaves the bag as it was. A .mcap
 that is complete is never rewritten: when only metadata.yaml is missing, only that is
-written.
+written. A file that holds no complete message (empty, or cut before its first) is refused
+and nothing is written: a bag of no message would only replace the metadata.yaml that
+still lists the topics.
 """
 
 from __future__ import annotations
@@ -143,8 +145,10 @@ def reindex(path: Path | str) -> ReindexResult:
         (`needs_reindex` is None).
 
     Raises:
-        BagError: not a folder with one .mcap, a whole file that is damaged, a message type
-            rosbags' Jazzy typestore does not know, or the new files cannot be written.
+        BagError: not a folder with one .mcap, a file with no complete message (empty or
+            cut before its first), a whole file that is damaged, a message type rosbags'
+            Jazzy typestore does not know, or the new files cannot be written; in every
+            case the bag is left as it was.
     """
     path = Path(path)
     if not path.is_dir():
@@ -160,8 +164,16 @@ def reindex(path: Path | str) -> ReindexResult:
         data = mcap.read_bytes()
     except OSError as err:
         raise BagError(f'{mcap}: cannot read it: {err}') from None
+    # An empty file, or one cut inside its magic, is a recording that never began, not a
+    # foreign file: 'bad leading magic' would send the user looking for the wrong fault.
+    if len(data) < len(mcap_chunks.MAGIC) and mcap_chunks.MAGIC.startswith(data):
+        raise _nothing_to_recover(mcap, 'the file is empty' if not data else
+                                  f'its {len(data)} bytes stop inside the MCAP magic')
     end, whole = _complete_end(mcap, data)
     found, channels, end = _recover(mcap, data, end, whole and complete)
+    # A bag of no message would replace a metadata.yaml that still lists the topics.
+    if not any(len(messages.log_time_ns) for messages in found.values()):
+        raise _nothing_to_recover(mcap, f'no complete message in its {len(data)} bytes')
     aside = Path(tempfile.mkdtemp(prefix='.reindex.', suffix='.tmp', dir=path))
     try:
         staged = aside / mcap.stem
@@ -175,6 +187,12 @@ def reindex(path: Path | str) -> ReindexResult:
         shutil.rmtree(aside, ignore_errors=True)
     return ReindexResult(mcap, count, len(found), 0 if complete else len(data) - end,
                          not complete, True)
+
+
+def _nothing_to_recover(mcap: Path, why: str) -> BagError:
+    """Refuse to reindex a file that holds no message: the bag is left as it is."""
+    return BagError(f'{mcap}: {why}: reindex has no message to recover, so it wrote nothing '
+                    'and the bag is as it was')
 
 
 def _write(staged: Path, found: dict[str, mcap_chunks.TopicMessages],

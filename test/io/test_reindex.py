@@ -168,3 +168,29 @@ def test_what_reindex_cannot_help_is_a_clear_error(tmp_path, original):
     with pytest.raises(BagError, match='bad leading magic'):
         reindex(bag)
     assert not any(p.name.startswith('.reindex') for p in bag.iterdir())
+
+
+@pytest.mark.parametrize('keep', [0, 5, 10, 'into the first chunk'])
+@pytest.mark.parametrize('with_metadata', [True, False], ids=['metadata', 'no metadata'])
+def test_a_file_with_no_message_to_recover_is_refused_and_the_bag_left_as_it_was(
+        original, tmp_path, capsys, keep, with_metadata):
+    # An empty .mcap used to get "bad leading magic"; 10 bytes a bag of 0 messages, exit 0,
+    # its metadata.yaml and the topics it listed replaced without a word.
+    bag = copy_of(original, tmp_path)
+    mcap = mcap_of(bag)
+    data = mcap.read_bytes()
+    if keep == 'into the first chunk':
+        keep = chunks(data)[0].end - 10
+    mcap.write_bytes(data[:keep])
+    if not with_metadata:
+        (bag / 'metadata.yaml').unlink()
+    before = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in bag.iterdir()}
+    assert main(['reindex', str(bag)]) == 1
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert captured.out == '' and len(lines) == 1 and 'Traceback' not in captured.err
+    assert lines[0].startswith(f'gyro-ekf reindex: error: {mcap}: '), lines
+    assert lines[0].endswith(': reindex has no message to recover, so it wrote nothing and '
+                             'the bag is as it was'), lines
+    assert ('the file is empty' in lines[0]) == (keep == 0)
+    assert {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in bag.iterdir()} == before
