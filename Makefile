@@ -41,9 +41,10 @@ bench: $(STAMP)
 
 # Seeded simulated trips per perturbation class (docs/stress.md) through the offline run;
 # prints per class the share within the bounds and the silent failures, writes
-# results/stress.json. A benchmark, never a test: it reports, it does not fail.
+# results/stress.json (--force: a second `make stress` replaces the first one's). A benchmark,
+# never a test: it reports, it does not fail.
 stress: $(STAMP)
-	$(BIN)/gyro-ekf stress -o results/stress.json $(STRESS_ARGS)
+	$(BIN)/gyro-ekf stress -o results/stress.json --force $(STRESS_ARGS)
 
 # Mutated bags, chunks, CDR payloads, course logs and params files through the readers;
 # bounded (FUZZ_ARGS, e.g. --budget-s 60 --seed 3), writes results/fuzz.json.
