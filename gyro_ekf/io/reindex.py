@@ -91,7 +91,8 @@ def needs_reindex(path: Path | str) -> str | None:
     if not (path / 'metadata.yaml').exists():
         return 'the bag has no metadata.yaml'
     for mcap in mcaps:
-        if not _has_footer(mcap):
+        # An empty file holds nothing reindex could recover (it refuses it): no advice.
+        if mcap.stat().st_size and not _has_footer(mcap):
             return f'{mcap.name} has no MCAP footer (was its recorder killed?)'
     return None
 
@@ -157,7 +158,8 @@ def reindex(path: Path | str) -> ReindexResult:
     if len(mcaps) != 1:
         raise BagError(f'{path}: expected one .mcap file to reindex, found {len(mcaps)}')
     mcap = mcaps[0]
-    if needs_reindex(path) is None:
+    # An empty file needs no reindex only in the sense that reindex cannot help: said below.
+    if needs_reindex(path) is None and mcap.stat().st_size:
         return ReindexResult(mcap, 0, 0, 0, False, False)
     complete = _has_footer(mcap)
     try:

@@ -194,3 +194,5 @@ def test_a_file_with_no_message_to_recover_is_refused_and_the_bag_left_as_it_was
                              'the bag is as it was'), lines
     assert ('the file is empty' in lines[0]) == (keep == 0)
     assert {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in bag.iterdir()} == before
+    # info and run, which read the bag first, sent the user here for an empty file.
+    assert (needs_reindex(bag) is None) == (keep == 0 and with_metadata)
