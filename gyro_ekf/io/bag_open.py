@@ -74,10 +74,20 @@ def _reindex_hint(path: Path) -> str:
     return '' if reason is None else f'; {reason}: run `gyro-ekf reindex {path}`'
 
 
+def _not_a_file(path: Path) -> None:
+    """Refuse a file given for a bag: rosbags would say 'Unrecognized storage format'."""
+    if path.is_file():
+        inside = (path.parent / 'metadata.yaml').exists()
+        raise BagError(f'{path}: is a file; give the bag folder'
+                       + (f' that holds it, {path.parent}' if inside
+                          else ' (the one holding metadata.yaml)'))
+
+
 def open_bag(path: Path) -> Reader:
     """Open a bag folder with rosbags after checking its metadata and storage connections."""
     if not path.exists():
         raise BagError(f'{path}: no such bag')
+    _not_a_file(path)
     if path.is_dir() and not (path / 'metadata.yaml').exists():
         if any(path.glob('*.mcap')):
             raise BagError(f'{path}: no metadata.yaml (was its recorder killed?); run '
@@ -133,6 +143,7 @@ metadata.yaml is read two or three times per read)."""
 
 def metadata(path: Path) -> dict[str, Any]:
     """Read the rosbag2_bagfile_information mapping of a bag folder's metadata.yaml."""
+    _not_a_file(path)
     meta_path = path / 'metadata.yaml'
     try:
         document = yaml.load(meta_path.read_text(encoding='utf-8'), Loader=_YAML_LOADER)

@@ -29,6 +29,7 @@ from gyro_ekf.io import bag_reader, messages as msgs
 from gyro_ekf.io.bag_reader import read_bag
 from gyro_ekf.io.bag_writer import write_trip_bag
 from gyro_ekf.io.errors import BagError
+from gyro_ekf.io.sidecar import sidecar_path
 
 
 @functools.lru_cache(maxsize=1)
@@ -286,3 +287,22 @@ def test_calibrate_mounts_on_an_empty_map_is_one_line(tmp_path, clean_bag, capsy
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and 'Traceback' not in err, err
     assert 'landmarks.xy_m: the map lists no landmark' in err
+
+
+def test_a_file_given_for_the_bag_names_the_folder_to_give(clean_bag, tmp_path, capsys):
+    # The .mcap itself gave "[Errno 20] Not a directory: '.../x.mcap/metadata.yaml'" (info)
+    # and a params file "Unrecognized storage format '.yaml'" (run).
+    (mcap,) = clean_bag.glob('*.mcap')
+    with pytest.raises(BagError, match=f'^{mcap}: is a file; give the bag folder that holds '
+                                       f'it, {clean_bag}$'):
+        read_bag(mcap)
+    assert main(['info', str(mcap)]) == 1
+    assert capsys.readouterr().err.strip() == (
+        f'gyro-ekf info: error: {mcap}: is a file; give the bag folder that holds it, '
+        f'{clean_bag}')
+    params = sidecar_path(clean_bag)
+    assert main(['run', str(params), '-o', str(tmp_path / 'out')]) == 1
+    assert capsys.readouterr().err.strip() == (
+        f'gyro-ekf run: error: {params}: is a file; give the bag folder (the one holding '
+        'metadata.yaml)')
+    assert not (tmp_path / 'out').exists()
