@@ -93,18 +93,13 @@ def _table(estimates: list, reference: object) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
-    from gyro_ekf.io.errors import OutputError
-    from gyro_ekf.io.output_dir import staged_file
+    from gyro_ekf.io.output_dir import check_output_file, staged_file
     from gyro_ekf.core.mount_calibration import MountSettings
     from gyro_ekf.io.bag_reader import read_bag, validate_bag
 
     output: Path | None = args.output
-    if output is not None and (output.is_dir() or (output.exists() and not args.force)):
-        raise OutputError(f'{output}: exists; --force replaces a file' if not output.is_dir()
-                          else f'{output}: is a folder; give a params file name')
-    if output is not None and not output.parent.is_dir():
-        # Said before the reference run and the fit, not after them.
-        raise OutputError(f'{output}: cannot write: no such file or directory')
+    if output is not None:
+        check_output_file(output, args.force, 'a params')
     bag = read_bag(args.bag, acceleration=False)
     source = str(args.bag)
     trip, report = validate_bag(bag, Path(args.bag).name, skip_bad=args.skip_bad)

@@ -11,7 +11,6 @@ import argparse
 import logging
 from pathlib import Path
 import sys
-import tempfile
 
 HELP = ('run seeded simulated trips per perturbation class offline; print the share within '
         'the bounds and the silent failures; write JSON')
@@ -69,36 +68,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "the simulator's 8 s, or a quarter of a trip shorter than 32 s)")
 
 
-def check_output(output: Path, force: bool) -> None:
-    """Refuse an output the suite may not or cannot write, before any trip runs.
-
-    The trips take about 2 CPU-minutes at the default size; a refusal after them lost that.
-    A missing folder is created (`make stress` writes into results/, gone after `make
-    clean`).
-
-    Raises:
-        OutputError: a folder or other non-file, an existing file without force, or a
-            folder in which no file can be created (read-only, no permission, not a folder).
-    """
-    from gyro_ekf.io.errors import OutputError
-    from gyro_ekf.io.products import os_reason
-
-    if output.exists() and not output.is_file():
-        raise OutputError(f'{output}: is a folder; give a JSON file name' if output.is_dir()
-                          else f'{output}: is not a file; give a JSON file name')
-    if output.exists() and not force:
-        raise OutputError(f'{output}: exists; --force replaces a file')
-    try:
-        output.parent.mkdir(parents=True, exist_ok=True)
-        # A file created and dropped there: permissions and a read-only mount both show.
-        with tempfile.TemporaryFile(dir=output.parent):
-            pass
-    except FileExistsError:
-        raise OutputError(f'{output}: cannot write: {output.parent} is not a folder') from None
-    except OSError as err:
-        raise OutputError(f'{output}: cannot write: {os_reason(err)}') from None
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
     from tqdm import tqdm
@@ -106,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from gyro_ekf.analysis.stress import (CLASSES, MAX_STATIC_SHARE, base_config, run_suite,
                                           table)
     from gyro_ekf.errors import GyroEkfError
+    from gyro_ekf.io.output_dir import check_output_file
     from gyro_ekf.io.results import write_summary_json
 
     try:
@@ -115,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         raise GyroEkfError(f'--static-s {args.static_s:g}: at most {MAX_STATIC_SHARE:g} of '
                            f'--duration-s {args.duration_s:g} (the rest of each trip is driven)'
                            ) from None
-    check_output(args.output, args.force)
+    check_output_file(args.output, args.force, 'a JSON', create_parent=True)
     total = args.trips_per_class * len(CLASSES)
     with tqdm(total=total, unit='trip', desc='stress', leave=False, file=sys.stderr,
               disable=not sys.stderr.isatty()) as bar:

@@ -188,6 +188,39 @@ def umask() -> int:
     return mask
 
 
+def check_output_file(path: Path, force: bool, kind: str, create_parent: bool = False) -> None:
+    """Refuse a one-file output (`stress -o`, `calibrate-mounts -o`) before any work.
+
+    Said before the work (minutes of trips, a reference run and a fit), not after it.
+
+    Args:
+        path: the file to write.
+        force: an existing file may be replaced.
+        kind: what the file is, for the message ('a JSON', 'a params').
+        create_parent: make a missing parent folder (`make stress` writes into results/);
+            else a missing one is refused.
+
+    Raises:
+        OutputError: a folder or other non-file, an existing file without force, or a
+            folder in which no file can be created (missing, read-only, no permission).
+    """
+    if path.exists() and not path.is_file():
+        raise OutputError(f'{path}: is a folder; give {kind} file name' if path.is_dir()
+                          else f'{path}: is not a file; give {kind} file name')
+    if path.exists() and not force:
+        raise OutputError(f'{path}: exists; --force replaces a file')
+    try:
+        if create_parent:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        # A file created and dropped there: permissions and a read-only mount both show.
+        with tempfile.TemporaryFile(dir=path.parent):
+            pass
+    except FileExistsError:
+        raise OutputError(f'{path}: cannot write: {path.parent} is not a folder') from None
+    except OSError as err:
+        raise OutputError(f'{path}: cannot write: {os_reason(err)}') from None
+
+
 @contextmanager
 def staged_file(target: Path) -> Iterator[Path]:
     """Yield a temporary path beside target; rename it onto target if the block succeeds.
