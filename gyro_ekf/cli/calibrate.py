@@ -11,6 +11,7 @@ import numpy as np
 from gyro_ekf.cli.convert import add_skip_bad_argument, warn_dropped
 from gyro_ekf.core.calibration import estimate_gyro_bias
 from gyro_ekf.core.config import CalibrationConfig, field_bounds
+from gyro_ekf.core.errors import CalibrationError
 from gyro_ekf.core.types import BiasEstimate, Trip
 from gyro_ekf.errors import GyroEkfError
 
@@ -32,13 +33,52 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_skip_bad_argument(parser)
 
 
+BAG_FILE_SUFFIXES = ('.mcap', '.db3', '.yaml')
+"""Files of a bag (storage, metadata.yaml, params sidecar): never a course log or trip file."""
+
+
+def is_bag(path: Path) -> bool:
+    """Whether a source is read as a bag rather than as a course log or trip file.
+
+    A bag folder, and what a user may give for one: a folder of storage files without its
+    metadata.yaml (a killed recorder), or one of a bag's files. The bag reader's refusal of
+    those says what to give or run instead; the course-log reader called a .mcap not a
+    MATLAB file.
+    """
+    if path.is_dir():
+        if (path / 'metadata.yaml').is_file():
+            return True
+        try:
+            return not any(path.glob('*.mat')) and any(
+                p.suffix in BAG_FILE_SUFFIXES[:2] for p in path.iterdir())
+        except OSError:
+            return False  # an unreadable folder: the log reader names it
+    return path.suffix in BAG_FILE_SUFFIXES
+
+
+def stream_names(sources: list[Path]) -> dict[str, str]:
+    """Name where the gyro ('imu') and the speed ('speed') streams of the sources come from.
+
+    For errors about a stream as a whole (a refused static window), which the core reports
+    without a source: a bag and its topic, or the file of a log that holds the stream (the
+    2016 log spreads over three files), named as the log's other errors name it.
+    """
+    from gyro_ekf.io.bag_open import IMU_TOPIC, ODOM_TOPIC
+    from gyro_ekf.io.sources import stream_files
+
+    if is_bag(sources[0]):
+        return {'imu': f"{sources[0]}: topic '{IMU_TOPIC}'",
+                'speed': f"{sources[0]}: topic '{ODOM_TOPIC}'"}
+    return {stream: path.name for stream, path in stream_files(sources).items()}
+
+
 def load_trip(sources: list[Path], skip_bad: bool = False) -> Trip:
     """Read a bag folder (with metadata.yaml), course log files or a simulator trip file.
 
     The trip passes the validation boundary: bad samples are refused, or dropped and
     counted with skip_bad.
     """
-    if len(sources) == 1 and (sources[0] / 'metadata.yaml').is_file():
+    if len(sources) == 1 and is_bag(sources[0]):
         from gyro_ekf.io.bag_reader import read_bag, validate_bag
         trip, report = validate_bag(read_bag(sources[0]), sources[0].name, skip_bad=skip_bad)
     else:
@@ -96,7 +136,7 @@ def check_options(args: argparse.Namespace) -> None:
                           ('--window-length-s', 'window_length_s')):
         check_number(option, getattr(args, field), *field_bounds(CalibrationConfig, field),
                      unit='s')
-    bags = [p for p in args.source if (p / 'metadata.yaml').is_file()]
+    bags = [p for p in args.source if is_bag(p)]
     if bags and len(args.source) > 1:
         raise GyroEkfError(f'{bags[0]}: calibrate takes one bag at a time (got '
                            f'{len(args.source)} sources); run it once per bag')
@@ -108,7 +148,11 @@ def run(args: argparse.Namespace) -> int:
     trip = load_trip(args.source, skip_bad=args.skip_bad)
     config = CalibrationConfig(window_start_s=args.window_start_s,
                                window_length_s=args.window_length_s)
-    estimate = calibrate_trip(trip, config, use_speed=not args.ignore_speed)
+    try:
+        estimate = calibrate_trip(trip, config, use_speed=not args.ignore_speed)
+    except CalibrationError as err:
+        raise CalibrationError(f'{stream_names(args.source)[err.stream]}: {err}',
+                               err.stream) from None
     report = estimate_to_dict(estimate, trip.imu.axes_known)
     if args.json:
         # Standard JSON: a NaN would be a bug upstream, so refuse it rather than print it.

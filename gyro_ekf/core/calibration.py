@@ -49,7 +49,8 @@ def estimate_gyro_bias(stamp_s: FloatArray, angular_velocity_rad_s: FloatArray,
 
     Raises:
         CalibrationError: too few samples, a gap, data ending before the window does, or
-            motion (speed, spread or trend), with the reason and the numbers.
+            motion (speed, spread or trend), with the reason and the numbers; its stream
+            says which input ('imu' or 'speed') refused the window.
     """
     config = config or CalibrationConfig()
     stamps = np.asarray(stamp_s, dtype=np.float64)
@@ -128,7 +129,7 @@ def _check_speed(speed_stamps: FloatArray, speeds: FloatArray, start: float, end
         raise CalibrationError(
             f'platform moved: speed {speeds[inside][first]:.4g} m/s at '
             f'{speed_stamps[inside][first] - origin:.2f} s inside the static window '
-            f'(at most {config.max_speed_m_s} m/s allowed)')
+            f'(at most {config.max_speed_m_s} m/s allowed)', stream='speed')
 
 
 class StaticWindowCalibrator:

@@ -10,7 +10,16 @@ class CoreError(GyroEkfError):
 
 
 class CalibrationError(CoreError):
-    """A static window was refused: too few samples, a gap, or motion."""
+    """A static window was refused: too few samples, a gap, or motion.
+
+    Attributes:
+        stream: the input the refusal is about, 'imu' (the gyro) or 'speed': the core
+            knows no file or topic, so the caller names the one that stream came from.
+    """
+
+    def __init__(self, message: str, stream: str = 'imu'):
+        super().__init__(message)
+        self.stream = stream
 
 
 class TimeWentBackwardsError(CoreError):

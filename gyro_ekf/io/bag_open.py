@@ -20,7 +20,7 @@ import yaml
 from rosbags.rosbag2 import Reader
 
 from gyro_ekf import topics
-from gyro_ekf.errors import GyroEkfError
+from gyro_ekf.errors import GyroEkfError, one_line
 from gyro_ekf.io import fast_cdr, mcap_chunks, messages as msgs
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.sidecar import BagParams
@@ -62,7 +62,8 @@ def reading(path: Path) -> Iterator[None]:
     except mcap_chunks.McapError as err:
         raise BagError(str(err)) from None
     except Exception as err:
-        reason = str(err) or type(err).__name__
+        # One line: a YAML error in metadata.yaml comes with a multi-line pointer.
+        reason = one_line(err) or type(err).__name__
         raise BagError(f'{path}: cannot read the bag ({type(err).__name__}): {reason}'
                        f'{_reindex_hint(path)}') from None
 

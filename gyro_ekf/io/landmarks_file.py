@@ -23,6 +23,7 @@ import yaml
 from gyro_ekf.core.config import InputLimits
 from gyro_ekf.core.types import LandmarkMap
 from gyro_ekf.core.validation import coordinate_problem, LIMITS
+from gyro_ekf.errors import one_line
 from gyro_ekf.io.errors import LandmarksFileError
 
 __all__ = ['read_landmarks_file', 'read_landmarks_text']
@@ -46,8 +47,7 @@ def _yaml_rows(text: str, source: str) -> list[tuple[str, Any]]:
     try:
         document = yaml.safe_load(text)
     except yaml.YAMLError as err:
-        where = ' '.join(str(err).split())  # one line
-        raise LandmarksFileError(f'{source}: not valid YAML: {where}') from None
+        raise LandmarksFileError(f'{source}: not valid YAML: {one_line(err)}') from None
     if not isinstance(document, dict) or 'landmarks' not in document:
         raise LandmarksFileError(f"{source}: expected a mapping with 'landmarks: [[x, y], "
                                  f"...]' (m), found {type(document).__name__}")

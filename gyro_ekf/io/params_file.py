@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from gyro_ekf.errors import one_line
 from gyro_ekf.io.errors import ParamsFileError
 from gyro_ekf.core.config import (CalibrationConfig, DetectorConfig, EkfConfig, InputLimits,
                                   make_config, RunOptions)
@@ -129,7 +130,7 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
     try:
         tree = yaml.safe_load(text)
     except yaml.YAMLError as err:
-        raise ParamsFileError(f'{source}: not valid YAML: {err}') from None
+        raise ParamsFileError(f'{source}: not valid YAML: {one_line(err)}') from None
     if tree is None:
         tree = {}
     if not isinstance(tree, dict):

@@ -48,6 +48,7 @@ import yaml
 from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures, Trip
 from gyro_ekf.core.validation import (InputReport, duration_problem, initial_pose_problem,
                                       mount_problem)
+from gyro_ekf.errors import one_line
 from gyro_ekf.io.errors import BagError
 
 SUFFIX = '.params.yaml'
@@ -228,7 +229,7 @@ def parse_yaml(text: str, path: Path) -> BagParams:
     try:
         document = yaml.safe_load(text)
     except yaml.YAMLError as err:
-        raise BagError(f'{path.name}: not valid YAML: {err}') from None
+        raise BagError(f'{path.name}: not valid YAML: {one_line(err)}') from None
     if not isinstance(document, dict) or not isinstance(document.get('/**'), dict) or \
             not isinstance(document['/**'].get('ros__parameters'), dict):
         raise BagError(f"{path.name}: expected a ROS 2 params file ('/**: ros__parameters:')")

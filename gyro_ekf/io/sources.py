@@ -19,11 +19,45 @@ from gyro_ekf.io.errors import LogFormatError
 from gyro_ekf.io.matlab import detect_course_log, expand_paths, load_course_log
 from gyro_ekf.io.matlab._common import variable_names
 from gyro_ekf.io.matlab.aas2021 import MAP_VARIABLE
+from gyro_ekf.io.matlab.project2016 import IMU_VARIABLE, SPEED_VARIABLE
 
 
 def load_log(paths: Sequence[Path | str], map_path: Path | str | None = None) -> Trip:
     """Read and check a course log or trip file; see load_checked_log (bad input refused)."""
     return load_checked_log(paths, map_path)[0]
+
+
+def _with_trip_files(inputs: list[Path]) -> list[Path]:
+    """Replace each input folder holding no .mat file by the trip files in it."""
+    expanded: list[Path] = []
+    for path in inputs:
+        if path.is_dir() and not any(path.glob('*.mat')):
+            expanded += sorted(path.glob('*' + trip_file.SUFFIX))
+        else:
+            expanded.append(path)
+    return expanded
+
+
+def stream_files(paths: Sequence[Path | str]) -> dict[str, Path]:
+    """Name the file each sensor stream of a course log or trip file is read from.
+
+    For messages about a stream as a whole (a refused calibration window), which no
+    field and index of validate_trip point to: the 2016 log spreads over three files.
+
+    Args:
+        paths: as load_checked_log takes them, once it has read them.
+
+    Returns:
+        {'imu': the file holding the gyro, 'speed': the file holding the speed}.
+    """
+    inputs = [Path(p) for p in paths]
+    trips = [p for p in _with_trip_files(inputs) if p.suffix == trip_file.SUFFIX]
+    if trips:
+        return {'imu': trips[0], 'speed': trips[0]}
+    files = detect_course_log(inputs).files
+    # The 2021 event table and the simulated logs hold every stream in their one file.
+    data = next(p for variable, p in files.items() if variable != MAP_VARIABLE)
+    return {'imu': files.get(IMU_VARIABLE, data), 'speed': files.get(SPEED_VARIABLE, data)}
 
 
 def load_checked_log(paths: Sequence[Path | str], map_path: Path | str | None = None,
@@ -52,12 +86,7 @@ def load_checked_log(paths: Sequence[Path | str], map_path: Path | str | None = 
     inputs = [Path(p) for p in paths]
     if not inputs:
         raise LogFormatError('no input given; expected course log .mat files or a trip .npz')
-    expanded: list[Path] = []
-    for path in inputs:
-        if path.is_dir() and not any(path.glob('*.mat')):
-            expanded += sorted(path.glob('*' + trip_file.SUFFIX))
-        else:
-            expanded.append(path)
+    expanded = _with_trip_files(inputs)
     trips = [p for p in expanded if p.suffix == trip_file.SUFFIX]
     if trips:
         if len(expanded) != 1 or map_path is not None:

@@ -180,7 +180,11 @@ def load_trip(path: Path | str) -> Trip:
         raise LogFormatError(f'{path}: not a readable .npz trip file: the file is empty'
                              ) from None
     except (OSError, ValueError, zipfile.BadZipFile) as err:
-        raise LogFormatError(f'{path.name}: not a readable .npz trip file: {err}') from err
+        # numpy takes bytes that are neither a zip archive nor .npy for a pickle, and its
+        # message then suggests loading the file unsafely.
+        reason = (err if zipfile.is_zipfile(path)
+                  else 'no zip archive (truncated, or not a .npz file at all?)')
+        raise LogFormatError(f'{path.name}: not a readable .npz trip file: {reason}') from err
     with data:
         try:
             return _load(_Keys(path, data))

@@ -1,11 +1,24 @@
-"""`gyro-ekf calibrate` on the real logs: the course value, and refusal on moving starts."""
+"""`gyro-ekf calibrate` on the real logs: the course value, and refusal on moving starts.
+
+Every refusal is one line naming the input: the bag (and its topic) or the log's file.
+"""
 
 import dataclasses
 import json
+from pathlib import Path
+import shutil
+import sys
 
 import pytest
 
-from gyro_ekf.cli.main import main
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'io'))
+from synthetic_logs import write_2016  # noqa: E402
+
+from gyro_ekf.cli.main import main  # noqa: E402
+from gyro_ekf.core.simulator import SimulationConfig, simulate_trip  # noqa: E402
+from gyro_ekf.io.bag_writer import write_trip_bag  # noqa: E402
+from gyro_ekf.io.sidecar import sidecar_path  # noqa: E402
+from gyro_ekf.io.trip_file import save_trip  # noqa: E402
 
 
 def test_calibrate_2016_log_prints_the_course_bias(shared_data, capsys):
@@ -58,3 +71,88 @@ def test_calibrate_a_bag_says_null_for_the_axes_it_does_not_measure(tmp_path, ca
 def test_calibrate_refuses_logs_that_move_from_the_start(shared_data, capsys, log):
     assert main(['calibrate', str(shared_data(log))]) == 1
     assert 'platform moved' in capsys.readouterr().err
+
+
+def _refused(capsys, *argv: str) -> str:
+    """Run calibrate, expect exit 1 and one line of error without a traceback; return it."""
+    code = main(['-q', 'calibrate', *argv])
+    err = capsys.readouterr().err
+    assert code == 1, err
+    assert 'Traceback' not in err and len(err.strip().splitlines()) == 1, err
+    return err.strip().removeprefix('gyro-ekf calibrate: error: ')
+
+
+@pytest.fixture(scope='module')
+def bags(tmp_path_factory) -> dict[str, Path]:
+    """Simulated trips as the project's writer writes them: one starting static, one not."""
+    folder = tmp_path_factory.mktemp('bags')
+    return {name: write_trip_bag(simulate_trip(SimulationConfig(duration_s=20.0,
+                                                                static_s=static_s), seed=4),
+                                 folder / name)
+            for name, static_s in (('static', 8.0), ('moving', 0.0))}
+
+
+def test_a_refused_window_names_the_bag_and_its_topic(bags, capsys):
+    # The core's reason alone ("platform moved: ...") said nothing of which input.
+    moving, static = bags['moving'], bags['static']
+    assert _refused(capsys, str(moving)).startswith(
+        f"{moving}: topic '/odom': platform moved: speed ")
+    assert _refused(capsys, str(moving), '--ignore-speed').startswith(
+        f"{moving}: topic '/imu': platform not static: gyro z spread ")
+    assert _refused(capsys, str(static), '--window-length-s', '100') == (
+        f"{static}: topic '/imu': the static window 0.00-100.00 s needs data until 100.00 s, "
+        'but the gyro stream ends at 20.00 s')
+
+
+def test_a_refused_window_names_the_file_of_the_log_or_trip_file(tmp_path, capsys):
+    # The 2016 log spreads over three files: the one holding the refused stream is named.
+    log = tmp_path / 'log'
+    write_2016(log)   # 0.6 s long, moving from its second sample on
+    assert _refused(capsys, str(log)).startswith(
+        'IMU_dataC.mat: the static window 0.00-5.00 s needs data until 5.00 s')
+    assert _refused(capsys, str(log), '--window-length-s', '0.4').startswith(
+        'Speed_dataC.mat: platform moved: speed ')
+    trip = save_trip(simulate_trip(SimulationConfig(duration_s=20.0, static_s=0.0), seed=4),
+                     tmp_path / 'moving.npz')
+    assert _refused(capsys, str(trip)).startswith('moving.npz: platform moved: ')
+
+
+def test_a_file_of_a_bag_or_a_bag_without_metadata_gets_the_bag_readers_advice(
+        bags, tmp_path, capsys):
+    # These went to the course-log reader: "good.mcap: not a readable MATLAB v5 file".
+    bag = bags['static']
+    (mcap,) = bag.glob('*.mcap')
+    for given in (mcap, bag / 'metadata.yaml'):
+        assert _refused(capsys, str(given)) == (
+            f'{given}: is a file; give the bag folder that holds it, {bag}')
+    params = sidecar_path(bag)
+    assert _refused(capsys, str(params)) == (
+        f'{params}: is a file; give the bag folder (the one holding metadata.yaml)')
+    torn = tmp_path / 'torn'
+    torn.mkdir()
+    shutil.copy(mcap, torn / mcap.name)
+    assert _refused(capsys, str(torn)) == (
+        f'{torn}: no metadata.yaml (was its recorder killed?); run `gyro-ekf reindex {torn}`')
+
+
+def test_unreadable_yaml_of_a_bag_is_one_line_naming_the_file(bags, tmp_path, capsys):
+    # YAML errors came with their multi-line pointer to the spot.
+    for name, damaged in (('meta', 'metadata.yaml'), ('side', None)):
+        bag = tmp_path / name
+        shutil.copytree(bags['static'], bag)
+        shutil.copy(sidecar_path(bags['static']), sidecar_path(bag))
+        target = bag / damaged if damaged else sidecar_path(bag)
+        target.write_text(target.read_text() + 'x: [\n')
+        error = _refused(capsys, str(bag))
+        assert (f'{target}: while parsing a flow node' in error if damaged
+                else error.startswith(f'{target.name}: not valid YAML: ')), error
+
+
+def test_a_trip_file_that_is_no_zip_archive_is_refused_without_numpys_pickle_advice(
+        tmp_path, capsys):
+    # numpy took the text for a pickle and said "you can load it unsafely".
+    path = tmp_path / 'trip.npz'
+    path.write_text('not a trip\n')
+    assert _refused(capsys, str(path)) == (
+        'trip.npz: not a readable .npz trip file: no zip archive (truncated, or not a .npz '
+        'file at all?)')
