@@ -83,7 +83,8 @@ def load_trip(sources: list[Path], skip_bad: bool = False) -> Trip:
         trip, report = validate_bag(read_bag(sources[0]), sources[0].name, skip_bad=skip_bad)
     else:
         from gyro_ekf.io.sources import load_checked_log
-        trip, report = load_checked_log(sources, skip_bad=skip_bad)
+        # A calibration uses no landmarks: no map needed, and no warning that there is none.
+        trip, report = load_checked_log(sources, skip_bad=skip_bad, landmarks=False)
     warn_dropped(report)
     return trip
 

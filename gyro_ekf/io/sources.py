@@ -8,6 +8,7 @@ index, or with skip_bad a dropped and counted sample.
 from __future__ import annotations
 
 from collections.abc import Sequence
+import dataclasses
 from pathlib import Path
 
 from gyro_ekf.core.config import InputLimits
@@ -54,15 +55,15 @@ def stream_files(paths: Sequence[Path | str]) -> dict[str, Path]:
     trips = [p for p in _with_trip_files(inputs) if p.suffix == trip_file.SUFFIX]
     if trips:
         return {'imu': trips[0], 'speed': trips[0]}
-    files = detect_course_log(inputs).files
+    files = detect_course_log(inputs, need_map=False).files
     # The 2021 event table and the simulated logs hold every stream in their one file.
     data = next(p for variable, p in files.items() if variable != MAP_VARIABLE)
     return {'imu': files.get(IMU_VARIABLE, data), 'speed': files.get(SPEED_VARIABLE, data)}
 
 
 def load_checked_log(paths: Sequence[Path | str], map_path: Path | str | None = None,
-                     skip_bad: bool = False, limits: InputLimits | None = None
-                     ) -> tuple[Trip, InputReport]:
+                     skip_bad: bool = False, limits: InputLimits | None = None,
+                     landmarks: bool = True) -> tuple[Trip, InputReport]:
     """Read a course log (.mat files or their folder) or a simulator trip file (.npz).
 
     Args:
@@ -73,6 +74,8 @@ def load_checked_log(paths: Sequence[Path | str], map_path: Path | str | None = 
         skip_bad: drop bad samples (and stamps that go back) and count them instead of
             refusing the first.
         limits: plausible input ranges; InputLimits() when None.
+        landmarks: False for a caller that uses none (calibration): the trip comes without
+            them, and a course log needs no map (see load_course_log).
 
     Returns:
         The checked trip and what the check dropped.
@@ -92,8 +95,10 @@ def load_checked_log(paths: Sequence[Path | str], map_path: Path | str | None = 
         if len(expanded) != 1 or map_path is not None:
             raise LogFormatError(
                 f'{trips[0].name}: a trip file carries everything itself; give it alone')
-        return validate_trip(trip_file.load_trip(trips[0]), trips[0].name,
-                             limits or InputLimits(), skip_bad=skip_bad)
+        trip = trip_file.load_trip(trips[0])
+        if not landmarks:
+            trip = dataclasses.replace(trip, landmarks=None)
+        return validate_trip(trip, trips[0].name, limits or InputLimits(), skip_bad=skip_bad)
     if map_path is not None:
         # A map named on its own must be one: among the log's files a wrong one only
         # left the log without landmarks and a warning that no map was given.
@@ -103,13 +108,13 @@ def load_checked_log(paths: Sequence[Path | str], map_path: Path | str | None = 
                                  f"'{MAP_VARIABLE}' (it has {names}); expected "
                                  'MapMTRN4010.mat')
     given = inputs + ([Path(map_path)] if map_path is not None else [])
-    trip = load_course_log(given, strict_time=not skip_bad)
+    trip = load_course_log(given, strict_time=not skip_bad, landmarks=landmarks)
     source = ', '.join(p.name for p in expand_paths(inputs))
     try:
         return validate_trip(trip, source, limits or InputLimits(), skip_bad=skip_bad)
     except InvalidInputError as err:
         # Name the one file the bad value came from (the 2016 log spreads over three).
-        files = detect_course_log(given).files
+        files = detect_course_log(given, need_map=landmarks).files
         variable = {'imu': 'IMU', 'speed': 'Vel', 'lidar': 'dataL',
                     'landmarks': 'Map'}.get(err.field.split('.')[0])
         if variable not in files or len(set(files.values())) == 1:

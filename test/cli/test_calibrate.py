@@ -12,7 +12,7 @@ import sys
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'io'))
-from synthetic_logs import write_2016  # noqa: E402
+from synthetic_logs import write_2016, write_2021  # noqa: E402
 
 from gyro_ekf.cli.main import main  # noqa: E402
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip  # noqa: E402
@@ -156,3 +156,36 @@ def test_a_trip_file_that_is_no_zip_archive_is_refused_without_numpys_pickle_adv
     assert _refused(capsys, str(path)) == (
         'trip.npz: not a readable .npz trip file: no zip archive (truncated, or not a .npz '
         'file at all?)')
+
+
+@pytest.mark.shared_data
+def test_calibrate_says_nothing_of_a_map_it_never_uses(shared_data, tmp_path, capsys, caplog):
+    # The 2016 log has no map beside it: calibrate warned "converting without landmarks".
+    assert main(['calibrate', str(shared_data('2016_project1')), '--json']) == 0
+    assert json.loads(capsys.readouterr().out)['bias_deg_s'][2] == pytest.approx(
+        -0.9748, abs=0.001)
+    assert [r.getMessage() for r in caplog.records if r.levelname == 'WARNING'] == []
+    # convert, whose bag feeds the EKF, still says so (a small 2016 trio: same reader).
+    log = tmp_path / 'log'
+    write_2016(log)
+    caplog.clear()
+    assert main(['-q', 'convert', str(log), '-o', str(tmp_path / 'bag')]) == 0
+    assert 'converting without landmarks' in caplog.text
+
+
+@pytest.mark.shared_data
+def test_calibrate_reads_the_2021_log_without_its_map(shared_data, tmp_path, capsys):
+    # It refused: "the 2021 format needs its map ...; none was given (--map)", an option
+    # calibrate does not have, for a map it never uses.
+    alone = tmp_path / 'alone'
+    alone.mkdir()
+    shutil.copy(shared_data('2021_aas01/Measurements_AAS01.mat'), alone)
+    assert main(['-q', 'calibrate', str(alone / 'Measurements_AAS01.mat'), '--json']) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report['bias_deg_s'][2] == pytest.approx(-0.9748, abs=0.01)
+    # convert still needs the map.
+    assert main(['-q', 'convert', str(alone), '-o', str(tmp_path / 'bag')]) == 1
+    assert 'the 2021 format needs its map' in capsys.readouterr().err
+    # A refusal of the window still names the file of the log alone.
+    assert _refused(capsys, str(write_2021(tmp_path / 'small', with_map=False))).startswith(
+        'Measurements_AAS01.mat: the static window ')

@@ -12,12 +12,15 @@
 The map file may be given with the logs or lie beside them (any .mat file in the same folder
 whose variable is `Map`). The 2021 format needs it and fails without it. The 2016 trio
 converts without it too: the trip then has no landmarks (a warning says so), because its
-sensor data are complete and useful on their own (calibration, dead reckoning).
+sensor data are complete and useful on their own (calibration, dead reckoning). A caller
+that uses no landmarks (`gyro-ekf calibrate`) reads either log without its map, unread and
+unmentioned (`landmarks=False`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+import dataclasses
 from dataclasses import dataclass
 import logging
 from pathlib import Path
@@ -82,11 +85,14 @@ def _find_map_beside(log_file: Path, given: set[Path]) -> Path | None:
     return None
 
 
-def detect_course_log(paths: Sequence[Path | str]) -> CourseLog:
+def detect_course_log(paths: Sequence[Path | str], need_map: bool = True) -> CourseLog:
     """Work out which course log the files hold, from their variable names only.
 
     Args:
         paths: .mat files or folders of them.
+        need_map: look for the map of a 2016 or 2021 log beside it, and refuse a 2021 log
+            without one; False for a caller that uses no landmarks (a map among `paths`
+            is still listed).
 
     Returns:
         The vintage and the file of each variable. For 'sim2022' and 'sim2023' the choice
@@ -94,7 +100,8 @@ def detect_course_log(paths: Sequence[Path | str]) -> CourseLog:
 
     Raises:
         LogFormatError: no files, unknown variables, a variable in two files, an incomplete
-            2016 trio, logs of two vintages mixed, or a 2021 log without a map.
+            2016 trio, logs of two vintages mixed, or a 2021 log without a map (unless
+            need_map is false).
     """
     files = expand_paths(paths)
     if not files:
@@ -134,7 +141,7 @@ def detect_course_log(paths: Sequence[Path | str]) -> CourseLog:
             f"{path.name}: variable 'data' has neither 'data.LidarCfg' (2022 simulation) nor "
             "'data.LidarsCfg' with 'data.scans2' (2023 simulation)")
     if aas2021.LOG_VARIABLE in roles:
-        if aas2021.MAP_VARIABLE not in roles:
+        if aas2021.MAP_VARIABLE not in roles and need_map:
             found = _find_map_beside(roles[aas2021.LOG_VARIABLE], given)
             if found is None:
                 raise LogFormatError(
@@ -149,14 +156,15 @@ def detect_course_log(paths: Sequence[Path | str]) -> CourseLog:
             f"the 2016 Project-1 log needs variables 'IMU' (IMU_dataC.mat), 'Vel' "
             f"(Speed_dataC.mat) and 'dataL' (Laser__2C.mat); missing {missing} among "
             f'{[p.name for p in files]}')
-    if aas2021.MAP_VARIABLE not in roles:
+    if aas2021.MAP_VARIABLE not in roles and need_map:
         found = _find_map_beside(roles[project2016.IMU_VARIABLE], given)
         if found is not None:
             roles[aas2021.MAP_VARIABLE] = found
     return CourseLog(project2016.FORMAT, roles)
 
 
-def load_course_log(paths: Sequence[Path], strict_time: bool = True) -> Trip:
+def load_course_log(paths: Sequence[Path], strict_time: bool = True,
+                    landmarks: bool = True) -> Trip:
     """Detect the course log in `paths` and read it into a Trip (SI, ROS conventions).
 
     Args:
@@ -165,6 +173,9 @@ def load_course_log(paths: Sequence[Path], strict_time: bool = True) -> Trip:
             by itself.
         strict_time: refuse stamps that go back (False leaves them to the validation
             boundary, which with --skip-bad drops the older samples and counts them).
+        landmarks: False for a caller that uses none (calibration): the trip then has no
+            landmarks, and no map is needed, read or warned about (a simulated log's
+            own landmarks are dropped too, so no vintage differs).
 
     Returns:
         The trip, stamps in s since the log's first stamp.
@@ -175,19 +186,21 @@ def load_course_log(paths: Sequence[Path], strict_time: bool = True) -> Trip:
             indices out of range or stamps going back in time; the message names the file
             and field.
     """
-    detected = detect_course_log(paths)
+    detected = detect_course_log(paths, need_map=landmarks)
     files = detected.files
-    map_path = files.get(aas2021.MAP_VARIABLE)
+    map_path = files.get(aas2021.MAP_VARIABLE) if landmarks else None
     if detected.vintage == 'sim2022':
         trip = sim2022.read(files[SIM_VARIABLE], strict_time=strict_time)
     elif detected.vintage == 'sim2023':
         trip = sim2023.read(files[SIM_VARIABLE], strict_time=strict_time)
     elif detected.vintage == aas2021.FORMAT:
-        assert map_path is not None
-        trip = aas2021.read(files[aas2021.LOG_VARIABLE], aas2021.read_map(map_path),
+        assert map_path is not None or not landmarks
+        trip = aas2021.read(files[aas2021.LOG_VARIABLE],
+                            aas2021.read_map(map_path) if map_path is not None else None,
                             strict_time)
     else:
-        if map_path is None:
+        # Said only where landmarks are wanted (convert): a calibration never uses them.
+        if map_path is None and landmarks:
             log.warning('%s: no map (MapMTRN4010.mat) given or found beside the 2016 log; '
                         'converting without landmarks', files[project2016.IMU_VARIABLE].name)
         trip = project2016.read(
@@ -197,6 +210,8 @@ def load_course_log(paths: Sequence[Path], strict_time: bool = True) -> Trip:
     if map_path is not None and detected.vintage.startswith('sim'):
         log.warning('%s: a simulated log carries its own map; ignoring %s',
                     files[SIM_VARIABLE].name, map_path.name)
+    if not landmarks:
+        trip = dataclasses.replace(trip, landmarks=None)
     log.info('%s: %s log, %d IMU samples, %d scans', trip.name, detected.vintage,
              len(trip.imu.stamp_s), sum(len(s.stamp_s) for s in trip.scans))
     return trip

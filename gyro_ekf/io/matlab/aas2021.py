@@ -42,12 +42,13 @@ def read_map(path: Path) -> LandmarkMap:
     return LandmarkMap(xy_m=np.column_stack([x, y]).astype(np.float64))
 
 
-def read(path: Path, landmarks: LandmarkMap, strict_time: bool = True) -> Trip:
+def read(path: Path, landmarks: LandmarkMap | None, strict_time: bool = True) -> Trip:
     """Read the event table into a Trip.
 
     Args:
         path: the file holding `A`.
-        landmarks: the map, required by this format.
+        landmarks: the map, which this format needs for anything but calibration; None
+            only for a caller that uses no landmarks.
 
     Returns:
         The trip, stamps in s since the first event.
