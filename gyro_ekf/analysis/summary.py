@@ -3,7 +3,9 @@
 Definitions (see `metrics` for the band and the interpolation):
 
 - *Offline bias*: the static-window mean per axis, its white-noise sigma, the standard
-  error of the mean and the window; null with the reason when no window was accepted.
+  error of the mean and the window; null with the reason when no window was accepted. An
+  axis the gyro does not measure (x and y of a yaw-rate-only log; ``axes_known``) is null
+  in every per-axis list, as in ``gyro-ekf calibrate --json``, never a bias of 0.
 - *Online bias*: the bias state at the last estimate with its filter sigma, and the mean
   and standard deviation of the bias state over the second half of the trip's duration;
   the zero-rate updates (gyro samples applied standing still) and stops, and where the
@@ -49,6 +51,7 @@ import numpy as np
 from gyro_ekf.analysis import metrics
 from gyro_ekf.analysis.offline import OfflineRun
 from gyro_ekf.core import health
+from gyro_ekf.core.calibration import measured_axes
 from gyro_ekf.core.types import BIAS, FloatArray
 from gyro_ekf.core.validation import InputReport
 
@@ -96,10 +99,14 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     }
 
     cal = run.calibration
+    known = trip.imu.axes_known
     summary['offline_bias'] = None if cal is None else {
-        'bias_rad_s': cal.bias_rad_s, 'bias_deg_s': np.degrees(cal.bias_rad_s),
-        'sigma_rad_s': cal.sigma_rad_s, 'standard_error_rad_s': cal.bias_standard_error_rad_s,
-        'standard_error_deg_s': np.degrees(cal.bias_standard_error_rad_s),
+        'axes_known': list(known),
+        'bias_rad_s': measured_axes(cal.bias_rad_s, known),
+        'bias_deg_s': measured_axes(np.degrees(cal.bias_rad_s), known),
+        'sigma_rad_s': measured_axes(cal.sigma_rad_s, known),
+        'standard_error_rad_s': measured_axes(cal.bias_standard_error_rad_s, known),
+        'standard_error_deg_s': measured_axes(np.degrees(cal.bias_standard_error_rad_s), known),
         'window_start_s': cal.window_start_s, 'window_end_s': cal.window_end_s,
         'n_samples': cal.n_samples}
     summary['offline_bias_unavailable_reason'] = run.calibration_error

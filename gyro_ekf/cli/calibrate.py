@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from gyro_ekf.cli.convert import add_skip_bad_argument, warn_dropped
-from gyro_ekf.core.calibration import estimate_gyro_bias
+from gyro_ekf.core.calibration import estimate_gyro_bias, measured_axes
 from gyro_ekf.core.config import CalibrationConfig, field_bounds
 from gyro_ekf.core.errors import CalibrationError
 from gyro_ekf.core.types import BiasEstimate, Trip
@@ -107,14 +107,12 @@ def estimate_to_dict(estimate: BiasEstimate, axes_known: tuple[bool, bool, bool]
     (JSON null) in every per-axis list: the estimator reports 0 there, which would read as
     a bias and a noise known to be exactly zero.
     """
-    known = list(axes_known)
-
     def measured(values: np.ndarray) -> list[float | None]:
-        return [float(v) if k else None for v, k in zip(values, known)]
+        return measured_axes(values, axes_known)
 
     return {
         'axes': ['x', 'y', 'z'],
-        'axes_known': known,
+        'axes_known': list(axes_known),
         'bias_rad_s': measured(estimate.bias_rad_s),
         'sigma_rad_s': measured(estimate.sigma_rad_s),
         'bias_deg_s': measured(np.rad2deg(estimate.bias_rad_s)),

@@ -117,6 +117,16 @@ def estimate_gyro_bias(stamp_s: FloatArray, angular_velocity_rad_s: FloatArray,
         max_abs_rate_rad_s=np.where(known, np.abs(window_rates).max(axis=0), 0.0))
 
 
+def measured_axes(values: FloatArray, axes_known: tuple[bool, bool, bool]
+                  ) -> list[float | None]:
+    """Return per-axis values as a JSON-ready list, None (null) for an axis not measured.
+
+    estimate_gyro_bias reports 0 for such an axis (x and y of a yaw-rate-only gyro), which
+    in a report would read as a bias or a noise known to be exactly zero.
+    """
+    return [float(v) if known else None for v, known in zip(values, axes_known)]
+
+
 def _check_speed(speed_stamps: FloatArray, speeds: FloatArray, start: float, end: float,
                  origin: float, config: CalibrationConfig) -> None:
     inside = (speed_stamps >= start) & (speed_stamps <= end)

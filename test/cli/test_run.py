@@ -208,3 +208,31 @@ def test_strict_run_on_a_trip_with_a_mis_mounted_lidar_exits_3_and_still_writes(
     # Without --strict the same run exits 0 and says the same.
     code, again = _run(bag, tmp_path / 'out2', '--no-plots', '--no-bag')
     assert code == 0 and again['health'] == summary['health']
+
+
+@pytest.mark.shared_data
+def test_the_offline_bias_is_null_for_the_axes_the_2021_log_does_not_measure(
+        shared_data, tmp_path, capsys):
+    # summary.json gave 0 for x and y: a bias and a noise known to be exactly zero.
+    bag = tmp_path / 'bag'
+    assert main(['-q', 'convert', str(shared_data('2021_aas01')), '-o', str(bag)]) == 0
+    code, summary = _run(bag, tmp_path / 'out', '--no-plots', '--no-bag')
+    assert code == 0
+    printed = capsys.readouterr().out
+    offline = summary['offline_bias']
+    per_axis = ('bias_rad_s', 'bias_deg_s', 'sigma_rad_s', 'standard_error_rad_s',
+                'standard_error_deg_s')
+    for key in per_axis:
+        assert offline[key][:2] == [None, None], key
+        assert offline[key][2] > 0 if 'bias' not in key else offline[key][2] < 0, key
+    assert offline['axes_known'] == [False, False, True]
+    assert offline['bias_deg_s'][2] == pytest.approx(STATIC_WINDOW_BIAS_2016_DEG_S, abs=0.01)
+    # The table shows the measured z axis; calibrate --json on the bag says the same.
+    (row,) = [line for line in printed.splitlines() if line.startswith('offline bias')]
+    assert row.split()[-1] == f"{offline['bias_deg_s'][2]:.4f}"
+    assert main(['-q', 'calibrate', str(bag), '--json']) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report['axes_known'] == offline['axes_known']
+    for key in ('bias_rad_s', 'bias_deg_s', 'sigma_rad_s', 'standard_error_deg_s'):
+        assert report[key][:2] == [None, None]
+        assert report[key][2] == pytest.approx(offline[key][2], rel=1e-9), key
