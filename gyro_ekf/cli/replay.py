@@ -69,6 +69,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'matched subscriptions; repeatable')
     parser.add_argument('--wait-timeout-s', type=float, default=10.0,
                         help='give up waiting for subscribers after this long')
+    parser.add_argument('--no-verify', action='store_true',
+                        help='publish without first reading the whole bag through to check '
+                        'its bytes (CRCs, lengths, log times; about 1-2 s per hour of bag): '
+                        'damage then ends the replay only when it is reached, after the '
+                        'messages before it were published')
     parser.add_argument('--ack-timeout-s', type=_positive, default=30.0,
                         help='longest wait for reliable readers to acknowledge: while one '
                         'holds the replay back (its history full), and at the end for every '
@@ -96,13 +101,14 @@ class BagSource:
     """Raw messages of a bag in stamp order, re-iterable (for --loop).
 
     The bag's bytes are checked when it is opened, as `info` and `run` check them, so a
-    damaged bag is refused before a message is published; reading is still guarded, since
-    a bag the check cannot cover (sqlite3) or one changed since can fail mid-replay.
+    damaged bag is refused before a message is published (`verify` false, `--no-verify`,
+    skips that read); reading is still guarded, since a bag the check cannot cover
+    (sqlite3), one changed since or one not checked can fail mid-replay.
     """
 
     def __init__(self, path: Path, topic_names: list[str] | None, start_s: float,
-                 duration_s: float | None):
-        """Check the bag's bytes, open its metadata and choose the topics.
+                 duration_s: float | None, verify: bool = True):
+        """Check the bag's bytes (unless verify is false), open its metadata, choose topics.
 
         Raises:
             BagError: missing, unreadable or damaged bag (a CRC mismatch names the file and
@@ -112,6 +118,7 @@ class BagSource:
         from rosbags.rosbag2 import Reader
         from rosbags.rosbag2.errors import ReaderError
 
+        from gyro_ekf.errors import one_line
         from gyro_ekf.io.bag_info import verify_bag
         from gyro_ekf.io.errors import BagError
         from gyro_ekf.nodes.replayer import ReplayTopic
@@ -122,14 +129,16 @@ class BagSource:
         # rosbags finds a damaged chunk only when it reaches it, after every message before
         # it is published. Reading the whole bag first costs about 0.5 s per hour of
         # uncompressed bag (io/bag_info.py): 0.06-0.15 s for the 2016 log's 76 MB.
-        verify_bag(path)
+        if verify:
+            verify_bag(path)
         try:
             with Reader(path) as reader:
                 connections = list(reader.connections)
                 self.start_ns = reader.start_time
                 self.duration_ns = reader.duration if reader.message_count else 0
         except (ReaderError, OSError, KeyError, ValueError) as err:
-            raise BagError(f'{path}: cannot read the bag: {err}') from None
+            # One line: without the check a YAML error in metadata.yaml first shows here.
+            raise BagError(f'{path}: cannot read the bag: {one_line(err)}') from None
         present = {c.topic for c in connections}
         if topic_names:
             wanted = {t if t.startswith('/') else '/' + t for t in topic_names}
@@ -207,7 +216,8 @@ def run(args: argparse.Namespace) -> int:
     # SIGINT/SIGTERM end the replay between two messages: the summary is still printed.
     check_options(args)
     stop = StopRequest()
-    source = BagSource(args.bag, args.topics, args.start_s, args.duration_s)
+    source = BagSource(args.bag, args.topics, args.start_s, args.duration_s,
+                       verify=not args.no_verify)
     rclpy.init(args=['gyro-ekf-replay', *args.ros_args],
                signal_handler_options=SignalHandlerOptions.NO)
     node = None
