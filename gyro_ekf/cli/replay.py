@@ -97,7 +97,9 @@ class BagSource:
 
     The bag's bytes are checked when it is opened, as `info` and `run` check them, so a
     damaged bag is refused before a message is published; reading is still guarded, since
-    a bag the check cannot cover (sqlite3) or one changed since can fail mid-replay.
+    a bag the check cannot cover (sqlite3) or one changed since can fail mid-replay. A
+    params file beside the bag written with another bag is refused too: the nodes given it
+    with the replay would run this trip with another's pose, mounts and noise.
     """
 
     def __init__(self, path: Path, topic_names: list[str] | None, start_s: float,
@@ -106,7 +108,8 @@ class BagSource:
 
         Raises:
             BagError: missing, unreadable or damaged bag (a CRC mismatch names the file and
-                the chunk's offset), or a requested topic it lacks.
+                the chunk's offset), a requested topic it lacks, or a params file beside it
+                that cannot be read or was written with another bag.
         """
         from rosbags.interfaces import QosDurability, QosReliability
         from rosbags.rosbag2 import Reader
@@ -114,6 +117,7 @@ class BagSource:
 
         from gyro_ekf.io.bag_info import verify_bag
         from gyro_ekf.io.errors import BagError
+        from gyro_ekf.io.sidecar import read_sidecar
         from gyro_ekf.nodes.replayer import ReplayTopic
 
         self.path = path
@@ -123,6 +127,7 @@ class BagSource:
         # it is published. Reading the whole bag first costs about 0.5 s per hour of
         # uncompressed bag (io/bag_info.py): 0.06-0.15 s for the 2016 log's 76 MB.
         verify_bag(path)
+        read_sidecar(path)
         try:
             with Reader(path) as reader:
                 connections = list(reader.connections)
