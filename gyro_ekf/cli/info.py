@@ -5,6 +5,9 @@ lengths, log times; `io.bag_info.verify_bag`): a damaged bag is a one-line error
 file and the chunk, exit 1, and nothing is printed. The counts, start and duration
 metadata.yaml states must be what that read found (`io.bag_info.check_metadata`), or it is
 a one-line error naming each field with both values. `--no-verify` reads the metadata only.
+A params file beside the bag that was written with another bag (its `trip.bag` fingerprint
+differs from the bag's) is a one-line error naming both (`io.bag_info.check_sidecar`); one
+without a fingerprint (older versions) is shown as not fingerprinted.
 """
 
 from __future__ import annotations
@@ -57,6 +60,16 @@ def format_check(check: FileCheck) -> str:
     return f'{check.name}: {chunks} read; {said}'
 
 
+def _params_line(summary: BagSummary) -> str:
+    """Name the sidecar and say whether it was checked against the bag."""
+    if summary.sidecar is None:
+        return '(none)'
+    if summary.params is None or summary.params.bag is None:
+        return (f'{summary.sidecar} (sidecar: not fingerprinted, written before gyro_ekf '
+                'recorded its bag or by hand; not checked against this bag)')
+    return f'{summary.sidecar} (fingerprint matches this bag)'
+
+
 def format_summary(summary: BagSummary, checks: list[FileCheck] | None = None) -> str:
     """Render the text `info` prints; checks None: the files were not read (--no-verify)."""
     from gyro_ekf.core.stamps import seconds_since
@@ -70,7 +83,7 @@ def format_summary(summary: BagSummary, checks: list[FileCheck] | None = None) -
         f'start:     {iso_time(summary.start_time_ns)} ({summary.start_time_ns} ns)',
         f'duration:  {0.0 if empty else seconds_since(summary.duration_ns, 0):.4f} s',
         f'messages:  {summary.message_count}',
-        f'params:    {summary.sidecar if summary.sidecar is not None else "(none)"}',
+        f'params:    {_params_line(summary)}',
     ]
     converted = summary.converted
     if converted is not None and converted.total_dropped:
@@ -93,17 +106,19 @@ def format_summary(summary: BagSummary, checks: list[FileCheck] | None = None) -
 
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
-    from gyro_ekf.io.bag_info import bag_summary, check_metadata, verify_bag
+    from gyro_ekf.io.bag_info import bag_summary, check_metadata, check_sidecar, verify_bag
     from gyro_ekf.io.errors import BagError
     from gyro_ekf.io.reindex import needs_reindex
 
     reason = needs_reindex(args.bag)
     if reason is not None:
         raise BagError(f'{args.bag}: {reason}; run `gyro-ekf reindex {args.bag}`')
-    summary = bag_summary(args.bag)
+    summary = bag_summary(args.bag, check=False)
     # Checked before anything is printed: a damaged bag gets its one line only.
     checks = None if args.no_verify else verify_bag(args.bag)
     if checks is not None:
         check_metadata(summary, checks)
+    # After the metadata is held to the data: the bag's fingerprint is what it states.
+    check_sidecar(summary)
     print(format_summary(summary, checks))
     return 0

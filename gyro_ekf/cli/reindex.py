@@ -3,12 +3,18 @@
 Rebuilds the MCAP summary of a .mcap cut short and the bag's metadata.yaml, keeping every
 complete chunk; a bag that needs nothing is left untouched, and one with no message to
 recover (an empty .mcap) is refused with nothing written (see `gyro_ekf.io.reindex`).
+The messages it keeps are the bag's own, so the fingerprint its params file records
+(`trip.bag`) still holds; when it had to leave an incomplete tail out, the bag is no longer
+the one the params file was written with, and it says so (every reader refuses the pair).
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
+
+log = logging.getLogger(__name__)
 
 HELP = ('rebuild the metadata.yaml and MCAP summary of a bag cut short (e.g. its recorder '
         'was killed), keeping every complete chunk')
@@ -30,4 +36,30 @@ def run(args: argparse.Namespace) -> int:
     written = 'a new .mcap and metadata.yaml' if result.rewrote_mcap else 'metadata.yaml'
     print(f'{args.bag}: wrote {written}: {result.messages} messages on {result.topics} '
           f'topics; {result.dropped_bytes} bytes of an incomplete tail left out')
+    note = sidecar_note(args.bag)
+    if note:
+        log.warning('%s', note)
     return 0
+
+
+def sidecar_note(bag: Path) -> str:
+    """Say whether the bag's params file still fingerprints it after a reindex ('' if so).
+
+    Never an error: the bag is readable again either way, and each reader refuses a params
+    file that is not the bag's with its own one line.
+    """
+    from gyro_ekf.io.bag_open import metadata
+    from gyro_ekf.io.errors import BagError
+    from gyro_ekf.io.sidecar import fingerprint_of, read_sidecar, sidecar_path
+
+    try:
+        params = read_sidecar(bag, check=False)
+        found = fingerprint_of(metadata(bag), bag)
+    except BagError as err:
+        return str(err)
+    if params is None or params.bag is None or params.bag == found:
+        return ''
+    return (f'{sidecar_path(bag)}: written with a bag of {params.bag.describe()}; {bag} now '
+            f'has {found.describe()}: run, info and replay refuse the pair. If the file is '
+            "this trip's (the bag lost its tail), delete its trip.bag entries to use it "
+            'unchecked')

@@ -103,7 +103,9 @@ class BagSource:
     The bag's bytes are checked when it is opened, as `info` and `run` check them, so a
     damaged bag is refused before a message is published (`verify` false, `--no-verify`,
     skips that read); reading is still guarded, since a bag the check cannot cover
-    (sqlite3), one changed since or one not checked can fail mid-replay.
+    (sqlite3), one changed since or one not checked can fail mid-replay. A params file
+    beside the bag written with another bag is refused too: the nodes given it with the
+    replay would run this trip with another's pose, mounts and noise.
     """
 
     def __init__(self, path: Path, topic_names: list[str] | None, start_s: float,
@@ -112,7 +114,8 @@ class BagSource:
 
         Raises:
             BagError: missing, unreadable or damaged bag (a CRC mismatch names the file and
-                the chunk's offset), or a requested topic it lacks.
+                the chunk's offset), a requested topic it lacks, or a params file beside it
+                that cannot be read or was written with another bag.
         """
         from rosbags.interfaces import QosDurability, QosReliability
         from rosbags.rosbag2 import Reader
@@ -121,6 +124,7 @@ class BagSource:
         from gyro_ekf.errors import one_line
         from gyro_ekf.io.bag_info import verify_bag
         from gyro_ekf.io.errors import BagError
+        from gyro_ekf.io.sidecar import read_sidecar
         from gyro_ekf.nodes.replayer import ReplayTopic
 
         self.path = path
@@ -131,6 +135,7 @@ class BagSource:
         # uncompressed bag (io/bag_info.py): 0.06-0.15 s for the 2016 log's 76 MB.
         if verify:
             verify_bag(path)
+        read_sidecar(path)
         try:
             with Reader(path) as reader:
                 connections = list(reader.connections)

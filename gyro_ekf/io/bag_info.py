@@ -7,6 +7,8 @@ uncompressed bag (750 MB) and 1.6 s for the same bag zstd-compressed (118 MB) on
 project's 2-core machine, where the metadata alone takes 0.3 s. `check_metadata` then holds
 what metadata.yaml states (the counts, start and duration `info` prints) to the messages
 that read found, so `info` never prints a count or a time range the data contradicts.
+`check_sidecar` then holds the params file beside the bag to the bag: one written with
+another bag (its `trip.bag` fingerprint differs) is refused naming both (`io.sidecar`).
 """
 
 from __future__ import annotations
@@ -18,10 +20,11 @@ from gyro_ekf.core.validation import InputReport
 from gyro_ekf.io import mcap_chunks
 from gyro_ekf.io.bag_open import metadata, open_bag
 from gyro_ekf.io.errors import BagError
-from gyro_ekf.io.sidecar import read_sidecar, sidecar_path
+from gyro_ekf.io.sidecar import (
+    BagFingerprint, BagParams, check_belongs, read_sidecar, sidecar_path, stated_fingerprint)
 
 __all__ = ['BagSummary', 'FileCheck', 'TopicSummary', 'bag_summary', 'check_metadata',
-           'verify_bag']
+           'check_sidecar', 'verify_bag']
 
 
 class TopicSummary(NamedTuple):
@@ -37,7 +40,8 @@ class BagSummary(NamedTuple):
     """What `gyro-ekf info` prints about a bag.
 
     `converted` is what `convert --skip-bad` dropped from the log the bag was written from
-    (the sidecar's record), or None.
+    (the sidecar's record), or None. `params` is the sidecar as read (None without one);
+    its `bag` is the fingerprint it records, None when it records none.
     """
 
     path: Path
@@ -49,6 +53,12 @@ class BagSummary(NamedTuple):
     topics: list[TopicSummary]
     sidecar: Path | None
     converted: InputReport | None = None
+    params: BagParams | None = None
+
+    @property
+    def fingerprint(self) -> BagFingerprint:
+        """The bag's own fingerprint, as its metadata.yaml states it."""
+        return stated_fingerprint(self.message_count, self.start_time_ns, self.duration_ns)
 
 
 class FileCheck(NamedTuple):
@@ -172,11 +182,29 @@ def _stated_count(counts: list[object]) -> object:
     return counts[0] if len(counts) == 1 else ' + '.join(map(repr, counts))
 
 
-def bag_summary(path: Path | str) -> BagSummary:
-    """Topics, types, counts, start time and duration of a bag (from its metadata).
+def check_sidecar(summary: BagSummary) -> None:
+    """Refuse a params file beside the bag that was written with another bag.
+
+    After `check_metadata` in `info`: the bag's fingerprint is what metadata.yaml states, so
+    a metadata.yaml the data contradicts is named as such first, not as a foreign sidecar.
 
     Raises:
-        BagError: missing or unreadable bag, or a sidecar that cannot be read or parsed.
+        BagError: as `sidecar.check_belongs`: one line naming both files and fingerprints.
+    """
+    check_belongs(summary.path, summary.params, summary.fingerprint)
+
+
+def bag_summary(path: Path | str, check: bool = True) -> BagSummary:
+    """Topics, types, counts, start time and duration of a bag (from its metadata).
+
+    Args:
+        path: the bag folder.
+        check: refuse a sidecar written with another bag (`check_sidecar`); False leaves
+            it to the caller.
+
+    Raises:
+        BagError: missing or unreadable bag, or a sidecar that cannot be read or parsed,
+            or (check) one written with another bag.
     """
     path = Path(path)
     reader = open_bag(path)
@@ -189,15 +217,18 @@ def bag_summary(path: Path | str) -> BagSummary:
                                           connection.msgcount, durability))
     finally:
         reader.close()
-    params = read_sidecar(path)
+    params = read_sidecar(path, check=False)
     meta = metadata(path)
     try:
-        return BagSummary(
+        summary = BagSummary(
             path=path, storage=str(meta['storage_identifier']), version=int(meta['version']),
             start_time_ns=int(meta['starting_time']['nanoseconds_since_epoch']),
             duration_ns=int(meta['duration']['nanoseconds']),
             message_count=int(meta['message_count']), topics=summaries,
             sidecar=sidecar_path(path) if params is not None else None,
-            converted=None if params is None else params.converted)
+            converted=None if params is None else params.converted, params=params)
     except (KeyError, TypeError, ValueError) as err:
         raise BagError(f'{path / "metadata.yaml"}: missing or invalid entry {err}') from None
+    if check:
+        check_sidecar(summary)
+    return summary

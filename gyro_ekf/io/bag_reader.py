@@ -18,7 +18,9 @@ What no message carries (LiDAR mounts, stated noise, true bias) comes from the p
 sidecar beside the bag; without a sidecar the mounts default to the platform origin and a
 warning says so. So does what `convert --skip-bad` dropped from the log the bag was written
 from: `validate_bag` puts it on the validation's report (`InputReport.converted`), so a run
-counts those samples as if it had dropped them itself.
+counts those samples as if it had dropped them itself. A sidecar written with another bag
+(its `trip.bag` fingerprint is not the count, first and last log time of the messages read)
+is refused naming both (`io.sidecar`).
 
 `read_bag` takes the raw messages of a single-file MCAP bag from `mcap_chunks` (a small
 chunk reader, several times faster), of any other bag, or one that reader refuses, from
@@ -57,7 +59,8 @@ from gyro_ekf.io.bag_open import (
 from gyro_ekf.io.bag_sinks import (
     ImuSink, OdomSink, ScanData, ScanSink, Sink, TruthSink, has_acceleration)
 from gyro_ekf.io.errors import BagError
-from gyro_ekf.io.sidecar import BagParams, read_sidecar, sidecar_path
+from gyro_ekf.io.sidecar import (
+    BagFingerprint, BagParams, check_belongs, read_sidecar, sidecar_path)
 
 __all__ = ['BagMessage', 'BagTrip', 'ZERO_TOLERANCE_NS', 'assemble_trip', 'initial_pose_of',
            'iter_bag_messages', 'one_message', 'read_bag', 'read_trip_bag', 'time_zero',
@@ -180,13 +183,16 @@ def read_bag(path: Path | str, acceleration: bool = True) -> BagTrip:
     Raises:
         BagError: missing or unreadable bag, no /imu or /odom topic, inconsistent scans, a
             header stamp that is no time, two messages of a topic with one header stamp
-            and different bytes, or a sidecar time zero on another clock than the header
-            stamps.
+            and different bytes, a sidecar time zero on another clock than the header
+            stamps, or a sidecar written with another bag (its fingerprint, `trip.bag`, is
+            not the count, first and last log time of the messages read).
     """
     path = Path(path)
     reader = open_bag(path)
     try:
-        params = read_sidecar(path)
+        # Held to the bag once its messages are read (below), not to metadata.yaml's count,
+        # which a run takes as a hint only.
+        params = read_sidecar(path, check=False)
         by_topic, counts = topic_connections(path, reader, params)
         start = reader.start_time if reader.message_count else 0
         span = time_span(reader)
@@ -221,6 +227,9 @@ def read_bag(path: Path | str, acceleration: bool = True) -> BagTrip:
         for topic, items in singles.items():
             for stamp, _ in items:
                 check_stamp(path, topic, stamp, span)
+        # Before duplicates are dropped: the fingerprint counts what the bag holds.
+        check_belongs(path, params, _fingerprint(sinks, singles, counts),
+                      'as its messages hold')
         duplicates = {}
         for sink in sinks.values():
             dropped = _drop_duplicates(path, sink, lambda topic, rows: _payloads(
@@ -249,6 +258,25 @@ def read_bag(path: Path | str, acceleration: bool = True) -> BagTrip:
         landmarks=None if landmark_message is None else msgs.landmarks_of(landmark_message),
         initial_pose=None if pose_message is None else initial_pose_of(path, pose_message))
     return replace(bag_trip, duplicates=duplicates, pose_from_message=pose_message is not None)
+
+
+def _fingerprint(sinks: dict[str, Sink], singles: dict[str, list[tuple[int, Any]]],
+                 counts: dict[str, int]) -> BagFingerprint:
+    """Return the fingerprint of a bag from the messages read: count, first and last log time.
+
+    Topics not read count as metadata.yaml states them, and their stamps are not known: a
+    bag the writer wrote has none (it writes only topics the reader reads).
+    """
+    read = [sink.log_ns[:sink.n] for sink in sinks.values() if sink.n]
+    read += [np.array([stamp for stamp, _ in items], dtype=np.int64)
+             for items in singles.values() if items]
+    unread = sum(n for topic, n in counts.items()
+                 if topic not in sinks and topic not in (MAP_TOPIC, INITIAL_POSE_TOPIC))
+    if not read:
+        return BagFingerprint(unread, 0, 0)
+    return BagFingerprint(sum(int(stamps.size) for stamps in read) + unread,
+                          min(int(stamps.min()) for stamps in read),
+                          max(int(stamps.max()) for stamps in read))
 
 
 ZERO_TOLERANCE_NS = 3600 * 1_000_000_000

@@ -12,10 +12,12 @@ turned into seconds by one correctly rounded division). /landmark_map and /initi
 stamped at time zero (or at the first sample if a trip starts before zero).
 
 The bag is written into a hidden temporary sibling folder and renamed into place only when
-complete, together with its params sidecar (`gyro_ekf.io.sidecar`); a failure or interrupt
-removes the temporary files and leaves any previous output untouched. With force, an existing
-output is replaced only when it is a bag folder holding nothing but a bag's own files
-(`claim_bag_target`); a read-only or full file system is one BagError naming the bag.
+complete, together with its params sidecar (`gyro_ekf.io.sidecar`), which records the bag's
+fingerprint (message count, first and last stamp) so that a reader refuses it beside another
+bag; a failure or interrupt removes the temporary files and leaves any previous output
+untouched. With force, an existing output is replaced only when it is a bag folder holding
+nothing but a bag's own files (`claim_bag_target`); a read-only or full file system is one
+BagError naming the bag.
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ from gyro_ekf.io.batch_write import enable_chunk_crcs
 from gyro_ekf.io.errors import BagError
 from gyro_ekf.io.products import BAG_FILES, first_foreign, os_reason
 from gyro_ekf.io.sidecar import check_finite, params_of_trip, read_sidecar, sidecar_path
-from gyro_ekf.io.sidecar import to_yaml
+from gyro_ekf.io.sidecar import BagFingerprint, to_yaml
 
 __all__ = ['DEFAULT_EPOCH_NS', 'STORAGES', 'ProgressCallback', 'TopicPlan', 'claim_bag_target',
            'read_sidecar', 'sidecar_path', 'write_trip_bag']
@@ -255,7 +257,7 @@ def write_trip_bag(trip: Trip, path: Path | str, storage: str = 'mcap',
                        '(0 reads as "unset" in ROS)')
     params_path = claim_bag_target(path, force)
     plans = plan_topics(trip, int(start_time_ns))
-    params = params_of_trip(trip, int(start_time_ns), converted)
+    params = params_of_trip(trip, int(start_time_ns), converted, fingerprint(plans))
     check_finite(params)
     total = sum(p.stamps_ns.size for p in plans)
 
@@ -277,6 +279,19 @@ def write_trip_bag(trip: Trip, path: Path | str, storage: str = 'mcap',
         shutil.rmtree(aside, ignore_errors=True)
     log.info('%s: %d messages on %d topics (%s)', path, total, len(plans), storage)
     return path
+
+
+def fingerprint(plans: list[TopicPlan]) -> BagFingerprint:
+    """Return the fingerprint of the bag the plans make: count, first and last log time.
+
+    What rosbags then states in metadata.yaml (message_count, starting_time, duration),
+    so every reader of the sidecar finds its bag's (`sidecar.check_belongs`).
+    """
+    stamps = [p.stamps_ns for p in plans if p.stamps_ns.size]
+    if not stamps:
+        return BagFingerprint(0, 0, 0)
+    return BagFingerprint(sum(s.size for s in stamps), min(int(s[0]) for s in stamps),
+                          max(int(s[-1]) for s in stamps))
 
 
 def _write(plans: list[TopicPlan], staged: Path, plugin: StoragePlugin, total: int,

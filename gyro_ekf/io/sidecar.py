@@ -10,6 +10,10 @@ exactly what rosbag2 expects). It is a ROS 2 parameters file, so nodes take it w
           name: data019b
           log_time_zero_ns: 1700000000000000000   # bag stamp of the log's time zero
           static_duration_s: 0.0
+          bag:                                    # the bag this file was written with
+            message_count: 26120
+            first_stamp_ns: 1700000000000000000   # its first and last message (log time)
+            last_stamp_ns: 1700000261190000000
           dropped_when_converted:                 # only when convert --skip-bad dropped any
             source: data019b.mat
             streams: [imu]                        # per stream: samples dropped, time breaks
@@ -33,6 +37,22 @@ All values are SI; names end in their unit. Unknown entries are left out (ROS pa
 no null). `trip.dropped_when_converted` keeps what `convert --skip-bad` dropped from the log
 with the bag, so a run on the bag counts it, and so does the EKF node, which declares these
 names (nodes/params.py; parallel lists: ROS parameters hold no lists of mappings).
+
+`trip.bag` is the fingerprint of the bag the file was written with: its message count and
+the log times of its first and last message. A params file copied from another trip would
+give this one that trip's initial pose, LiDAR mounts, noise and true bias, and every run and
+truth comparison would be silently wrong; so every reader compares the two (`check_belongs`)
+and refuses a mismatch in one line naming both files and both fingerprints. `read_bag` (run,
+calibrate, calibrate-mounts, demo) compares the messages it reads; `info` (after holding
+metadata.yaml to the data), `replay` and `read_sidecar` compare what metadata.yaml states.
+Neither costs another read of the data (metadata.yaml is a small file every opening of a
+bag reads), and both survive `gyro-ekf reindex`, which rebuilds the index and metadata.yaml
+from the same messages. Two trips simulated with the same settings and start that differ
+only in their seed have the same fingerprint (same count, same stamps): it tells trips
+apart, not seeds.
+A sidecar without `trip.bag` (written before it existed, or by hand) is taken unchecked, and
+`info` says so. The nodes do not declare `trip.bag.*` (a node has no bag to compare with;
+rclpy ignores names nobody declares).
 """
 
 from __future__ import annotations
@@ -40,7 +60,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import yaml
@@ -53,6 +73,33 @@ from gyro_ekf.io.errors import BagError
 
 SUFFIX = '.params.yaml'
 NOISE_KEYS = ('gyro_rad_s', 'speed_m_s', 'range_m', 'bearing_rad', 'landmark_m')
+
+
+class BagFingerprint(NamedTuple):
+    """What identifies a bag cheaply: its message count, first and last log time.
+
+    Attributes:
+        message_count: messages in the bag, all topics.
+        first_stamp_ns: log (receive) time of its first message, ns since the epoch.
+        last_stamp_ns: log time of its last message, ns since the epoch.
+    """
+
+    message_count: int
+    first_stamp_ns: int
+    last_stamp_ns: int
+
+    def describe(self) -> str:
+        """Say it in words, for a message naming two of them."""
+        if not self.message_count:
+            return 'no messages'
+        span_s = (self.last_stamp_ns - self.first_stamp_ns) / 1e9
+        return (f'{self.message_count} messages from {self.first_stamp_ns} to '
+                f'{self.last_stamp_ns} ns ({span_s:.3f} s)')
+
+
+BAG_PARAMETER = 'trip.bag'
+"""Where the fingerprint of the bag a sidecar was written with is recorded."""
+BAG_KEYS = BagFingerprint._fields
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,6 +117,8 @@ class BagParams:
         converted: what `convert --skip-bad` dropped from the log the bag was written from
             (an InputReport with source, dropped, first_index, samples_dropped and
             time_breaks), or None when it dropped nothing.
+        bag: the fingerprint of the bag the file was written with, or None when it has
+            none (written by an older gyro_ekf, or by hand).
     """
 
     name: str
@@ -80,6 +129,7 @@ class BagParams:
     noise: NoiseFigures = field(default_factory=NoiseFigures)
     true_gyro_bias_rad_s: FloatArray | None = None
     converted: InputReport | None = None
+    bag: BagFingerprint | None = None
 
 
 def sidecar_path(bag_path: Path | str) -> Path:
@@ -89,11 +139,13 @@ def sidecar_path(bag_path: Path | str) -> Path:
 
 
 def params_of_trip(trip: Trip, log_time_zero_ns: int,
-                   converted: InputReport | None = None) -> BagParams:
+                   converted: InputReport | None = None,
+                   bag: BagFingerprint | None = None) -> BagParams:
     """Collect the sidecar contents of a trip whose time zero is at `log_time_zero_ns`.
 
     `converted` is the report of the validation the trip passed on its way from a log; what
-    it dropped is recorded (a report that dropped nothing is left out).
+    it dropped is recorded (a report that dropped nothing is left out). `bag` is the
+    fingerprint of the bag written with it.
     """
     return BagParams(
         name=trip.name, log_time_zero_ns=int(log_time_zero_ns),
@@ -103,7 +155,8 @@ def params_of_trip(trip: Trip, log_time_zero_ns: int,
         noise=trip.noise,
         true_gyro_bias_rad_s=None if trip.true_gyro_bias_rad_s is None else np.asarray(
             trip.true_gyro_bias_rad_s, dtype=np.float64),
-        converted=converted if converted is not None and converted.total_dropped else None)
+        converted=converted if converted is not None and converted.total_dropped else None,
+        bag=bag)
 
 
 CONVERTED_PARAMETER = 'trip.dropped_when_converted'
@@ -186,6 +239,8 @@ def to_yaml(params: BagParams) -> str:
                  'static_duration_s': float(params.static_duration_s)},
         'initial_pose': {'x_m': x, 'y_m': y, 'yaw_rad': yaw},
     }
+    if params.bag is not None:
+        values['trip']['bag'] = {key: int(value) for key, value in params.bag._asdict().items()}
     if params.converted is not None and params.converted.total_dropped:
         values['trip']['dropped_when_converted'] = _converted_values(params.converted)
     if params.lidars:
@@ -201,7 +256,8 @@ def to_yaml(params: BagParams) -> str:
     if params.true_gyro_bias_rad_s is not None:
         values['true_gyro_bias_rad_s'] = [float(v) for v in params.true_gyro_bias_rad_s]
     header = ('# gyro_ekf bag parameters (SI): LiDAR mounts per scan topic, initial pose,\n'
-              '# noise figures the log states and the injected gyro bias when known.\n')
+              '# noise figures the log states and the injected gyro bias when known;\n'
+              '# trip.bag: the bag written with this file (refused beside another bag).\n')
     return header + yaml.safe_dump({'/**': {'ros__parameters': values}}, sort_keys=False,
                                    default_flow_style=False)
 
@@ -286,14 +342,101 @@ def parse_yaml(text: str, path: Path) -> BagParams:
         noise=NoiseFigures(**{k: float(noise[k]) if k in noise else None
                               for k in NOISE_KEYS}),
         true_gyro_bias_rad_s=bias,
-        converted=_parse_converted(tree, path))
+        converted=_parse_converted(tree, path),
+        bag=_parse_fingerprint(tree, path))
 
 
-def read_sidecar(bag_path: Path | str) -> BagParams | None:
-    """Read the params file beside bag folder `bag_path`; None when there is none.
+def _parse_fingerprint(tree: dict[str, Any], path: Path) -> BagFingerprint | None:
+    """Read `trip.bag` back, or None without it (a sidecar written before it existed).
 
     Raises:
-        BagError: the file exists but cannot be read or parsed.
+        BagError: `trip.bag` given in part, or an entry that is no non-negative whole number
+            (a fingerprint in part would check nothing and pass for one).
+    """
+    trip = tree.get('trip')
+    if not isinstance(trip, dict) or 'bag' not in trip:
+        return None
+    values = [_get(tree, f'{BAG_PARAMETER}.{key}', int, path) for key in BAG_KEYS]
+    fingerprint = BagFingerprint(*values)
+    if min(values) < 0 or fingerprint.first_stamp_ns > fingerprint.last_stamp_ns:
+        raise BagError(f"{path.name}: parameter '{BAG_PARAMETER}': expected non-negative "
+                       f'whole numbers, the first stamp not after the last, got '
+                       f'{dict(fingerprint._asdict())}')
+    return fingerprint
+
+
+def fingerprint_of(meta: dict[str, Any], bag_path: Path) -> BagFingerprint:
+    """Return the fingerprint a bag's metadata.yaml states (rosbag2_bagfile_information).
+
+    Raises:
+        BagError: an entry missing or no whole number, naming metadata.yaml.
+    """
+    try:
+        count = meta['message_count']
+        start = meta['starting_time']['nanoseconds_since_epoch']
+        duration = meta['duration']['nanoseconds']
+    except (KeyError, TypeError) as err:
+        raise BagError(f"{bag_path / 'metadata.yaml'}: missing or invalid entry {err}"
+                       ) from None
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in (count, start, duration)):
+        raise BagError(f"{bag_path / 'metadata.yaml'}: message_count, starting_time and "
+                       f'duration must be whole numbers, got {count!r}, {start!r}, '
+                       f'{duration!r}')
+    return stated_fingerprint(count, start, duration)
+
+
+def stated_fingerprint(message_count: int, starting_time_ns: int,
+                       duration_ns: int) -> BagFingerprint:
+    """Return the fingerprint of a bag stating these (metadata.yaml's entries, ns).
+
+    rosbag2 states the span from the first to the last message's log time; a bag of no
+    messages states no start (the largest int64) and is (0, 0, 0).
+    """
+    if not message_count:
+        return BagFingerprint(0, 0, 0)
+    return BagFingerprint(message_count, starting_time_ns, starting_time_ns + duration_ns)
+
+
+def check_belongs(bag_path: Path | str, params: BagParams | None, found: BagFingerprint,
+                  source: str = 'as its metadata.yaml states') -> None:
+    """Refuse a sidecar written with another bag than the one at `bag_path`.
+
+    A sidecar without a fingerprint (params.bag None, an older gyro_ekf's) passes: there is
+    nothing to compare, and refusing it would break every bag written before.
+
+    Args:
+        bag_path: the bag folder.
+        params: its sidecar as read, or None when it has none.
+        found: the bag's own fingerprint (`fingerprint_of` its metadata.yaml, or what a
+            read of its messages found).
+        source: where `found` comes from, for the message.
+
+    Raises:
+        BagError: one line naming the sidecar, the bag and both fingerprints.
+    """
+    if params is None or params.bag is None or params.bag == found:
+        return
+    bag_path = Path(bag_path)
+    raise BagError(
+        f'{sidecar_path(bag_path)}: belongs to a bag of {params.bag.describe()}; bag '
+        f'{bag_path} has {found.describe()} ({source}): a params file of another trip would '
+        'give this one its initial pose, LiDAR mounts, noise and true bias; put the params '
+        'file written with this bag beside it')
+
+
+def read_sidecar(bag_path: Path | str, check: bool = True) -> BagParams | None:
+    """Read the params file beside bag folder `bag_path`; None when there is none.
+
+    Args:
+        bag_path: the bag folder.
+        check: refuse a sidecar whose fingerprint (`trip.bag`) is not what the bag's
+            metadata.yaml states (`check_belongs`); False leaves that to the caller. A
+            folder without metadata.yaml has no bag to compare with (and every reader of
+            the bag refuses it).
+
+    Raises:
+        BagError: the file exists but cannot be read or parsed, or (check) it was written
+            with another bag.
     """
     path = sidecar_path(bag_path)
     if not path.exists():
@@ -304,7 +447,13 @@ def read_sidecar(bag_path: Path | str) -> BagParams | None:
         raise BagError(f'{path}: cannot read: {err}') from None
     except UnicodeDecodeError as err:
         raise BagError(f'{path}: not UTF-8 text (byte {err.start}): not a params file') from None
-    return parse_yaml(text, path)
+    params = parse_yaml(text, path)
+    bag_path = Path(bag_path)
+    if check and params.bag is not None and (bag_path / 'metadata.yaml').is_file():
+        from gyro_ekf.io.bag_open import metadata  # bag_open imports this module
+
+        check_belongs(bag_path, params, fingerprint_of(metadata(bag_path), bag_path))
+    return params
 
 
 def check_finite(params: BagParams) -> None:

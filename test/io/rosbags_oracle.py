@@ -27,7 +27,7 @@ from gyro_ekf.io.bag_sinks import (
     SCAN_CHECKED, SCAN_GEOMETRY, ScanData, check_imu_axes, check_scans, has_acceleration,
     header_stamps_ns)
 from gyro_ekf.io.errors import BagError
-from gyro_ekf.io.sidecar import read_sidecar
+from gyro_ekf.io.sidecar import BagFingerprint, check_belongs, read_sidecar
 
 
 class _Topic:
@@ -104,8 +104,8 @@ def read_bag_rosbags(path: Path | str, acceleration: bool = True) -> BagTrip:
     path = Path(path)
     reader = open_bag(path)
     try:
-        params = read_sidecar(path)
-        by_topic, _ = topic_connections(path, reader, params)
+        params = read_sidecar(path, check=False)     # held to the messages read, below
+        by_topic, counts = topic_connections(path, reader, params)
         start = reader.start_time if reader.message_count else 0
     finally:
         reader.close()
@@ -120,7 +120,9 @@ def read_bag_rosbags(path: Path | str, acceleration: bool = True) -> BagTrip:
     truth = _Topic(GROUND_TRUTH_TOPIC)
     scans: dict[str, _Topic] = {t: _Topic(t) for t in scan_topics}
     singles: dict[str, list[Any]] = {MAP_TOPIC: [], INITIAL_POSE_TOPIC: []}
+    log_times: list[int] = []
     for topic, _, log_ns, message in iter_bag_messages(path, wanted):
+        log_times.append(log_ns)
         if topic == IMU_TOPIC:
             # Every message is judged, as by the reader (bag_sinks.check_imu_axes).
             axes_known = check_imu_axes(path, topic, imu.n,
@@ -141,6 +143,11 @@ def read_bag_rosbags(path: Path | str, acceleration: bool = True) -> BagTrip:
             truth.add(path, log_ns, message, msgs.pose_of(message.pose.pose))
         elif topic in singles:
             singles[topic].append(message)
+    # The messages the bag holds (before copies are dropped); topics not read as stated.
+    unread = sum(n for topic, n in counts.items() if topic not in wanted)
+    check_belongs(path, params, BagFingerprint(
+        len(log_times) + unread, min(log_times, default=0), max(log_times, default=0)),
+        'as its messages hold')
     stamped = [imu, odom, *scans.values()] + ([truth] if GROUND_TRUTH_TOPIC in by_topic else [])
     duplicates = {t.topic: n for t in stamped if (n := t.drop_duplicates(path))}
     zero = time_zero(path, params, [_Firsts(t) for t in (imu, odom, *scans.values())],

@@ -308,9 +308,10 @@ def test_a_misspelt_parameter_is_warned_about_naming_the_one_meant(ros_env, tmp_
 def test_a_sidecar_recording_what_convert_dropped_is_taken_without_a_warning(
         ros_env, tmp_path):
     # The record of what convert --skip-bad dropped: rclpy must parse it, the EKF node
-    # declares it, and no name of it may pass for a misspelt parameter.
+    # declares it, and no name of it may pass for a misspelt parameter. The same for the
+    # fingerprint of the bag (trip.bag.*), which the node does not declare.
     from gyro_ekf.core.validation import InputReport
-    from gyro_ekf.io.sidecar import BagParams, sidecar_path, to_yaml
+    from gyro_ekf.io.sidecar import BagFingerprint, BagParams, sidecar_path, to_yaml
 
     dropped = InputReport(source='IMU_dataC.mat, Speed_dataC.mat', skip_bad=True)
     dropped.count('imu.angular_velocity.z', 'not finite', 20000, 10)
@@ -318,9 +319,11 @@ def test_a_sidecar_recording_what_convert_dropped_is_taken_without_a_warning(
     dropped.samples_dropped.update({'imu': 10, 'speed': 2})
     dropped.time_breaks['speed'] = 1
     sidecar = sidecar_path(tmp_path / 'bag')
-    sidecar.write_text(to_yaml(BagParams(name='trip', log_time_zero_ns=1_700_000_000 * 10**9,
-                                         converted=dropped)))
+    sidecar.write_text(to_yaml(BagParams(
+        name='trip', log_time_zero_ns=1_700_000_000 * 10**9, converted=dropped,
+        bag=BagFingerprint(26120, 1_700_000_000 * 10**9, 1_700_000_261 * 10**9))))
     assert 'dropped_when_converted' in sidecar.read_text()
+    assert 'last_stamp_ns: 1700000261000000000' in sidecar.read_text()
     stderr = _run_until_logged(ros_env, tmp_path, 'ekf_node', ['--params-file', str(sidecar)],
                                'EKF ready')
     assert 'is not a parameter of this node' not in stderr, stderr
