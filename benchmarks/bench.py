@@ -70,14 +70,15 @@ def core_benchmark(steps: int = 20_000, dt_s: float = 0.005, seed: int = 0
     from gyro_ekf.core.ekf import GyroBiasEkf
     from gyro_ekf.core.types import LidarMount
 
-    # The report's model: filterpy's R is one matrix, without the per-landmark map term.
+    # The report's model with the gyro's wander modelled (the five states every step of a
+    # gyro that wanders computes); filterpy's R is one matrix, without the map's term.
     config = EkfConfig(initial_position_sigma_m=0.1, initial_yaw_sigma_rad=0.05,
-                       landmark_sigma_m=0.0)
+                       landmark_sigma_m=0.0, gyro_wander_rad_s=math.radians(0.03))
     mount = LidarMount(0.4, 0.0, 0.0)
     data = _inputs(steps, seed)
     ours = GyroBiasEkf(config, pose=[0.0, 0.0, 0.3], bias_rad_s=0.0)
-    theirs = ExtendedKalmanFilter(dim_x=4, dim_z=2)
-    theirs.x = ours.x.reshape(4, 1).copy()
+    theirs = ExtendedKalmanFilter(dim_x=5, dim_z=2)
+    theirs.x = ours.x.reshape(5, 1).copy()
     theirs.P = ours.P.copy()
     theirs.R = ours.R.copy()
     z_all = np.empty((steps, 2))
@@ -105,12 +106,14 @@ def core_benchmark(steps: int = 20_000, dt_s: float = 0.005, seed: int = 0
         t2 = clock()
         # filterpy: same model; F, Q and f(x) computed per step as its API requires.
         x = theirs.x.ravel()
-        theirs.F = models.process_jacobian(x, speed, dt_s)
+        tau = config.gyro_wander_tau_s
+        theirs.F = models.process_jacobian(x, speed, dt_s, tau)
         theirs.Q = models.process_noise(x, dt_s, config.speed_noise_m_s,
                                         config.gyro_noise_rad_s,
                                         config.position_random_walk_m_sqrt_s,
-                                        config.bias_random_walk_rad_s2)
-        theirs.x = models.predict_state(x, speed, rate, dt_s).reshape(4, 1)
+                                        config.bias_random_walk_rad_s2,
+                                        config.gyro_wander_rad_s, tau)
+        theirs.x = models.predict_state(x, speed, rate, dt_s, tau).reshape(5, 1)
         theirs.P = theirs.F @ theirs.P @ theirs.F.T + theirs.Q
         t3 = clock()
         theirs.update(z.reshape(2, 1),

@@ -128,6 +128,10 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'largest_reopening_deg_s': _deg(float(run.result.stats.bias_largest_opening_rad_s)),
         'gyro_noise_scale': float(run.result.stats.gyro_noise_scale),
         'gyro_noise_scale_max': float(run.result.stats.gyro_noise_scale_max),
+        # The gyro's wander found in the data and modelled (core/gyro_wander.py): its
+        # stationary sigma (0: none found) and when it was first found (null: never).
+        'gyro_wander_deg_s': _deg(float(run.result.stats.gyro_wander_rad_s)),
+        'gyro_wander_found_s': run.result.stats.gyro_wander_found_s,
         # A ramping bias followed (core/bias_rate.py): the rate in use at the end, the
         # largest used, and how often one came into use.
         'rate_deg_s_per_min': _deg(float(run.result.stats.bias_rate_rad_s2)) * 60.0,

@@ -91,6 +91,9 @@ def _table(summary: dict[str, Any]) -> str:
     rows += [('online bias, final (deg/s)', number(online['final_deg_s'], '.4f')),
              ('online bias, last-half mean (deg/s)', number(online['last_half_mean_deg_s'],
                                                             '.4f')),
+             ('gyro wander (deg/s)', 'none found' if online['gyro_wander_found_s'] is None
+              else number(online['gyro_wander_deg_s'], '.4f')
+              + f" (found at {online['gyro_wander_found_s']:.0f} s)"),
              ('poles associated', number(summary['association']['share_associated'], '.2%')),
              ('longest gap without a landmark (s)',
               number(summary['association']['longest_gap_s'], '.2f')),

@@ -181,8 +181,9 @@ def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
 
     Args:
         z: observations, shape (n, 2): range m, bearing rad (ROS convention, 0 = forward).
-        state: platform state [x m, y m, yaw rad, bias rad/s], shape (4,).
-        P: state covariance, shape (4, 4).
+        state: platform state [x m, y m, yaw rad, bias rad/s (, wander rad/s)], shape (4,)
+            or (5,): an estimate's four entries, or the filter's five.
+        P: state covariance, shape (4, 4) or (5, 5).
         R: observation noise covariance, shape (2, 2), [m^2, rad^2].
         landmarks_xy_m: landmark positions in the map frame, shape (k, 2), m.
         mount: the LiDAR's pose on the platform.
@@ -199,8 +200,15 @@ def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
     z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
     landmarks = np.asarray(landmarks_xy_m, dtype=np.float64).reshape(-1, 2)
     if 0 < z.shape[0] * landmarks.shape[0] <= SCALAR_PAIRS_MAX:
-        row = np.concatenate([np.asarray(state, dtype=np.float64).ravel(),
-                              np.asarray(P, dtype=np.float64)[_UPPER_TRIANGLE]]).tolist()
+        state = np.asarray(state, dtype=np.float64).ravel()
+        P = np.asarray(P, dtype=np.float64)
+        if state.size < STATE_SIZE:
+            # An estimate without the wander: h does not depend on it, so a wander of 0
+            # with no variance changes nothing but the kernel's layout.
+            full = np.zeros((STATE_SIZE, STATE_SIZE))
+            full[:state.size, :state.size] = P
+            state, P = np.r_[state, np.zeros(STATE_SIZE - state.size)], full
+        row = np.concatenate([state, P[_UPPER_TRIANGLE]]).tolist()
         return _associate_scalar(z.tolist(), row, R, landmarks.tolist(), mount, threshold,
                                  landmark_var_m2)
     d2 = mahalanobis_sq(z, state, P, R, landmarks, mount, landmark_var_m2)

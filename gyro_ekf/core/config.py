@@ -75,6 +75,19 @@ class EkfConfig:
         0.0, 'rad/s', 'Bias state at start when no calibration seeds it.', -1.0, 1.0)
     initial_bias_sigma_rad_s: float = config_field(
         2.0 * DEG, 'rad/s', 'Prior sigma of the bias (P0 bias term).', 0.0, 1.0)
+    # The wander's correlation time is not learned: on simulated wanders of 0.5-5 s a filter
+    # told the true sigma with tau 2 s did as well as one told the true tau (docs/stress.md).
+    gyro_wander_rad_s: float = config_field(
+        0.0, 'rad/s', 'Stated gyro wander: stationary sigma of a Gauss-Markov part of the '
+        'yaw-rate error that reverts over gyro_wander_tau_s (the filter\'s fifth state). 0: '
+        'none stated; learn_gyro_wander raises it when the heading shows a larger one.',
+        0.0, 1.0)
+    gyro_wander_tau_s: float = config_field(
+        2.0, 's', 'Correlation time of the gyro wander (first-order Gauss-Markov).', 0.01, 1e4)
+    learn_gyro_wander: bool = config_field(
+        True, '', 'Estimate the gyro wander from the heading the landmark updates correct, '
+        'block after block of driving (core/gyro_wander.py), and model it once it is '
+        'beyond chance.')
     initial_position_sigma_m: float = config_field(
         0.0, 'm', 'Prior sigma of x and y (P0); 0 trusts the initial pose exactly.', 0.0, 100.0)
     initial_yaw_sigma_rad: float = config_field(

@@ -1,4 +1,4 @@
-"""Extended Kalman filter for pose and gyro bias: state [x, y, yaw, b].
+"""Extended Kalman filter for pose and gyro bias: state [x, y, yaw, b, c].
 
 The models are those of the MTRN4010 Project 3 report
 (``../shared/course-notes/003_3aeb4dcf00f2eae3.txt``), written out once in ``models.py``:
@@ -32,11 +32,16 @@ The odometry's speed scale, while not yet known, adds to q^2 of x and y
 (``odometry_walk``, ``odometry_online.walk_density``).
 
 Standing still (the driver decides when, ``events.py``), a gyro sample w measures the bias
-alone: z = w, h(x) = b, H = [0, 0, 0, 1] (a zero-rate update, ``update_zero_rate``), and the
-prediction holds the position (no translation, no speed noise).
+alone: z = w, h(x) = b + c, H = [0, 0, 0, 1, 1] (a zero-rate update, ``update_zero_rate``),
+and the prediction holds the position (no translation, no speed noise).
+
+The fifth state c is the gyro's wander (``models.py``): a Gauss-Markov process of
+correlation time ``gyro_wander_tau_s`` and stationary sigma ``wander_sigma_rad_s``, 0 until
+the data show one (``core/gyro_wander.py``). While it is 0, c and its covariance stay 0 and
+the first four states are the report's filter exactly; b is the bias reported.
 
 ``GyroBiasEkf`` runs these lines through the private kernel ``_ekf_kernel.py``: the same
-arithmetic unrolled on plain floats for the report's four states, since at this size
+arithmetic unrolled on plain floats for these five states, since at this size
 numpy's per-call overhead costs several times the arithmetic (`make bench` compares it with
 filterpy). Tests check the kernel against ``Textbook`` to 1e-12; ``textbook=True`` runs
 the filter on ``Textbook`` itself, as does a state the kernel does not cover.
@@ -53,7 +58,7 @@ from gyro_ekf.core.angles import wrap_angle, wrap_scalar
 from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.models import BEARING, RANGE
-from gyro_ekf.core.types import BIAS, STATE_SIZE, X, Y, YAW, FloatArray, LidarMount
+from gyro_ekf.core.types import BIAS, STATE_SIZE, WANDER, X, Y, YAW, FloatArray, LidarMount
 
 _NO_MOUNT = LidarMount()
 
@@ -88,17 +93,21 @@ def _full(packed: list[float]) -> FloatArray:
 
 
 def unpack_rows(rows: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Split ``GyroBiasEkf.packed_row`` rows (n, 14) into states (n, 4) and P (n, 4, 4)."""
+    """Split ``GyroBiasEkf.packed_row`` rows (n, 20) into states (n, 5) and P (n, 5, 5)."""
     rows = np.asarray(rows, dtype=np.float64).reshape(-1, PACKED_ROW_SIZE)
     return rows[:, :STATE_SIZE], rows[:, STATE_SIZE + _PACKED]
 
 
 def initial_covariance(config: EkfConfig) -> FloatArray:
-    """P0 = diag(sigma_pos^2, sigma_pos^2, sigma_yaw^2, sigma_b^2), shape (4, 4)."""
+    """P0 = diag(sigma_pos^2, sigma_pos^2, sigma_yaw^2, sigma_b^2, sigma_c^2), shape (5, 5).
+
+    sigma_c is the stated wander's stationary sigma (0 unless configured).
+    """
     P0 = np.zeros((STATE_SIZE, STATE_SIZE))
     P0[X, X] = P0[Y, Y] = config.initial_position_sigma_m ** 2
     P0[YAW, YAW] = config.initial_yaw_sigma_rad ** 2
     P0[BIAS, BIAS] = config.initial_bias_sigma_rad_s ** 2
+    P0[WANDER, WANDER] = config.gyro_wander_rad_s ** 2
     return P0
 
 
@@ -134,7 +143,8 @@ class Textbook:
     @staticmethod
     def predict(s: list[float], p: list[float], speed_m_s: float, rate_rad_s: float,
                 dt_s: float, speed_var: float, rate_var: float, position_walk_var: float,
-                bias_walk_var: float, hold_position: bool) -> tuple[list[float], list[float]]:
+                bias_walk_var: float, hold_position: bool, wander_sigma_rad_s: float,
+                wander_tau_s: float) -> tuple[list[float], list[float]]:
         """Predict: x = f(x, u); P = J P J^T + Q.
 
         Held (standing still) the speed and its noise are zero: the odometry's zero is
@@ -143,10 +153,11 @@ class Textbook:
         x, P = np.array(s), _full(p)
         if hold_position:
             speed_m_s, speed_var = 0.0, 0.0
-        J = models.process_jacobian(x, speed_m_s, dt_s)
+        J = models.process_jacobian(x, speed_m_s, dt_s, wander_tau_s)
         Q = models.process_noise(x, dt_s, math.sqrt(speed_var), math.sqrt(rate_var),
-                                 math.sqrt(position_walk_var), math.sqrt(bias_walk_var))
-        x = models.predict_state(x, speed_m_s, rate_rad_s, dt_s)
+                                 math.sqrt(position_walk_var), math.sqrt(bias_walk_var),
+                                 wander_sigma_rad_s, wander_tau_s)
+        x = models.predict_state(x, speed_m_s, rate_rad_s, dt_s, wander_tau_s)
         P = J @ P @ J.T + Q
         return x.tolist(), _packed(P)
 
@@ -174,7 +185,7 @@ class Textbook:
     @staticmethod
     def update_bias(s: list[float], p: list[float], rate_rad_s: float, variance: float
                     ) -> tuple[list[float], list[float], float]:
-        """Zero-rate update: y = w - h(x) with h = b, H = [0, 0, 0, 1], R = [[variance]].
+        """Zero-rate update: y = w - h(x) with h = b + c, H = [0, 0, 0, 1, 1], R = [[variance]].
 
         Returns:
             s, p, NIS.
@@ -199,15 +210,15 @@ def _correct(x: FloatArray, P: FloatArray, y: FloatArray, H: FloatArray, R: Floa
 
 
 class GyroBiasEkf:
-    """EKF over [x, y, yaw, bias] with speed/yaw-rate inputs and landmark updates.
+    """EKF over [x, y, yaw, bias, wander] with speed/yaw-rate inputs and landmark updates.
 
     Attributes (arrays are fresh copies; change the filter through its methods):
-        x: state estimate, shape (4,): m, m, rad, rad/s.
-        P: state covariance, shape (4, 4), symmetric.
+        x: state estimate, shape (5,): m, m, rad, rad/s, rad/s.
+        P: state covariance, shape (5, 5), symmetric.
         x_prior, P_prior: state and covariance before the last update.
         y: last innovation, shape (2,): m, rad.
         S: last innovation covariance, shape (2, 2).
-        K: last Kalman gain, shape (4, 2).
+        K: last Kalman gain, shape (5, 2).
         nis: last normalised innovation squared y^T S^-1 y.
         R: sensor noise covariance, shape (2, 2) (``observation_noise`` adds the map's).
         landmark_var_m2: variance of a landmark's map position along any axis, m^2.
@@ -222,12 +233,12 @@ class GyroBiasEkf:
             config: noise model and priors; defaults to EkfConfig().
             pose: initial pose, shape (3,); zeros when None.
             bias_rad_s: initial bias; config.initial_bias_rad_s when None.
-            covariance: initial P, shape (4, 4); initial_covariance(config) when None.
+            covariance: initial P, shape (5, 5); initial_covariance(config) when None.
             textbook: compute with ``Textbook`` (numpy, any state size) instead of the
                 private kernel: slower, the same numbers to rounding.
         """
         self.config = config or EkfConfig()
-        # The kernel covers the report's four states only; any other state is textbook.
+        # The kernel covers these five states only; any other state is textbook.
         self._maths = (_ekf_kernel if not textbook and STATE_SIZE == _ekf_kernel.STATE_SIZE
                        else Textbook)
         self._r_range = self.config.range_noise_m ** 2
@@ -249,6 +260,10 @@ class GyroBiasEkf:
         self.bias_rate_found = 0.0
         # A factor on the gyro's noise variance found in the data (core/bias_watch.py).
         self.rate_noise_scale = 1.0
+        # The wander's stationary sigma (rad/s): the stated one until the data show a
+        # larger one (core/gyro_wander.py); its correlation time is configured.
+        self.wander_sigma_rad_s = self.config.gyro_wander_rad_s
+        self._wander_tau_s = self.config.gyro_wander_tau_s
         self.reset(pose, bias_rad_s, covariance)
 
     # State: _s, a list of plain floats; covariance: _p, P's upper triangle (see _UPPER).
@@ -256,12 +271,12 @@ class GyroBiasEkf:
 
     @property
     def x(self) -> FloatArray:
-        """State estimate, shape (4,)."""
+        """State estimate, shape (5,)."""
         return np.array(self._s)
 
     @property
     def P(self) -> FloatArray:
-        """State covariance, shape (4, 4)."""
+        """State covariance, shape (5, 5)."""
         return _full(self._p)
 
     @property
@@ -271,8 +286,13 @@ class GyroBiasEkf:
 
     @property
     def bias_rad_s(self) -> float:
-        """Bias estimate, rad/s."""
+        """Bias estimate, rad/s (its constant part: the wander is apart)."""
         return self._s[BIAS]
+
+    @property
+    def wander_rad_s(self) -> float:
+        """The wander's estimate now, rad/s: the gyro reads b + c (+ noise) at rest."""
+        return self._s[WANDER]
 
     @property
     def bias_var(self) -> float:
@@ -281,12 +301,12 @@ class GyroBiasEkf:
 
     @property
     def x_prior(self) -> FloatArray:
-        """State before the last update, shape (4,)."""
+        """State before the last update, shape (5,)."""
         return np.array(self._s_prior)
 
     @property
     def P_prior(self) -> FloatArray:
-        """Covariance before the last update, shape (4, 4)."""
+        """Covariance before the last update, shape (5, 5)."""
         return _full(self._p_prior)
 
     @property
@@ -312,7 +332,7 @@ class GyroBiasEkf:
 
     @property
     def K(self) -> FloatArray:
-        """Last Kalman gain, shape (4, 2)."""
+        """Last Kalman gain, shape (5, 2)."""
         return np.array(self._K).reshape(STATE_SIZE, 2)
 
     def reset(self, pose: FloatArray | None = None, bias_rad_s: float | None = None,
@@ -323,7 +343,8 @@ class GyroBiasEkf:
         P = (initial_covariance(self.config) if covariance is None
              else np.asarray(covariance, dtype=np.float64))
         if P.shape != (STATE_SIZE, STATE_SIZE):
-            raise CoreError(f'initial covariance has shape {P.shape}, expected (4, 4)')
+            raise CoreError(f'initial covariance has shape {P.shape}, '
+                            f'expected ({STATE_SIZE}, {STATE_SIZE})')
         # A NaN here would surface much later as "SVD did not converge" in an update.
         if pose.shape != (3,) or not np.isfinite(pose).all() or not math.isfinite(bias):
             raise CoreError(f'initial state {pose.tolist()} with bias {bias} is not finite')
@@ -353,22 +374,25 @@ class GyroBiasEkf:
         self._s, self._p = list(s), list(p)
 
     def packed_row(self) -> list[float]:
-        """Return the state and the covariance's upper triangle as 14 plain floats.
+        """Return the state and the covariance's upper triangle as 20 plain floats.
 
-        Order: x, y, yaw, b, then P row by row (p00, p01, p02, p03, p11, p12, p13, p22,
-        p23, p33); ``unpack_rows`` turns a stack of them back into states and covariances.
+        Order: x, y, yaw, b, c, then P row by row (p00, p01, p02, p03, p04, p11, ..., p33,
+        p34, p44); ``unpack_rows`` turns a stack of them back into states and covariances.
         For callers that keep every estimate: building two arrays per step would cost more
         than the step.
         """
         return self._s + self._p
 
     def set_pose(self, pose: FloatArray, pose_covariance: FloatArray) -> None:
-        """Replace the pose and its 3x3 covariance; keep the bias, its variance, drop coupling."""
-        bias, bias_var = self._s[BIAS], self.bias_var
+        """Replace the pose and its 3x3 covariance; keep bias and wander, drop their coupling."""
+        bias, wander = self._s[BIAS], self._s[WANDER]
+        P = self.P
         covariance = np.zeros((STATE_SIZE, STATE_SIZE))
         covariance[np.ix_(_POSE, _POSE)] = pose_covariance
-        covariance[BIAS, BIAS] = bias_var
+        gyro = [BIAS, WANDER]
+        covariance[np.ix_(gyro, gyro)] = P[np.ix_(gyro, gyro)]
         self.reset(pose, bias, covariance)
+        self._s[WANDER] = wander
 
     def set_bias(self, bias_rad_s: float, sigma_rad_s: float) -> None:
         """Seed the bias state and its variance (e.g. from a static calibration)."""
@@ -394,13 +418,13 @@ class GyroBiasEkf:
         self._p[_PACKED[BIAS, BIAS]] += float(variance)
 
     def hold_still(self, dt_s: float) -> None:
-        """Propagate over dt_s seconds standing still at a pose known exactly: only b moves.
+        """Propagate over dt_s seconds standing still at a pose known exactly: only b, c move.
 
         The platform has not left a start pose given with no uncertainty
         (``core/held_start.py``): x, y and yaw neither move nor grow uncertain (a gyro at
         rest shows its bias and noise, not a turn), and with P of the pose 0 a landmark
-        update moves nothing but judges the pose. The bias keeps its random walk and rate;
-        the zero-rate updates learn it.
+        update moves nothing but judges the pose. The bias keeps its random walk and rate,
+        the wander its decay; the zero-rate updates learn them.
         """
         if dt_s <= 0.0:
             return
@@ -411,6 +435,14 @@ class GyroBiasEkf:
         self._p[_PACKED[BIAS, BIAS]] += dt_s * dt_s * bias_walk
         if self.bias_rate_found:
             self._s[BIAS] += dt_s * self.bias_rate_found
+        # J = I but J[WANDER, WANDER] = phi (as predict's), Q adds s^2 (1 - phi^2) to c.
+        phi = models.wander_decay(dt_s, self._wander_tau_s)
+        self._s[WANDER] *= phi
+        for i in range(WANDER):
+            self._p[_PACKED[i, WANDER]] *= phi
+        sigma2 = self.wander_sigma_rad_s * self.wander_sigma_rad_s
+        k = _PACKED[WANDER, WANDER]
+        self._p[k] = phi * phi * self._p[k] + sigma2 * (1.0 - phi * phi)
 
     def predict(self, speed_m_s: float, rate_rad_s: float, dt_s: float,
                 speed_variance: float | None = None, rate_variance: float | None = None,
@@ -435,7 +467,8 @@ class GyroBiasEkf:
         self._s, self._p = self._maths.predict(
             self._s, self._p, float(speed_m_s), float(rate_rad_s), float(dt_s),
             self._sigma_v2 if speed_variance is None else speed_variance, rate_var,
-            self._q_pos2 + self.odometry_walk, bias_walk, hold_position)
+            self._q_pos2 + self.odometry_walk, bias_walk, hold_position,
+            self.wander_sigma_rad_s, self._wander_tau_s)
         if self.bias_rate_found:
             # b += T b' (the bias ramps; core/bias_rate.py): J's bias row is still [0 0 0 1].
             self._s[BIAS] += dt_s * self.bias_rate_found

@@ -101,6 +101,9 @@ class DriverStats:
         gyro_noise_scale: the factor on the gyro's noise variance the innovations asked for
             (1: as stated).
         gyro_noise_scale_max: the largest such factor of the run so far.
+        gyro_wander_rad_s: the gyro wander's sigma found in the data (core/gyro_wander.py),
+            rad/s (0: none found).
+        gyro_wander_found_s: when it was first found, s (None: not found).
         bias_rate_rad_s2: the rate of the bias in use now (core/bias_rate.py), rad/s^2
             (0: none).
         bias_rate_found: times a bias rate came into use.
@@ -128,6 +131,8 @@ class DriverStats:
     bias_largest_opening_rad_s: float = 0.0
     gyro_noise_scale: float = 1.0
     gyro_noise_scale_max: float = 1.0
+    gyro_wander_rad_s: float = 0.0
+    gyro_wander_found_s: float | None = None
     bias_rate_rad_s2: float = 0.0
     bias_rate_found: int = 0
     bias_largest_rate_rad_s2: float = 0.0
@@ -152,6 +157,8 @@ class DriverStats:
                 'bias_largest_opening_rad_s': self.bias_largest_opening_rad_s,
                 'gyro_noise_scale': self.gyro_noise_scale,
                 'gyro_noise_scale_max': self.gyro_noise_scale_max,
+                'gyro_wander_rad_s': self.gyro_wander_rad_s,
+                'gyro_wander_found_s': self.gyro_wander_found_s,
                 'bias_rate_rad_s2': self.bias_rate_rad_s2,
                 'bias_rate_found': self.bias_rate_found,
                 'bias_largest_rate_rad_s2': self.bias_largest_rate_rad_s2}

@@ -43,6 +43,7 @@ from gyro_ekf.core.association import (AssociationOutcome, AssociationResult,
                                        associate_by_distance, associate_packed)
 from gyro_ekf.core.bias_rate import BiasRate
 from gyro_ekf.core.bias_watch import BiasWatch
+from gyro_ekf.core.gyro_wander import GyroWander
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
@@ -55,7 +56,8 @@ from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
 from gyro_ekf.core.noise_online import NoiseMatch
 from gyro_ekf.core.odometry_online import (Moved, OdometrySettings, OdometryTracker,
                                            midpoint_yaw)
-from gyro_ekf.core.types import BIAS, YAW, FloatArray, LandmarkMap, LidarMount
+from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, YAW, FloatArray, LandmarkMap,
+                                 LidarMount)
 
 
 _NO_NIS = np.zeros(0)
@@ -103,6 +105,7 @@ class EventDriver:
         self.health = HealthMonitor(self.config)
         self.bias_watch = BiasWatch()
         self.bias_rate = BiasRate(self.config.bias_rate_window_s)
+        self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
         # Each LiDAR's range and bearing noise, measured online (core/noise_online.py).
         self.noise: dict[LidarMount, NoiseMatch] = {}
         # The filter's bias where the bias watch's open block began.
@@ -135,6 +138,9 @@ class EventDriver:
         # Stamp of the held yaw rate's sample: its age is what a gap may have changed.
         self._rate_stamp_s: float | None = None
         self._heading_dt2 = 0.0
+        # Integral of the modelled wander over the watch's open block (rad): what the
+        # wander took out of the predictions, for the blocks' bias error against b alone.
+        self._wander_dt = 0.0
         self._first_scan_s: float | None = None
         self._end_stop()
 
@@ -166,13 +172,14 @@ class EventDriver:
         self.health = HealthMonitor(self.config)
         self.bias_watch = BiasWatch()
         self.bias_rate = BiasRate(self.config.bias_rate_window_s)
+        self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
         self.noise = {}
         self._block_bias = 0.0
         self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0
         self.ekf.odometry_walk = 0.0
         self.held_rate = HeldRate()
         self._rate_stamp_s = None
-        self._heading_dt2 = 0.0
+        self._heading_dt2 = self._wander_dt = 0.0
         self.mounts.reset()
         self.odometry.reset()
         self.odometry.start_at(self._trusted(pose))
@@ -223,7 +230,8 @@ class EventDriver:
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
                  self.zero_rate, self.held_start.copy()), self.mounts.save(),
-                (self.bias_watch.copy(), self.bias_rate.copy(), self._block_bias),
+                (self.bias_watch.copy(), self.bias_rate.copy(), self._block_bias,
+                 self.gyro_wander.copy(), self._wander_dt),
                 self.held_rate.save(), self._rate_stamp_s, self._heading_dt2,
                 (self.odometry.save(), self._measured_speed_m_s, self._path_s,
                  self._path_m, self._path_yaw),
@@ -241,8 +249,10 @@ class EventDriver:
             self.lidar_noise(key).restore(saved_noise)
         self.held_rate.restore(held)
         self.odometry.restore(odometry)
-        watch, rate, self._block_bias = watch
+        watch, rate, self._block_bias, wander, self._wander_dt = watch
         self.bias_watch, self.bias_rate = watch.copy(), rate.copy()
+        self.gyro_wander = wander.copy()
+        self._model_wander()
         self.ekf.bias_walk_found = self.bias_watch.walk + self.bias_rate.walk
         self.ekf.bias_rate_found = self.bias_rate.rate_rad_s2
         self.ekf.rate_noise_scale = self.bias_watch.noise_scale
@@ -283,11 +293,13 @@ class EventDriver:
             return
         hold = self.zero_rate
         while dt_s > step:
+            self._wander_dt += step * self.ekf.wander_rad_s
             self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance, hold)
             # Sum of T^2 over the predictions: times sigma_w^2, the heading noise they added
             # (the bias watch weighs a slow drift against it).
             self._heading_dt2 += step * step
             dt_s -= step
+        self._wander_dt += dt_s * self.ekf.wander_rad_s
         self.ekf.predict(self.speed_m_s, rate, dt_s, speed_variance, rate_variance, hold)
         self._heading_dt2 += dt_s * dt_s
         rate_stamp = self._rate_stamp_s
@@ -428,7 +440,8 @@ class EventDriver:
         """Return a snapshot of the filter (state and covariance are copies)."""
         rate = 0.0 if self.rate_rad_s is None else self.rate_rad_s - self.ekf.bias_rad_s
         return Estimate(stamp_s=self.stamp_s if self.stamp_s is not None else 0.0,
-                        state=self.ekf.x.copy(), covariance=self.ekf.P.copy(),
+                        state=self.ekf.x[:ESTIMATE_SIZE],
+                        covariance=self.ekf.P[:ESTIMATE_SIZE, :ESTIMATE_SIZE],
                         speed_m_s=self.speed_m_s, yaw_rate_rad_s=rate)
 
     def on_detections(self, stamp_s: float, points_sensor_m: FloatArray,
@@ -661,18 +674,28 @@ class EventDriver:
         if at_rest:
             # Zero-rate updates learn the bias at rest; repeated looks are not a drift.
             watch.pause()
-            self._heading_dt2 = 0.0
+            self._heading_dt2 = self._wander_dt = 0.0
             return
         if not watch.due(stamp_s):
             return
         ekf = self.ekf
         P = ekf.P
         rate_variance = ekf.gyro_variance if self.rate_variance is None else self.rate_variance
-        variance = watch.close(stamp_s, float(P[BIAS, BIAS]), float(P[YAW, YAW]),
-                               self._heading_dt2 * rate_variance * ekf.rate_noise_scale)
-        self._heading_dt2 = 0.0
+        bias_variance = float(P[BIAS, BIAS])
+        heading_noise = self._heading_dt2 * rate_variance * ekf.rate_noise_scale
+        variance = watch.close(stamp_s, bias_variance, float(P[YAW, YAW]), heading_noise)
+        wander_dt = self._wander_dt
+        self._heading_dt2 = self._wander_dt = 0.0
         self.ekf.rate_noise_scale = self.stats.gyro_noise_scale = watch.noise_scale
         self.stats.gyro_noise_scale_max = max(self.stats.gyro_noise_scale_max, watch.noise_scale)
+        if (variance is None and watch.block is not None and watch.walk == 0.0
+                and self.config.learn_gyro_wander):
+            # A block of a bias that stayed: its error against b alone is the wander's
+            # evidence (core/gyro_wander.py).
+            _, length, error = watch.block
+            self.gyro_wander.add_block(stamp_s, length, error + wander_dt / length,
+                                       bias_variance + heading_noise / (length * length))
+            self._model_wander()
         if variance is not None:
             self.ekf.open_bias(variance)
             self.stats.bias_openings += 1
@@ -689,11 +712,22 @@ class EventDriver:
         else:
             self._rate_followed(None)
 
+    def _model_wander(self) -> None:
+        """Give the filter the wander found (never less than the one configured)."""
+        found = self.gyro_wander
+        self.ekf.wander_sigma_rad_s = max(self.config.gyro_wander_rad_s, found.sigma_rad_s)
+        self.stats.gyro_wander_rad_s = found.sigma_rad_s
+        self.stats.gyro_wander_found_s = found.found_at_s
+
     def _rate_followed(self, lag: float | None) -> None:
         """Open the bias by a new rate's lag; hand the rate and the walks to the filter."""
         rate = self.bias_rate
         if lag is not None:
             self.ekf.open_bias(lag)
+            # A ramp found: the blocks before it leaned its way, a bias that moved and not a
+            # wander (core/gyro_wander.py).
+            self.gyro_wander.retract(self.stamp_s)
+            self._model_wander()
         self.stats.bias_rate_rad_s2 = rate.rate_rad_s2
         self.stats.bias_rate_found = rate.found
         self.stats.bias_largest_rate_rad_s2 = rate.largest_rad_s2

@@ -16,6 +16,15 @@ over a step of T seconds::
 The report's Q2 has (q_pos T)^2 for x and y; here they follow a random walk of density q
 (m/sqrt(s)), so the position noise per second does not depend on the IMU rate.
 
+The gyro's wander (a fifth state c, WANDER, when the state has one): a first-order
+Gauss-Markov process of stationary sigma s and correlation time tau, added to the bias::
+
+    yaw += T (w - b - c)         J[YAW, WANDER] = -T
+    c   *= phi,  phi = exp(-T / tau)        J[WANDER, WANDER] = phi
+    Q2[WANDER, WANDER] = s^2 (1 - phi^2)     (keeps c's variance at s^2)
+
+With s = 0 and c = 0 (no wander found) the first four rows are the report's exactly.
+
 Observation of a landmark at (xa, ya) by a LiDAR mounted at (Lx, Ly, alpha) on the
 platform (``../shared/data/mtrn4010/README.md``, "Observation model")::
 
@@ -25,10 +34,10 @@ platform (``../shared/data/mtrn4010/README.md``, "Observation model")::
 ``bearing_zero`` is 0 in ROS convention (0 = forward) and pi/2 for the course's raw
 2016 scans (0 = right); with Lx = Ly = alpha = 0 and pi/2 it is exactly the report's h,
 and ``observation_jacobian`` is the report's H. Standing still, a gyro sample measures
-the bias alone: h = b, H = [0, 0, 0, 1] (``observe_bias``).
+the bias alone: h = b (+ c), H = [0, 0, 0, 1 (, 1)] (``observe_bias``).
 
-Every function takes a state of any length whose first entries are X, Y, YAW, BIAS (extra
-states, e.g. a mount offset, have zero columns here until a model uses them). The filter's
+Every function takes a state whose first entries are X, Y, YAW, BIAS and, when it has a
+fifth, WANDER (a four-entry state is the report's model without the wander). The filter's
 hot path (``_ekf_kernel.py``) unrolls these same lines; tests check it against them.
 """
 
@@ -39,7 +48,7 @@ import math
 import numpy as np
 
 from gyro_ekf.core.angles import wrap_angle, wrap_scalar
-from gyro_ekf.core.types import BIAS, X, Y, YAW, FloatArray, LidarMount
+from gyro_ekf.core.types import BIAS, WANDER, X, Y, YAW, FloatArray, LidarMount
 
 _NO_MOUNT = LidarMount()
 
@@ -50,24 +59,41 @@ RANGE, BEARING = 0, 1
 """Entries of an observation z = [range, bearing] (rows of h and H)."""
 
 
+def _has_wander(state: FloatArray) -> bool:
+    return np.size(state) > WANDER
+
+
+def wander_decay(dt_s: float, wander_tau_s: float) -> float:
+    """Return phi = exp(-T / tau): how much of the wander is left after dt_s."""
+    return math.exp(-dt_s / wander_tau_s)
+
+
 def predict_state(state: FloatArray, speed_m_s: float, rate_rad_s: float,
-                  dt_s: float) -> FloatArray:
+                  dt_s: float, wander_tau_s: float = math.inf) -> FloatArray:
     """f: the state after dt_s with constant inputs, shape (n,) in and out."""
     x = np.array(state, dtype=np.float64)
     yaw = x[YAW]
     x[X] += dt_s * speed_m_s * math.cos(yaw)
     x[Y] += dt_s * speed_m_s * math.sin(yaw)
-    x[YAW] = wrap_scalar(yaw + dt_s * (rate_rad_s - x[BIAS]))
+    error = x[BIAS]
+    if _has_wander(x):
+        error += x[WANDER]
+        x[WANDER] *= wander_decay(dt_s, wander_tau_s)
+    x[YAW] = wrap_scalar(yaw + dt_s * (rate_rad_s - error))
     return x
 
 
-def process_jacobian(state: FloatArray, speed_m_s: float, dt_s: float) -> FloatArray:
+def process_jacobian(state: FloatArray, speed_m_s: float, dt_s: float,
+                     wander_tau_s: float = math.inf) -> FloatArray:
     """J = df/dx at the prior state, shape (n, n)."""
     yaw = state[YAW]
     J = np.eye(np.size(state))
     J[X, YAW] = -dt_s * speed_m_s * math.sin(yaw)
     J[Y, YAW] = dt_s * speed_m_s * math.cos(yaw)
     J[YAW, BIAS] = -dt_s
+    if _has_wander(state):
+        J[YAW, WANDER] = -dt_s
+        J[WANDER, WANDER] = wander_decay(dt_s, wander_tau_s)
     return J
 
 
@@ -83,13 +109,17 @@ def input_jacobian(state: FloatArray, dt_s: float) -> FloatArray:
 
 def process_noise(state: FloatArray, dt_s: float, speed_sigma_m_s: float,
                   rate_sigma_rad_s: float, position_walk_m_sqrt_s: float,
-                  bias_walk_rad_s2: float) -> FloatArray:
+                  bias_walk_rad_s2: float, wander_sigma_rad_s: float = 0.0,
+                  wander_tau_s: float = math.inf) -> FloatArray:
     """Q = Ju Pu Ju^T + Q2 over one step, shape (n, n)."""
     Ju = input_jacobian(state, dt_s)
     Pu = np.diag([speed_sigma_m_s ** 2, rate_sigma_rad_s ** 2])
     Q2 = np.zeros((np.size(state), np.size(state)))
     Q2[X, X] = Q2[Y, Y] = position_walk_m_sqrt_s ** 2 * dt_s
     Q2[BIAS, BIAS] = (bias_walk_rad_s2 * dt_s) ** 2
+    if _has_wander(state):
+        Q2[WANDER, WANDER] = wander_sigma_rad_s ** 2 * (
+            1.0 - wander_decay(dt_s, wander_tau_s) ** 2)
     return Ju @ Pu @ Ju.T + Q2
 
 
@@ -175,10 +205,14 @@ def observation_noise(range_m: float | FloatArray, sensor_noise: FloatArray,
 
 
 def observe_bias(state: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Predict a gyro sample taken standing still: h = [b], H = [[0, 0, 0, 1]], (1, n)."""
+    """Predict a gyro sample taken standing still: h = [b + c], H = [[0, 0, 0, 1, 1]], (1, n)."""
     H = np.zeros((1, np.size(state)))
     H[0, BIAS] = 1.0
-    return np.array([state[BIAS]], dtype=np.float64), H
+    h = state[BIAS]
+    if _has_wander(state):
+        H[0, WANDER] = 1.0
+        h += state[WANDER]
+    return np.array([h], dtype=np.float64), H
 
 
 def sensor_to_map(state: FloatArray, points_sensor_m: FloatArray,

@@ -25,7 +25,7 @@ from gyro_ekf.core.health import HealthMonitor
 from gyro_ekf.core.mount_online import OnlineMounts
 from gyro_ekf.core.odometry_online import OdometryTracker
 from gyro_ekf.core.models import sensor_point_to_map
-from gyro_ekf.core.types import FloatArray, ScanSeries, Trip
+from gyro_ekf.core.types import ESTIMATE_SIZE, FloatArray, ScanSeries, Trip
 
 __all__ = ['DETECTION_BLOCK', 'Estimates', 'ROW_BLOCK', 'TripRun', 'UpdateLog', 'drive_trip',
            'iter_trip_events']
@@ -147,8 +147,8 @@ def drive_trip(trip: Trip, driver: EventDriver,
                         if scan.mount != trip.scans[0].mount)
     n = len(trip.imu.stamp_s)
     stamps = np.empty(n)
-    states = np.empty((n, 4))
-    covariances = np.empty((n, 4, 4))
+    states = np.empty((n, ESTIMATE_SIZE))
+    covariances = np.empty((n, ESTIMATE_SIZE, ESTIMATE_SIZE))
     # array('d') keeps 8 bytes per value while a long trip accumulates updates.
     update_stamp, update_landmark = array('d'), array('q')
     update_x, update_y, update_nis = array('d'), array('d'), array('d')
@@ -170,7 +170,9 @@ def drive_trip(trip: Trip, driver: EventDriver,
     def flush() -> None:
         if pending:
             start = row - len(pending)
-            states[start:row], covariances[start:row] = unpack_rows(pending)
+            rows, full = unpack_rows(pending)
+            states[start:row] = rows[:, :ESTIMATE_SIZE]
+            covariances[start:row] = full[:, :ESTIMATE_SIZE, :ESTIMATE_SIZE]
             pending.clear()
 
     for stamp_s, kind, series, index in iter_trip_events(trip):

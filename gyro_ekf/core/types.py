@@ -17,9 +17,13 @@ from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 
-# State vector layout of the EKF: [x, y, yaw, bias].
-X, Y, YAW, BIAS = 0, 1, 2, 3
-STATE_SIZE = 4
+# State vector layout of the EKF: [x, y, yaw, bias, wander]. The gyro's yaw-rate error is
+# the bias b (a constant but for its slow walk) plus the wander c, a Gauss-Markov process
+# that reverts to 0 over seconds (core/gyro_wander.py); b is the bias the filter reports.
+X, Y, YAW, BIAS, WANDER = 0, 1, 2, 3, 4
+STATE_SIZE = 5
+# What an estimate carries out of the filter: [x, y, yaw, bias] (the wander stays inside).
+ESTIMATE_SIZE = 4
 
 
 @dataclass(frozen=True, slots=True)

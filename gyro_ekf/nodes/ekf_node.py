@@ -920,6 +920,8 @@ class EkfNode(Node):
             'zero_rate_updates': str(stats.zero_rate_updates),
             'bias_reopened': str(stats.bias_openings),
             'gyro_noise_scale': f'{stats.gyro_noise_scale:.3f}',
+            # The gyro's wander found and modelled (core/gyro_wander.py), 0 when none.
+            'gyro_wander_deg_s': f'{math.degrees(stats.gyro_wander_rad_s):.4f}',
             # A ramping bias followed (core/bias_rate.py): its rate in use, 0 when none.
             'bias_rate_deg_s_per_min': f'{math.degrees(stats.bias_rate_rad_s2) * 60.0:.4f}',
             'standing_still': str(self.driver.zero_rate).lower(),

@@ -179,9 +179,10 @@ def test_small_scans_in_plain_floats_match_the_numpy_path(seed, monkeypatch):
     rng = np.random.default_rng(seed)
     for _ in range(200):
         landmarks = rng.uniform(-10.0, 10.0, size=(rng.integers(1, 8), 2))
-        state = np.r_[rng.uniform(-3.0, 3.0, 2), rng.uniform(-math.pi, math.pi), 0.01]
-        root = rng.normal(size=(4, 4)) * rng.uniform(0.001, 0.3)
-        cov = root @ root.T + 1e-6 * np.eye(4)
+        # The filter's five states (bias and wander): h does not depend on the last two.
+        state = np.r_[rng.uniform(-3.0, 3.0, 2), rng.uniform(-math.pi, math.pi), 0.01, 0.001]
+        root = rng.normal(size=(5, 5)) * rng.uniform(0.001, 0.3)
+        cov = root @ root.T + 1e-6 * np.eye(5)
         mount = LidarMount(rng.uniform(-0.5, 0.5), rng.uniform(-0.2, 0.2),
                            float(rng.choice([0.0, math.pi, 0.3])))
         h = observe(state, landmarks, mount)
@@ -191,7 +192,7 @@ def test_small_scans_in_plain_floats_match_the_numpy_path(seed, monkeypatch):
         map_var = float(rng.choice([0.0, 0.01 ** 2, 0.1 ** 2]))
         small = associate(z.tolist(), state, cov, R, landmarks, mount, 0.99, map_var)
         # The driver's entry: the filter's packed row and plain lists, the same to the bit.
-        row = np.r_[state, cov[np.triu_indices(4)]].tolist()
+        row = np.r_[state, cov[np.triu_indices(5)]].tolist()
         packed = association.associate_packed(z.tolist(), row, R, landmarks.tolist(), mount,
                                               0.99, map_var)
         np.testing.assert_array_equal(packed.mahalanobis_sq, small.mahalanobis_sq)

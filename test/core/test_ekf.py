@@ -1,5 +1,6 @@
 """The EKF's consistency (Monte Carlo NEES) and an independent step check against filterpy."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -16,10 +17,17 @@ LANDMARKS = np.array([[x, y] for x in range(-10, 11, 5) for y in range(-10, 11, 
 
 
 def _simulate_and_filter(seed, config, duration_s=60.0, dt_s=0.01, obs_every=20):
-    """Truth from the filter's own discrete model, so a consistent filter has NEES ~ chi2(4)."""
+    """Truth from the filter's own discrete model, so a consistent filter has NEES ~ chi2(n).
+
+    n is 4 (x, y, yaw, b) without a wander; with one configured (gyro_wander_rad_s) the
+    truth's gyro wanders as the filter's fifth state says, and n is 5.
+    """
     rng = np.random.default_rng(seed)
     true_bias = rng.normal(0.0, config.initial_bias_sigma_rad_s)
-    truth = np.array([0.0, 0.0, 0.3, true_bias])
+    sigma_c, tau = config.gyro_wander_rad_s, config.gyro_wander_tau_s
+    phi = math.exp(-dt_s / tau)
+    truth = np.array([0.0, 0.0, 0.3, true_bias, rng.normal(0.0, sigma_c)])
+    n = 5 if sigma_c > 0.0 else 4
     ekf = GyroBiasEkf(config, pose=truth[:3])
     R_sqrt = np.sqrt(np.diag(ekf.R))
     steps = int(duration_s / dt_s)
@@ -27,20 +35,22 @@ def _simulate_and_filter(seed, config, duration_s=60.0, dt_s=0.01, obs_every=20)
     for k in range(steps):
         t = k * dt_s
         speed, rate = 0.6 + 0.3 * math.sin(0.3 * t), 0.4 * math.sin(0.2 * t)
-        truth = models.predict_state(truth, speed, rate + truth[3], dt_s)
+        error_rate = truth[3] + truth[4]
+        truth = models.predict_state(truth, speed, rate + error_rate, dt_s, tau)
+        truth[4] += rng.normal(0.0, sigma_c * math.sqrt(1.0 - phi * phi))
         ekf.predict(speed + rng.normal(0, config.speed_noise_m_s),
-                    rate + true_bias + rng.normal(0, config.gyro_noise_rad_s), dt_s)
+                    rate + error_rate + rng.normal(0, config.gyro_noise_rad_s), dt_s)
         if k % obs_every == 0 and k > 0:
             xl, yl = models.sensor_position(truth, MOUNT)
             near = np.hypot(*(LANDMARKS - [xl, yl]).T) < 12.0
             for landmark in LANDMARKS[near]:
                 z = models.observe(truth, landmark, MOUNT) + rng.normal(0, 1, 2) * R_sqrt
                 ekf.update(z, landmark, MOUNT)
-            error = truth - ekf.x
+            error = (truth - ekf.x)[:n]
             error[2] = (error[2] + math.pi) % (2 * math.pi) - math.pi
             # The first second is skipped: P0 trusts the pose exactly, so P starts singular.
             if t >= 1.0:
-                nees.append(float(error @ np.linalg.solve(ekf.P, error)))
+                nees.append(float(error @ np.linalg.solve(ekf.P[:n, :n], error)))
     return np.array(nees), true_bias, ekf
 
 
@@ -49,11 +59,15 @@ CONSISTENT = EkfConfig(gyro_noise_rad_s=math.radians(1.0), speed_noise_m_s=0.05,
                        position_random_walk_m_sqrt_s=0.0, bias_random_walk_rad_s2=0.0)
 
 
-def test_average_nees_inside_chi_square_band_over_monte_carlo():
+@pytest.mark.parametrize('config, dof', [
+    (CONSISTENT, 4),
+    # A gyro that wanders (0.2 deg/s over 2 s), told to the filter: its fifth state.
+    (dataclasses.replace(CONSISTENT, gyro_wander_rad_s=math.radians(0.2)), 5)])
+def test_average_nees_inside_chi_square_band_over_monte_carlo(config, dof):
     runs = 25
-    nees = np.array([_simulate_and_filter(seed, CONSISTENT)[0] for seed in range(runs)])
+    nees = np.array([_simulate_and_filter(seed, config)[0] for seed in range(runs)])
     average = nees.mean(axis=0)
-    low, high = chi2.ppf([0.025, 0.975], 4 * runs) / runs
+    low, high = chi2.ppf([0.025, 0.975], dof * runs) / runs
     inside = np.mean((average >= low) & (average <= high))
     print(f'ANEES over {runs} runs: mean {average.mean():.2f}, band [{low:.2f}, {high:.2f}],'
           f' share inside {inside:.3f}')
@@ -65,31 +79,36 @@ def test_bias_converges_to_truth():
     for seed in (1, 2, 3):
         _, true_bias, ekf = _simulate_and_filter(seed, CONSISTENT, duration_s=90.0)
         sigma = math.sqrt(ekf.P[3, 3])
+        assert ekf.P[4, 4] == 0.0 and ekf.x[4] == 0.0  # no wander modelled
         assert abs(ekf.x[3] - true_bias) < 3 * sigma
         assert sigma < math.radians(0.02)
 
 
 def test_covariance_stays_symmetric_positive_definite():
-    _, _, ekf = _simulate_and_filter(7, EkfConfig(), duration_s=20.0)
+    _, _, ekf = _simulate_and_filter(7, EkfConfig(gyro_wander_rad_s=1e-3), duration_s=20.0)
     np.testing.assert_array_equal(ekf.P, ekf.P.T)
     assert np.all(np.linalg.eigvalsh(ekf.P) > 0)
 
 
 def test_one_cycle_matches_filterpy_extended_kalman_filter():
     from filterpy import kalman as filterpy
-    config = EkfConfig(initial_position_sigma_m=0.1, initial_yaw_sigma_rad=0.05)
+    # With a wander modelled, so the fifth state's rows take part.
+    config = EkfConfig(initial_position_sigma_m=0.1, initial_yaw_sigma_rad=0.05,
+                       gyro_wander_rad_s=1e-3)
     ours = GyroBiasEkf(config, pose=[1.0, 2.0, 0.5], bias_rad_s=0.01)
-    theirs = filterpy.ExtendedKalmanFilter(dim_x=4, dim_z=2)
-    theirs.x = ours.x.reshape(4, 1).copy()
+    theirs = filterpy.ExtendedKalmanFilter(dim_x=5, dim_z=2)
+    theirs.x = ours.x.reshape(5, 1).copy()
     theirs.P = ours.P.copy()
     theirs.R = ours.R.copy()
     speed, rate, dt = 0.8, 0.1, 0.02
-    theirs.F = models.process_jacobian(theirs.x.ravel(), speed, dt)
+    tau = config.gyro_wander_tau_s
+    theirs.F = models.process_jacobian(theirs.x.ravel(), speed, dt, tau)
     theirs.Q = models.process_noise(theirs.x.ravel(), dt, config.speed_noise_m_s,
                                     config.gyro_noise_rad_s,
                                     config.position_random_walk_m_sqrt_s,
-                                    config.bias_random_walk_rad_s2)
-    theirs.x = models.predict_state(theirs.x.ravel(), speed, rate, dt).reshape(4, 1)
+                                    config.bias_random_walk_rad_s2, config.gyro_wander_rad_s,
+                                    tau)
+    theirs.x = models.predict_state(theirs.x.ravel(), speed, rate, dt, tau).reshape(5, 1)
     theirs.P = theirs.F @ theirs.P @ theirs.F.T + theirs.Q
     ours.predict(speed, rate, dt)
     np.testing.assert_allclose(ours.x, theirs.x.ravel(), atol=1e-15)
@@ -163,7 +182,7 @@ def test_a_scaled_update_uses_scaled_noise_and_reports_the_nis_of_the_sensor():
     assert nis == pytest.approx(float(y @ np.linalg.solve(H @ P0 @ H.T + R, y)), rel=1e-9)
     S = H @ P0 @ H.T + 5.0 * R
     K = P0 @ H.T @ np.linalg.inv(S)
-    A = np.eye(4) - K @ H
+    A = np.eye(5) - K @ H
     np.testing.assert_allclose(scaled.P, A @ P0 @ A.T + K @ (5.0 * R) @ K.T, rtol=1e-9,
                                atol=1e-15)
     plain.update(z, landmark, MOUNT)

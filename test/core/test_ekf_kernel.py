@@ -16,7 +16,7 @@ from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core.ekf import (GyroBiasEkf, Textbook, _full, _packed, innovation,
                                innovation_covariance, normalised_innovation_sq)
 from gyro_ekf.core.errors import CoreError
-from gyro_ekf.core.types import BIAS, YAW, LidarMount
+from gyro_ekf.core.types import BIAS, WANDER, YAW, LidarMount
 
 RNG = np.random.default_rng(4010)
 MOUNTS = [LidarMount(), LidarMount(0.46, 0.0, 0.0), LidarMount(0.4, -0.12, math.pi),
@@ -27,13 +27,13 @@ TOL = 1e-12
 def _state():
     # Yaw away from +-pi, so a rounding difference cannot wrap one side and not the other.
     return [RNG.uniform(-5, 5), RNG.uniform(-5, 5), RNG.uniform(-3.0, 3.0),
-            RNG.uniform(-0.05, 0.05)]
+            RNG.uniform(-0.05, 0.05), RNG.uniform(-0.01, 0.01)]
 
 
 def _covariance():
-    """A random positive definite P with the scales of m, m, rad and rad/s."""
-    root = RNG.normal(size=(4, 4)) @ np.diag([0.3, 0.3, 0.05, 0.005])
-    return root.T @ root + np.diag([1e-6, 1e-6, 1e-8, 1e-10])
+    """A random positive definite P with the scales of m, m, rad, rad/s and rad/s."""
+    root = RNG.normal(size=(5, 5)) @ np.diag([0.3, 0.3, 0.05, 0.005, 0.002])
+    return root.T @ root + np.diag([1e-6, 1e-6, 1e-8, 1e-10, 1e-10])
 
 
 def _landmark(state):
@@ -49,8 +49,8 @@ def _equal(kernel_value, textbook_value):
     np.testing.assert_allclose(a, b, rtol=TOL, atol=TOL * max(1.0e-30, np.max(np.abs(b))))
 
 
-# Typical size of each state entry (m, m, rad, rad/s): 1e-12 of it is the tolerance.
-STATE_SCALE = np.array([5.0, 5.0, math.pi, 0.05])
+# Typical size of each state entry (m, m, rad, rad/s, rad/s): 1e-12 of it is the tolerance.
+STATE_SCALE = np.array([5.0, 5.0, math.pi, 0.05, 0.01])
 
 
 def _equal_angle(kernel_rad, textbook_rad):
@@ -62,7 +62,7 @@ def _equal_states(kernel_state, textbook_state):
     a, b = np.array(kernel_state), np.array(textbook_state)
     _equal_angle(a[YAW], b[YAW])
     a[YAW] = b[YAW]
-    assert np.all(np.abs(a - b) <= TOL * STATE_SCALE), (a, b)
+    assert np.all(np.abs(a - b) <= TOL * STATE_SCALE[:a.size]), (a, b)
 
 
 @pytest.mark.parametrize('hold_position', [False, True])
@@ -71,7 +71,8 @@ def test_predict_equals_the_textbook(hold_position):
         s, P = _state(), _covariance()
         args = (RNG.uniform(-1.0, 2.0), RNG.uniform(-1.0, 1.0), RNG.uniform(1e-4, 0.2),
                 RNG.uniform(0.0, 0.1), RNG.uniform(0.0, 1e-3), RNG.uniform(0.0, 1e-3),
-                RNG.uniform(0.0, 1e-8), hold_position)
+                RNG.uniform(0.0, 1e-8), hold_position, RNG.uniform(0.0, 1e-3),
+                RNG.uniform(0.5, 5.0))
         fast_s, fast_p = kernel.predict(list(s), _packed(P), *args)
         slow_s, slow_p = Textbook.predict(list(s), _packed(P), *args)
         _equal_states(fast_s, slow_s)
@@ -94,12 +95,12 @@ def test_h_H_R_and_S_equal_the_textbook(mount):
         _equal(r, h[0])
         _equal_angle(bearing, h[1])
         _equal(rows, H[:, :3].ravel())
-        assert not H[:, BIAS].any()
+        assert not H[:, BIAS].any() and not H[:, WANDER].any()
         R = scale * models.observation_noise(h[0], sensor, map_var)
         _equal([rr, rb], np.diag(R))
         S = innovation_covariance(H, P, R)
         _equal([[s00, s01], [s01, s11]], S)
-        _equal(np.reshape(pht, (2, 4)).T, P @ H.T)
+        _equal(np.reshape(pht, (2, 5)).T, P @ H.T)
         y = RNG.normal(size=2) * [0.1, 0.02]
         _equal(kernel.mahalanobis_sq(*y, *kernel.inverse(s00, s01, s11)),
                normalised_innovation_sq(y, S))
@@ -130,7 +131,7 @@ def test_update_equals_the_textbook(mount, noise_scale):
 def test_zero_rate_update_equals_the_textbook():
     for _ in range(200):
         s, P = _state(), _covariance()
-        rate, variance = s[BIAS] + RNG.normal() * 0.01, RNG.uniform(1e-6, 1e-3)
+        rate, variance = s[BIAS] + s[WANDER] + RNG.normal() * 0.01, RNG.uniform(1e-6, 1e-3)
         fast_s, fast_p, fast_nis = kernel.update_bias(list(s), _packed(P), rate, variance)
         slow_s, slow_p, slow_nis = Textbook.update_bias(list(s), _packed(P), rate, variance)
         _equal_states(fast_s, slow_s)
@@ -155,7 +156,8 @@ def test_innovation_wraps_the_bearing():
 
 
 def test_a_filter_run_on_the_kernel_equals_one_on_the_textbook():
-    config = EkfConfig(landmark_sigma_m=0.01)
+    # A wander modelled (from the start, as configured), so its rows take part.
+    config = EkfConfig(landmark_sigma_m=0.01, gyro_wander_rad_s=0.001, gyro_wander_tau_s=1.5)
     mount = MOUNTS[3]
     fast = GyroBiasEkf(config, pose=[1.0, -2.0, 0.3], bias_rad_s=0.01)
     slow = GyroBiasEkf(config, pose=[1.0, -2.0, 0.3], bias_rad_s=0.01, textbook=True)
@@ -184,24 +186,31 @@ def test_a_filter_run_on_the_kernel_equals_one_on_the_textbook():
                                    atol=1e-12 * np.abs(getattr(slow, name)).max())
 
 
-def test_the_textbook_update_takes_a_longer_state():
-    # An uncorrelated fifth state the observation ignores: the first four entries update as
-    # without it, and the fifth keeps its value and variance.
+def test_without_a_wander_the_first_four_states_are_the_reports_filter():
+    # The fifth state is the wander: with it and its covariance 0 and no wander modelled,
+    # predict, update and zero-rate update give the four-state filter's numbers exactly
+    # (the report's model: models.py on a four-entry state) and leave c and its row at 0.
     from gyro_ekf.core.ekf import _correct
-    s, P = _state(), _covariance()
-    landmark = _landmark(s)
-    x4 = np.array(s)
-    x5, P5 = np.r_[x4, 0.4], np.zeros((5, 5))
-    P5[:4, :4], P5[4, 4] = P, 0.02
+    s4, P4 = _state()[:4], _covariance()[:4, :4]
+    s5, P5 = s4 + [0.0], np.zeros((5, 5))
+    P5[:4, :4] = P4
+    speed, rate, dt = 0.7, 0.2, 0.01
+    J4, Q4 = (models.process_jacobian(np.array(s4), speed, dt),
+              models.process_noise(np.array(s4), dt, 0.05, 0.004, 0.003, 1e-5))
+    x4 = models.predict_state(np.array(s4), speed, rate, dt)
+    p4 = J4 @ P4 @ J4.T + Q4
+    fast_s, fast_p = kernel.predict(s5, _packed(P5), speed, rate, dt, 0.05 ** 2, 0.004 ** 2,
+                                    0.003 ** 2, 1e-10, False, 0.0, 2.0)
+    _equal_states(fast_s[:4], x4)
+    _equal(_full(fast_p)[:4, :4], p4)
+    assert fast_s[WANDER] == 0.0 and not _full(fast_p)[WANDER].any()
+    landmark = _landmark(s4)
     R = np.diag([1e-3, 1e-5])
-    results = []
-    for x, cov in ((x4, P), (x5, P5)):
-        z_hat, H = models.observe_with_jacobian(x, landmark, MOUNTS[1])
-        y = innovation(z_hat + [0.05, -0.01], z_hat)
-        results.append(_correct(x, cov, y, H, R))
-    (a4, P4, S4, K4), (a5, Q5, S5, K5) = results
-    _equal(a5[:4], a4)
-    _equal(Q5[:4, :4], P4)
-    assert a5[4] == 0.4 and Q5[4, 4] == 0.02 and not Q5[4, :4].any()
-    _equal(S5, S4)
-    _equal(K5[:4], K4)
+    z_hat, H = models.observe_with_jacobian(np.array(s4), landmark, MOUNTS[1])
+    z = z_hat + [0.05, -0.01]
+    a4, b4, _, _ = _correct(np.array(s4), P4, innovation(z, z_hat), H, R)
+    fast = kernel.update(s5, _packed(P5), float(z[0]), float(z[1]), *landmark, MOUNTS[1],
+                         1e-3, 1e-5, 0.0, 1.0)
+    _equal_states(fast[0][:4], a4)
+    _equal(_full(fast[1])[:4, :4], b4)
+    assert fast[0][WANDER] == 0.0 and not _full(fast[1])[WANDER].any()

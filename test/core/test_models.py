@@ -127,7 +127,9 @@ def test_Q2_departs_from_the_report_as_a_random_walk_per_root_second():
                        initial_bias_sigma_rad_s=0.0)
     ekf = GyroBiasEkf(config, pose=state[:3], bias_rad_s=state[3])
     ekf.predict(v, 0.2, T)
-    np.testing.assert_allclose(ekf.P, Q, rtol=1e-12, atol=1e-30)
+    # (Its fifth state, the wander, has no variance and no noise while none is modelled.)
+    np.testing.assert_allclose(ekf.P[:4, :4], Q, rtol=1e-12, atol=1e-30)
+    assert not ekf.P[4].any()
     assert config.bias_random_walk_rad_s2 == pytest.approx(q_b)
 
 
@@ -142,32 +144,40 @@ def test_sensor_frame_round_trip():
     np.testing.assert_allclose(models.points_to_range_bearing(points), z, atol=1e-12)
 
 
-def test_a_longer_state_adds_entries_the_models_leave_alone():
-    # A fifth state (e.g. a mount offset no model uses yet): f keeps it, J and Q give it an
-    # identity row and column and no noise, h ignores it (zero column in H).
-    state = np.r_[_random_state(), 0.7]
-    speed, rate, dt = 0.8, 0.2, 0.01
+def test_the_wander_is_a_gauss_markov_state_the_heading_integrates():
+    # The fifth state c: yaw += T (w - b - c), c *= exp(-T / tau), Q adds s^2 (1 - phi^2)
+    # (c's variance stays s^2), h ignores it, a gyro at rest reads b + c. Without a fifth
+    # entry the models are the report's four-state ones.
+    state = np.r_[_random_state(), 0.003]
+    speed, rate, dt, tau, sigma = 0.8, 0.2, 0.01, 2.0, 0.0005
+    phi = math.exp(-dt / tau)
     mount = MOUNTS[3]
     landmark = RNG.uniform(-10, 10, size=2)
-    f5 = models.predict_state(state, speed, rate, dt)
-    assert f5[4] == 0.7
-    np.testing.assert_array_equal(f5[:4], models.predict_state(state[:4], speed, rate, dt))
-    J5 = models.process_jacobian(state, speed, dt)
+    f5 = models.predict_state(state, speed, rate, dt, tau)
+    four = np.r_[state[:3], state[3] + state[4]]
+    np.testing.assert_allclose(f5[:3], models.predict_state(four, speed, rate, dt)[:3],
+                               rtol=1e-15)
+    assert f5[4] == pytest.approx(phi * 0.003, rel=1e-15)
+    J5 = models.process_jacobian(state, speed, dt, tau)
     np.testing.assert_array_equal(J5[:4, :4], models.process_jacobian(state[:4], speed, dt))
-    np.testing.assert_array_equal(J5[4], [0, 0, 0, 0, 1])
-    np.testing.assert_array_equal(J5[:, 4], [0, 0, 0, 0, 1])
-    Q5 = models.process_noise(state, dt, 0.3, 0.03, 0.01, 1e-4)
+    np.testing.assert_array_equal(J5[:, 4], [0, 0, -dt, 0, phi])
+    np.testing.assert_array_equal(J5[4], [0, 0, 0, 0, phi])
+    Q5 = models.process_noise(state, dt, 0.3, 0.03, 0.01, 1e-4, sigma, tau)
     np.testing.assert_array_equal(Q5[:4, :4],
                                   models.process_noise(state[:4], dt, 0.3, 0.03, 0.01, 1e-4))
-    assert not Q5[4].any() and not Q5[:, 4].any()
+    assert Q5[4, 4] == pytest.approx(sigma ** 2 * (1 - phi ** 2), rel=1e-15)
+    assert not Q5[4, :4].any()
+    # Stationary: from c's variance s^2, one step keeps it s^2.
+    assert phi ** 2 * sigma ** 2 + Q5[4, 4] == pytest.approx(sigma ** 2, rel=1e-12)
     h5, H5 = models.observe_with_jacobian(state, landmark, mount)
     h4, H4 = models.observe_with_jacobian(state[:4], landmark, mount)
     np.testing.assert_array_equal(h5, h4)
     np.testing.assert_array_equal(H5[:, :4], H4)
     assert not H5[:, 4].any()
     hb, Hb = models.observe_bias(state)
-    np.testing.assert_array_equal(hb, [state[3]])
-    np.testing.assert_array_equal(Hb, [[0, 0, 0, 1, 0]])
+    np.testing.assert_array_equal(hb, [state[3] + state[4]])
+    np.testing.assert_array_equal(Hb, [[0, 0, 0, 1, 1]])
+    np.testing.assert_array_equal(models.observe_bias(state[:4])[1], [[0, 0, 0, 1]])
 
 
 def test_map_uncertainty_adds_its_variance_to_range_and_over_range_squared_to_bearing():

@@ -254,7 +254,7 @@ def test_ekf_refuses_a_non_finite_start():
     with pytest.raises(CoreError, match='initial state .* is not finite'):
         GyroBiasEkf(pose=np.array([np.nan, 0.0, 0.0]))
     with pytest.raises(CoreError, match='initial covariance is not finite'):
-        GyroBiasEkf(covariance=np.full((4, 4), np.nan))
+        GyroBiasEkf(covariance=np.full((5, 5), np.nan))
 
 
 def test_one_imu_sample_ahead_of_its_neighbours_is_the_one_refused_or_dropped():

@@ -118,9 +118,11 @@ def test_save_and_restore_keep_the_test_independent():
     assert monitor.report()[0]['whiteness'] == before
 
 
-def _trip_summary(**changes):
+def _trip_summary(ekf: EkfConfig | None = None, **changes):
+    from gyro_ekf.io.params_file import PipelineParams
     config = SimulationConfig(duration_s=70.0, **changes)
-    return summarize(run_trip(simulate_trip(config, seed=3)))
+    params = None if ekf is None else PipelineParams(ekf=ekf)
+    return summarize(run_trip(simulate_trip(config, seed=3), params))
 
 
 def test_a_clean_trip_is_white_and_ok():
@@ -130,15 +132,22 @@ def test_a_clean_trip_is_white_and_ok():
 
 
 def test_coloured_gyro_noise_makes_the_bearing_innovations_not_white():
-    # A Gauss-Markov wander of 0.03 deg/s over 3 s on the gyro: the heading innovations
-    # keep one sign for seconds at a time while the NIS mean stays inside its band.
-    summary = _trip_summary(gyro_colored_noise_rad_s=math.radians(0.03),
-                            gyro_colored_noise_tau_s=3.0)
+    # A Gauss-Markov wander of 0.03 deg/s over 3 s on the gyro, to a filter that does not
+    # learn it: the heading innovations keep one sign for seconds at a time while the NIS
+    # mean stays inside its band.
+    wander = {'gyro_colored_noise_rad_s': math.radians(0.03), 'gyro_colored_noise_tau_s': 3.0}
+    summary = _trip_summary(EkfConfig(learn_gyro_wander=False), **wander)
     section = summary['health']
     assert section['verdict'] == 'degraded'
     assert any(r.startswith('LiDAR scan bearing innovations are not white')
                for r in section['reasons']), section['reasons']
     assert not any(r.startswith('mean NIS') for r in section['reasons'])
+    # Learnt (the default), the wander is the filter's fifth state: its innovations are
+    # white again (core/gyro_wander.py).
+    learnt = _trip_summary(**wander)
+    assert learnt['online_bias']['gyro_wander_found_s'] is not None
+    assert not any(r.startswith('LiDAR scan bearing innovations are not white')
+                   for r in learnt['health']['reasons']), learnt['health']['reasons']
 
 
 def test_a_bias_step_is_caught_by_the_bias_watch():

@@ -30,21 +30,22 @@ def _at(estimates, stamp_s):
     return int(np.searchsorted(estimates.stamp_s, stamp_s, side='right')) - 1
 
 
-def test_a_zero_rate_update_is_the_kalman_update_of_h_equal_b():
+def test_a_zero_rate_update_is_the_kalman_update_of_h_equal_b_plus_c():
+    # The gyro at rest reads the bias and the wander: h = b + c, H = [0, 0, 0, 1, 1].
     rng = np.random.default_rng(4)
-    A = rng.standard_normal((4, 4))
+    A = rng.standard_normal((5, 5))
     ekf = GyroBiasEkf(EkfConfig(), pose=np.array([1.0, 2.0, 0.3]), bias_rad_s=0.01,
-                      covariance=A @ A.T + 0.1 * np.eye(4))
+                      covariance=A @ A.T + 0.1 * np.eye(5))
     x, P = ekf.x, ekf.P
     z, r = 0.02, 1e-4
-    H = np.array([[0.0, 0.0, 0.0, 1.0]])
+    H = np.array([[0.0, 0.0, 0.0, 1.0, 1.0]])
     S = (H @ P @ H.T).item() + r
     K = P @ H.T / S
     nis = ekf.update_zero_rate(z, r)
-    I_KH = np.eye(4) - K @ H
-    assert np.allclose(ekf.x, x + (K * (z - x[3])).ravel(), atol=1e-15)
+    I_KH = np.eye(5) - K @ H
+    assert np.allclose(ekf.x, x + (K * (z - x[3] - x[4])).ravel(), atol=1e-15)
     assert np.allclose(ekf.P, I_KH @ P @ I_KH.T + r * K @ K.T, atol=1e-12)
-    assert nis == pytest.approx((z - x[3]) ** 2 / S)
+    assert nis == pytest.approx((z - x[3] - x[4]) ** 2 / S)
 
 
 def test_holding_the_position_moves_only_the_heading():

@@ -1,0 +1,143 @@
+"""The gyro's wander, measured from the heading the landmark updates correct.
+
+A MEMS gyro's yaw-rate error is not a constant bias plus white noise alone: part of it
+wanders over seconds (a first-order Gauss-Markov process of stationary sigma s and
+correlation time tau: coloured noise, the bias instability of a datasheet). A filter that
+models only a near-constant bias takes each excursion for a bias that moved: the bias
+watch (``core/bias_watch.py``) sees a drift and re-opens the bias, which then follows the
+excursion and ends the trip up to 0.04 deg/s off. Modelled as the fifth state c
+(``models.py``), the wander is told apart from the bias by its mean reversion; but its size
+differs from gyro to gyro, and a wander modelled where there is none makes the heading
+less certain than it is. So it is measured, and modelled once it is beyond chance.
+
+What measures it: each block of the bias watch (2 s of landmark updates while driving)
+gives db, the error of the bias its yaw corrections imply. Taken against the bias alone
+(the corrections plus what the modelled wander took out of the prediction, db_b = db +
+integral(c dt) / L), a consistent filter's db_b^2 has the mean the filter allows for:
+the bias's variance plus the heading noise its predictions added over the block, over
+L^2. A wander adds its block mean's variance, s^2 g(tau, L) with
+g = 2 (tau / L)^2 (L / tau - 1 + exp(-L / tau)). Over the blocks so far::
+
+    s^2 = (sum db_b^2 - sum allowed) / sum g
+
+once sum db_b^2 lies beyond what a consistent filter gives but with chance
+``SIGNIFICANCE``, after at least ``MIN_BLOCKS`` blocks. There each db_b^2 is its allowed
+a_k times a chi-square with 1 dof, and the sum is close to (sum a / nu) times a chi-square
+with nu = (sum a)^2 / sum a^2 dof (Satterthwaite: the same mean and variance). Before
+that, and on a gyro without wander, nothing is modelled. Blocks that are a drift of their
+own, and blocks while the watch makes the bias a random walk (a step or ramp being
+learnt), are left out: theirs is a bias that moved, not a wander. So are the last
+``RETRACTED_BLOCKS`` blocks before a drift (``retract``): the watch judges runs of up to
+that many blocks together, and a ramp's first blocks lean the same way by less than one
+block's limit until a run of them is found to be a drift.
+
+On the simulator's trips (docs/stress.md): clean trips never reach the limit (their
+db_b^2 / allowed over a trip: 0.6-1.2); trips with a wander of 0.01-0.04 deg/s and 0.5-5 s
+read 0.7-1.5 times their true sigma, 20-100 s into the trip.
+"""
+
+from __future__ import annotations
+
+import math
+
+from gyro_ekf.core.health import chi_square_upper
+
+MIN_BLOCKS = 10
+"""Fewest blocks (20 s of driving) before a wander may be found."""
+
+RETRACTED_BLOCKS = 10
+"""Blocks taken back at a drift: the bias watch's longest run (bias_watch.NOISE_BLOCKS)."""
+
+SIGNIFICANCE = 1e-4
+"""Chance that the blocks of a consistent filter are taken for a wander, at each look."""
+
+
+def block_mean_share(length_s: float, tau_s: float) -> float:
+    """g: the variance of a unit Gauss-Markov process's mean over length_s seconds."""
+    ratio = length_s / tau_s
+    return 2.0 * (math.exp(-ratio) - 1.0 + ratio) / (ratio * ratio)
+
+
+class GyroWander:
+    """The blocks' evidence of a wander, and its sigma once found.
+
+    Attributes:
+        sigma_rad_s: the wander's stationary sigma found, rad/s (0: none found yet).
+        found_at_s: stamp of the block that first found it, s (None: not found).
+        blocks: blocks taken so far.
+    """
+
+    __slots__ = ('tau_s', 'sigma_rad_s', 'found_at_s', 'blocks', '_error_sq', '_allowed',
+                 '_allowed_sq', '_share', '_recent')
+
+    def __init__(self, tau_s: float) -> None:
+        """Start with no block; tau_s: the wander's correlation time, s."""
+        self.tau_s = tau_s
+        self.sigma_rad_s = 0.0
+        self.found_at_s: float | None = None
+        self.blocks = 0
+        self._error_sq = self._allowed = self._allowed_sq = self._share = 0.0
+        # The last blocks' terms (error^2, allowed, share), for retract().
+        self._recent: list[tuple[float, float, float]] = []
+
+    def copy(self) -> 'GyroWander':
+        """Return an independent duplicate, for the driver's save and restore."""
+        clone = GyroWander(self.tau_s)
+        clone.sigma_rad_s, clone.found_at_s, clone.blocks = (
+            self.sigma_rad_s, self.found_at_s, self.blocks)
+        clone._error_sq, clone._allowed, clone._allowed_sq, clone._share = (
+            self._error_sq, self._allowed, self._allowed_sq, self._share)
+        clone._recent = list(self._recent)
+        return clone
+
+    def add_block(self, stamp_s: float, length_s: float, bias_error_rad_s: float,
+                  allowed_rad2_s2: float) -> None:
+        """Take one judged block of the bias watch (no drift, no walk).
+
+        Args:
+            stamp_s: when it closed, s.
+            length_s: L, s.
+            bias_error_rad_s: db_b, the bias error its corrections imply against the bias
+                alone (the modelled wander's share of the prediction added back), rad/s.
+            allowed_rad2_s2: what a consistent filter allows db_b^2: the bias variance
+                plus the heading noise of the block's predictions over L^2, (rad/s)^2.
+        """
+        if not (length_s > 0.0 and allowed_rad2_s2 > 0.0
+                and math.isfinite(bias_error_rad_s)):
+            return
+        share = block_mean_share(length_s, self.tau_s)
+        error_sq = bias_error_rad_s * bias_error_rad_s
+        self._recent.append((error_sq, allowed_rad2_s2, share))
+        if len(self._recent) > RETRACTED_BLOCKS:
+            self._recent.pop(0)
+        self._add(error_sq, allowed_rad2_s2, share, 1)
+        self._judge(stamp_s)
+
+    def retract(self, stamp_s: float) -> None:
+        """Take back the last blocks: the bias watch found a drift in them (a bias that moved)."""
+        for error_sq, allowed, share in self._recent:
+            self._add(-error_sq, -allowed, -share, -1)
+        self._recent.clear()
+        self._judge(stamp_s, retracted=True)
+
+    def _add(self, error_sq: float, allowed: float, share: float, count: int) -> None:
+        self.blocks += count
+        self._error_sq += error_sq
+        self._allowed += allowed
+        self._allowed_sq += allowed * allowed
+        self._share += share
+
+    def _judge(self, stamp_s: float, retracted: bool = False) -> None:
+        """Find the wander from the blocks taken so far (kept until a drift takes it back)."""
+        beyond = False
+        if self.blocks >= MIN_BLOCKS:
+            dof = self._allowed * self._allowed / self._allowed_sq
+            beyond = self._error_sq > self._allowed / dof * chi_square_upper(SIGNIFICANCE, dof)
+        if beyond:
+            self.sigma_rad_s = math.sqrt((self._error_sq - self._allowed) / self._share)
+            if self.found_at_s is None:
+                self.found_at_s = stamp_s
+        elif retracted:
+            # What the drift took back leaves no wander beyond chance.
+            self.sigma_rad_s = 0.0
+            self.found_at_s = None
