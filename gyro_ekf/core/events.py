@@ -139,8 +139,10 @@ class EventDriver:
         self._rate_stamp_s: float | None = None
         self._heading_dt2 = 0.0
         # Integral of the modelled wander over the watch's open block (rad): what the
-        # wander took out of the predictions, for the blocks' bias error against b alone.
+        # wander took out of the predictions, for the blocks' bias error against b alone;
+        # and when a stale rate was last held (an IMU gap), s.
         self._wander_dt = 0.0
+        self._rate_held_s = -math.inf
         self._first_scan_s: float | None = None
         self._end_stop()
 
@@ -180,6 +182,7 @@ class EventDriver:
         self.held_rate = HeldRate()
         self._rate_stamp_s = None
         self._heading_dt2 = self._wander_dt = 0.0
+        self._rate_held_s = -math.inf
         self.mounts.reset()
         self.odometry.reset()
         self.odometry.start_at(self._trusted(pose))
@@ -231,7 +234,7 @@ class EventDriver:
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
                  self.zero_rate, self.held_start.copy()), self.mounts.save(),
                 (self.bias_watch.copy(), self.bias_rate.copy(), self._block_bias,
-                 self.gyro_wander.copy(), self._wander_dt),
+                 self.gyro_wander.copy(), self._wander_dt, self._rate_held_s),
                 self.held_rate.save(), self._rate_stamp_s, self._heading_dt2,
                 (self.odometry.save(), self._measured_speed_m_s, self._path_s,
                  self._path_m, self._path_yaw),
@@ -249,7 +252,7 @@ class EventDriver:
             self.lidar_noise(key).restore(saved_noise)
         self.held_rate.restore(held)
         self.odometry.restore(odometry)
-        watch, rate, self._block_bias, wander, self._wander_dt = watch
+        watch, rate, self._block_bias, wander, self._wander_dt, self._rate_held_s = watch
         self.bias_watch, self.bias_rate = watch.copy(), rate.copy()
         self.gyro_wander = wander.copy()
         self._model_wander()
@@ -307,6 +310,7 @@ class EventDriver:
             # The held rate grows stale: what the platform may have turned meanwhile.
             self.ekf.add_heading_variance(self.held_rate.heading_variance(
                 self.stamp_s - rate_stamp, stamp_s - rate_stamp))
+            self._rate_held_s = stamp_s
         self.stamp_s = stamp_s
 
     def _integrate_path(self, scan: bool) -> None:
@@ -691,11 +695,14 @@ class EventDriver:
         if (variance is None and watch.block is not None and watch.walk == 0.0
                 and self.config.learn_gyro_wander):
             # A block of a bias that stayed: its error against b alone is the wander's
-            # evidence (core/gyro_wander.py).
-            _, length, error = watch.block
-            self.gyro_wander.add_block(stamp_s, length, error + wander_dt / length,
-                                       bias_variance + heading_noise / (length * length))
-            self._model_wander()
+            # evidence (core/gyro_wander.py). Not over an IMU gap or in the block after
+            # one (its error is taken back over the next scans): there the heading error
+            # is the held rate's, not the gyro's.
+            start, length, error = watch.block
+            if self._rate_held_s < start - length:
+                self.gyro_wander.add_block(stamp_s, length, error + wander_dt / length,
+                                           bias_variance + heading_noise / (length * length))
+                self._model_wander()
         if variance is not None:
             self.ekf.open_bias(variance)
             self.stats.bias_openings += 1
