@@ -211,29 +211,36 @@ def _fast_close_chunk(storage: Any) -> Callable[[], None]:
 
 
 def _close_chunk(storage: Any) -> None:
-    """McapWriter.close_chunk of rosbags 0.11.9, line for line but for the message indexes.
+    """McapWriter.close_chunk of rosbags 0.11.9, line for line but for two things.
 
-    rosbags writes each message's index entry (log time, offset) as two write_uint64
-    calls; here a channel's entries are packed by one struct.pack. The bytes are the same
-    (tests compare the files).
+    The Chunk record goes to the file as its head and then the pending records themselves
+    (rosbags first copies them twice: getvalue, then into the record), and each message
+    index is packed by one struct.pack (rosbags writes every entry, log time and offset, as
+    two write_uint64 calls). The bytes are the same (tests compare the files).
     """
     from rosbags.rosbag2.storage_mcap import (PendingChunk, write_record, write_string,
                                               write_uint16, write_uint32, write_uint64)
 
     chunk = storage.chunk
-    rec = BytesIO()
-    write_uint64(rec, chunk.message_start_time)
-    write_uint64(rec, chunk.message_end_time)
-    write_uint64(rec, chunk.bio.tell())
-    write_uint32(rec, 0)
+    with chunk.bio.getbuffer() as records:
+        rec = BytesIO()
+        write_uint64(rec, chunk.message_start_time)
+        write_uint64(rec, chunk.message_end_time)
+        write_uint64(rec, chunk.bio.tell())
+        write_uint32(rec, 0)
 
-    compressed = storage.compressor(chunk.bio.getvalue())
-    write_string(rec, storage.compression)
-    write_uint64(rec, len(compressed))
-    rec.write(compressed)
+        compressed = storage.compressor(records)
+        compressed_size = len(compressed)
+        write_string(rec, storage.compression)
+        write_uint64(rec, compressed_size)
 
-    chunk_start = storage.bio.tell()
-    write_record(storage.bio, 0x06, rec)
+        chunk_start = storage.bio.tell()
+        # write_record(storage.bio, 0x06, rec + compressed), without building that record.
+        storage.bio.write(b'\x06')
+        write_uint64(storage.bio, rec.tell() + compressed_size)
+        storage.bio.write(rec.getbuffer())
+        storage.bio.write(compressed)
+        del compressed  # (the records themselves when not compressed: released below)
     chunk_end = storage.bio.tell()
 
     offsets: list[tuple[int, int]] = []
@@ -256,7 +263,7 @@ def _close_chunk(storage: Any) -> None:
         write_uint64(rec, offset)
     write_uint64(rec, storage.bio.tell() - chunk_end)
     write_string(rec, storage.compression)
-    write_uint64(rec, len(compressed))
+    write_uint64(rec, compressed_size)
     write_uint64(rec, chunk.bio.tell())
     storage.chunks.append(rec)
 

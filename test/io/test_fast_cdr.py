@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags_oracle import read_bag_rosbags
 from synthetic_logs import make_trip
 
@@ -322,8 +323,9 @@ def test_write_rows_is_byte_identical_to_writer_write(tmp_path, storage, crcs):
             (c.topic, t, bytes(d)) for c, t, d in b.messages()]
 
 
+@pytest.mark.parametrize('compress', [False, True], ids=['plain', 'zstd'])
 @pytest.mark.parametrize('sections', [True, False], ids=['all-crcs', 'chunk-crcs'])
-def test_chunks_close_as_rosbags_closes_them(tmp_path, monkeypatch, sections):
+def test_chunks_close_as_rosbags_closes_them(tmp_path, monkeypatch, sections, compress):
     # enable_chunk_crcs closes chunks with batch_write._close_chunk; rosbags' own
     # close_chunk must give the same file (message indexes of several channels and
     # chunks, per-message and batched writes, the last chunk closed by close()).
@@ -342,8 +344,11 @@ def test_chunks_close_as_rosbags_closes_them(tmp_path, monkeypatch, sections):
                 patch.setattr(batch_write, '_fast_close_chunk',
                               lambda storage: storage.close_chunk)
             (tmp_path / name).mkdir()
-            with Writer(tmp_path / name / 'bag', version=9,
-                        storage_plugin=StoragePlugin.MCAP) as writer:
+            writer = Writer(tmp_path / name / 'bag', version=9,
+                            storage_plugin=StoragePlugin.MCAP)
+            if compress:
+                writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+            with writer:
                 assert enable_chunk_crcs(writer, sections=sections)
                 connections = [writer.add_connection(f'/t{j}', topics.VECTOR3_STAMPED_TYPE,
                                                      typestore=STORE)
