@@ -464,9 +464,12 @@ class HealthMonitor:
                ) -> Transition | None:
         config = self.config
         reason = self._own_disagreement(health)
-        peer = self._vouching_peer(key, stamp_s)
         share = health.share()
-        if reason is None and peer is not None and share < config.health_min_association_share:
+        # The other LiDARs are searched for one that vouches only where it decides something
+        # (a low share here, an exclusion below), not at every scan of one that agrees.
+        low_share = reason is None and share < config.health_min_association_share
+        peer = self._vouching_peer(key, stamp_s) if low_share else None
+        if low_share and peer is not None:
             reason = (f'associates {share:.0%} of its detections, below '
                       f'{config.health_min_association_share:.0%}, while {peer} associates '
                       f'at least {config.health_good_association_share:.0%}')
@@ -488,6 +491,8 @@ class HealthMonitor:
         if health.reason is None:
             health.flagged_since = stamp_s
         health.reason = reason
+        if not low_share:
+            peer = self._vouching_peer(key, stamp_s)  # this LiDAR's own figures disagree
         if peer is None:
             return None  # nothing tells which sensor is wrong: flagged, not excluded
         return self._change(health, stamp_s, 'excluded', reason, reason)

@@ -10,6 +10,7 @@ from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core.errors import TimeWentBackwardsError
 from gyro_ekf.core.event_records import EventKind
 from gyro_ekf.core.events import EventDriver
+from gyro_ekf.core import trip_run
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 from gyro_ekf.core.trip_run import drive_trip, iter_trip_events
 from gyro_ekf.core.types import ImuSeries, SpeedSeries, Trip
@@ -59,6 +60,18 @@ def test_one_row_per_imu_sample_in_time_order(simulated_runs):
     trip, run = simulated_runs[0]
     np.testing.assert_array_equal(run.estimates.stamp_s, trip.imu.stamp_s)
     assert np.all(np.diff(run.estimates.stamp_s) >= 0)
+
+
+def test_rows_are_the_same_whatever_the_blocks_they_are_copied_in(simulated_runs, monkeypatch):
+    # drive_trip keeps the filter's rows as plain floats and copies them a block at a time.
+    trip, run = simulated_runs[0]
+    monkeypatch.setattr(trip_run, 'ROW_BLOCK', 7)  # no divisor of the row count
+    assert len(trip.imu.stamp_s) % 7
+    blocked = drive_trip(trip, EventDriver(_config_for(trip), trip.landmarks,
+                                           trip.initial_pose))
+    for name in ('stamp_s', 'state', 'covariance'):
+        np.testing.assert_array_equal(getattr(blocked.estimates, name),
+                                      getattr(run.estimates, name))
 
 
 def _tiny_trip():
