@@ -43,10 +43,10 @@ from gyro_ekf.core.association import (AssociationOutcome, AssociationResult,
                                        associate_by_distance, associate_packed)
 from gyro_ekf.core.bias_rate import BiasRate
 from gyro_ekf.core.bias_watch import BiasWatch
-from gyro_ekf.core.gyro_wander import GyroWander
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
+from gyro_ekf.core.gyro_wander import GyroWander
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
@@ -175,6 +175,7 @@ class EventDriver:
         self.bias_watch = BiasWatch()
         self.bias_rate = BiasRate(self.config.bias_rate_window_s)
         self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
+        self._model_wander()  # a wander found before the reset is forgotten with it
         self.noise = {}
         self._block_bias = 0.0
         self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0

@@ -121,3 +121,17 @@ def test_an_imu_gap_is_not_taken_for_a_wander():
     stats = run_trip(simulate_trip(config, job.seed)).result.stats
     assert stats.gyro_wander_rad_s == 0.0 and stats.gyro_wander_found_s is None
 
+
+def test_a_reset_forgets_the_wander_found():
+    from gyro_ekf.core.config import EkfConfig
+    from gyro_ekf.core.events import EventDriver
+    driver = EventDriver(EkfConfig(gyro_wander_rad_s=1e-4))
+    for k in range(40):
+        driver.gyro_wander.add_block(2.0 * k, 2.0, 4e-4, 1e-8)
+    driver._model_wander()
+    found = driver.ekf.wander_sigma_rad_s
+    assert found > 1e-4 and driver.stats.gyro_wander_rad_s == found
+    driver.reset()
+    # Back to the configured one, nothing found.
+    assert driver.ekf.wander_sigma_rad_s == 1e-4
+    assert driver.stats.gyro_wander_rad_s == 0.0 and driver.stats.gyro_wander_found_s is None
