@@ -26,14 +26,15 @@ a_k times a chi-square with 1 dof, and the sum is close to (sum a / nu) times a 
 with nu = (sum a)^2 / sum a^2 dof (Satterthwaite: the same mean and variance). Before
 that, and on a gyro without wander, nothing is modelled. Blocks that are a drift of their
 own, and blocks while the watch makes the bias a random walk (a step or ramp being
-learnt), are left out: theirs is a bias that moved, not a wander. So are the last
-``RETRACTED_BLOCKS`` blocks before a drift (``retract``): the watch judges runs of up to
-that many blocks together, and a ramp's first blocks lean the same way by less than one
-block's limit until a run of them is found to be a drift.
+learnt), are left out: theirs is a bias that moved, not a wander; so are blocks over an
+IMU gap and the block after one (the driver's choice, ``core/events.py``: the held rate's
+heading error, not the gyro's). When the rate fit finds a ramp, the last
+``RETRACTED_BLOCKS`` blocks are taken back (``retract``): a ramp's first blocks lean its
+way by less than the watch's limits until it is found.
 
 On the simulator's trips (docs/stress.md): clean trips never reach the limit (their
 db_b^2 / allowed over a trip: 0.6-1.2); trips with a wander of 0.01-0.04 deg/s and 0.5-5 s
-read 0.7-1.5 times their true sigma, 20-100 s into the trip.
+read 0.6-1.5 times their true sigma, 28-116 s into the trip.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ MIN_BLOCKS = 10
 """Fewest blocks (20 s of driving) before a wander may be found."""
 
 RETRACTED_BLOCKS = 10
-"""Blocks taken back at a drift: the bias watch's longest run (bias_watch.NOISE_BLOCKS)."""
+"""Blocks taken back when a ramp is found: the bias watch's window (bias_watch.NOISE_BLOCKS)."""
 
 SIGNIFICANCE = 1e-4
 """Chance that the blocks of a consistent filter are taken for a wander, at each look."""
