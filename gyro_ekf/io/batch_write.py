@@ -14,18 +14,12 @@ unnoticed by any reader. `enable_chunk_crcs` makes a Writer's MCAP file carry th
 chunk's uncompressed CRC, the data-section CRC in DataEnd and the summary CRC in the Footer
 (as the MCAP specification defines them). It wraps the storage's file object, so every byte
 goes to disk once, already with its CRC, and the file is otherwise byte for byte what
-rosbags writes. The chunks it closes are closed by `_close_chunk`, rosbags' own code but for
-the message indexes, packed in one call each instead of two Python calls per message (on the
-2016 log's estimates bag those calls were half the time of writing it).
+rosbags writes.
 """
 
 from __future__ import annotations
 
-from collections import defaultdict
-from collections.abc import Callable, Sequence
-import functools
-from io import BytesIO
-from itertools import chain
+from collections.abc import Sequence
 from pathlib import Path
 import struct
 from typing import Any
@@ -200,81 +194,11 @@ def enable_chunk_crcs(writer: Any, sections: bool = True) -> bool:
     return True
 
 
-_CLOSE_CHUNK_ATTRIBUTES = ('bio', 'chunk', 'chunks', 'compression', 'compressor')
-
-
-def _fast_close_chunk(storage: Any) -> Callable[[], None]:
-    """Return `_close_chunk` for rosbags 0.11.9's McapWriter, else its own close_chunk."""
-    if all(hasattr(storage, name) for name in _CLOSE_CHUNK_ATTRIBUTES):
-        return functools.partial(_close_chunk, storage)
-    return storage.close_chunk
-
-
-def _close_chunk(storage: Any) -> None:
-    """McapWriter.close_chunk of rosbags 0.11.9, line for line but for two things.
-
-    The Chunk record goes to the file as its head and then the pending records themselves
-    (rosbags first copies them twice: getvalue, then into the record), and each message
-    index is packed by one struct.pack (rosbags writes every entry, log time and offset, as
-    two write_uint64 calls). The bytes are the same (tests compare the files).
-    """
-    from rosbags.rosbag2.storage_mcap import (PendingChunk, write_record, write_string,
-                                              write_uint16, write_uint32, write_uint64)
-
-    chunk = storage.chunk
-    with chunk.bio.getbuffer() as records:
-        rec = BytesIO()
-        write_uint64(rec, chunk.message_start_time)
-        write_uint64(rec, chunk.message_end_time)
-        write_uint64(rec, chunk.bio.tell())
-        write_uint32(rec, 0)
-
-        compressed = storage.compressor(records)
-        compressed_size = len(compressed)
-        write_string(rec, storage.compression)
-        write_uint64(rec, compressed_size)
-
-        chunk_start = storage.bio.tell()
-        # write_record(storage.bio, 0x06, rec + compressed), without building that record.
-        storage.bio.write(b'\x06')
-        write_uint64(storage.bio, rec.tell() + compressed_size)
-        storage.bio.write(rec.getbuffer())
-        storage.bio.write(compressed)
-        del compressed  # (the records themselves when not compressed: released below)
-    chunk_end = storage.bio.tell()
-
-    offsets: list[tuple[int, int]] = []
-    for cid, msgs in chunk.msgs.items():
-        offsets.append((cid, storage.bio.tell()))
-        rec = BytesIO()
-        write_uint16(rec, cid)
-        write_uint32(rec, len(msgs) * 16)
-        rec.write(struct.pack(f'<{2 * len(msgs)}Q', *chain.from_iterable(msgs)))
-        write_record(storage.bio, 0x07, rec)
-
-    rec = BytesIO()
-    write_uint64(rec, chunk.message_start_time)
-    write_uint64(rec, chunk.message_end_time)
-    write_uint64(rec, chunk_start)
-    write_uint64(rec, chunk_end - chunk_start)
-    write_uint32(rec, len(offsets) * 10)
-    for cid, offset in offsets:
-        write_uint16(rec, cid)
-        write_uint64(rec, offset)
-    write_uint64(rec, storage.bio.tell() - chunk_end)
-    write_string(rec, storage.compression)
-    write_uint64(rec, compressed_size)
-    write_uint64(rec, chunk.bio.tell())
-    storage.chunks.append(rec)
-
-    storage.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
-
-
 def _add_chunk_crcs_only(storage: Any) -> bool:
     if (type(storage).__name__ != 'McapWriter'
             or not all(hasattr(storage, name) for name in ('bio', 'chunk', 'close_chunk'))):
         return False
-    close_chunk = _fast_close_chunk(storage)
+    close_chunk = storage.close_chunk
 
     def close_chunk_with_crc() -> None:
         with storage.chunk.bio.getbuffer() as records:
@@ -299,7 +223,7 @@ def _add_crcs(storage: Any) -> bool:
     if isinstance(storage.bio, _CrcFile):
         return True
     storage.bio = _CrcFile(storage.bio, Path(storage.path))
-    close_chunk, close = _fast_close_chunk(storage), storage.close
+    close_chunk, close = storage.close_chunk, storage.close
 
     def close_chunk_with_crc() -> None:
         with storage.chunk.bio.getbuffer() as records:

@@ -10,13 +10,12 @@ from typing import Any
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
-from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags_oracle import read_bag_rosbags
 from synthetic_logs import make_trip
 
 from gyro_ekf import topics
 from gyro_ekf.core.types import Trip
-from gyro_ekf.io import bag_sinks, batch_write
+from gyro_ekf.io import bag_sinks
 from gyro_ekf.io import messages as msgs
 from gyro_ekf.io.bag_reader import read_bag
 from gyro_ekf.io.bag_writer import write_trip_bag
@@ -321,48 +320,6 @@ def test_write_rows_is_byte_identical_to_writer_write(tmp_path, storage, crcs):
     with Reader(one) as a, Reader(batch) as b:
         assert [(c.topic, t, bytes(d)) for c, t, d in a.messages()] == [
             (c.topic, t, bytes(d)) for c, t, d in b.messages()]
-
-
-@pytest.mark.parametrize('compress', [False, True], ids=['plain', 'zstd'])
-@pytest.mark.parametrize('sections', [True, False], ids=['all-crcs', 'chunk-crcs'])
-def test_chunks_close_as_rosbags_closes_them(tmp_path, monkeypatch, sections, compress):
-    # enable_chunk_crcs closes chunks with batch_write._close_chunk; rosbags' own
-    # close_chunk must give the same file (message indexes of several channels and
-    # chunks, per-message and batched writes, the last chunk closed by close()).
-    rng = np.random.default_rng(11)
-    sizes = [364, 60]
-    blocks = [(np.sort(rng.integers(0, 2**62, m)), _payloads(rng, m, sizes))
-              for m in (2, 2500, 700)]
-    closed = []
-    close_chunk = batch_write._close_chunk
-    for name, fast in (('rosbags', False), ('fast', True)):
-        with monkeypatch.context() as patch:
-            if fast:
-                patch.setattr(batch_write, '_close_chunk',
-                              lambda storage: closed.append(1) or close_chunk(storage))
-            else:
-                patch.setattr(batch_write, '_fast_close_chunk',
-                              lambda storage: storage.close_chunk)
-            (tmp_path / name).mkdir()
-            writer = Writer(tmp_path / name / 'bag', version=9,
-                            storage_plugin=StoragePlugin.MCAP)
-            if compress:
-                writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-            with writer:
-                assert enable_chunk_crcs(writer, sections=sections)
-                connections = [writer.add_connection(f'/t{j}', topics.VECTOR3_STAMPED_TYPE,
-                                                     typestore=STORE)
-                               for j in range(len(sizes))]
-                for k, (stamps, payloads) in enumerate(blocks):
-                    if k % 2:
-                        write_rows(writer, connections, stamps, payloads)
-                        continue
-                    for i, stamp in enumerate(stamps.tolist()):
-                        for connection, payload in zip(connections, payloads):
-                            writer.write(connection, stamp, payload[i].tobytes())
-    assert len(closed) > 1
-    assert ((tmp_path / 'fast' / 'bag' / 'bag.mcap').read_bytes()
-            == (tmp_path / 'rosbags' / 'bag' / 'bag.mcap').read_bytes())
 
 
 @pytest.mark.parametrize('compress', [False, True])
