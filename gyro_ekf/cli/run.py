@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 from dataclasses import replace
+import gc
 import logging
 import math
 from pathlib import Path
@@ -125,6 +126,9 @@ def run(args: argparse.Namespace) -> int:
     from gyro_ekf.io.bag_reader import read_bag, validate_bag
 
     params = read_params_file(args.params_file) if args.params_file else PipelineParams()
+    # What exists now (the modules, their classes and functions) lives as long as the
+    # process: out of the cyclic collector's full passes, each of which walked it all.
+    gc.freeze()
     began = time.perf_counter()
     bag = read_bag(args.bag, acceleration=False)  # the EKF does not use it
     bag = replace(bag, trip=with_initial_pose(bag.trip, params, bag.pose_from_message))
