@@ -91,6 +91,7 @@ The state is a handful of scalars and append-only sequences, so ``save`` and ``r
 from __future__ import annotations
 
 from array import array
+from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 from typing import Any
@@ -436,7 +437,7 @@ class OdometryTracker:
         self.yaw_rad += moved[3]
         self.offset_applied += 1
 
-    def observe(self, stamp_s: float, pose: list[float]) -> Moved | None:
+    def observe(self, stamp_s: float, pose: Sequence[float]) -> Moved | None:
         """Add the filter's pose after a scan's updates (moving); fit when due.
 
         Returns the move (``Moved``) when a fit moved the first LiDAR's mount in use by x, y
