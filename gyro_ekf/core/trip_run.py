@@ -31,7 +31,7 @@ __all__ = ['DETECTION_RETURNS', 'Estimates', 'ROW_BLOCK', 'TripRun', 'UpdateLog'
            'iter_trip_events']
 
 DETECTION_RETURNS = 50_000
-"""Beams drive_trip detects poles in per batch: as many whole scans (at least one).
+"""Beams per detection batch of drive_trip: the whole scans that hold this many (at least one).
 
 Batches amortise numpy's per-call cost; this size keeps each float64 temporary of the
 detector near 400 kB. At 1.5 MB (512 scans of the 2016 log's 361 beams) the allocator gave
