@@ -324,15 +324,16 @@ def _associate_scalar(z: list[list[float]], packed_row: list[float], R: FloatArr
     for i, (row, inside) in enumerate(zip(d2, gated)):
         # The first of the smallest, as argmin in associate (min with a key costs more).
         nearest = row.index(min(row))
+        # (One enum lookup per detection: each costs more than the comparisons here.)
         if len(inside) > 1:
-            outcome = AssociationOutcome.AMBIGUOUS
-        elif len(inside) == 1:
-            outcome = (AssociationOutcome.DUPLICATE if gating_detections[nearest] > 1
-                       else AssociationOutcome.MATCHED)
+            outcome, landmark = AssociationOutcome.AMBIGUOUS, -1
+        elif not inside:
+            outcome, landmark = AssociationOutcome.UNMATCHED, -1
+        elif gating_detections[nearest] > 1:
+            outcome, landmark = AssociationOutcome.DUPLICATE, -1
         else:
-            outcome = AssociationOutcome.UNMATCHED
-        associations.append(Association(
-            i, nearest if outcome is AssociationOutcome.MATCHED else -1, outcome, row[nearest]))
+            outcome, landmark = AssociationOutcome.MATCHED, nearest
+        associations.append(Association(i, landmark, outcome, row[nearest]))
     return AssociationResult(associations=tuple(associations), gate_threshold=threshold,
                              mahalanobis_sq=np.array(d2, dtype=np.float64))
 

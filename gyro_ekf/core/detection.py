@@ -226,7 +226,9 @@ def detect_poles_in_scans(ranges_m: FloatArray, angles_rad: FloatArray,
         return [_empty(0, use_intensity) for _ in range(scans)]
 
     r = ranges[idx]
-    beam_of = idx % beams
+    # The beam of each valid return, picked from a broadcast row of beam numbers: idx % beams
+    # (an integer division per return) cost more than the rest of these lines.
+    beam_of = np.broadcast_to(np.arange(beams), (scans, beams))[valid.reshape(scans, beams)]
     # A new cluster starts at the first valid beam of every scan, after any invalid beam
     # and at a jump.
     new = np.empty(n, dtype=bool)

@@ -280,6 +280,11 @@ class GyroBiasEkf:
         return _full(self._p)
 
     @property
+    def x_values(self) -> tuple[float, ...]:
+        """State estimate as plain floats (no array): x m, y m, yaw rad, bias rad/s."""
+        return tuple(self._s)
+
+    @property
     def yaw_rad(self) -> float:
         """Heading estimate, rad (a plain float, no array)."""
         return self._s[YAW]

@@ -613,7 +613,7 @@ class EventDriver:
             if tracker is None:
                 # The poses the first LiDAR holds (a second one's could carry its own
                 # mount error, which would be taken for the first's).
-                moved = self.odometry.observe(stamp_s, self.ekf.x.tolist())
+                moved = self.odometry.observe(stamp_s, self.ekf.x_values)
                 if moved is not None:
                     self._first_lidar_moved(key, moved)
         self.held_start.judge(stamp_s, 1 + len(self.mounts.trackers))

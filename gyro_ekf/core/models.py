@@ -229,7 +229,10 @@ def sensor_to_map(state: FloatArray, points_sensor_m: FloatArray,
 def sensor_point_to_map(state: list[float] | FloatArray, x_m: float, y_m: float,
                         mount: LidarMount = _NO_MOUNT) -> tuple[float, float]:
     """One sensor-frame point to the map frame in plain floats (sensor_to_map for one)."""
-    xl, yl = (float(v) for v in sensor_position(state, mount))
+    # Plain floats (a numpy state gives numpy scalars), not through a generator: this
+    # runs at every update of a run (its update log).
+    xl, yl = sensor_position(state, mount)
+    xl, yl = float(xl), float(yl)
     heading = float(state[YAW]) + mount.yaw_rad
     ch, sh = math.cos(heading), math.sin(heading)
     return xl + ch * x_m - sh * y_m, yl + sh * x_m + ch * y_m

@@ -38,7 +38,10 @@ CSV_HEADER = ('t,x,y,yaw,bias,var_x,var_y,var_yaw,var_bias,cov_xy,cov_xyaw,cov_y
 variances m^2, m^2, rad^2, (rad/s)^2 and covariances m^2, m rad, m rad."""
 
 _BAG_VERSION = 9
-_CSV_BLOCK_ROWS = 50_000
+# Rows formatted at once. A block's temporaries (the floats as objects, the format, the
+# text) take about 700 bytes a row: at 50k rows the allocator took them from the system
+# and gave them back, 9k page faults and ~30 ms of system time for the 2016 log's CSV.
+_CSV_BLOCK_ROWS = 4096
 _BAG_BLOCK_ROWS = 1024
 _INT32_MAX = 2**31 - 1
 

@@ -162,6 +162,7 @@ def test_packed_rows_unpack_to_the_state_and_covariance():
         rows.append(ekf.packed_row())
         states.append(ekf.x)
         covariances.append(ekf.P)
+        assert ekf.x_values == tuple(ekf.x.tolist())
     unpacked_states, unpacked_covariances = unpack_rows(rows)
     np.testing.assert_array_equal(unpacked_states, states)
     np.testing.assert_array_equal(unpacked_covariances, covariances)

@@ -35,6 +35,16 @@ def test_csv_header_columns_and_units(tmp_path):
     assert not list(tmp_path.glob('.*.tmp'))
 
 
+def test_csv_rows_do_not_depend_on_the_blocks_they_are_formatted_in(tmp_path, monkeypatch):
+    stamps, state, P = _history(30)
+    P = P * np.linspace(1.0, 2.0, 30)[:, None, None]  # rows that differ
+    whole = results.write_estimates_csv(tmp_path / 'whole.csv', stamps, state, P)
+    monkeypatch.setattr(results, '_CSV_BLOCK_ROWS', 7)  # no divisor of 30
+    blocked = results.write_estimates_csv(tmp_path / 'blocked.csv', stamps, state, P)
+    assert blocked.read_bytes() == whole.read_bytes()
+    assert len(whole.read_text().splitlines()) == 31
+
+
 def test_output_folder_is_not_overwritten_without_force(tmp_path):
     out = tmp_path / 'out'
     assert output_dir.prepare_output_dir(out) == out
