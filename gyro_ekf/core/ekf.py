@@ -281,7 +281,7 @@ class GyroBiasEkf:
 
     @property
     def x_values(self) -> tuple[float, ...]:
-        """State estimate as plain floats (no array): x m, y m, yaw rad, bias rad/s."""
+        """State estimate as plain floats (no array): x, y m; yaw rad; bias, wander rad/s."""
         return tuple(self._s)
 
     @property
