@@ -270,6 +270,11 @@ class Replayer(Node):
             latch_ack_timeout_s: after the first latched message, wait this long for its
                 acknowledgement so readers have it before the sensor stream starts.
             max_loops: with loop, stop after this many passes (None = until stopped).
+
+        Raises:
+            GyroEkfError: the source broke off (a bag damaged mid-pass), raised after the
+                end's wait for acknowledgements, saying whether every reader has what was
+                published; AckTimeoutError: a reliable reader stuck (see _publish).
         """
         jitter = JitterStats()
         published = 0
@@ -278,6 +283,16 @@ class Replayer(Node):
         clock_period_ns = int(NS_PER_S / clock_hz) if clock_hz > 0 else 0
         first_publish = last_publish = None
         clock_message = Clock()
+        broken: list[GyroEkfError] = []
+
+        def until_broken() -> Iterator[RawMessage]:
+            # The source breaking off (a bag damaged mid-pass) ends the replay as its end
+            # would: what went out before is acknowledged first, then the error is raised.
+            try:
+                yield from messages()
+            except GyroEkfError as err:
+                broken.append(err)
+
         while self._running():
             loops += 1
             if loop:
@@ -287,7 +302,7 @@ class Replayer(Node):
             last_clock_ns = None
             wall_start = time.perf_counter()
             stamp = None
-            source = messages()
+            source = until_broken()
             try:
                 for name, stamp, data in source:
                     if not self._running():
@@ -320,7 +335,8 @@ class Replayer(Node):
                     close()  # a generator's reader is closed now, not at garbage collection
             if start_ns is not None and stamp is not None:
                 bag_s += seconds_since(stamp, start_ns)
-            if not loop or start_ns is None or (max_loops is not None and loops >= max_loops):
+            if (broken or not loop or start_ns is None
+                    or (max_loops is not None and loops >= max_loops)):
                 break
         stopped = self.stop()
         timeout = min(ack_timeout_s, _STOPPED_ACK_S) if stopped else ack_timeout_s
@@ -330,6 +346,12 @@ class Replayer(Node):
             name for name, p in self.publishers_by_topic.items()
             if not rclpy.ok() or not p.wait_for_all_acked(
                 Duration(seconds=max(0.0, deadline - time.monotonic()))))
+        if broken:
+            acknowledged = (f'reliable readers of {", ".join(unacknowledged)} had not '
+                            f'acknowledged every message within {timeout:g} s'
+                            if unacknowledged else 'every reliable reader acknowledged the '
+                            f'{published} messages published before it')
+            raise type(broken[0])(f'{broken[0]}; {acknowledged}') from None
         return ReplayReport(
             messages=published,
             loops=loops,

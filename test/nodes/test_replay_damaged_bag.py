@@ -5,7 +5,8 @@ the bag's bytes as `info` and `run` do before it publishes anything (it used to 
 chunks before the damage, then end in rosbags' "Chunk checksum mismatch" traceback). A bag
 damaged after that check is still read through rosbags: what it raises then is one line
 naming the bag and how far the replay got; so it is with `--no-verify`, which skips the
-check (the messages before the damage are then published).
+check (the messages before the damage are then published, and acknowledged by every reader
+before the replay ends).
 """
 
 from __future__ import annotations
@@ -139,16 +140,17 @@ def test_no_verify_publishes_up_to_the_damage_then_ends_in_one_line(ros_processe
     assert len(lines) == 1, output
     match = re.fullmatch(
         rf'gyro-ekf replay: error: {re.escape(str(bag))}: cannot read the bag '
-        r'\(ReaderError\): .+ \(the replay stopped after (\d+) messages of this pass\)',
-        lines[0])
+        r'\(ReaderError\): .+ \(the replay stopped after (\d+) messages of this pass\); '
+        r'every reliable reader acknowledged the (\d+) messages published before it', lines[0])
     assert match, lines[0]
-    # Unchecked, the chunk before the damage went out. (The replay ends on the error
-    # without waiting for acknowledgements, so a reader may miss the last few in flight.)
+    # Unchecked, the chunk before the damage went out, every message of it: the replay
+    # waits for the readers' acknowledgements before it ends on the error (it used to end at
+    # once, and a reader could miss the last few in flight).
     sent = int(match.group(1))
     assert sent > 0
-    probe.spin_until(lambda: len(received) > 0, 60, 'the unchecked replay')
-    print(f'published {sent} messages before the damage, the probe received {len(received)}')
-    assert len(received) <= sent
+    assert int(match.group(2)) == sent
+    probe.spin_until(lambda: len(received) >= sent, 60, 'the unchecked replay')
+    assert len(received) == sent
 
 
 def test_a_bag_not_verified_is_opened_and_fails_where_it_is_damaged(tmp_path):
