@@ -73,9 +73,14 @@ class OfflineRun:
 
     @property
     def yaw_rate_rad_s(self) -> FloatArray:
-        """Bias-corrected yaw rate at each estimate, shape (n,), rad/s."""
+        """Bias-corrected yaw rate at each estimate, shape (n,), rad/s.
+
+        The rate the filter's heading moved by: the measured one less the bias and the
+        gyro's wander (0 unless one was found), as the live node's twist has it.
+        """
         estimates = self.result.estimates
-        rate = self.trip.imu.yaw_rate_rad_s[:len(estimates.stamp_s)] - estimates.state[:, BIAS]
+        rate = (self.trip.imu.yaw_rate_rad_s[:len(estimates.stamp_s)] - estimates.state[:, BIAS]
+                - estimates.wander_rad_s)
         return np.asarray(rate, dtype=np.float64)
 
 

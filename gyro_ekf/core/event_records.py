@@ -35,7 +35,12 @@ class Estimate:
         state: shape (4,): x m, y m, yaw rad, bias rad/s.
         covariance: shape (4, 4).
         speed_m_s: held speed, m/s.
-        yaw_rate_rad_s: bias-corrected yaw rate, rad/s.
+        yaw_rate_rad_s: bias-corrected yaw rate, rad/s: the measured one less
+            ``gyro_error_rad_s``.
+        gyro_error_rad_s: the yaw-rate error the filter takes out of the gyro's readings:
+            the bias plus the gyro's wander (0 unless one was found, core/gyro_wander.py),
+            rad/s.
+        gyro_error_variance: its variance, (rad/s)^2 (the bias's when no wander was found).
     """
 
     stamp_s: float
@@ -43,6 +48,8 @@ class Estimate:
     covariance: FloatArray
     speed_m_s: float
     yaw_rate_rad_s: float
+    gyro_error_rad_s: float
+    gyro_error_variance: float
 
 
 @dataclass(frozen=True, slots=True)

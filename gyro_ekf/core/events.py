@@ -56,8 +56,8 @@ from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
 from gyro_ekf.core.noise_online import NoiseMatch
 from gyro_ekf.core.odometry_online import (Moved, OdometrySettings, OdometryTracker,
                                            midpoint_yaw)
-from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, YAW, FloatArray, LandmarkMap,
-                                 LidarMount)
+from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, WANDER, YAW, FloatArray,
+                                 LandmarkMap, LidarMount)
 
 
 _NO_NIS = np.zeros(0)
@@ -443,11 +443,17 @@ class EventDriver:
 
     def estimate(self) -> Estimate:
         """Return a snapshot of the filter (state and covariance are copies)."""
-        rate = 0.0 if self.rate_rad_s is None else self.rate_rad_s - self.ekf.bias_rad_s
+        ekf = self.ekf
+        error = ekf.bias_rad_s + ekf.wander_rad_s
+        rate = 0.0 if self.rate_rad_s is None else self.rate_rad_s - error
+        P = ekf.P
         return Estimate(stamp_s=self.stamp_s if self.stamp_s is not None else 0.0,
-                        state=self.ekf.x[:ESTIMATE_SIZE],
-                        covariance=self.ekf.P[:ESTIMATE_SIZE, :ESTIMATE_SIZE],
-                        speed_m_s=self.speed_m_s, yaw_rate_rad_s=rate)
+                        state=ekf.x[:ESTIMATE_SIZE],
+                        covariance=P[:ESTIMATE_SIZE, :ESTIMATE_SIZE],
+                        speed_m_s=self.speed_m_s, yaw_rate_rad_s=rate,
+                        gyro_error_rad_s=error,
+                        gyro_error_variance=float(P[BIAS, BIAS] + 2.0 * P[BIAS, WANDER]
+                                                  + P[WANDER, WANDER]))
 
     def on_detections(self, stamp_s: float, points_sensor_m: FloatArray,
                       mount: LidarMount, sensor: str | None = None) -> ObservationReport:

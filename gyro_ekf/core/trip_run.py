@@ -25,7 +25,7 @@ from gyro_ekf.core.health import HealthMonitor
 from gyro_ekf.core.mount_online import OnlineMounts
 from gyro_ekf.core.odometry_online import OdometryTracker
 from gyro_ekf.core.models import sensor_point_to_map
-from gyro_ekf.core.types import ESTIMATE_SIZE, FloatArray, ScanSeries, Trip
+from gyro_ekf.core.types import ESTIMATE_SIZE, WANDER, FloatArray, ScanSeries, Trip
 
 __all__ = ['DETECTION_RETURNS', 'Estimates', 'ROW_BLOCK', 'TripRun', 'UpdateLog', 'drive_trip',
            'iter_trip_events']
@@ -81,11 +81,15 @@ class Estimates:
         stamp_s: shape (n,), s.
         state: shape (n, 4): x m, y m, yaw rad, bias rad/s.
         covariance: shape (n, 4, 4).
+        wander_rad_s: the filter's fifth state, the gyro's wander (core/gyro_wander.py), at
+            each row, shape (n,), rad/s: 0 unless a wander was found. The yaw-rate error the
+            filter takes out is the bias plus it.
     """
 
     stamp_s: FloatArray
     state: FloatArray
     covariance: FloatArray
+    wander_rad_s: FloatArray
 
 
 @dataclass(frozen=True, slots=True)
@@ -156,6 +160,7 @@ def drive_trip(trip: Trip, driver: EventDriver,
     n = len(trip.imu.stamp_s)
     stamps = np.empty(n)
     states = np.empty((n, ESTIMATE_SIZE))
+    wanders = np.empty(n)
     covariances = np.empty((n, ESTIMATE_SIZE, ESTIMATE_SIZE))
     # array('d') keeps 8 bytes per value while a long trip accumulates updates.
     update_stamp, update_landmark = array('d'), array('q')
@@ -182,6 +187,7 @@ def drive_trip(trip: Trip, driver: EventDriver,
             start = row - len(pending) // PACKED_ROW_SIZE
             rows, full = unpack_rows(pending)
             states[start:row] = rows[:, :ESTIMATE_SIZE]
+            wanders[start:row] = rows[:, WANDER]
             covariances[start:row] = full[:, :ESTIMATE_SIZE, :ESTIMATE_SIZE]
             pending.clear()
 
@@ -236,6 +242,6 @@ def drive_trip(trip: Trip, driver: EventDriver,
         point_map_m=np.column_stack([np.frombuffer(update_x, dtype=np.float64),
                                      np.frombuffer(update_y, dtype=np.float64)]),
         nis=np.frombuffer(update_nis, dtype=np.float64))
-    return TripRun(Estimates(stamps, states, covariances), updates, driver.stats,
+    return TripRun(Estimates(stamps, states, covariances, wanders), updates, driver.stats,
                    driver.health, driver.mounts, driver.odometry, driver.noise_report(),
                    driver.held_start_report())

@@ -19,8 +19,9 @@ prediction without it. Each IMU sample yields an estimate:
 `ekf/pose` (PoseWithCovarianceStamped in `map`), `ekf/odometry` (nav_msgs/Odometry: pose
 with covariance; speed and bias-corrected yaw rate in the twist) and `ekf/bias`
 (Vector3Stamped in the IMU's frame, z = bias in rad/s), every `publish_every_n`-th sample;
-`ekf/imu` (sensor_msgs/Imu: each input IMU message with the current online bias removed and
-its variance added to angular_velocity_covariance[8], as imu_tools users expect). For
+`ekf/imu` (sensor_msgs/Imu: each input IMU message with the current online bias, plus the
+gyro's wander when one was found, removed and its variance added to
+angular_velocity_covariance[8], as imu_tools users expect). For
 RViz and Foxglove (nodes.visuals, the same messages `gyro-ekf run` writes into its bag):
 `ekf/path` (nav_msgs/Path, the last `path_length` poses, 1 Hz), `ekf/markers`
 (MarkerArray: 2-sigma ellipse, heading, the last scan's associated detections with a line
@@ -441,8 +442,8 @@ class EkfNode(Node):
         # Corrected at once with the newest bias (it moves slowly), not after the merger.
         estimate = self._last_estimate
         if estimate is not None and self._imu_readers():
-            self._send_imu(online_corrected_imu(message, float(estimate.state[3]),
-                                                float(estimate.covariance[3, 3])))
+            self._send_imu(online_corrected_imu(message, estimate.gyro_error_rad_s,
+                                                estimate.gyro_error_variance))
         self._queue_imu(stamp_ns(message.header.stamp), float(message.angular_velocity.z),
                         message.angular_velocity_covariance[8])
 
@@ -459,9 +460,9 @@ class EkfNode(Node):
             return
         estimate = self._last_estimate
         if estimate is not None and self._imu_readers():
-            bias, variance = float(estimate.state[3]), float(estimate.covariance[3, 3])
             self._send_imu(wire.patched_yaw_rate(
-                data, at, rate - bias, wire.online_variance(covariance0, covariance8, variance)))
+                data, at, rate - estimate.gyro_error_rad_s,
+                wire.online_variance(covariance0, covariance8, estimate.gyro_error_variance)))
         self._queue_imu(sec * 1_000_000_000 + nanosec, rate, covariance8)
 
     def _imu_usable(self, rate: float, frame_id: str) -> bool:

@@ -97,10 +97,38 @@ def test_a_wandering_gyro_is_found_and_the_bias_stays_within_its_bound():
     # A simulated trip whose gyro wanders 0.035 deg/s over 3.4 s (the stress suite's
     # coloured class: seed 1, trip 10 ended 0.024 deg/s off without the fifth state).
     trip = _trip({'gyro_colored_noise_rad_s': 0.035 * DEG, 'gyro_colored_noise_tau_s': 3.4})
-    stats = run_trip(trip).result.stats
+    run = run_trip(trip)
+    stats = run.result.stats
     found = stats.gyro_wander_rad_s / DEG
     assert 0.015 < found < 0.07, found
     assert stats.gyro_wander_found_s is not None
+    # The heading moves by the reading less the bias and the wander: so does the twist's
+    # yaw rate (the estimates bag's, as the live node's; see the next test).
+    estimates = run.result.estimates
+    assert np.any(estimates.wander_rad_s != 0.0)
+    measured = trip.imu.yaw_rate_rad_s[:len(estimates.stamp_s)]
+    np.testing.assert_array_equal(
+        run.yaw_rate_rad_s, measured - estimates.state[:, 3] - estimates.wander_rad_s)
+
+
+def test_the_live_estimate_takes_the_wander_out_of_the_rate_with_its_variance():
+    # ekf_node's ekf/imu and twist subtract Estimate.gyro_error_rad_s (they subtracted the
+    # bias alone, while the filter's heading moved by the reading less bias and wander).
+    from gyro_ekf.core.config import EkfConfig
+    from gyro_ekf.core.events import EventDriver
+    driver = EventDriver(EkfConfig(gyro_wander_rad_s=1e-3))
+    driver.on_speed(0.0, 0.0)
+    for k in range(300):  # at rest: zero-rate updates move the bias and the wander
+        driver.step_imu(0.01 * k, 0.004 + 0.002 * math.sin(0.05 * k))
+    estimate = driver.estimate()
+    b, c = driver.ekf.bias_rad_s, driver.ekf.wander_rad_s
+    assert c != 0.0
+    assert estimate.gyro_error_rad_s == b + c
+    assert estimate.yaw_rate_rad_s == pytest.approx(driver.rate_rad_s - b - c, abs=1e-15)
+    P = driver.ekf.P
+    assert estimate.gyro_error_variance == pytest.approx(P[3, 3] + 2.0 * P[3, 4] + P[4, 4],
+                                                         rel=1e-12)
+    assert estimate.gyro_error_variance != pytest.approx(P[3, 3], rel=1e-3)
 
 
 def test_a_clean_gyro_models_no_wander():

@@ -220,7 +220,8 @@ def test_estimate_bytes_are_the_rclpy_paths_messages(map_frame, base_frame):
         a = rng.standard_normal((4, 4))
         estimate = Estimate(stamp_s=0.0, state=rng.standard_normal(4), covariance=a @ a.T,
                             speed_m_s=float(rng.standard_normal()),
-                            yaw_rate_rad_s=float(rng.standard_normal()))
+                            yaw_rate_rad_s=float(rng.standard_normal()),
+                            gyro_error_rad_s=0.0, gyro_error_variance=0.0)
         ns = int(rng.integers(1, 2**31 * 10**9))
         filled = fast.fill(estimate, ns)
         for data, message in zip(filled, plain.fill(estimate, ns)):
