@@ -49,7 +49,9 @@ Neither costs another read of the data (metadata.yaml is a small file every open
 bag reads), and both survive `gyro-ekf reindex`, which rebuilds the index and metadata.yaml
 from the same messages. Two trips simulated with the same settings and start that differ
 only in their seed have the same fingerprint (same count, same stamps): it tells trips
-apart, not seeds.
+apart, not seeds. Their sidecars hold the same values but the trip's name (`simulate
+--seed 1` and `--seed 2`: initial pose, mounts, noise and true bias alike), so one taken for
+the other changes the name in the outputs and no figure.
 A sidecar without `trip.bag` (written before it existed, or by hand) is taken unchecked, and
 `info` says so. The nodes do not declare `trip.bag.*` (a node has no bag to compare with;
 rclpy ignores names nobody declares).
