@@ -468,10 +468,13 @@ def measure(case: LiveCase, env: dict[str, str], startup_timeout_s: float = 30.0
         sender = _Sender(session, case)
         # Warm-up: a continuous stream until poses come back (first samples may be lost while
         # the node's side of discovery settles), then the measurement continues the stream.
+        # Odometry and bias too: the node skips them while their writers have no reader, and
+        # each matches this process's reader on its own, possibly after the pose's.
         warm_deadline = _CLOCK() + startup_timeout_s
         warmup_steps = max(10, round(case.rate_hz * case.warmup_s))
         while _CLOCK() < warm_deadline and child.poll() is None and (
-                sender.step < warmup_steps or len(session.received) < 10):
+                sender.step < warmup_steps or len(session.received) < 10
+                or not all(session.outputs.values())):
             sender.run(warmup_steps - sender.step if sender.step < warmup_steps else 10)
         if not session.received:
             result['error'] = f'no ekf/pose within {startup_timeout_s} s of warm-up'
@@ -823,6 +826,15 @@ def measure_node(case: NodeCase, env: dict[str, str], startup_timeout_s: float =
                            'window_wall_s': _CLOCK() - wall_before})
         else:  # warm-up: the first scans load code and fill caches
             send(lambda: False, max(10, round(case.rate_hz)))
+        # The node's output writer matches this process's reader on the node's own discovery,
+        # which can come after the endpoints were seen above: an output sent before then is
+        # lost (calibration_node even skips imu/corrected without a reader). More warm-up
+        # until one comes back, so none of the measured messages' outputs is lost that way.
+        send(lambda: received[0] > 0, round(case.rate_hz * startup_timeout_s))
+        if not received[0]:
+            result['error'] = f'{case.node}: no output within {startup_timeout_s} s of warm-up'
+            result['node_log_tail'] = _tail(node_log)
+            return result
         # Let the node catch up with the warm-up before its CPU is measured (bounded: the
         # count below goes by stamp, whatever of the warm-up is still to come).
         spin_until(lambda: received[0] >= sent[0] - (1 if calibration else 0), 5.0)

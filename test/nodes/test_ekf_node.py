@@ -29,7 +29,7 @@ def _offline(bag):
     return bag_trip, run
 
 
-def _pipeline(ros_processes, bag, rate: float, publish_every: int,
+def _pipeline(ros_processes, diagnostics_of, bag, rate: float, publish_every: int,
               ekf_args: tuple[str, ...] = ()):
     """Run detector + EKF on a replayed bag; return the probe's odometry, bias, diagnostics."""
     from diagnostic_msgs.msg import DiagnosticArray
@@ -47,8 +47,14 @@ def _pipeline(ros_processes, bag, rate: float, publish_every: int,
     processes.node('landmark_detector_node', *lossless)
     processes.node('ekf_node', '--params-file', f'{bag}.params.yaml', *lossless, *ekf_args,
                    '-p', f'publish_every_n:={publish_every}')
-    probe.spin_until(lambda: probe.node.count_publishers('/ekf/odometry') > 0, 60,
-                     'the EKF node')
+    # The node skips ekf/odometry and ekf/bias while they have no reader, and its writers
+    # match the probe's readers on its own discovery, which can come after the probe sees
+    # them: an estimate published before then never arrives (the count below would never
+    # be reached). Wait for the node's side of both matches, as its diagnostics report it.
+    probe.spin_until(lambda: all(
+        int((diagnostics_of(diagnostics, '/ekf_node: gyro bias EKF') or {}).get(readers)
+            or 0) > 0 for readers in ('odometry_readers', 'bias_readers')), 60,
+        'the EKF node, its odometry and bias writers matched')
     replay = processes.run(
         'replay', 'gyro_ekf.cli.main', 'replay', str(bag), '--rate', str(rate),
         '--topics', 'imu', 'odom', 'scan', 'landmark_map', 'initialpose',
@@ -65,10 +71,10 @@ def _pipeline(ros_processes, bag, rate: float, publish_every: int,
 
 
 @pytest.fixture(scope='module')
-def sim_run(ros_processes, sim_bag):
+def sim_run(ros_processes, sim_bag, diagnostics_of):
     """The simulated bag through the live pipeline and through drive_trip."""
-    odometry, bias, diagnostics, replay, bag_trip = _pipeline(ros_processes, sim_bag, 5.0,
-                                                              PUBLISH_EVERY)
+    odometry, bias, diagnostics, replay, bag_trip = _pipeline(
+        ros_processes, diagnostics_of, sim_bag, 5.0, PUBLISH_EVERY)
     _, run = _offline(sim_bag)
     return odometry, bias, diagnostics, replay, bag_trip, run
 
@@ -117,7 +123,7 @@ def test_bias_on_a_simulated_bag_is_within_002_deg_s_of_the_truth(sim_run, diagn
 
 @pytest.mark.shared_data
 def test_bias_on_the_real_log_is_within_005_deg_s_of_the_calibration(
-        tmp_path_factory, real_bag, ros_harness):
+        tmp_path_factory, real_bag, ros_harness, diagnostics_of):
     from gyro_ekf.core.calibration import estimate_gyro_bias
     from gyro_ekf.io import read_trip_bag
 
@@ -130,7 +136,7 @@ def test_bias_on_the_real_log_is_within_005_deg_s_of_the_calibration(
     processes = ros_harness.Processes(env, tmp)
     probe = ros_harness.Probe(int(env['ROS_DOMAIN_ID']))
     try:
-        _, bias, _, _, _ = _pipeline((processes, probe), real_bag, 5.0, 200)
+        _, bias, _, _, _ = _pipeline((processes, probe), diagnostics_of, real_bag, 5.0, 200)
         final = bias[-1].vector.z
     finally:
         processes.stop_all()

@@ -34,6 +34,18 @@ class SimTimeEkf(EkfUnderTest):
         self._ticker = None
         self.clock_ns = 0
         """The last /clock sent, ns."""
+        # The tests await estimates on ekf/odometry, which the node skips while its writer
+        # has no reader; that writer matches the probe's reader on the node's own discovery,
+        # which can come after the probe sees it. Only the node's diagnostics say it has,
+        # and on sim time they wait for /clock: it runs from 1 s (a jump forward to every
+        # test's stamps later, no reset) until a report counts the reader.
+        self.send_clock(NS)
+        self.tick()
+        try:
+            self.probe.spin_until(lambda: int(self.values().get('odometry_readers') or 0) > 0,
+                                  20, f'the EKF node {name} to match the odometry reader')
+        finally:
+            self.stop_ticking()
 
     def send_clock(self, stamp_ns: int) -> None:
         from rosgraph_msgs.msg import Clock

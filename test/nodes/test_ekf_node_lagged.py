@@ -21,7 +21,8 @@ def lagged_run(ros_processes, sim_bag, diagnostics_of):
     # wait 5 s of wall time for the detector. At 5x with 3 s (0.6 s of wall time) a CI run
     # beside a second copy of the suite dropped 155 scans as late.
     odometry, _, diagnostics, replay, bag_trip = _pipeline(
-        ros_processes, sim_bag, 1.0, PUBLISH_EVERY, ('-p', 'late_observation_history_s:=5.0'))
+        ros_processes, diagnostics_of, sim_bag, 1.0, PUBLISH_EVERY,
+        ('-p', 'late_observation_history_s:=5.0'))
     _, probe = ros_processes
     _, run = _offline(sim_bag)
     # Replayed scans bypass the merger, so every estimate can reach the probe while the
