@@ -13,7 +13,9 @@ counted as `dropped_bad_scan` in /diagnostics, as is a scan with a zero stamp
 (`dropped_zero_stamp`) and bytes that are not a LaserScan (`dropped_malformed`: scans are read
 serialized, nodes/wire.py). Ranges themselves may be inf or NaN (REP-117: no return).
 Each scan is passed on as it comes: two scans with one stamp give two landmarks messages
-with that stamp, and ekf_node keeps the first (core/same_stamp.py).
+with that stamp, and ekf_node keeps the first (core/same_stamp.py). /diagnostics also says
+how many readers `landmarks` has matched (`landmarks_readers`, this node's side of
+discovery: a landmarks message published before the EKF node's reader matched is lost).
 """
 
 from __future__ import annotations
@@ -122,6 +124,7 @@ class LandmarkDetectorNode(Node):
         status.level = DiagnosticStatus.OK if self.scans else DiagnosticStatus.WARN
         status.message = 'detecting' if self.scans else 'no scans yet'
         values = {'scans': self.scans, 'poles': self.poles,
+                  'landmarks_readers': self._publisher.get_subscription_count(),
                   **{f'dropped_{k}': v for k, v in self.dropped.items()}}
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         self._diagnostics_pub.publish(DiagnosticArray(
