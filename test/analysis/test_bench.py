@@ -54,3 +54,15 @@ def test_the_table_shows_both_message_paths_and_the_replay():
     assert rows[f'{name}: EKF final bias - run (deg/s)'] == '+0.0012 (-0.9762 vs -0.9774)'
     assert rows[f'{name}: IMU processed (calibration, EKF)'] == (
         '97.5 %, 99.5 % of 44578, MISSED')
+
+
+def test_replay_bench_sends_the_map():
+    """The replay into the nodes sends the landmark map: `gyro-ekf run` reads it from the
+    bag, and an EKF without it associates nothing (its bias came from the stops alone)."""
+    from benchmarks.replay_bench import replay_command
+    from gyro_ekf import topics
+
+    args = replay_command(Path('log2016'), 10.0)
+    sent = args[args.index('--topics') + 1:args.index('--wait-for')]
+    assert topics.LANDMARK_MAP in sent
+    assert {topics.IMU, topics.ODOM, topics.INITIAL_POSE, 'scan'} <= set(sent)
