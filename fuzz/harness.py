@@ -6,10 +6,10 @@ deterministic) and judges an input (`check`), calling the readers through
 `isolate.call` so that a hang or a crash costs one child, not the fuzzer. New targets need
 no change here: every `targets_*.py` module is imported and its TARGETS collected.
 
-Verdicts, worst first: 'hang' (a call ran past 10 s), 'uncaught' (a call raised anything
-but a GyroEkfError), 'silent' (returned without error but differs from the oracle or holds
-values the project should have refused), 'clean' (a GyroEkfError: the one-line message
-path), 'correct' (the result equals the oracle).
+Verdicts, worst first: 'hang' (a call used 10 s of CPU, or ran 60 s), 'uncaught' (a call
+raised anything but a GyroEkfError), 'silent' (returned without error but differs from the
+oracle or holds values the project should have refused), 'clean' (a GyroEkfError: the
+one-line message path), 'correct' (the result equals the oracle).
 """
 
 from __future__ import annotations

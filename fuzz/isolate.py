@@ -1,8 +1,12 @@
 """Run one call in a forked child with a hard time limit and a memory ceiling.
 
 A reader that loops forever or asks for terabytes must not take the fuzzer with it: the
-child is killed after `timeout_s` (a hang) and its address space is capped, so a runaway
-allocation fails as MemoryError inside the child instead of swapping the machine.
+child is killed once it has used `timeout_s` of CPU time (a hang) and its address space is
+capped, so a runaway allocation fails as MemoryError inside the child instead of swapping
+the machine. CPU time, not wall time: on a busy machine (the test suite's slice beside a
+second copy of the suite and a benchmark) a child waiting for a core took more than 10 s of
+wall time to read a tiny bag and was called a hang. A child that waits without using the
+CPU (blocked) is killed after `WALL_FACTOR` times `timeout_s` of wall time.
 """
 
 from __future__ import annotations
@@ -23,6 +27,21 @@ from gyro_ekf.errors import GyroEkfError
 TIMEOUT_S = 10.0
 MEMORY_HEADROOM_BYTES = 3 << 30
 """Address space a child may add to what it inherited."""
+WALL_FACTOR = 6.0
+"""A child is killed after this many times its CPU limit of wall time, CPU used or not."""
+_POLL_S = 0.25
+_TICKS_PER_S = os.sysconf('SC_CLK_TCK')
+
+
+def _cpu_seconds(pid: int) -> float | None:
+    """CPU time (user + system) a live child has used, s; None where /proc does not say."""
+    try:
+        with open(f'/proc/{pid}/stat', 'rb') as stat:
+            # Fields after the command name (which may hold spaces, in parentheses).
+            fields = stat.read().rsplit(b')', 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / _TICKS_PER_S
 
 
 @dataclass
@@ -114,15 +133,16 @@ def call(function: Callable[..., Any], *args: Any, timeout_s: float = TIMEOUT_S)
             os._exit(0)
     os.close(write_end)
     chunks = []
-    deadline = started + timeout_s
+    deadline = started + WALL_FACTOR * timeout_s
     hung = False
     try:
         while True:
-            left = deadline - time.monotonic()
-            if left <= 0:
+            now = time.monotonic()
+            used = _cpu_seconds(pid) if now - started > timeout_s else 0.0
+            if now >= deadline or (used if used is not None else now - started) > timeout_s:
                 hung = True
                 break
-            ready, _, _ = select.select([read_end], [], [], left)
+            ready, _, _ = select.select([read_end], [], [], min(_POLL_S, deadline - now))
             if not ready:
                 continue
             data = os.read(read_end, 1 << 20)
@@ -136,8 +156,8 @@ def call(function: Callable[..., Any], *args: Any, timeout_s: float = TIMEOUT_S)
         _, status = os.waitpid(pid, 0)
     seconds = time.monotonic() - started
     if hung:
-        return Outcome('hang', error='hang', message=f'killed after {timeout_s:g} s',
-                       seconds=seconds)
+        return Outcome('hang', error='hang', message=f'killed after {timeout_s:g} s of CPU '
+                       f'(or {WALL_FACTOR * timeout_s:g} s of wall time)', seconds=seconds)
     if not chunks:
         signal_number = os.WTERMSIG(status) if os.WIFSIGNALED(status) else 0
         return Outcome('crash', error=f'signal {signal_number}',
