@@ -51,13 +51,13 @@ from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
 from gyro_ekf.core.held_start import HeldStart
-from gyro_ekf.core.models import points_to_range_bearing, sensor_point_to_map
+from gyro_ekf.core.models import observe_bias, points_to_range_bearing, sensor_point_to_map
 from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
 from gyro_ekf.core.noise_online import NoiseMatch
 from gyro_ekf.core.odometry_online import (Moved, OdometrySettings, OdometryTracker,
                                            midpoint_yaw)
-from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, WANDER, YAW, FloatArray,
-                                 LandmarkMap, LidarMount)
+from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, YAW, FloatArray, LandmarkMap,
+                                 LidarMount)
 
 
 _NO_NIS = np.zeros(0)
@@ -443,17 +443,17 @@ class EventDriver:
 
     def estimate(self) -> Estimate:
         """Return a snapshot of the filter (state and covariance are copies)."""
-        ekf = self.ekf
-        error = ekf.bias_rad_s + ekf.wander_rad_s
+        x, P = self.ekf.x, self.ekf.P
+        # The gyro's rate error, as a sample at rest measures it (b + c).
+        h, H = observe_bias(x)
+        error = float(h[0])
         rate = 0.0 if self.rate_rad_s is None else self.rate_rad_s - error
-        P = ekf.P
         return Estimate(stamp_s=self.stamp_s if self.stamp_s is not None else 0.0,
-                        state=ekf.x[:ESTIMATE_SIZE],
+                        state=x[:ESTIMATE_SIZE],
                         covariance=P[:ESTIMATE_SIZE, :ESTIMATE_SIZE],
                         speed_m_s=self.speed_m_s, yaw_rate_rad_s=rate,
                         gyro_error_rad_s=error,
-                        gyro_error_variance=float(P[BIAS, BIAS] + 2.0 * P[BIAS, WANDER]
-                                                  + P[WANDER, WANDER]))
+                        gyro_error_variance=float((H @ P @ H.T)[0, 0]))
 
     def on_detections(self, stamp_s: float, points_sensor_m: FloatArray,
                       mount: LidarMount, sensor: str | None = None) -> ObservationReport:
