@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import subprocess
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -65,11 +65,14 @@ class Processes(ChildProcesses):
         assert code == 0, f'{name} exited with {code}:\n{output}'
         return output
 
-    def two_lidar_nodes(self, bag: Path, *ekf_args: str) -> None:
+    def two_lidar_nodes(self, bag: Path, *ekf_args: str) -> tuple[str, str]:
         """Start a detector per LiDAR (scan, scan2) and the EKF node, lossless inputs.
 
         The EKF node takes the bag's params file, then `ekf_args` (more params files or
         -p overrides), and publishes /diagnostics every 0.2 s.
+
+        Returns:
+            The detectors' node names (for Probe.wait_for_landmarks_readers).
         """
         lossless = ('-p', 'reliable_inputs:=true')
         self.node('landmark_detector_node', *lossless)
@@ -77,6 +80,7 @@ class Processes(ChildProcesses):
                   '-r', '__node:=landmark_detector_scan2', name='detector_scan2')
         self.node('ekf_node', '--params-file', f'{bag}.params.yaml', *ekf_args, *lossless,
                   '-p', 'diagnostics_period_s:=0.2')
+        return 'landmark_detector_node', 'landmark_detector_scan2'
 
     def replay_two_lidar_bag(self, bag: Path) -> str:
         """Replay a two-LiDAR bag at 5x once every input has a reader; return its output."""
@@ -122,6 +126,26 @@ class Probe:
             if time.monotonic() > deadline:
                 raise AssertionError(f'timed out after {timeout_s} s waiting for {what}')
             self.executor.spin_once(timeout_sec=0.05)
+
+    def wait_for_landmarks_readers(self, diagnostics: list[Any],
+                                   detectors: Iterable[str] = ('landmark_detector_node',)
+                                   ) -> None:
+        """Spin until each detector's /diagnostics says its landmarks writer matched a reader.
+
+        The writer matches the EKF node's reader on the detector's own discovery, which can
+        come after the probe sees both ends; the first scans' landmarks would then be lost and
+        the estimates would not be the offline run's. `diagnostics` is the probe's
+        /diagnostics subscription. The detector reports once a period on its node clock, so
+        with use_sim_time it says nothing before /clock runs: this wait would time out.
+        """
+        detectors = tuple(detectors)
+
+        def matched(node: str) -> bool:
+            values = diagnostic_values(diagnostics, f'/{node}: pole detector') or {}
+            return int(values.get('landmarks_readers') or 0) > 0
+        self.spin_until(lambda: all(matched(node) for node in detectors), 60,
+                        f'landmarks_readers > 0 in the /diagnostics of {", ".join(detectors)}'
+                        ' (their landmarks writers matched the EKF node\'s reader)')
 
     def close(self) -> None:
         """Destroy the node and shut the context down."""

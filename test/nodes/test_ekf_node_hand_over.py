@@ -40,11 +40,12 @@ def test_the_node_hands_the_body_frame_over_and_says_so(
 
     processes, probe = ros_processes
     diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
-    processes.two_lidar_nodes(bag)
+    detectors = processes.two_lidar_nodes(bag)
     probe.spin_until(lambda: probe.node.count_publishers('/landmarks') == 2
                      and probe.node.count_subscribers('/landmarks') == 1
                      and (diagnostics_of(diagnostics, STATUS) or {}).get('body_frame_lidar')
                      == 'scan', 20, 'two detectors and the EKF node, scan defining the frame')
+    probe.wait_for_landmarks_readers(diagnostics, detectors)
     replay = processes.replay_two_lidar_bag(bag)
     assert 'all acknowledged: True' in replay
     n_imu = str(len(read_bag(bag).trip.imu.stamp_s))

@@ -47,11 +47,12 @@ def mis_mounted_run(ros_processes, tmp_path_factory):
 
     processes, probe = ros_processes
     diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
-    processes.two_lidar_nodes(bag, '--params-file', str(off))
+    detectors = processes.two_lidar_nodes(bag, '--params-file', str(off))
     probe.spin_until(lambda: probe.node.count_publishers('/landmarks') == 2
                      and probe.node.count_subscribers('/landmarks') == 1
                      and probe.node.count_publishers('/ekf/odometry') == 1, 20,
                      'two detectors and the EKF node on /landmarks')
+    probe.wait_for_landmarks_readers(diagnostics, detectors)
     replay = processes.replay_two_lidar_bag(bag)
     n_imu = str(len(read_bag(bag).trip.imu.stamp_s))
     probe.spin_until(lambda: (_status(diagnostics) or (0, '', {}))[2].get('estimates') == n_imu,

@@ -40,10 +40,11 @@ def test_the_node_finds_the_mount_publishes_it_and_readmits_the_lidar(
     processes, probe = ros_processes
     diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
     mounts = probe.subscribe(PoseArray, 'ekf/mounts', qos.LATCHED)
-    processes.two_lidar_nodes(bag)
+    detectors = processes.two_lidar_nodes(bag)
     probe.spin_until(lambda: probe.node.count_publishers('/landmarks') == 2
                      and probe.node.count_subscribers('/landmarks') == 1
                      and len(mounts) >= 1, 20, 'two detectors, the EKF node and ekf/mounts')
+    probe.wait_for_landmarks_readers(diagnostics, detectors)
     # First the stated mounts.
     stated = mounts[0].poses[1]
     assert quaternion_yaw(stated.orientation) == pytest.approx(
