@@ -57,9 +57,7 @@ def _pipeline(ros_processes, diagnostics_of, bag, rate: float, publish_every: in
         'the EKF node, its odometry and bias writers matched')
     # So with the detector's landmarks writer and the EKF node's reader: the first scans'
     # landmarks would be lost, and the estimates would not be the offline run's.
-    probe.spin_until(lambda: int((diagnostics_of(
-        diagnostics, '/landmark_detector_node: pole detector') or {}).get(
-            'landmarks_readers') or 0) > 0, 60, 'the detector, its landmarks writer matched')
+    probe.wait_for_landmarks_readers(diagnostics)
     replay = processes.run(
         'replay', 'gyro_ekf.cli.main', 'replay', str(bag), '--rate', str(rate),
         '--topics', 'imu', 'odom', 'scan', 'landmark_map', 'initialpose',
