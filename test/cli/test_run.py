@@ -145,10 +145,14 @@ def test_course_simulations_are_accurate(shared_data, tmp_path, folder):
     assert code == 0
     if folder == '2023_sim':
         # Its gyro is coloured (a wander, config.py): the bias watch widens its noise and
-        # the verdict says so, the only reason it gives.
+        # the verdict says so. Its LiDARs' online fit reads them 3.7 mm apart, 4.3 of the
+        # fit's sigmas (the log's ranges come in whole centimetres, an error the fit's
+        # sigma does not count): said too, as on 4 % of exact simulated mounts.
         assert summary['health']['verdict'] == 'degraded'
-        [reason] = summary['health']['reasons']
-        assert reason.startswith('the gyro was noisier than configured'), reason
+        reasons = summary['health']['reasons']
+        assert len(reasons) == 2, reasons
+        assert reasons[0].startswith('LiDAR scan2 and scan disagree by'), reasons
+        assert reasons[1].startswith('the gyro was noisier than configured'), reasons
         assert summary['online_bias']['gyro_noise_scale_max'] > 1.0
     else:
         _assert_ok(summary)
