@@ -24,6 +24,10 @@ __all__ = ['ReadyEvents', 'StreamMerger']
 
 ReadyEvents = list[tuple[float, EventKind, Any]]
 
+IDLE_STAMP_TOLERANCE_S = 1e-6
+"""Stamps this close past a stream's next expected one count as at it (release_idle), s:
+the stamps of periodic streams written through decimal text (the course logs' CSVs)."""
+
 
 class StreamMerger:
     """Releases live events in driver order: (stamp, kind, arrival), behind a watermark.
@@ -88,8 +92,8 @@ class StreamMerger:
         self._heap: list[tuple[float, int, int, Any]] = []
         self._arrival = itertools.count()
         # Per stream: its newest stamp, the newest stamp of any stream when its last
-        # message came, and the clock then.
-        self._streams: dict[str, tuple[float, float, float]] = {}
+        # message came, the clock then, and its last stamp interval (0 before two).
+        self._streams: dict[str, tuple[float, float, float, float]] = {}
         self._newest_s = -math.inf
         self._released_s = -math.inf
 
@@ -110,15 +114,17 @@ class StreamMerger:
         newest_s = self._newest_s = max(self._newest_s, stamp_s)
         if self._started is None:
             self._started, self._first_newest_s = now, newest_s
-        own_s = self._streams.get(stream, (-math.inf,))[0]
-        self._streams[stream] = (max(own_s, stamp_s), newest_s, now)
+        own_s, _, _, interval_s = self._streams.get(stream, (-math.inf, 0.0, 0.0, 0.0))
+        if stamp_s > own_s:
+            interval_s, own_s = (stamp_s - own_s if own_s > -math.inf else 0.0), stamp_s
+        self._streams[stream] = (own_s, newest_s, now, interval_s)
         heapq.heappush(self._heap, (stamp_s, int(kind), next(self._arrival), payload))
         if (self._released_s == -math.inf and not self.expected_streams <= self._streams.keys()
                 and not self._passed(now, self._started, self._first_newest_s)
                 and len(self._heap) <= self.max_events):
             return [], []
         stale_s, wall_s = self.stale_after_s, self.stale_wall_s
-        watermark = min((own for own, newest_then, seen in self._streams.values()
+        watermark = min((own for own, newest_then, seen, _ in self._streams.values()
                          if now - seen <= wall_s or newest_s - newest_then <= stale_s),
                         default=math.inf)  # not stale (see _passed), inline: per message
         return self._release(min(newest_s - self.window_s, watermark)), []
@@ -126,7 +132,7 @@ class StreamMerger:
     def active_streams(self) -> set[str]:
         """Streams seen since the last clear that are not stale."""
         now = self._clock()
-        return {stream for stream, (_, newest_then, seen) in self._streams.items()
+        return {stream for stream, (_, newest_then, seen, _) in self._streams.items()
                 if not self._passed(now, seen, newest_then)}
 
     def _passed(self, now: float, seen: float, newest_then_s: float) -> bool:
@@ -141,6 +147,22 @@ class StreamMerger:
     def flush(self) -> ReadyEvents:
         """Release everything held."""
         return self._release(math.inf)
+
+    def release_idle(self) -> ReadyEvents:
+        """Release what no stream is still expected to overtake, when no input arrives.
+
+        For the end of the data, where nothing else releases the tail: each stream holds
+        back only events beyond its next expected stamp (its newest plus its last stamp
+        interval, so streams that ended together release everything), until stale_wall_s
+        passed on the clock since its last message. A stream that lags by more (messages
+        still on their way: a reliable reader waiting for a lost sample to be sent again,
+        an upstream node that is behind) keeps the later events until its messages come
+        or it is stale; releasing them would make every one of its messages late.
+        """
+        now = self._clock()
+        until_s = min((own + interval for own, _, seen, interval in self._streams.values()
+                       if now - seen <= self.stale_wall_s), default=math.inf)
+        return self._release(until_s + IDLE_STAMP_TOLERANCE_S)
 
     def clear(self) -> None:
         """Drop everything and forget the streams and stamps seen (after a reset)."""

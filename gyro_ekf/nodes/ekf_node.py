@@ -188,7 +188,11 @@ input stalls without going stale; the oldest are released beyond it."""
 
 IDLE_FLUSH_S = 0.5
 """Wall time without input after which held messages are processed, s: at the end of the
-data nothing else releases them (the check runs every 0.25 s and needs two idle ticks)."""
+data nothing else releases them (the check runs every 0.25 s and needs two idle ticks).
+Only up to each input's next expected stamp (core StreamMerger.release_idle): messages
+behind an input that lags (with reliable inputs, a sample lost on the way and sent again
+seconds later; a detector behind) wait until it catches up or goes stale, so its messages
+are not dropped as late; inputs that ended together release everything."""
 
 LOOP_JUMP_S = 1.0
 """A message this far behind the filter counts towards a restart of the data (a looped bag
@@ -788,7 +792,9 @@ class EkfNode(Node):
         self._idle_ticks = self._idle_ticks + 1 if idle else 0
         if self._idle_ticks >= 2:
             self._idle_ticks = 0
-            self._process(self._buffer.flush())
+            # Not flush(): an input still on its way (a reliable sample sent again, a
+            # detector behind) keeps what follows it until it comes or goes stale.
+            self._process(self._buffer.release_idle())
             if self._lagged is not None:
                 self._lagged.flush()
             self._publish_diagnostics()

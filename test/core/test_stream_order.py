@@ -200,3 +200,45 @@ def test_a_stream_that_stops_goes_stale_and_holds_back_again_when_it_resumes():
                                             'imu': (11.0, 0.01, EventKind.IMU)})
     assert late == []
     assert buffer.active_streams() == {'imu', 'odom'}
+
+
+def test_when_inputs_stop_streams_that_ended_together_release_everything():
+    # The end of a replay: IMU and odometry to 10.0 s, the LiDAR's last scan at 9.9 s
+    # (10 Hz). Its next scan could not be older than 10.0 s, so nothing waits for it.
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0],
+                          stale_wall_s=30.0)
+    late = []
+    for k in range(1001):
+        stamp = round(0.01 * k, 2)
+        if k % 10 == 0 and k < 1000:
+            late += buffer.push('scan', stamp, EventKind.OBSERVATION, k)[1]
+        late += buffer.push('odom', stamp, EventKind.SPEED, k)[1]
+        late += buffer.push('imu', stamp, EventKind.IMU, k)[1]
+    assert late == [] and len(buffer) == 20  # after the last scan: 9.91-10.0 s
+    now[0] += 0.5
+    released = buffer.release_idle()
+    assert len(buffer) == 0 and released[-1][0] == 10.0
+
+
+def test_when_inputs_stop_a_lagging_stream_holds_the_rest_until_it_is_stale():
+    # A reliable reader whose odometry from 8.0 s on is still to be sent again (lost on
+    # the way) when the IMU has ended at 10 s: odometry arriving after the pause is not
+    # late. Once odometry is silent for stale_wall_s on the clock, the rest goes.
+    now = [0.0]
+    buffer = StreamMerger(window_s=0.0, stale_after_s=1.0, clock=lambda: now[0],
+                          stale_wall_s=30.0)
+    late = _drain(buffer, now, 801, 0.001, {'odom': (0.0, 0.01, EventKind.SPEED),
+                                            'imu': (0.0, 0.01, EventKind.IMU)})
+    late += _drain(buffer, now, 200, 0.001, {'imu': (8.01, 0.01, EventKind.IMU)})
+    now[0] += 0.5
+    released = buffer.release_idle()
+    assert released[-1][0] == 8.01  # up to odometry's next expected stamp
+    late += _drain(buffer, now, 100, 0.001, {'odom': (8.01, 0.01, EventKind.SPEED)})
+    assert late == [] and buffer.released_s == 9.0
+    now[0] += 29.0
+    # Within stale_wall_s: only up to odometry's next expected stamp again.
+    assert [r[0] for r in buffer.release_idle()] == [9.01] and len(buffer) == 99
+    now[0] += 2.0
+    released = buffer.release_idle()
+    assert len(buffer) == 0 and released[-1][0] == 10.0
