@@ -15,13 +15,16 @@ serialized, nodes/wire.py). Ranges themselves may be inf or NaN (REP-117: no ret
 Each scan is passed on as it comes: two scans with one stamp give two landmarks messages
 with that stamp, and ekf_node keeps the first (core/same_stamp.py). /diagnostics also says
 how many readers `landmarks` has matched (`landmarks_readers`, this node's side of
-discovery: a landmarks message published before the EKF node's reader matched is lost).
+discovery: a landmarks message published before the EKF node's reader matched is lost),
+every period and at once when a reader of `landmarks` or `/diagnostics` matches or leaves
+(so also before /clock runs under use_sim_time).
 """
 
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from sensor_msgs.msg import LaserScan
 from std_msgs.msg import Header
@@ -61,10 +64,15 @@ class LandmarkDetectorNode(Node):
         self.scans = 0
         self.poles = 0
         self.dropped = {'zero_stamp': 0, 'bad_scan': 0, 'malformed': 0}
+        # A reader of either topic that comes or goes is reported at once, not at the next
+        # period: under use_sim_time the timer waits for /clock, and whoever starts the
+        # replay once the landmarks reach the EKF node would wait for ever.
+        report = PublisherEventCallbacks(matched=lambda _status: self._publish_diagnostics())
         self._publisher = self.create_publisher(PoseArray, topics.LANDMARKS,
-                                                qos.stream_output(lossless))
+                                                qos.stream_output(lossless),
+                                                event_callbacks=report)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
-                                                      qos.OUTPUT)
+                                                      qos.OUTPUT, event_callbacks=report)
         # Serialized I/O (nodes/wire.py): ranges read in place from the scan's bytes and the
         # poles written as PoseArray bytes; the same numbers as rclpy messages.
         serialized = wire.serialized_io()

@@ -135,8 +135,9 @@ class Probe:
         The writer matches the EKF node's reader on the detector's own discovery, which can
         come after the probe sees both ends; the first scans' landmarks would then be lost and
         the estimates would not be the offline run's. `diagnostics` is the probe's
-        /diagnostics subscription. The detector reports once a period on its node clock, so
-        with use_sim_time it says nothing before /clock runs: this wait would time out.
+        /diagnostics subscription. The detector reports once a period on its node clock and
+        at once when a reader of its landmarks or diagnostics matches, so this works under
+        use_sim_time before /clock runs too.
         """
         detectors = tuple(detectors)
 

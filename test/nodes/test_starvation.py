@@ -114,6 +114,9 @@ def _demo_pipeline(ros_harness, diagnostics_of, tmp_path, reliable: bool, hogs_p
         probe.spin_until(lambda: probe.node.count_publishers('/ekf/odometry') > 0
                          and probe.node.count_publishers('/diagnostics') > 0, 60,
                          'the EKF node')
+        # The first scans' landmarks are lost if the detector's writer has not matched the
+        # EKF node's reader yet (sim time: the detector says so before /clock runs).
+        probe.wait_for_landmarks_readers(diagnostics)
         hogs = Hogs(hogs_per_core * _cores())
         rate = RELIABLE_RATE if reliable else LOSSY_RATE
         processes.run(
