@@ -33,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--duration-s', type=float, default=None,
                         help='stop after this much wall time')
     parser.add_argument('--idle-exit-s', type=float, default=None,
-                        help='stop when no message arrived for this long (after the first)')
+                        help='stop when no message arrived for this long (after the first; '
+                        'with --use-sim-time, the first once /clock runs)')
     parser.add_argument('--flush-s', type=float, default=1.0,
                         help='make the bag readable on disk (index, metadata.yaml) this '
                         'often, s: what a kill -9 can lose')

@@ -45,7 +45,9 @@ class Recorder(Node):
 
     Attributes:
         recorded: topic name -> RecordedTopic.
-        last_message: monotonic time of the last message received, or None.
+        last_message: monotonic time of the last message received, or None; under
+            use_sim_time, of the last one received once /clock runs (a node's report at
+            its start, before a replay's /clock, does not count as recorded data).
     """
 
     def __init__(self, specs: list[str], sink: Sink, node_name: str = 'gyro_ekf_record',
@@ -57,6 +59,7 @@ class Recorder(Node):
         """
         super().__init__(node_name, **kwargs)
         self._sink = sink
+        self._sim_time = bool(self.get_parameter('use_sim_time').value)
         self.recorded: dict[str, RecordedTopic] = {}
         self.last_message: float | None = None
         self._by_topic = {}
@@ -110,6 +113,8 @@ class Recorder(Node):
 
     def _on_message(self, topic: RecordedTopic, data: bytes) -> None:
         topic.count += 1
-        self.last_message = time.monotonic()
-        self._sink(topic.name, topic.msgtype, self.get_clock().now().nanoseconds, data,
-                   topic.latched)
+        stamp_ns = self.get_clock().now().nanoseconds
+        # ROS time is 0 before /clock under use_sim_time: such a message starts no idle wait.
+        if stamp_ns > 0 or not self._sim_time:
+            self.last_message = time.monotonic()
+        self._sink(topic.name, topic.msgtype, stamp_ns, data, topic.latched)

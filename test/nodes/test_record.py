@@ -159,3 +159,29 @@ def test_record_stops_after_its_duration_with_a_complete_empty_bag(ros_processes
                   timeout_s=60)
     assert bag_summary(bag).message_count == 0
     assert list(iter_bag_messages(bag)) == []
+
+
+def test_with_sim_time_a_message_before_clock_starts_no_idle_wait(ros_processes):
+    # make demo records with --use-sim-time --idle-exit-s 3: a node's /diagnostics report at
+    # its start (before the replay's /clock) once started the idle wait, and the recorder
+    # exited before the replay's outputs came.
+    from rclpy.parameter import Parameter
+    from rclpy.time import Time
+
+    from gyro_ekf.nodes.recorder import Recorder
+
+    _, probe = ros_processes
+    recorded = []
+    recorder = Recorder(['/record_sim_time:geometry_msgs/msg/Vector3Stamped'],
+                        lambda *args: recorded.append(args[2]), node_name='sim_time_recorder',
+                        context=probe.context,
+                        parameter_overrides=[Parameter('use_sim_time', value=True)])
+    try:
+        topic = recorder.recorded['/record_sim_time']
+        recorder._on_message(topic, b'')
+        assert recorded == [0] and recorder.last_message is None
+        recorder.get_clock().set_ros_time_override(Time(seconds=1000))  # as /clock does
+        recorder._on_message(topic, b'')
+        assert recorded == [0, 1000 * 10 ** 9] and recorder.last_message is not None
+    finally:
+        recorder.destroy_node()
