@@ -208,6 +208,11 @@ class BiasWatch:
             self._correction_sum += yaw_correction_rad
 
     @property
+    def start_yaw_variance(self) -> float:
+        """The heading's variance where the open block started (the last block's close), rad^2."""
+        return self._start_yaw_variance
+
+    @property
     def idle(self) -> bool:
         """Whether no block is open (the next landmark update starts one)."""
         return self._start_s is None

@@ -46,7 +46,7 @@ from gyro_ekf.core.bias_watch import BiasWatch
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
-from gyro_ekf.core.gyro_wander import GyroWander
+from gyro_ekf.core.gyro_wander import GyroWander, block_allowed
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
@@ -694,6 +694,7 @@ class EventDriver:
         rate_variance = ekf.gyro_variance if self.rate_variance is None else self.rate_variance
         bias_variance = float(P[BIAS, BIAS])
         heading_noise = self._heading_dt2 * rate_variance * ekf.rate_noise_scale
+        start_yaw_variance = watch.start_yaw_variance  # close() moves it to the next block
         variance = watch.close(stamp_s, bias_variance, float(P[YAW, YAW]), heading_noise)
         wander_dt = self._wander_dt
         self._heading_dt2 = self._wander_dt = 0.0
@@ -708,7 +709,8 @@ class EventDriver:
             start, length, error = watch.block
             if self._rate_held_s < start - length:
                 self.gyro_wander.add_block(stamp_s, length, error + wander_dt / length,
-                                           bias_variance + heading_noise / (length * length))
+                                           block_allowed(length, bias_variance, heading_noise,
+                                                         start_yaw_variance, float(P[YAW, YAW])))
                 self._model_wander()
         if variance is not None:
             self.ekf.open_bias(variance)

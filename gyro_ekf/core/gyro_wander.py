@@ -32,6 +32,21 @@ heading error, not the gyro's). When the rate fit finds a ramp, the last
 ``RETRACTED_BLOCKS`` blocks are taken back (``retract``): a ramp's first blocks lean its
 way by less than the watch's limits until it is found.
 
+What a block's corrections take back includes the heading error it started with
+(``block_allowed``). Over a block the corrections sum to C = e_start + d - e_end (d the
+gyro's heading error over it, bias included); for a consistent filter the end's error is
+orthogonal to the estimate, so Var(C) = P_yaw(start) + Var(d) - P_yaw(end). While the
+heading is held steadily the two ends' variances are about equal and the allowed is the
+bias's variance and the predictions' heading noise over L^2, as above. When the heading
+was uncertain at the start and a second pole comes into view, P_yaw(start) - P_yaw(end) is
+corrected too and is allowed for. On the real 2016 trip one such block (at 94 s, after
+18 s with a single pole in view: the heading sigma 0.44 deg at its start and 0.15 deg at
+its end, its corrections 0.8 deg, 5.6 of the sigmas allowed without this) tipped the sums
+into a wander of 0.0735 deg/s; allowed for, it is 1.9 sigmas and no wander is found. A
+heading that grew less certain over a block (P_yaw(end) above the start) takes nothing
+off the allowed: with one pole in view the corrections that are left share one
+geometry's error, and a smaller allowed would read it as a wander.
+
 On the simulator's trips (docs/stress.md): clean trips never reach the limit (their
 db_b^2 / allowed over a trip: 0.6-1.2); trips with a wander of 0.01-0.04 deg/s and 0.5-5 s
 read 0.6-1.5 times their true sigma, 28-116 s into the trip.
@@ -51,6 +66,21 @@ RETRACTED_BLOCKS = 10
 
 SIGNIFICANCE = 1e-4
 """Chance that the blocks of a consistent filter are taken for a wander, at each look."""
+
+
+def block_allowed(length_s: float, bias_variance_rad2_s2: float, heading_noise_rad2: float,
+                  start_yaw_variance_rad2: float, end_yaw_variance_rad2: float) -> float:
+    """Return what a consistent filter allows a block's db_b^2, (rad/s)^2 (module docstring).
+
+    Args:
+        length_s: L, s.
+        bias_variance_rad2_s2: the bias's variance, (rad/s)^2.
+        heading_noise_rad2: the heading noise the block's predictions added, rad^2.
+        start_yaw_variance_rad2: the heading's variance where the block started, rad^2.
+        end_yaw_variance_rad2: the heading's variance where it closed, rad^2.
+    """
+    taken_back = max(0.0, start_yaw_variance_rad2 - end_yaw_variance_rad2)
+    return bias_variance_rad2_s2 + (heading_noise_rad2 + taken_back) / (length_s * length_s)
 
 
 def block_mean_share(length_s: float, tau_s: float) -> float:
@@ -100,8 +130,8 @@ class GyroWander:
             length_s: L, s.
             bias_error_rad_s: db_b, the bias error its corrections imply against the bias
                 alone (the modelled wander's share of the prediction added back), rad/s.
-            allowed_rad2_s2: what a consistent filter allows db_b^2: the bias variance
-                plus the heading noise of the block's predictions over L^2, (rad/s)^2.
+            allowed_rad2_s2: what a consistent filter allows db_b^2 (``block_allowed``),
+                (rad/s)^2.
         """
         if not (length_s > 0.0 and allowed_rad2_s2 > 0.0
                 and math.isfinite(bias_error_rad_s)):

@@ -8,7 +8,8 @@ import pytest
 
 from gyro_ekf.analysis import stress
 from gyro_ekf.analysis.offline import run_trip
-from gyro_ekf.core.gyro_wander import MIN_BLOCKS, GyroWander, block_mean_share
+from gyro_ekf.core.gyro_wander import (
+    MIN_BLOCKS, GyroWander, block_allowed, block_mean_share)
 from gyro_ekf.core.simulator import simulate_trip
 
 DEG = math.pi / 180.0
@@ -86,6 +87,79 @@ def test_nothing_but_finite_judged_blocks_count():
     copy = wander.copy()
     copy.add_block(2.0, 2.0, 1e-4, 1e-8)
     assert copy.blocks == 1 and wander.blocks == 0
+
+
+def test_what_a_block_allows_is_its_heading_noise_and_the_error_its_start_gives_back():
+    bias, noise, length = 1e-9, 4e-8, 2.0
+    held = bias + noise / length ** 2
+    # The heading held steadily (equal ends) or growing less certain: nothing more.
+    assert block_allowed(length, bias, noise, 3e-7, 3e-7) == held
+    assert block_allowed(length, bias, noise, 1e-7, 9e-7) == held
+    # Corrected from 0.5 to 0.15 deg: that difference is taken back over the block too.
+    start, end = math.radians(0.5) ** 2, math.radians(0.15) ** 2
+    assert block_allowed(length, bias, noise, start, end) == pytest.approx(
+        held + (start - end) / length ** 2)
+
+
+def test_allowed_block_variances_match_a_kalman_filters_corrections():
+    # A scalar heading whose gyro error is a random walk, observed every 0.1 s but for a
+    # gap. Three blocks of 100 steps: from an uncertain start to a steady end; from steady
+    # into the gap (less certain at the end); from inside the gap to steady again. The
+    # variance of each block's sum of corrections over Monte Carlo runs against
+    # block_allowed * L^2 (L = 1, no bias term).
+    rng = np.random.default_rng(8)
+    q, r, runs = 1e-4, 1e-2, 4000
+    p0 = 0.01
+    sums = np.zeros((runs, 3))
+    p_at = [p0]
+    for run in range(runs):
+        x = rng.normal(0.0, math.sqrt(p0))
+        estimate, p = 0.0, p0
+        corrections = 0.0
+        for step in range(300):
+            x += rng.normal(0.0, math.sqrt(q))
+            p += q
+            if not 150 <= step < 250:
+                gain = p / (p + r)
+                correction = gain * (x + rng.normal(0.0, math.sqrt(r)) - estimate)
+                estimate += correction
+                p *= 1.0 - gain
+                corrections += correction
+            if step % 100 == 99:
+                if run == 0:
+                    p_at.append(p)
+                sums[run, step // 100] = corrections
+                corrections = 0.0
+    noise = 100 * q
+    # The variance taken back (blocks 0 and 2) is allowed for: the theory to Monte Carlo
+    # precision.
+    for k in (0, 2):
+        assert p_at[k] > p_at[k + 1]
+        assert np.var(sums[:, k]) == pytest.approx(
+            block_allowed(1.0, 0.0, noise, p_at[k], p_at[k + 1]), rel=0.1), k
+    # Growing less certain (block 1): the allowed stays the steady one, more than the
+    # corrections' variance (p_start + noise - p_end): a conservative figure.
+    assert p_at[2] > p_at[1]
+    assert np.var(sums[:, 1]) < 0.9 * block_allowed(1.0, 0.0, noise, p_at[1], p_at[2])
+
+
+@pytest.mark.parametrize('start_sigma_deg,found', [(0.05, True), (0.44, False)])
+def test_a_block_that_starts_with_an_uncertain_heading_is_no_wander(start_sigma_deg, found):
+    # The 2016 trip's shape: consistent blocks, then one whose corrections take back 0.8 deg
+    # of heading (0.41 deg/s over 2 s, 5.6 of the sigmas of a steadily held heading). From
+    # a heading known to 0.05 deg that is the gyro's and tips the sums into a wander; from
+    # one known to 0.44 deg, corrected to 0.15, it is mostly the error the start gave back.
+    rng = np.random.default_rng(6)
+    bias, noise, length = 1e-9, (0.072 * DEG * 2.0) ** 2, 2.0
+    steady = (0.06 * DEG) ** 2
+    wander = GyroWander(2.0)
+    for k in range(36):
+        allowed = block_allowed(length, bias, noise, steady, steady)
+        wander.add_block(2.0 * k, length, rng.normal(0.0, math.sqrt(allowed)) * 1.2, allowed)
+    assert wander.found_at_s is None
+    wander.add_block(74.0, length, 0.41 * DEG, block_allowed(
+        length, bias, noise, (start_sigma_deg * DEG) ** 2, (0.15 * DEG) ** 2))
+    assert (wander.found_at_s is not None) is found
 
 
 def _trip(changes, seed=500):
