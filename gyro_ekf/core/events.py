@@ -695,7 +695,8 @@ class EventDriver:
         bias_variance = float(P[BIAS, BIAS])
         heading_noise = self._heading_dt2 * rate_variance * ekf.rate_noise_scale
         start_yaw_variance = watch.start_yaw_variance  # close() moves it to the next block
-        variance = watch.close(stamp_s, bias_variance, float(P[YAW, YAW]), heading_noise)
+        yaw_variance = float(P[YAW, YAW])
+        variance = watch.close(stamp_s, bias_variance, yaw_variance, heading_noise)
         wander_dt = self._wander_dt
         self._heading_dt2 = self._wander_dt = 0.0
         self.ekf.rate_noise_scale = self.stats.gyro_noise_scale = watch.noise_scale
@@ -710,7 +711,7 @@ class EventDriver:
             if self._rate_held_s < start - length:
                 self.gyro_wander.add_block(stamp_s, length, error + wander_dt / length,
                                            block_allowed(length, bias_variance, heading_noise,
-                                                         start_yaw_variance, float(P[YAW, YAW])))
+                                                         start_yaw_variance, yaw_variance))
                 self._model_wander()
         if variance is not None:
             self.ekf.open_bias(variance)
