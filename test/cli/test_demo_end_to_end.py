@@ -19,6 +19,7 @@ import pytest
 
 pytest.importorskip('rclpy')
 
+from gyro_ekf.cli.demo import BIAS_LIMIT_DEG_S, POSITION_LIMIT_M  # noqa: E402
 from gyro_ekf.io.bag_reader import iter_bag_messages  # noqa: E402
 
 pytestmark = pytest.mark.ros
@@ -47,8 +48,9 @@ def test_the_demo_on_the_bundled_bag_says_ok_and_writes_its_products(tmp_path, r
     assert 'Traceback' not in done.stderr, detail
 
     summary = json.loads((output / 'summary.json').read_text())
-    assert summary['verdict'] == {'ok': True, 'problems': [], 'bias_limit_deg_s': 0.02,
-                                  'position_limit_m': 0.05}
+    assert summary['verdict'] == {'ok': True, 'problems': [],
+                                  'bias_limit_deg_s': BIAS_LIMIT_DEG_S,
+                                  'position_limit_m': POSITION_LIMIT_M}
     # Every figure the verdict judges is there (a missing one is a problem of its own, but
     # say which) and the node's health verdict is its own, not a default.
     for key in ('offline_bias_deg_s', 'calibration_node_bias_deg_s', 'online_bias_deg_s',
