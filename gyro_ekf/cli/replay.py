@@ -241,7 +241,10 @@ def run(args: argparse.Namespace) -> int:
                 if name not in node.publishers_by_topic:
                     raise GyroEkfError(f'--wait-for: topic {name!r} is not replayed')
                 needs[name] = max(needs.get(name, 0), count)
-        short = node.wait_for_subscribers(needs, args.wait_timeout_s)
+        short = node.wait_for_subscribers(
+            needs, args.wait_timeout_s,
+            lambda name, count, need: log.info('--wait-for: %s has %d of %d subscribers',
+                                               name, count, need))
         if stop:
             log.info('stopped by %s before the replay began', stop.requested)
             return 0

@@ -228,21 +228,32 @@ class Replayer(Node):
                 self.backpressure_waits += 1
                 time.sleep(0.002)
 
-    def wait_for_subscribers(self, needs: dict[str, int], timeout_s: float) -> dict[str, int]:
+    def wait_for_subscribers(self, needs: dict[str, int], timeout_s: float,
+                             progress: Callable[[str, int, int], None] | None = None
+                             ) -> dict[str, int]:
         """Wait until each topic has at least the given number of matched subscriptions.
 
         Args:
             needs: topic as recorded -> subscriptions needed.
             timeout_s: give up after this long, s.
+            progress: called with (topic, matched, needed) whenever a topic's count of
+                matched subscriptions changes while it is short (and once at the start),
+                so a user waiting on a replay sees who has come and who is missing.
 
         Returns:
             The topics still short of subscribers -> their current count (empty on success).
         """
         deadline = time.monotonic() + timeout_s
+        seen: dict[str, int] = {}
         while True:
-            short = {name: self.publishers_by_topic[name].get_subscription_count()
-                     for name in needs}
-            short = {name: count for name, count in short.items() if count < needs[name]}
+            counts = {name: self.publishers_by_topic[name].get_subscription_count()
+                      for name in needs}
+            short = {name: count for name, count in counts.items() if count < needs[name]}
+            if progress is not None:
+                for name, count in counts.items():
+                    if seen.get(name) != count and (name in short or name in seen):
+                        progress(name, count, needs[name])
+                    seen[name] = count
             if not short or time.monotonic() > deadline or not self._running():
                 return short
             time.sleep(0.01)

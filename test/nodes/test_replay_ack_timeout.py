@@ -5,8 +5,7 @@ the replay: it neither takes nor acknowledges anything after that. The replay lo
 still publishing at the freeze, and the frozen reader holds it back. The replay must not wait
 for it forever: it ends with exit 1 and one line naming the topic and the option.
 
-(The same bound at the end of a replay is not tested here: a live test of it would race the
-freeze against the replay's last acknowledgements.)
+The same bound at the end of a replay: test_replay_end_ack_timeout.py.
 """
 
 from __future__ import annotations
