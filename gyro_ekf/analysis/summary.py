@@ -218,6 +218,10 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s),
         bias_largest_rate_rad_s2=float(stats.bias_largest_rate_rad_s2),
         gyro_noise_scale_max=float(stats.gyro_noise_scale_max),
+        gyro_wander_rad_s=float(stats.gyro_wander_rad_s),
+        gyro_wander_found_s=stats.gyro_wander_found_s,
+        gyro_wander_stated_rad_s=run.config.gyro_wander_rad_s,
+        gyro_wander_tau_s=run.config.gyro_wander_tau_s,
         mounts=[] if run.result.mounts is None else run.result.mounts.report(),
         odometry=None if run.result.odometry is None else run.result.odometry.report())
     return {**health.verdict(figures), 'lidars': sensors,

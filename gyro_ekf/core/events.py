@@ -73,6 +73,11 @@ HOLD_WITHOUT_ODOMETRY_S = 1.0
 zero-rate logic needs 0.5 s of zero speed to call the platform still, and without odometry
 nothing says it is."""
 
+BIAS_LEARNT_FACTOR = 2.0
+"""A bias watch block is no evidence of a wander when the bias's variance fell by more than
+this factor over it (core/gyro_wander.py): the bias was being learnt, its corrections the
+learning. Ordinary blocks while driving change it by a few per cent."""
+
 
 class EventDriver:
     """Holds the inputs and drives a GyroBiasEkf event by event.
@@ -108,8 +113,8 @@ class EventDriver:
         self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
         # Each LiDAR's range and bearing noise, measured online (core/noise_online.py).
         self.noise: dict[LidarMount, NoiseMatch] = {}
-        # The filter's bias where the bias watch's open block began.
-        self._block_bias = 0.0
+        # The filter's bias and its variance where the bias watch's open block began.
+        self._block_bias = self._block_bias_variance = 0.0
         self.held_rate = HeldRate()
         self.mounts = OnlineMounts(OnlineMountSettings(
             converged_yaw_sigma_rad=self.config.mount_online_yaw_sigma_rad))
@@ -177,7 +182,7 @@ class EventDriver:
         self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
         self._model_wander()  # a wander found before the reset is forgotten with it
         self.noise = {}
-        self._block_bias = 0.0
+        self._block_bias = self._block_bias_variance = 0.0
         self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0
         self.ekf.odometry_walk = 0.0
         self.held_rate = HeldRate()
@@ -234,7 +239,8 @@ class EventDriver:
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
                  self.zero_rate, self.held_start.copy()), self.mounts.save(),
-                (self.bias_watch.copy(), self.bias_rate.copy(), self._block_bias,
+                (self.bias_watch.copy(), self.bias_rate.copy(),
+                 (self._block_bias, self._block_bias_variance),
                  self.gyro_wander.copy(), self._wander_dt, self._rate_held_s),
                 self.held_rate.save(), self._rate_stamp_s, self._heading_dt2,
                 (self.odometry.save(), self._measured_speed_m_s, self._path_s,
@@ -253,7 +259,8 @@ class EventDriver:
             self.lidar_noise(key).restore(saved_noise)
         self.held_rate.restore(held)
         self.odometry.restore(odometry)
-        watch, rate, self._block_bias, wander, self._wander_dt, self._rate_held_s = watch
+        (watch, rate, (self._block_bias, self._block_bias_variance), wander,
+         self._wander_dt, self._rate_held_s) = watch
         self.bias_watch, self.bias_rate = watch.copy(), rate.copy()
         self.gyro_wander = wander.copy()
         self._model_wander()
@@ -572,8 +579,10 @@ class EventDriver:
         at_rest = self._still()
         self._close_bias_block(stamp_s, at_rest)
         if self.bias_watch.idle:
-            # This scan's updates may start a block: the bias it begins with.
+            # This scan's updates may start a block: the bias it begins with, and how well
+            # it is known then.
             self._block_bias = self.ekf.bias_rad_s
+            self._block_bias_variance = self.ekf.bias_var
         # A mount estimated online weighs less (core/mount_online.py, its item 6).
         base = 1.0 if tracker is None else tracker.noise_scale
         for match in result.associations:
@@ -707,8 +716,13 @@ class EventDriver:
             # evidence (core/gyro_wander.py). Not over an IMU gap or in the block after
             # one (its error is taken back over the next scans): there the heading error
             # is the held rate's, not the gyro's.
+            # Nor while the bias is being learnt (its variance more than halved over the
+            # block: a trip that starts moving, its bias known to degrees per second): the
+            # corrections then take back the heading the bias's first error ran up, which
+            # is the learning, not a wander.
             start, length, error = watch.block
-            if self._rate_held_s < start - length:
+            if (self._rate_held_s < start - length
+                    and self._block_bias_variance <= BIAS_LEARNT_FACTOR * bias_variance):
                 self.gyro_wander.add_block(stamp_s, length, error + wander_dt / length,
                                            block_allowed(length, bias_variance, heading_noise,
                                                          start_yaw_variance, yaw_variance))

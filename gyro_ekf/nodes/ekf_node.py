@@ -840,6 +840,10 @@ class EkfNode(Node):
             bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s,
             bias_largest_rate_rad_s2=stats.bias_largest_rate_rad_s2,
             gyro_noise_scale_max=stats.gyro_noise_scale_max,
+            gyro_wander_rad_s=stats.gyro_wander_rad_s,
+            gyro_wander_found_s=stats.gyro_wander_found_s,
+            gyro_wander_stated_rad_s=self.driver.config.gyro_wander_rad_s,
+            gyro_wander_tau_s=self.driver.config.gyro_wander_tau_s,
             mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report())
         return health.verdict(figures)
 

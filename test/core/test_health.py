@@ -175,6 +175,30 @@ def test_verdict_says_when_the_gyro_was_noisier_than_configured():
     assert 'up to 3.5 times' in result['reasons'][0]
 
 
+def test_verdict_says_when_the_gyro_wanders_more_than_configured():
+    # A wander found in the heading the LiDARs corrected (core/gyro_wander.py): the bias
+    # learnt before the find took part of it in, whatever its sigma says.
+    plain = dict(detections=100, matched=99, updates=99, nis_mean=2.0, longest_gap_s=0.5,
+                 start_gap_s=1.0, sensors=[], gyro_wander_tau_s=2.0)
+    deg = math.radians
+    assert health.verdict(health.RunFigures(**plain))['verdict'] == 'ok'
+    # Found no larger than configured: the filter modelled it from the start.
+    assert health.verdict(health.RunFigures(
+        **plain, gyro_wander_rad_s=deg(0.02), gyro_wander_found_s=30.0,
+        gyro_wander_stated_rad_s=deg(0.02)))['verdict'] == 'ok'
+    result = health.verdict(health.RunFigures(
+        **plain, gyro_wander_rad_s=deg(0.037), gyro_wander_found_s=42.0))
+    assert result['verdict'] == 'degraded'
+    assert result['reasons'] == [
+        'the gyro wanders: a yaw-rate error that reverts over about 2 s, sigma 0.037 deg/s, '
+        'none configured, found at 42.0 s, modelled from then on; the bias learnt before '
+        'it took part of the wander in, and the final bias is less sure than its sigma says']
+    result = health.verdict(health.RunFigures(
+        **plain, gyro_wander_rad_s=deg(0.03), gyro_wander_found_s=42.0,
+        gyro_wander_stated_rad_s=deg(0.01)))
+    assert 'sigma 0.030 deg/s, more than the 0.010 configured' in result['reasons'][0]
+
+
 def test_a_lidar_the_driver_has_no_name_for_is_named_by_its_mount():
     # A live node given no sidecar has no topic per mount: its health reasons read
     # "LiDAR LidarMount(x_m=0.0, y_m=0.0, yaw_rad=0.0) disagreed with the map".
