@@ -236,9 +236,10 @@ class Replayer(Node):
         Args:
             needs: topic as recorded -> subscriptions needed.
             timeout_s: give up after this long, s.
-            progress: called with (topic, matched, needed) whenever a topic's count of
-                matched subscriptions changes while it is short (and once at the start),
-                so a user waiting on a replay sees who has come and who is missing.
+            progress: called with (topic, matched, needed) for each topic short at the
+                start, and again whenever a topic's count of matched subscriptions
+                changes, so a user waiting on a replay sees who has come and who is
+                missing.
 
         Returns:
             The topics still short of subscribers -> their current count (empty on success).
