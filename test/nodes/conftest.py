@@ -65,8 +65,9 @@ class Processes(ChildProcesses):
         assert code == 0, f'{name} exited with {code}:\n{output}'
         return output
 
-    def two_lidar_nodes(self, bag: Path, *ekf_args: str) -> tuple[str, str]:
-        """Start a detector per LiDAR (scan, scan2) and the EKF node, lossless inputs.
+    def lidar_nodes(self, bag: Path, *ekf_args: str, scans: tuple[str, ...] = ('scan',)
+                    ) -> tuple[str, ...]:
+        """Start a detector per LiDAR (scan, then e.g. scan2) and the EKF node, lossless inputs.
 
         The EKF node takes the bag's params file, then `ekf_args` (more params files or
         -p overrides), and publishes /diagnostics every 0.2 s.
@@ -75,20 +76,34 @@ class Processes(ChildProcesses):
             The detectors' node names (for Probe.wait_for_landmarks_readers).
         """
         lossless = ('-p', 'reliable_inputs:=true')
-        self.node('landmark_detector_node', *lossless)
-        self.node('landmark_detector_node', *lossless, '-r', 'scan:=scan2',
-                  '-r', '__node:=landmark_detector_scan2', name='detector_scan2')
+        names = []
+        for scan in scans:
+            if scan == 'scan':
+                self.node('landmark_detector_node', *lossless)
+                names.append('landmark_detector_node')
+            else:
+                self.node('landmark_detector_node', *lossless, '-r', f'scan:={scan}',
+                          '-r', f'__node:=landmark_detector_{scan}', name=f'detector_{scan}')
+                names.append(f'landmark_detector_{scan}')
         self.node('ekf_node', '--params-file', f'{bag}.params.yaml', *ekf_args, *lossless,
                   '-p', 'diagnostics_period_s:=0.2')
-        return 'landmark_detector_node', 'landmark_detector_scan2'
+        return tuple(names)
 
-    def replay_two_lidar_bag(self, bag: Path) -> str:
-        """Replay a two-LiDAR bag at 5x once every input has a reader; return its output."""
+    def two_lidar_nodes(self, bag: Path, *ekf_args: str) -> tuple[str, ...]:
+        """lidar_nodes for a two-LiDAR bag (scan, scan2)."""
+        return self.lidar_nodes(bag, *ekf_args, scans=('scan', 'scan2'))
+
+    def replay_bag(self, bag: Path, scans: tuple[str, ...] = ('scan',)) -> str:
+        """Replay a bag at 5x once every input has a reader; return its output."""
+        waits = [arg for topic in ('imu', 'odom', *scans) for arg in ('--wait-for', f'{topic}:1')]
         return self.run(
             'replay', 'gyro_ekf.cli.main', 'replay', str(bag), '--rate', '5',
-            '--topics', 'imu', 'odom', 'scan', 'scan2', 'landmark_map', 'initialpose',
-            '--wait-for', 'imu:1', '--wait-for', 'odom:1', '--wait-for', 'scan:1',
-            '--wait-for', 'scan2:1', timeout_s=150)
+            '--topics', 'imu', 'odom', *scans, 'landmark_map', 'initialpose', *waits,
+            timeout_s=150)
+
+    def replay_two_lidar_bag(self, bag: Path) -> str:
+        """replay_bag for a two-LiDAR bag (scan, scan2)."""
+        return self.replay_bag(bag, ('scan', 'scan2'))
 
 
 MIN_WAIT_S = 90.0
@@ -148,6 +163,35 @@ class Probe:
                         f'landmarks_readers > 0 in the /diagnostics of {", ".join(detectors)}'
                         ' (their landmarks writers matched the EKF node\'s reader)')
 
+    def wait_for_lidar_nodes(self, diagnostics: list[Any], detectors: tuple[str, ...]) -> None:
+        """Spin until the detectors and the EKF node of Processes.lidar_nodes are linked.
+
+        Every detector publishes /landmarks, the EKF node reads them and publishes
+        ekf/odometry, and each detector's landmarks writer matched the EKF node's reader.
+        """
+        self.spin_until(lambda: self.node.count_publishers('/landmarks') == len(detectors)
+                        and self.node.count_subscribers('/landmarks') == 1
+                        and self.node.count_publishers('/ekf/odometry') == 1, 20,
+                        f'{len(detectors)} detector(s) and the EKF node on /landmarks')
+        self.wait_for_landmarks_readers(diagnostics, detectors)
+
+    def wait_for_every_estimate(self, diagnostics: list[Any], imu_samples: int
+                                ) -> tuple[int, str, dict[str, str]]:
+        """Spin until the EKF node has an estimate per IMU sample; return its newest status.
+
+        Its /diagnostics counts the estimates; two statuses more are awaited, so the scans
+        after the last IMU sample are in too (the idle flush). The status is ``ekf_status``.
+        """
+        n_imu = str(imu_samples)
+        self.spin_until(
+            lambda: (ekf_status(diagnostics) or (0, '', {}))[2].get('estimates') == n_imu,
+            60, f'{n_imu} estimates in /diagnostics')
+        seen = len(diagnostics)
+        self.spin_until(lambda: len(diagnostics) >= seen + 2, 10, 'two more diagnostics')
+        status = ekf_status(diagnostics)
+        assert status is not None
+        return status
+
     def close(self) -> None:
         """Destroy the node and shut the context down."""
         self.node.destroy_node()
@@ -160,6 +204,19 @@ def diagnostic_values(messages: list[Any], name_part: str) -> dict[str, str] | N
         for status in array.status:
             if name_part in status.name:
                 return {kv.key: kv.value for kv in status.values}
+    return None
+
+
+EKF_STATUS = '/ekf_node: gyro bias EKF'
+"""Part of the name of the EKF node's diagnostic status."""
+
+
+def ekf_status(messages: list[Any]) -> tuple[int, str, dict[str, str]] | None:
+    """Return the EKF node's newest diagnostic status: (level, message, key/values)."""
+    for array in reversed(messages):
+        for status in array.status:
+            if EKF_STATUS in status.name:
+                return status.level, status.message, {kv.key: kv.value for kv in status.values}
     return None
 
 

@@ -13,17 +13,6 @@ from health_trips import two_lidar_trip
 
 pytestmark = pytest.mark.ros
 
-STATUS = '/ekf_node: gyro bias EKF'
-
-
-def _status(messages):
-    """The newest status of the EKF node: (level, message, key/values)."""
-    for array in reversed(messages):
-        for status in array.status:
-            if STATUS in status.name:
-                return status.level, status.message, {kv.key: kv.value for kv in status.values}
-    return None
-
 
 @pytest.fixture(scope='module')
 def mis_mounted_run(ros_processes, tmp_path_factory):
@@ -48,19 +37,10 @@ def mis_mounted_run(ros_processes, tmp_path_factory):
     processes, probe = ros_processes
     diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
     detectors = processes.two_lidar_nodes(bag, '--params-file', str(off))
-    probe.spin_until(lambda: probe.node.count_publishers('/landmarks') == 2
-                     and probe.node.count_subscribers('/landmarks') == 1
-                     and probe.node.count_publishers('/ekf/odometry') == 1, 20,
-                     'two detectors and the EKF node on /landmarks')
-    probe.wait_for_landmarks_readers(diagnostics, detectors)
+    probe.wait_for_lidar_nodes(diagnostics, detectors)
     replay = processes.replay_two_lidar_bag(bag)
-    n_imu = str(len(read_bag(bag).trip.imu.stamp_s))
-    probe.spin_until(lambda: (_status(diagnostics) or (0, '', {}))[2].get('estimates') == n_imu,
-                     60, f'{n_imu} estimates in /diagnostics')
-    # Two more statuses: the scans after the last IMU sample are in (idle flush).
-    seen = len(diagnostics)
-    probe.spin_until(lambda: len(diagnostics) >= seen + 2, 10, 'two more diagnostics')
-    return offline, _status(diagnostics), replay, processes.log('ekf_node')
+    status = probe.wait_for_every_estimate(diagnostics, len(read_bag(bag).trip.imu.stamp_s))
+    return offline, status, replay, processes.log('ekf_node')
 
 
 def test_node_reports_the_verdict_summary_json_gives(mis_mounted_run):
