@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Iterator
+import dataclasses
 from dataclasses import dataclass
 import logging
 import math
@@ -28,7 +29,8 @@ import zlib
 
 import numpy as np
 
-from gyro_ekf.core.simulator import SimulationConfig
+from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+from gyro_ekf.core.types import Trip
 
 __all__ = ['BOUNDS', 'CLASSES', 'StressClass', 'run_suite', 'table', 'trip_jobs']
 
@@ -141,6 +143,11 @@ class TripJob:
     duration_s: float
     static_s: float | None = None
 
+    def simulate(self) -> Trip:
+        """Simulate the trip: the suite's base config with this job's changes, its seed."""
+        return simulate_trip(dataclasses.replace(base_config(self.duration_s, self.static_s),
+                                                 **self.changes), self.seed)
+
 
 def base_config(duration_s: float, static_s: float | None = None) -> SimulationConfig:
     """Return the unperturbed config of the suite's trips: the defaults at this length.
@@ -176,6 +183,14 @@ def trip_jobs(trips_per_class: int, seed: int, duration_s: float = DEFAULT_DURAT
     return jobs
 
 
+def stress_trip(class_name: str, seed: int, index: int) -> Trip:
+    """Simulate trip ``index`` of a class of ``gyro-ekf stress --seed seed`` (default length)."""
+    chosen = tuple(c for c in CLASSES if c.name == class_name)
+    if not chosen:
+        raise ValueError(f'no stress class {class_name!r}')
+    return trip_jobs(index + 1, seed, classes=chosen)[index].simulate()
+
+
 def _finite(value: Any) -> float | None:
     return None if value is None or not math.isfinite(value) else float(value)
 
@@ -183,10 +198,8 @@ def _finite(value: Any) -> float | None:
 def run_job(job: TripJob) -> dict[str, Any]:
     """Simulate one trip and run it as `gyro-ekf run` does; return its record."""
     # Imported here: a worker process needs them, the parent only to build the jobs.
-    import dataclasses
     from gyro_ekf.analysis.offline import run_trip
     from gyro_ekf.analysis.summary import summarize
-    from gyro_ekf.core.simulator import simulate_trip
     from gyro_ekf.core.validation import validate_trip
     from gyro_ekf.errors import GyroEkfError
 
@@ -196,8 +209,7 @@ def run_job(job: TripJob) -> dict[str, Any]:
                               'changes': job.changes}
     began = time.perf_counter()
     try:
-        trip = simulate_trip(dataclasses.replace(base_config(job.duration_s, job.static_s),
-                                                 **job.changes), job.seed)
+        trip = job.simulate()
         trip, report = validate_trip(trip, trip.name)
         summary = summarize(run_trip(trip), report)
     except GyroEkfError as err:

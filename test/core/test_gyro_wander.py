@@ -216,11 +216,7 @@ def test_an_imu_gap_is_not_taken_for_a_wander():
     # Over a gap the held rate's heading error, not the gyro's, is what the next scans take
     # back: those blocks are left out (this trip, stress imu_gaps seed 0 #3, read 0.38
     # deg/s of wander before).
-    job = next(j for j in stress.trip_jobs(25, 0)
-               if j.stress_class == 'imu_gaps' and j.index == 3)
-    config = dataclasses.replace(stress.base_config(job.duration_s, job.static_s),
-                                 **job.changes)
-    stats = run_trip(simulate_trip(config, job.seed)).result.stats
+    stats = run_trip(stress.stress_trip('imu_gaps', 0, 3)).result.stats
     assert stats.gyro_wander_rad_s == 0.0 and stats.gyro_wander_found_s is None
 
 

@@ -243,8 +243,7 @@ def test_a_first_lidar_its_first_looks_find_off_hands_over_though_the_start_chec
     from gyro_ekf.analysis import stress
     job = next(j for j in stress.trip_jobs(25, 4)
                if j.stress_class == 'mount_offset' and j.index == 5)
-    trip = simulate_trip(dataclasses.replace(stress.base_config(job.duration_s, job.static_s),
-                                             **job.changes), job.seed)
+    trip = job.simulate()
     summary = summarize(run_trip(trip))
     chances = {name: lidar['chance_if_exact']
                for name, lidar in summary['held_start']['lidars'].items()}

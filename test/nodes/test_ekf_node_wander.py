@@ -10,7 +10,6 @@ In its own module, so its processes run in their own ROS domain next to nobody e
 
 from __future__ import annotations
 
-import dataclasses
 import json
 
 import pytest
@@ -25,17 +24,13 @@ def coloured_run(ros_processes, tmp_path_factory):
     """The bag through the detector and EKF nodes, and through `gyro-ekf run`."""
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from gyro_ekf.analysis import stress
+    from gyro_ekf.analysis.stress import stress_trip
     from gyro_ekf.cli.main import main
-    from gyro_ekf.core.simulator import simulate_trip
     from gyro_ekf.io.bag_writer import write_trip_bag
     from gyro_ekf.nodes import qos
 
     tmp = tmp_path_factory.mktemp('wander')
-    coloured = tuple(c for c in stress.CLASSES if c.name == 'coloured_gyro')
-    job = stress.trip_jobs(25, 7, classes=coloured)[8]
-    trip = simulate_trip(dataclasses.replace(stress.base_config(job.duration_s),
-                                             **job.changes), job.seed)
+    trip = stress_trip('coloured_gyro', 7, 8)
     bag = write_trip_bag(trip, tmp / 'bag')
     assert main(['-q', 'run', str(bag), '-o', str(tmp / 'out'), '--no-progress',
                  '--no-plots', '--no-bag']) == 0
