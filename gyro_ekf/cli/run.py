@@ -81,6 +81,19 @@ def _progress_bar(total: int, enabled: bool) -> Any:
                 file=sys.stderr)
 
 
+def _wander(online: dict[str, Any]) -> str:
+    """Return the gyro wander row: found, or the prior assumed and whether it was ruled out."""
+    if online['gyro_wander_found_s'] is not None:
+        return (f"{online['gyro_wander_deg_s']:.4f} "
+                f"(found at {online['gyro_wander_found_s']:.0f} s)")
+    prior = online.get('gyro_wander_prior_deg_s') or 0.0
+    if not prior > 0.0:
+        return 'none found'
+    ruled_out = online.get('gyro_wander_prior_ruled_out_s')
+    return (f'none found (the {prior:.3f} assumed '
+            + ('kept)' if ruled_out is None else f'ruled out at {ruled_out:.0f} s)'))
+
+
 def _table(summary: dict[str, Any]) -> str:
     def number(value: Any, fmt: str) -> str:
         return 'n/a' if value is None or (isinstance(value, float) and math.isnan(value)) \
@@ -98,9 +111,7 @@ def _table(summary: dict[str, Any]) -> str:
     rows += [('online bias, final (deg/s)', number(online['final_deg_s'], '.4f')),
              ('online bias, last-half mean (deg/s)', number(online['last_half_mean_deg_s'],
                                                             '.4f')),
-             ('gyro wander (deg/s)', 'none found' if online['gyro_wander_found_s'] is None
-              else number(online['gyro_wander_deg_s'], '.4f')
-              + f" (found at {online['gyro_wander_found_s']:.0f} s)"),
+             ('gyro wander (deg/s)', _wander(online)),
              ('poles associated', number(summary['association']['share_associated'], '.2%')),
              ('longest gap without a landmark (s)',
               number(summary['association']['longest_gap_s'], '.2f')),

@@ -88,6 +88,15 @@ class EkfConfig:
         True, '', 'Estimate the gyro wander from the heading the landmark updates correct, '
         'block after block of driving (core/gyro_wander.py), and model it once it is '
         'beyond chance.')
+    # A prior, not a statement: a wander is modelled from the first sample, so the bias
+    # learnt before the blocks can find one (the static start's zero-rate updates see b + c)
+    # does not take a wander's excursions in as bias; on a gyro without one the blocks rule
+    # it out within a minute or two of driving (docs/stress.md).
+    gyro_wander_prior_rad_s: float = config_field(
+        0.01 * DEG, 'rad/s', 'Gyro wander assumed (with learn_gyro_wander) until the '
+        'heading rules it out: modelled from the start, dropped once the blocks\' 90 % '
+        'upper bound of the wander lies below it (core/gyro_wander.py). 0: none assumed.',
+        0.0, 1.0)
     initial_position_sigma_m: float = config_field(
         0.0, 'm', 'Prior sigma of x and y (P0); 0 trusts the initial pose exactly.', 0.0, 100.0)
     initial_yaw_sigma_rad: float = config_field(
@@ -204,6 +213,12 @@ class EkfConfig:
         1.0, 's', 'How long a speed-scale error acts before the LiDARs pull back what it '
         'did: the position random walk gains (sigma_k v)^2 times this. 0: no such walk.',
         0.0, 100.0)
+
+    @property
+    def initial_wander_rad_s(self) -> float:
+        """The wander modelled from the start: the stated one, or the prior if larger."""
+        prior = self.gyro_wander_prior_rad_s if self.learn_gyro_wander else 0.0
+        return max(self.gyro_wander_rad_s, prior)
 
 
 @dataclass(frozen=True, slots=True)

@@ -36,9 +36,11 @@ alone: z = w, h(x) = b + c, H = [0, 0, 0, 1, 1] (a zero-rate update, ``update_ze
 and the prediction holds the position (no translation, no speed noise).
 
 The fifth state c is the gyro's wander (``models.py``): a Gauss-Markov process of
-correlation time ``gyro_wander_tau_s`` and stationary sigma ``wander_sigma_rad_s``, 0 until
-the data show one (``core/gyro_wander.py``). While it is 0, c and its covariance stay 0 and
-the first four states are the report's filter exactly; b is the bias reported.
+correlation time ``gyro_wander_tau_s`` and stationary sigma ``wander_sigma_rad_s``, the
+stated one (0 by default) until the data show one (``core/gyro_wander.py``; the driver also
+assumes a prior wander from the start until the data rule it out, ``assume_wander``).
+While it is 0, c and its covariance stay 0 and the first four states are the report's
+filter exactly; b is the bias reported.
 
 ``GyroBiasEkf`` runs these lines through the private kernel ``_ekf_kernel.py``: the same
 arithmetic unrolled on plain floats for these five states, since at this size
@@ -414,6 +416,16 @@ class GyroBiasEkf:
     def add_heading_variance(self, variance: float) -> None:
         """Add ``variance`` (rad^2) to the heading's: an error the prediction did not model."""
         self._p[_PACKED[YAW, YAW]] += float(variance)
+
+    def assume_wander(self, sigma_rad_s: float) -> None:
+        """Model a wander of stationary sigma ``sigma_rad_s`` from now, as if it had run.
+
+        A prior at the start (``EkfConfig.gyro_wander_prior_rad_s``, the driver's): c's
+        variance is at once the stationary sigma^2, not grown to it over tau.
+        """
+        self.wander_sigma_rad_s = float(sigma_rad_s)
+        k = _PACKED[WANDER, WANDER]
+        self._p[k] = max(self._p[k], self.wander_sigma_rad_s * self.wander_sigma_rad_s)
 
     def open_bias(self, variance: float) -> None:
         """Add ``variance`` ((rad/s)^2) to the bias variance: the bias is less known than P says.

@@ -111,6 +111,8 @@ class DriverStats:
         gyro_wander_rad_s: the gyro wander's sigma found in the data (core/gyro_wander.py),
             rad/s (0: none found).
         gyro_wander_found_s: when it was first found, s (None: not found).
+        gyro_wander_prior_ruled_out_s: when the blocks ruled the prior wander out
+            (``gyro_wander_prior_rad_s``), s (None: not, or no prior).
         bias_rate_rad_s2: the rate of the bias in use now (core/bias_rate.py), rad/s^2
             (0: none).
         bias_rate_found: times a bias rate came into use.
@@ -140,6 +142,7 @@ class DriverStats:
     gyro_noise_scale_max: float = 1.0
     gyro_wander_rad_s: float = 0.0
     gyro_wander_found_s: float | None = None
+    gyro_wander_prior_ruled_out_s: float | None = None
     bias_rate_rad_s2: float = 0.0
     bias_rate_found: int = 0
     bias_largest_rate_rad_s2: float = 0.0
@@ -166,6 +169,7 @@ class DriverStats:
                 'gyro_noise_scale_max': self.gyro_noise_scale_max,
                 'gyro_wander_rad_s': self.gyro_wander_rad_s,
                 'gyro_wander_found_s': self.gyro_wander_found_s,
+                'gyro_wander_prior_ruled_out_s': self.gyro_wander_prior_ruled_out_s,
                 'bias_rate_rad_s2': self.bias_rate_rad_s2,
                 'bias_rate_found': self.bias_rate_found,
                 'bias_largest_rate_rad_s2': self.bias_largest_rate_rad_s2}

@@ -111,6 +111,7 @@ class EventDriver:
         self.bias_watch = BiasWatch()
         self.bias_rate = BiasRate(self.config.bias_rate_window_s)
         self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
+        self.ekf.assume_wander(self.config.initial_wander_rad_s)
         # Each LiDAR's range and bearing noise, measured online (core/noise_online.py).
         self.noise: dict[LidarMount, NoiseMatch] = {}
         # The filter's bias and its variance where the bias watch's open block began.
@@ -180,7 +181,8 @@ class EventDriver:
         self.bias_watch = BiasWatch()
         self.bias_rate = BiasRate(self.config.bias_rate_window_s)
         self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
-        self._model_wander()  # a wander found before the reset is forgotten with it
+        # A wander found before the reset is forgotten with it; the prior holds again.
+        self.ekf.assume_wander(self.config.initial_wander_rad_s)
         self.noise = {}
         self._block_bias = self._block_bias_variance = 0.0
         self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0
@@ -726,6 +728,7 @@ class EventDriver:
                 self.gyro_wander.add_block(stamp_s, length, error + wander_dt / length,
                                            block_allowed(length, bias_variance, heading_noise,
                                                          start_yaw_variance, yaw_variance))
+                self.gyro_wander.rule_out(stamp_s, self.config.gyro_wander_prior_rad_s)
                 self._model_wander()
         if variance is not None:
             self.ekf.open_bias(variance)
@@ -744,11 +747,17 @@ class EventDriver:
             self._rate_followed(None)
 
     def _model_wander(self) -> None:
-        """Give the filter the wander found (never less than the one configured)."""
-        found = self.gyro_wander
-        self.ekf.wander_sigma_rad_s = max(self.config.gyro_wander_rad_s, found.sigma_rad_s)
+        """Give the filter the wander found (never less than the one configured).
+
+        The prior wander is modelled as well until the blocks rule it out
+        (core/gyro_wander.py).
+        """
+        found, config = self.gyro_wander, self.config
+        prior = config.initial_wander_rad_s if found.prior_ruled_out_s is None else 0.0
+        self.ekf.wander_sigma_rad_s = max(config.gyro_wander_rad_s, prior, found.sigma_rad_s)
         self.stats.gyro_wander_rad_s = found.sigma_rad_s
         self.stats.gyro_wander_found_s = found.found_at_s
+        self.stats.gyro_wander_prior_ruled_out_s = found.prior_ruled_out_s
 
     def _rate_followed(self, lag: float | None) -> None:
         """Open the bias by a new rate's lag; hand the rate and the walks to the filter."""

@@ -47,6 +47,17 @@ heading that grew less certain over a block (P_yaw(end) above the start) takes n
 off the allowed: with one pole in view the corrections that are left share one
 geometry's error, and a smaller allowed would read it as a wander.
 
+**A prior wander, ruled out by the same sums.** The bias learnt before a wander can be
+found (20 s of driving at least, 28-116 s on the simulator's wanders) takes the wander's
+excursions in as bias, most of all at a static start, where the zero-rate updates see
+b + c as b; the sigma it then reports does not say so. So the driver models a prior wander
+(``gyro_wander_prior_rad_s``) from the first sample, and drops it once the blocks bound
+the wander below it: with the sums above, the wander's upper bound at ``PRIOR_CONFIDENCE``
+is ``s_up^2 = (nu sum db_b^2 / q - sum allowed) / sum g``, q the chi-square quantile with
+nu dof and lower tail 1 - ``PRIOR_CONFIDENCE`` (``upper_sigma``). A wander found beyond
+chance is modelled as before, whatever became of the prior. The blocks' evidence is the
+same with and without the prior modelled: db_b is taken against the bias alone.
+
 On the simulator's trips (docs/stress.md): clean trips never reach the limit (their
 db_b^2 / allowed over a trip: 0.6-1.2); trips with a wander of 0.01-0.04 deg/s and 0.5-5 s
 read 0.6-1.5 times their true sigma, 28-116 s into the trip.
@@ -66,6 +77,9 @@ RETRACTED_BLOCKS = 10
 
 SIGNIFICANCE = 1e-4
 """Chance that the blocks of a consistent filter are taken for a wander, at each look."""
+
+PRIOR_CONFIDENCE = 0.9
+"""Confidence of the upper bound below which a prior wander is ruled out."""
 
 
 def block_allowed(length_s: float, bias_variance_rad2_s2: float, heading_noise_rad2: float,
@@ -95,17 +109,20 @@ class GyroWander:
     Attributes:
         sigma_rad_s: the wander's stationary sigma found, rad/s (0: none found yet).
         found_at_s: stamp of the block that first found it, s (None: not found).
+        prior_ruled_out_s: stamp of the block that ruled a prior wander out, s (None: not
+            ruled out, or none judged: ``rule_out``).
         blocks: blocks taken so far.
     """
 
-    __slots__ = ('tau_s', 'sigma_rad_s', 'found_at_s', 'blocks', '_error_sq', '_allowed',
-                 '_allowed_sq', '_share', '_recent')
+    __slots__ = ('tau_s', 'sigma_rad_s', 'found_at_s', 'prior_ruled_out_s', 'blocks',
+                 '_error_sq', '_allowed', '_allowed_sq', '_share', '_recent')
 
     def __init__(self, tau_s: float) -> None:
         """Start with no block; tau_s: the wander's correlation time, s."""
         self.tau_s = tau_s
         self.sigma_rad_s = 0.0
         self.found_at_s: float | None = None
+        self.prior_ruled_out_s: float | None = None
         self.blocks = 0
         self._error_sq = self._allowed = self._allowed_sq = self._share = 0.0
         # The last blocks' terms (error^2, allowed, share), for retract().
@@ -114,8 +131,8 @@ class GyroWander:
     def copy(self) -> 'GyroWander':
         """Return an independent duplicate, for the driver's save and restore."""
         clone = GyroWander(self.tau_s)
-        clone.sigma_rad_s, clone.found_at_s, clone.blocks = (
-            self.sigma_rad_s, self.found_at_s, self.blocks)
+        clone.sigma_rad_s, clone.found_at_s, clone.prior_ruled_out_s, clone.blocks = (
+            self.sigma_rad_s, self.found_at_s, self.prior_ruled_out_s, self.blocks)
         clone._error_sq, clone._allowed, clone._allowed_sq, clone._share = (
             self._error_sq, self._allowed, self._allowed_sq, self._share)
         clone._recent = list(self._recent)
@@ -150,6 +167,27 @@ class GyroWander:
             self._add(-error_sq, -allowed, -share, -1)
         self._recent.clear()
         self._judge(stamp_s, retracted=True)
+
+    def upper_sigma(self, confidence: float = PRIOR_CONFIDENCE) -> float | None:
+        """Return the wander's upper bound at ``confidence``, rad/s (None: too few blocks).
+
+        From the blocks so far (module docstring): 0 when even no wander at all would make
+        their sum of squares unusually large at that confidence.
+        """
+        if self.blocks < MIN_BLOCKS or self._share <= 0.0:
+            return None
+        dof = self._allowed * self._allowed / self._allowed_sq
+        lower = chi_square_upper(confidence, dof)
+        variance = (dof * self._error_sq / lower - self._allowed) / self._share
+        return math.sqrt(max(variance, 0.0))
+
+    def rule_out(self, stamp_s: float, prior_rad_s: float) -> bool:
+        """Whether a prior wander of ``prior_rad_s`` is ruled out (for good, once it is)."""
+        if self.prior_ruled_out_s is None and prior_rad_s > 0.0:
+            upper = self.upper_sigma()
+            if upper is not None and upper < prior_rad_s:
+                self.prior_ruled_out_s = stamp_s
+        return self.prior_ruled_out_s is not None
 
     def _add(self, error_sq: float, allowed: float, share: float, count: int) -> None:
         self.blocks += count

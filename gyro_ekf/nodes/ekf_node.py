@@ -933,6 +933,10 @@ class EkfNode(Node):
             'gyro_noise_scale': f'{stats.gyro_noise_scale:.3f}',
             # The gyro's wander found and modelled (core/gyro_wander.py), 0 when none.
             'gyro_wander_deg_s': f'{math.degrees(stats.gyro_wander_rad_s):.4f}',
+            # The wander the filter models now: the prior until the blocks rule it out, the
+            # one stated or found.
+            'gyro_wander_modelled_deg_s':
+                f'{math.degrees(self.driver.ekf.wander_sigma_rad_s):.4f}',
             # A ramping bias followed (core/bias_rate.py): its rate in use, 0 when none.
             'bias_rate_deg_s_per_min': f'{math.degrees(stats.bias_rate_rad_s2) * 60.0:.4f}',
             'standing_still': str(self.driver.zero_rate).lower(),

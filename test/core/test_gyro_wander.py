@@ -9,7 +9,7 @@ import pytest
 from gyro_ekf.analysis import stress
 from gyro_ekf.analysis.offline import run_trip
 from gyro_ekf.core.gyro_wander import (
-    MIN_BLOCKS, GyroWander, block_allowed, block_mean_share)
+    MIN_BLOCKS, PRIOR_CONFIDENCE, GyroWander, block_allowed, block_mean_share)
 from gyro_ekf.core.simulator import simulate_trip
 
 DEG = math.pi / 180.0
@@ -61,6 +61,78 @@ def test_blocks_of_a_wandering_gyro_give_its_sigma():
             assert wander.sigma_rad_s == 0.0
     assert wander.found_at_s is not None
     assert 0.6 * sigma < wander.sigma_rad_s < 1.5 * sigma
+
+
+@pytest.mark.parametrize('sigma_deg', [0.0, 0.01, 0.03])
+def test_the_upper_bound_covers_the_true_wander_as_often_as_its_confidence(sigma_deg):
+    # 400 trips of 30 blocks (a minute of driving), allowed varying from block to block:
+    # the bound lies at or above the true sigma in about PRIOR_CONFIDENCE of them (the
+    # Satterthwaite and Wilson-Hilferty approximations: within a few percent).
+    rng = np.random.default_rng(7)
+    sigma, tau, length = sigma_deg * DEG, 2.0, 2.0
+    share = block_mean_share(length, tau)
+    covered = 0
+    for _ in range(400):
+        wander = GyroWander(tau)
+        for k in range(30):
+            allowed = rng.uniform(0.5, 2.0) * (0.014 * DEG) ** 2
+            wander.add_block(2.0 * k, length, rng.normal(
+                0.0, math.sqrt(allowed + sigma ** 2 * share)), allowed)
+        covered += wander.upper_sigma() >= sigma
+    # With no wander the bound is 0 when the sums fall below their lower quantile: those
+    # trips count as covered too (0 >= 0).
+    assert 0.85 <= covered / 400 <= (1.0 if sigma == 0.0 else 0.95), covered
+
+
+def test_a_prior_wander_is_ruled_out_by_consistent_blocks_and_kept_by_a_larger_one():
+    rng = np.random.default_rng(8)
+    prior, tau, length, allowed = 0.01 * DEG, 2.0, 2.0, (0.005 * DEG) ** 2
+    share = block_mean_share(length, tau)
+    clean, wandering = GyroWander(tau), GyroWander(tau)
+    assert clean.upper_sigma() is None and not clean.rule_out(0.0, prior)
+    for k in range(60):
+        clean.add_block(2.0 * k, length, rng.normal(0.0, math.sqrt(allowed)), allowed)
+        wandering.add_block(2.0 * k, length, rng.normal(
+            0.0, math.sqrt(allowed + (0.03 * DEG) ** 2 * share)), allowed)
+        if k + 1 < MIN_BLOCKS:
+            assert not clean.rule_out(2.0 * k, prior)
+        else:
+            clean.rule_out(2.0 * k, prior)
+        assert not wandering.rule_out(2.0 * k, prior), k
+    ruled_out = clean.prior_ruled_out_s
+    assert ruled_out is not None
+    # For good: blocks that would not rule it out any more leave the decision as it was.
+    for k in range(60, 80):
+        clean.add_block(2.0 * k, length, 10.0 * math.sqrt(allowed), allowed)
+    assert clean.rule_out(160.0, prior) and clean.prior_ruled_out_s == ruled_out
+    # No prior, nothing to rule out.
+    assert not GyroWander(tau).rule_out(0.0, 0.0)
+    assert PRIOR_CONFIDENCE == 0.9
+
+
+def test_the_driver_models_the_prior_from_the_start_and_drops_it_when_ruled_out():
+    from gyro_ekf.core.config import EkfConfig
+    from gyro_ekf.core.ekf import GyroBiasEkf
+    from gyro_ekf.core.events import EventDriver
+    config = EkfConfig()
+    prior = config.gyro_wander_prior_rad_s
+    assert prior > 0.0 and config.initial_wander_rad_s == prior
+    # The filter alone models what is stated (none): the prior is the driver's.
+    assert GyroBiasEkf(config).P[4, 4] == 0.0
+    driver = EventDriver(config)
+    # Stationary at once, as if it had run before the start.
+    assert driver.ekf.wander_sigma_rad_s == prior and driver.ekf.P[4, 4] == prior ** 2
+    for k in range(MIN_BLOCKS):
+        driver.gyro_wander.add_block(2.0 * k, 2.0, 0.0, (0.01 * DEG) ** 2)
+    assert driver.gyro_wander.rule_out(20.0, prior)
+    driver._model_wander()
+    assert driver.ekf.wander_sigma_rad_s == 0.0
+    driver.reset()
+    assert driver.ekf.wander_sigma_rad_s == prior and driver.ekf.P[4, 4] == prior ** 2
+    assert driver.gyro_wander.prior_ruled_out_s is None
+    # Without learning no block can rule it out, so none is assumed: the four states.
+    assert EkfConfig(learn_gyro_wander=False).initial_wander_rad_s == 0.0
+    assert EventDriver(EkfConfig(learn_gyro_wander=False)).ekf.wander_sigma_rad_s == 0.0
 
 
 def test_blocks_a_ramp_leaned_are_taken_back_when_it_is_found():
@@ -210,6 +282,9 @@ def test_a_clean_gyro_models_no_wander():
         run = run_trip(_trip({}, seed))
         assert run.result.stats.gyro_wander_rad_s == 0.0
         assert run.result.stats.gyro_wander_found_s is None
+        # The prior assumed from the start is ruled out on the way.
+        assert run.result.stats.gyro_wander_prior_ruled_out_s is not None, seed
+        assert run.result.estimates.wander_rad_s[-1] == pytest.approx(0.0, abs=1e-6)
 
 
 def test_an_imu_gap_is_not_taken_for_a_wander():
@@ -223,7 +298,7 @@ def test_an_imu_gap_is_not_taken_for_a_wander():
 def test_a_reset_forgets_the_wander_found():
     from gyro_ekf.core.config import EkfConfig
     from gyro_ekf.core.events import EventDriver
-    driver = EventDriver(EkfConfig(gyro_wander_rad_s=1e-4))
+    driver = EventDriver(EkfConfig(gyro_wander_rad_s=1e-4, gyro_wander_prior_rad_s=0.0))
     for k in range(40):
         driver.gyro_wander.add_block(2.0 * k, 2.0, 4e-4, 1e-8)
     driver._model_wander()
