@@ -231,6 +231,8 @@ def run_job(job: TripJob) -> dict[str, Any]:
                'bias_reopened': summary['online_bias']['reopened'],
                'gyro_noise_scale': summary['online_bias']['gyro_noise_scale'],
                'gyro_wander_deg_s': summary['online_bias']['gyro_wander_deg_s'],
+               'gyro_wander_prior_ruled_out_s':
+                   summary['online_bias']['gyro_wander_prior_ruled_out_s'],
                'bias_rate_deg_s_per_min': summary['online_bias']['rate_deg_s_per_min']}
     # A figure that could not be computed (None) misses its bound.
     rmse, bias_error, nees = (figures[name] for name in BOUNDS)
