@@ -90,8 +90,8 @@ class EkfConfig:
         'beyond chance.')
     # A prior, not a statement: a wander is modelled from the first sample, so the bias
     # learnt before the blocks can find one (the static start's zero-rate updates see b + c)
-    # does not take a wander's excursions in as bias; on a gyro without one the blocks rule
-    # it out within a minute or two of driving (docs/stress.md).
+    # does not take a wander's excursions in as bias; on most simulated gyros without one
+    # the blocks rule it out in the first minute or two of driving (docs/stress.md).
     gyro_wander_prior_rad_s: float = config_field(
         0.01 * DEG, 'rad/s', 'Gyro wander assumed (with learn_gyro_wander) until the '
         'heading rules it out: modelled from the start, dropped once the blocks\' 90 % '

@@ -171,8 +171,8 @@ class GyroWander:
     def upper_sigma(self, confidence: float = PRIOR_CONFIDENCE) -> float | None:
         """Return the wander's upper bound at ``confidence``, rad/s (None: too few blocks).
 
-        From the blocks so far (module docstring): 0 when even no wander at all would make
-        their sum of squares unusually large at that confidence.
+        From the blocks so far (module docstring): 0 when their sum of squares is smaller
+        than a consistent filter with no wander gives but with chance 1 - ``confidence``.
         """
         if self.blocks < MIN_BLOCKS or self._share <= 0.0:
             return None
