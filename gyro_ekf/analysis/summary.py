@@ -134,8 +134,7 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'gyro_wander_found_s': run.result.stats.gyro_wander_found_s,
         # The wander assumed from the start (gyro_wander_prior_rad_s, 0 without
         # learn_gyro_wander) and when the blocks ruled it out (null: never).
-        'gyro_wander_prior_deg_s': _deg(run.config.gyro_wander_prior_rad_s
-                                        if run.config.learn_gyro_wander else 0.0),
+        'gyro_wander_prior_deg_s': _deg(run.config.wander_prior_rad_s),
         'gyro_wander_prior_ruled_out_s': run.result.stats.gyro_wander_prior_ruled_out_s,
         # A ramping bias followed (core/bias_rate.py): the rate in use at the end, the
         # largest used, and how often one came into use.

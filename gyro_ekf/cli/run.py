@@ -86,10 +86,10 @@ def _wander(online: dict[str, Any]) -> str:
     if online['gyro_wander_found_s'] is not None:
         return (f"{online['gyro_wander_deg_s']:.4f} "
                 f"(found at {online['gyro_wander_found_s']:.0f} s)")
-    prior = online.get('gyro_wander_prior_deg_s') or 0.0
+    prior = online['gyro_wander_prior_deg_s']
     if not prior > 0.0:
         return 'none found'
-    ruled_out = online.get('gyro_wander_prior_ruled_out_s')
+    ruled_out = online['gyro_wander_prior_ruled_out_s']
     return (f'none found (the {prior:.3f} assumed '
             + ('kept)' if ruled_out is None else f'ruled out at {ruled_out:.0f} s)'))
 

@@ -215,10 +215,14 @@ class EkfConfig:
         0.0, 100.0)
 
     @property
+    def wander_prior_rad_s(self) -> float:
+        """The prior wander in use: none without learn_gyro_wander (no block can rule it out)."""
+        return self.gyro_wander_prior_rad_s if self.learn_gyro_wander else 0.0
+
+    @property
     def initial_wander_rad_s(self) -> float:
         """The wander modelled from the start: the stated one, or the prior if larger."""
-        prior = self.gyro_wander_prior_rad_s if self.learn_gyro_wander else 0.0
-        return max(self.gyro_wander_rad_s, prior)
+        return max(self.gyro_wander_rad_s, self.wander_prior_rad_s)
 
 
 @dataclass(frozen=True, slots=True)

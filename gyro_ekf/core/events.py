@@ -728,7 +728,7 @@ class EventDriver:
                 self.gyro_wander.add_block(stamp_s, length, error + wander_dt / length,
                                            block_allowed(length, bias_variance, heading_noise,
                                                          start_yaw_variance, yaw_variance))
-                self.gyro_wander.rule_out(stamp_s, self.config.gyro_wander_prior_rad_s)
+                self.gyro_wander.rule_out(stamp_s, self.config.wander_prior_rad_s)
                 self._model_wander()
         if variance is not None:
             self.ekf.open_bias(variance)

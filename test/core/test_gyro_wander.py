@@ -131,6 +131,7 @@ def test_the_driver_models_the_prior_from_the_start_and_drops_it_when_ruled_out(
     assert driver.ekf.wander_sigma_rad_s == prior and driver.ekf.P[4, 4] == prior ** 2
     assert driver.gyro_wander.prior_ruled_out_s is None
     # Without learning no block can rule it out, so none is assumed: the four states.
+    assert EkfConfig(learn_gyro_wander=False).wander_prior_rad_s == 0.0
     assert EkfConfig(learn_gyro_wander=False).initial_wander_rad_s == 0.0
     assert EventDriver(EkfConfig(learn_gyro_wander=False)).ekf.wander_sigma_rad_s == 0.0
 
@@ -308,3 +309,11 @@ def test_a_reset_forgets_the_wander_found():
     # Back to the configured one, nothing found.
     assert driver.ekf.wander_sigma_rad_s == 1e-4
     assert driver.stats.gyro_wander_rad_s == 0.0 and driver.stats.gyro_wander_found_s is None
+
+
+def test_a_negative_prior_wander_is_refused_naming_the_parameter():
+    from gyro_ekf.core.config import EkfConfig, make_config
+    from gyro_ekf.core.errors import CoreError
+    with pytest.raises(CoreError, match=r"^p\.yaml: parameter 'gyro_wander_prior_rad_s' = "
+                                        r'-0\.001 is outside'):
+        make_config(EkfConfig, {'gyro_wander_prior_rad_s': -0.001}, source='p.yaml')
