@@ -102,3 +102,29 @@ def test_empty_history_writes_an_empty_bag(tmp_path):
         # Only the static transforms (base_link -> imu_link) with no trip given.
         assert reader.message_count == 1
         assert {c.topic for c in reader.connections if c.msgcount} == {'/tf_static'}
+
+
+def test_a_chunk_closed_by_packing_is_what_rosbags_writes(tmp_path):
+    # rosbags' own close_chunk against the packed one (batch_write._close_chunk, which every
+    # bag the project writes uses): three channels interleaved unevenly, several chunks
+    # (rosbags closes one past 1 MiB), and an empty tail chunk, with no CRCs in either.
+    from gyro_ekf.io.batch_write import _chunk_closer
+
+    rng = np.random.default_rng(3)
+    payloads = [rng.integers(0, 256, size=int(size), dtype=np.uint8).tobytes()
+                for size in rng.integers(8, 4000, size=1500)]
+    written = {}
+    for packed in (False, True):
+        # One name: the bag's metadata, in the file, names it.
+        path = tmp_path / ('packed' if packed else 'rosbags') / 'bag'
+        writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        with writer:
+            if packed:
+                writer.storage.close_chunk = _chunk_closer(writer.storage)
+            connections = [writer.add_connection(f'/t{i}', 'std_msgs/msg/String',
+                                                 typestore=msgs.TYPESTORE) for i in range(3)]
+            for k, payload in enumerate(payloads):
+                writer.write(connections[(k * k) % 3], START_NS + 1000 * k, payload)
+        written[packed] = (path / f'{path.name}.mcap').read_bytes()
+    assert len(written[True]) > 2 * 2**20  # three chunks
+    assert written[True] == written[False]
