@@ -109,19 +109,20 @@ def start_estimates_csv(path: Path | str, stamp_s: FloatArray, state: FloatArray
     the file is written here and now. Call the returned function before using the file,
     and also when the caller's own work failed: it reaps the child.
 
-    Raises (from the returned function):
-        OutputError: the file could not be written (the child's error, naming the file).
+    Raises (from the returned function, else at once):
+        OutputError, OSError: the file could not be written; the child's own exception,
+            as ``write_estimates_csv`` raises it here (naming the file).
     """
     path = Path(path)
-    if not _spare_core():
-        write_estimates_csv(path, stamp_s, state, covariance)
-        return lambda: path
-    read_end, write_end = os.pipe()
-    try:
-        pid = os.fork()
-    except OSError:
-        os.close(read_end)
-        os.close(write_end)
+    pid = None
+    if _spare_core():
+        read_end, write_end = os.pipe()
+        try:
+            pid = os.fork()
+        except OSError:  # no process to spare after all: written here
+            os.close(read_end)
+            os.close(write_end)
+    if pid is None:
         write_estimates_csv(path, stamp_s, state, covariance)
         return lambda: path
     if pid == 0:  # the child: write, hand back what went wrong, leave without cleanup
