@@ -672,8 +672,8 @@ def _whiteness_reasons(sensors: list[dict[str, Any]]) -> list[tuple[str, str]]:
                     f'{test["block_s"]:g}-s block sums give chi-square {window["chi2"]:.0f} '
                     f'on {window["blocks"]} blocks, above {limit:.0f} (significance '
                     f'{significance:g}): a motion or sensor model error '
-                    f'(odometry scale, gyro bias change, mount offset), the covariance '
-                    f'is too small')))
+                    f'(odometry scale, gyro scale or bias change, mount offset), the '
+                    f'covariance is too small')))
                 break
     return reasons
 

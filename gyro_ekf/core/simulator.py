@@ -38,6 +38,9 @@ seed's own for each kind, so switching one on changes nothing else of the trip:
 
 * **Speed-scale error** (``speed_scale_error``): the encoder reads ``1 + e`` times the
   true mean speed (plus its white noise), as a wrong wheel radius does.
+* **Gyro scale error** (``gyro_scale_error``): the yaw axis reads ``1 + e`` times the
+  true yaw rate (plus its bias and noise), as a MEMS gyro's scale factor is off by up to a
+  few per cent. Not a stress class; ``test/core/test_health.py`` checks that it is said.
 * **Bias step** (``gyro_bias_step_rad_s`` at ``gyro_bias_step_at_s``) and **bias ramp**
   (``gyro_bias_ramp_rad_s2`` from t = 0): the yaw-axis bias is then
   ``b(t) = gyro_bias_z + ramp t + step [t >= at]`` (``SimulationConfig.gyro_bias_z_at``);
@@ -179,6 +182,9 @@ class SimulationConfig:
                                      -1.0, 1.0)
     speed_scale_error: float = _param(
         0.0, '1', 'Speed-scale error e: the encoder reads (1 + e) times the true speed.',
+        -0.5, 0.5)
+    gyro_scale_error: float = _param(
+        0.0, '1', 'Gyro scale error e: the yaw axis reads (1 + e) times the true yaw rate.',
         -0.5, 0.5)
     gyro_bias_step_rad_s: float = _param(
         0.0, 'rad/s', 'Step added to the yaw-axis bias at gyro_bias_step_at_s.', -1.0, 1.0)
@@ -603,7 +609,8 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
     gyro_sigma = np.array([config.gyro_noise_x_rad_s, config.gyro_noise_y_rad_s,
                            config.gyro_noise_z_rad_s])
     gyro = bias + gyro_sigma * gyro_rng.standard_normal((imu_t.size, 3))
-    gyro[:, 2] += rate_true
+    gyro[:, 2] += rate_true if config.gyro_scale_error == 0.0 else (
+        (1.0 + config.gyro_scale_error) * rate_true)
     if config.bias_drifts:
         gyro[:, 2] += config.gyro_bias_drift_z(imu_t)
         # The bias a final bias error is measured against: the one at the end.
