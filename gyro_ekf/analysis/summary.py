@@ -179,6 +179,7 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     summary['online_odometry'] = None if odometry is None else odometry.report()
     summary['online_noise'] = {lidar['name']: lidar for lidar in run.result.noise or ()}
     summary['held_start'] = run.result.held_start
+    summary['gyro_scale'] = run.result.gyro_scale
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)
@@ -227,7 +228,8 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         gyro_wander_stated_rad_s=run.config.gyro_wander_rad_s,
         gyro_wander_tau_s=run.config.gyro_wander_tau_s,
         mounts=[] if run.result.mounts is None else run.result.mounts.report(),
-        odometry=None if run.result.odometry is None else run.result.odometry.report())
+        odometry=None if run.result.odometry is None else run.result.odometry.report(),
+        gyro_scale=run.result.gyro_scale)
     return {**health.verdict(figures), 'lidars': sensors,
             'transitions': [] if monitor is None else [
                 {'stamp_s': t.stamp_s, 'lidar': t.sensor, 'change': t.change,

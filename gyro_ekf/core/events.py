@@ -46,6 +46,7 @@ from gyro_ekf.core.bias_watch import BiasWatch
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
+from gyro_ekf.core.gyro_scale import GyroScaleWatch
 from gyro_ekf.core.gyro_wander import GyroWander, block_allowed
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
@@ -103,6 +104,11 @@ class EventDriver:
                  detector_config: DetectorConfig | None = None):
         """Create a filter at a pose with the configured priors."""
         self.config = config or EkfConfig()
+        self._gyro_scale = 1.0 + self.config.gyro_scale_error
+        # The gyro's scale, measured against the heading the LiDARs hold (core/gyro_scale.py)
+        # from the integral of its raw readings.
+        self.gyro_scale = GyroScaleWatch(self.config.gyro_scale_error)
+        self._turned = 0.0
         self.detector_config = detector_config or DetectorConfig()
         self.ekf = GyroBiasEkf(self.config, pose, bias_rad_s)
         self.landmarks = landmarks
@@ -181,6 +187,8 @@ class EventDriver:
         self.bias_watch = BiasWatch()
         self.bias_rate = BiasRate(self.config.bias_rate_window_s)
         self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
+        self.gyro_scale = GyroScaleWatch(self.config.gyro_scale_error)
+        self._turned = 0.0
         # A wander found before the reset is forgotten with it; the prior holds again.
         self.ekf.assume_wander(self.config.initial_wander_rad_s)
         self.noise = {}
@@ -247,7 +255,8 @@ class EventDriver:
                 self.held_rate.save(), self._rate_stamp_s, self._heading_dt2,
                 (self.odometry.save(), self._measured_speed_m_s, self._path_s,
                  self._path_m, self._path_yaw),
-                {key: noise.save() for key, noise in self.noise.items()})
+                {key: noise.save() for key, noise in self.noise.items()},
+                (self.gyro_scale.save(), self._turned))
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
@@ -255,7 +264,8 @@ class EventDriver:
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
          watch, held, self._rate_stamp_s, self._heading_dt2,
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
-          self._path_yaw), noise) = saved
+          self._path_yaw), noise, (gyro_scale, self._turned)) = saved
+        self.gyro_scale.restore(gyro_scale)
         self.noise = {}
         for key, saved_noise in noise.items():
             self.lidar_noise(key).restore(saved_noise)
@@ -291,8 +301,15 @@ class EventDriver:
                 f'{what} stamp {stamp_s:.4f} s went back {-dt_s:.4f} s behind the filter')
         if dt_s == 0.0:
             return  # nothing to predict (the 2016 log's gyro and odometry share stamps)
+        if self.rate_rad_s is not None:
+            self._turned += self.rate_rad_s * dt_s  # the gyro's raw integral, bias included
         # Before the first gyro sample the heading is held: the yaw rate is taken as the bias.
         rate = self.ekf.bias_rad_s if self.rate_rad_s is None else self.rate_rad_s
+        if self._gyro_scale != 1.0:
+            # A gyro that reads (1 + e) times the turn (gyro_scale_error): the filter turns
+            # by (w - b) / (1 + e), and its bias stays the gyro's own.
+            bias = self.ekf.bias_rad_s
+            rate = bias + (rate - bias) / self._gyro_scale
         step = self.config.max_prediction_step_s
         if dt_s > step * MAX_PREDICTION_STEPS:
             # Over a gap this long the held inputs are a guess anyway; fine steps would
@@ -456,7 +473,7 @@ class EventDriver:
         # The gyro's rate error, as a sample at rest measures it (b + c).
         h, H = observe_bias(x)
         error = float(h[0])
-        rate = 0.0 if self.rate_rad_s is None else self.rate_rad_s - error
+        rate = 0.0 if self.rate_rad_s is None else (self.rate_rad_s - error) / self._gyro_scale
         return Estimate(stamp_s=self.stamp_s if self.stamp_s is not None else 0.0,
                         state=x[:ESTIMATE_SIZE],
                         covariance=P[:ESTIMATE_SIZE, :ESTIMATE_SIZE],
@@ -523,6 +540,7 @@ class EventDriver:
                         still_at = self.odometry.still_at
                         if still_at is not None:
                             self.ekf.reset(np.array(still_at), self.ekf.bias_rad_s, self.ekf.P)
+                            self.gyro_scale.restart_window()
                         return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
                 if moved is not None:
                     self.odometry.apply(moved)
@@ -534,6 +552,7 @@ class EventDriver:
                         # it only part of the way, so moving it back by the whole offset or
                         # yaw would overshoot; an offset drags the heading too).
                         self.ekf.reset(np.array(still_at), self.ekf.bias_rad_s, self.ekf.P)
+                        self.gyro_scale.restart_window()
                     mount = self.odometry.first_mount(key)
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
             return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
@@ -627,6 +646,7 @@ class EventDriver:
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
         if nis and not at_rest:
             self.bias_watch.corrected(wrap_scalar(self.ekf.yaw_rad - float(prior[YAW])))
+            self.gyro_scale.add(stamp_s, self.ekf.yaw_rad, self._turned)
             if tracker is None:
                 # The poses the first LiDAR holds (a second one's could carry its own
                 # mount error, which would be taken for the first's).
@@ -686,6 +706,7 @@ class EventDriver:
         P[YAW, YAW] += yaw_sigma * yaw_sigma
         self.ekf.reset(np.array([x[0] - c * dx + s * dy, x[1] - s * dx - c * dy,
                                  x[YAW] - dyaw]), float(x[3]), P)
+        self.gyro_scale.restart_window()
         for other in self.mounts.trackers:
             self.mounts.restart(other)
         self.health.mount_changed(key, self.stamp_s)

@@ -598,6 +598,8 @@ class RunFigures:
         gyro_wander_tau_s: its correlation time as modelled (``gyro_wander_tau_s``), s.
         mounts: the online mount estimators' reports (OnlineMounts.report()).
         odometry: the online odometry estimator's report (OdometryTracker.report()).
+        gyro_scale: the gyro's scale measured against the LiDARs' heading
+            (GyroScaleWatch.report(), core/gyro_scale.py), or None.
         scans: LiDAR scans processed.
         finished: the run is over (offline): no update by its end is final, where a live
             node still waits ``VERDICT_MAX_START_GAP_S`` for the first one.
@@ -630,6 +632,7 @@ class RunFigures:
     odometry: dict[str, Any] | None = None
     scans: int = 0
     finished: bool = False
+    gyro_scale: dict[str, Any] | None = None
 
 
 def samples_dropped_figures(samples_dropped: Mapping[str, int]) -> dict[str, int]:
@@ -796,6 +799,16 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
             f'{math.degrees(figures.gyro_wander_rad_s):.3f} deg/s{stated},{found} modelled '
             f'from then on; the bias learnt before it took part of the wander in, and the '
             f'final bias is less sure than its sigma says')
+    scale = figures.gyro_scale
+    if scale and scale['found']:
+        # The bias takes in the scale's error times each turn (core/gyro_scale.py): say
+        # what the heading the LiDARs held shows, and what to configure.
+        add(DEGRADED, f'the gyro\'s scale is off: the heading the LiDARs held turned '
+            f'1 / (1 + e) times what the gyro read, e = {100.0 * scale["scale_error"]:+.2f} '
+            f'+- {100.0 * scale["scale_error_sigma"]:.2f} % over {scale["windows"]} '
+            f'windows, where {100.0 * scale["configured"]:+.2f} % is configured; the bias '
+            f'takes the difference in at every turn (set gyro_scale_error to '
+            f'{scale["scale_error"]:.4f})')
     dropped = {k: v for k, v in figures.dropped.items() if v}
     if dropped:
         add(DEGRADED, f'input dropped by validation: {sum(dropped.values())} ('

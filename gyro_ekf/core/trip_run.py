@@ -124,6 +124,8 @@ class TripRun:
         noise: each LiDAR's measured noise at the end (EventDriver.noise_report).
         held_start: the start pose held until the platform moved (EventDriver
             .held_start_report, core/held_start.py).
+        gyro_scale: the gyro's scale measured against the LiDARs' heading
+            (GyroScaleWatch.report, core/gyro_scale.py).
     """
 
     estimates: Estimates
@@ -134,6 +136,7 @@ class TripRun:
     odometry: OdometryTracker | None = None
     noise: list[dict] | None = None
     held_start: dict | None = None
+    gyro_scale: dict | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -244,4 +247,4 @@ def drive_trip(trip: Trip, driver: EventDriver,
         nis=np.frombuffer(update_nis, dtype=np.float64))
     return TripRun(Estimates(stamps, states, covariances, wanders), updates, driver.stats,
                    driver.health, driver.mounts, driver.odometry, driver.noise_report(),
-                   driver.held_start_report())
+                   driver.held_start_report(), driver.gyro_scale.report())

@@ -844,7 +844,8 @@ class EkfNode(Node):
             gyro_wander_found_s=stats.gyro_wander_found_s,
             gyro_wander_stated_rad_s=self.driver.config.gyro_wander_rad_s,
             gyro_wander_tau_s=self.driver.config.gyro_wander_tau_s,
-            mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report())
+            mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report(),
+            gyro_scale=self.driver.gyro_scale.report())
         return health.verdict(figures)
 
     def _publish_mounts(self) -> None:

@@ -1,0 +1,92 @@
+"""The gyro's scale measured against a LiDAR-held heading (core/gyro_scale.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gyro_ekf.core.gyro_scale import MIN_WINDOWS, WINDOW_S, GyroScaleWatch
+
+
+def _drive(watch: GyroScaleWatch, scale_error: float, bias_of_t, seconds: float = 160.0,
+           seed: int = 0, start_s: float = 0.0) -> None:
+    """Feed scans at 40 Hz of a platform weaving (turn rate varying every few seconds)."""
+    rng = np.random.default_rng(seed)
+    dt = 0.025
+    t = np.arange(0.0, seconds, dt)
+    rate = 0.4 * np.sin(2.0 * math.pi * t / 7.0) + 0.2 * np.sin(2.0 * math.pi * t / 3.1)
+    heading = np.cumsum(rate) * dt
+    measured = (1.0 + scale_error) * rate + np.array([bias_of_t(s) for s in t])
+    turned = np.cumsum(measured) * dt
+    # The heading the LiDARs hold: the truth within a few hundredths of a degree.
+    held = heading + rng.normal(0.0, math.radians(0.03), t.size)
+    for stamp, yaw, angle in zip(t + start_s, held, turned):
+        watch.add(float(stamp), math.atan2(math.sin(yaw), math.cos(yaw)), float(angle))
+
+
+@pytest.mark.parametrize('scale_error', [-0.02, -0.005, 0.01, 0.03])
+def test_a_scale_error_is_measured_and_found(scale_error):
+    watch = GyroScaleWatch()
+    _drive(watch, scale_error, lambda t: 0.01)
+    scale, sigma = watch.estimate()
+    assert scale == pytest.approx(scale_error, abs=3e-4)
+    assert sigma < 3e-4
+    assert watch.found()
+    report = watch.report()
+    assert report['found'] and report['windows'] >= MIN_WINDOWS
+    # Configured as it is: nothing to say.
+    configured = GyroScaleWatch(configured=scale_error)
+    _drive(configured, scale_error, lambda t: 0.01)
+    assert not configured.found()
+
+
+def test_an_exact_gyro_whose_bias_steps_and_ramps_is_no_scale():
+    # The bias is free in every window: a step between windows and a ramp are not a scale.
+    watch = GyroScaleWatch()
+    _drive(watch, 0.0, lambda t: 0.01 + 0.002 * t / 60.0 + (0.005 if t > 3 * WINDOW_S else 0.0))
+    scale, _ = watch.estimate()
+    assert abs(scale) < 5e-4
+    assert not watch.found()
+
+
+def test_nothing_is_said_before_enough_windows():
+    watch = GyroScaleWatch()
+    _drive(watch, 0.03, lambda t: 0.0, seconds=WINDOW_S * (MIN_WINDOWS - 1))
+    assert watch.estimate() is None and not watch.found()
+    assert watch.report()['scale_error'] is None
+
+
+def test_a_steady_circle_is_not_informative():
+    # A constant turn rate cannot be told from a bias: no window counts.
+    watch = GyroScaleWatch()
+    for k in range(int(200.0 / 0.025)):
+        t = k * 0.025
+        watch.add(t, math.remainder(0.3 * t, math.tau), 1.02 * 0.3 * t)
+    assert watch.report()['windows'] == 0
+
+
+def test_restore_puts_the_watch_back():
+    watch = GyroScaleWatch()
+    _drive(watch, 0.01, lambda t: 0.0, seconds=100.0)
+    saved, before = watch.save(), watch.report()
+    _drive(watch, 0.02, lambda t: 0.0, seconds=100.0, seed=1, start_s=100.0)
+    assert watch.report() != before
+    watch.restore(saved)
+    assert watch.report() == before
+
+
+def test_a_restarted_window_drops_a_heading_jump():
+    restarted, kept = GyroScaleWatch(), GyroScaleWatch()
+    for k in range(int(200.0 / 0.025)):
+        t = k * 0.025
+        yaw = 0.3 * math.sin(t / 2.0)
+        # The filter's heading reset by 5 deg at 70 s (a mount moved back): not a turn.
+        shown = yaw + (math.radians(5.0) if t >= 70.0 else 0.0)
+        if k == int(70.0 / 0.025):
+            restarted.restart_window()
+        restarted.add(t, shown, yaw)
+        kept.add(t, shown, yaw)
+    assert restarted.estimate()[0] == pytest.approx(0.0, abs=1e-6)
+    assert abs(kept.estimate()[0]) > 1e-3  # taken into a window, the jump reads as a scale
