@@ -94,6 +94,18 @@ def _wander(online: dict[str, Any]) -> str:
             + ('kept)' if ruled_out is None else f'ruled out at {ruled_out:.0f} s)'))
 
 
+def _scale(scale: dict[str, Any]) -> str:
+    """Return the gyro scale row: measured (and whether off the configured one), or not yet."""
+    from gyro_ekf.core.gyro_scale import MIN_WINDOWS
+    configured = f"{100.0 * scale['configured']:+.2f} configured"
+    if scale['scale_error'] is None:
+        return (f"not measured ({scale['windows']} of the {MIN_WINDOWS} windows with turns "
+                f"it needs; {configured})")
+    off = 'off the ' if scale['found'] else ''
+    return (f"{100.0 * scale['scale_error']:+.2f} +- {100.0 * scale['scale_error_sigma']:.2f} "
+            f"({off}{configured})")
+
+
 def _table(summary: dict[str, Any]) -> str:
     def number(value: Any, fmt: str) -> str:
         return 'n/a' if value is None or (isinstance(value, float) and math.isnan(value)) \
@@ -112,6 +124,7 @@ def _table(summary: dict[str, Any]) -> str:
              ('online bias, last-half mean (deg/s)', number(online['last_half_mean_deg_s'],
                                                             '.4f')),
              ('gyro wander (deg/s)', _wander(online)),
+             ('gyro scale error (%)', _scale(summary['gyro_scale'])),
              ('poles associated', number(summary['association']['share_associated'], '.2%')),
              ('longest gap without a landmark (s)',
               number(summary['association']['longest_gap_s'], '.2f')),

@@ -938,6 +938,10 @@ class EkfNode(Node):
             # one stated or found.
             'gyro_wander_modelled_deg_s':
                 f'{math.degrees(self.driver.ekf.wander_sigma_rad_s):.4f}',
+            # The gyro's scale measured against the LiDARs' heading (core/gyro_scale.py): e
+            # of (1 + e), its standard error ('' until enough windows), and whether it lies
+            # off the configured gyro_scale_error.
+            **_scale_values(self.driver.gyro_scale.report()),
             # A ramping bias followed (core/bias_rate.py): its rate in use, 0 when none.
             'bias_rate_deg_s_per_min': f'{math.degrees(stats.bias_rate_rad_s2) * 60.0:.4f}',
             'standing_still': str(self.driver.zero_rate).lower(),
@@ -1003,6 +1007,16 @@ class EkfNode(Node):
 def _optional(value: float | None, spec: str) -> str:
     """Format a figure for /diagnostics; '' when there is none."""
     return '' if value is None else format(value, spec)
+
+
+def _scale_values(report: dict) -> dict[str, str]:
+    """Return the gyro scale estimate as /diagnostics values ('' before enough windows)."""
+    measured = report['scale_error'] is not None
+    return {'gyro_scale_error': f"{report['scale_error']:.5f}" if measured else '',
+            'gyro_scale_error_sigma': (f"{report['scale_error_sigma']:.5f}" if measured
+                                       else ''),
+            'gyro_scale_windows': str(report['windows']),
+            'gyro_scale_off': str(report['found']).lower()}
 
 
 def _odometry_values(report: dict) -> dict[str, str]:
