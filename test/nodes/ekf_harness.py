@@ -102,3 +102,30 @@ class EkfUnderTest:
 
     def log(self) -> str:
         return self.processes.log(self.name)
+
+
+def run_and_replay(ros_processes, trip, folder):
+    """A trip's bag through `gyro-ekf run` and through the detector and EKF nodes.
+
+    Returns summary.json, the EKF node's last diagnostics once every estimate is out
+    ((level, message, values), as Probe.wait_for_every_estimate gives them) and the
+    replayer's report.
+    """
+    import json
+
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from gyro_ekf.cli.main import main
+    from gyro_ekf.io.bag_writer import write_trip_bag
+    from gyro_ekf.nodes import qos
+
+    bag = write_trip_bag(trip, folder / 'bag')
+    assert main(['-q', 'run', str(bag), '-o', str(folder / 'out'), '--no-progress',
+                 '--no-plots', '--no-bag']) == 0
+    offline = json.loads((folder / 'out' / 'summary.json').read_text())
+    processes, probe = ros_processes
+    diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
+    detectors = processes.lidar_nodes(bag)
+    probe.wait_for_lidar_nodes(diagnostics, detectors)
+    replay = processes.replay_bag(bag)
+    return offline, probe.wait_for_every_estimate(diagnostics, len(trip.imu.stamp_s)), replay

@@ -9,9 +9,9 @@ In its own module, so its processes run in their own ROS domain next to nobody e
 
 from __future__ import annotations
 
-import json
-
 import pytest
+
+from ekf_harness import run_and_replay
 
 pytestmark = pytest.mark.ros
 
@@ -21,26 +21,10 @@ SAID = "the gyro's scale is off: "
 @pytest.fixture(scope='module')
 def scaled_run(ros_processes, tmp_path_factory):
     """The bag through the detector and EKF nodes, and through `gyro-ekf run`."""
-    from diagnostic_msgs.msg import DiagnosticArray
-
-    from gyro_ekf.cli.main import main
     from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
-    from gyro_ekf.io.bag_writer import write_trip_bag
-    from gyro_ekf.nodes import qos
 
-    tmp = tmp_path_factory.mktemp('scale')
     trip = simulate_trip(SimulationConfig(duration_s=120.0, gyro_scale_error=0.01), 3)
-    bag = write_trip_bag(trip, tmp / 'bag')
-    assert main(['-q', 'run', str(bag), '-o', str(tmp / 'out'), '--no-progress',
-                 '--no-plots', '--no-bag']) == 0
-    offline = json.loads((tmp / 'out' / 'summary.json').read_text())
-
-    processes, probe = ros_processes
-    diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
-    detectors = processes.lidar_nodes(bag)
-    probe.wait_for_lidar_nodes(diagnostics, detectors)
-    replay = processes.replay_bag(bag)
-    return offline, probe.wait_for_every_estimate(diagnostics, len(trip.imu.stamp_s)), replay
+    return run_and_replay(ros_processes, trip, tmp_path_factory.mktemp('scale'))
 
 
 def test_node_says_the_gyro_scale_as_the_offline_run_does(scaled_run):

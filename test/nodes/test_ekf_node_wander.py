@@ -10,10 +10,11 @@ In its own module, so its processes run in their own ROS domain next to nobody e
 
 from __future__ import annotations
 
-import json
 import re
 
 import pytest
+
+from ekf_harness import run_and_replay
 
 pytestmark = pytest.mark.ros
 
@@ -23,26 +24,10 @@ WANDERS = 'the gyro wanders: a yaw-rate error that reverts over about 2 s, sigma
 @pytest.fixture(scope='module')
 def coloured_run(ros_processes, tmp_path_factory):
     """The bag through the detector and EKF nodes, and through `gyro-ekf run`."""
-    from diagnostic_msgs.msg import DiagnosticArray
-
     from gyro_ekf.analysis.stress import stress_trip
-    from gyro_ekf.cli.main import main
-    from gyro_ekf.io.bag_writer import write_trip_bag
-    from gyro_ekf.nodes import qos
 
-    tmp = tmp_path_factory.mktemp('wander')
-    trip = stress_trip('coloured_gyro', 7, 8)
-    bag = write_trip_bag(trip, tmp / 'bag')
-    assert main(['-q', 'run', str(bag), '-o', str(tmp / 'out'), '--no-progress',
-                 '--no-plots', '--no-bag']) == 0
-    offline = json.loads((tmp / 'out' / 'summary.json').read_text())
-
-    processes, probe = ros_processes
-    diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
-    detectors = processes.lidar_nodes(bag)
-    probe.wait_for_lidar_nodes(diagnostics, detectors)
-    replay = processes.replay_bag(bag)
-    return offline, probe.wait_for_every_estimate(diagnostics, len(trip.imu.stamp_s)), replay
+    return run_and_replay(ros_processes, stress_trip('coloured_gyro', 7, 8),
+                          tmp_path_factory.mktemp('wander'))
 
 
 def test_node_says_the_wander_it_found_as_the_offline_run_does(coloured_run):
