@@ -66,7 +66,7 @@ class GyroScaleWatch:
         self._reset_window()
 
     def _reset_window(self) -> None:
-        self._start: tuple[float, float, float] | None = None  # t0, psi0, turned0
+        self._start: tuple[float, float] | None = None  # t0, turned0
         self._psi = 0.0  # unwrapped heading since psi0
         self._last_yaw = 0.0
         self._sums = (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -77,14 +77,12 @@ class GyroScaleWatch:
 
     def add(self, stamp_s: float, yaw_rad: float, turned_rad: float) -> None:
         """Add a scan: the heading after its updates and the gyro's integral up to it."""
-        if self._start is None:
-            self._start = (stamp_s, yaw_rad, turned_rad)
-            self._psi, self._last_yaw = 0.0, yaw_rad
-        t0, _, turned0 = self._start
-        if stamp_s - t0 >= WINDOW_S:
+        if self._start is not None and stamp_s - self._start[0] >= WINDOW_S:
             self._close()
-            self.add(stamp_s, yaw_rad, turned_rad)
-            return
+        if self._start is None:
+            self._start = (stamp_s, turned_rad)
+            self._psi, self._last_yaw = 0.0, yaw_rad
+        t0, turned0 = self._start
         self._psi += wrap_scalar(yaw_rad - self._last_yaw)
         self._last_yaw = yaw_rad
         t, p, a = stamp_s - t0, self._psi, turned_rad - turned0
@@ -122,7 +120,9 @@ class GyroScaleWatch:
 
     def found(self) -> bool:
         """Whether the gyro's scale lies clearly off the one configured."""
-        figures = self.estimate()
+        return self._off(self.estimate())
+
+    def _off(self, figures: tuple[float, float] | None) -> bool:
         if figures is None:
             return False
         scale, sigma = figures
@@ -142,4 +142,4 @@ class GyroScaleWatch:
         return {'configured': self.configured, 'windows': len(self.windows),
                 'scale_error': None if figures is None else figures[0],
                 'scale_error_sigma': None if figures is None else figures[1],
-                'found': self.found()}
+                'found': self._off(figures)}

@@ -1011,10 +1011,8 @@ def _optional(value: float | None, spec: str) -> str:
 
 def _scale_values(report: dict) -> dict[str, str]:
     """Return the gyro scale estimate as /diagnostics values ('' before enough windows)."""
-    measured = report['scale_error'] is not None
-    return {'gyro_scale_error': f"{report['scale_error']:.5f}" if measured else '',
-            'gyro_scale_error_sigma': (f"{report['scale_error_sigma']:.5f}" if measured
-                                       else ''),
+    return {'gyro_scale_error': _optional(report['scale_error'], '.5f'),
+            'gyro_scale_error_sigma': _optional(report['scale_error_sigma'], '.5f'),
             'gyro_scale_windows': str(report['windows']),
             'gyro_scale_off': str(report['found']).lower()}
 
