@@ -27,7 +27,8 @@ from gyro_ekf.core.config import (STATED_NOISE_FIELDS, CalibrationConfig, EkfCon
                                   with_stated_noise)
 from gyro_ekf.core.errors import CalibrationError
 from gyro_ekf.core.events import EventDriver
-from gyro_ekf.core.trip_run import drive_trip, TripRun
+from gyro_ekf.analysis.detect_ahead import DetectionsAhead
+from gyro_ekf.core.trip_run import ScanDetector, drive_trip, TripRun
 from gyro_ekf.core.types import BIAS, BiasEstimate, FloatArray, NoiseFigures, Trip
 from gyro_ekf.io.params_file import PipelineParams, with_lidar_mounts
 
@@ -160,7 +161,8 @@ def run_trip(trip: Trip, params: PipelineParams | None = None,
              use_stated_noise: bool | None = None,
              progress: Callable[[int], None] | None = None,
              use_calibration: bool | None = None,
-             use_message_covariance: bool | None = None) -> OfflineRun:
+             use_message_covariance: bool | None = None,
+             detect_ahead: bool = False) -> OfflineRun:
     """Calibrate (where the trip starts static) and run the EKF over the whole trip.
 
     The filter starts at the trip's initial pose with the configured priors, so by default
@@ -179,6 +181,9 @@ def run_trip(trip: Trip, params: PipelineParams | None = None,
         use_message_covariance: let each IMU and odometry message's own variance (where
             positive, see core.validation.message_variance) replace the configured gyro or
             speed noise for that message, as the EKF node's parameter of that name does.
+        detect_ahead: find the poles in a forked child ahead of the run where a core is
+            free (analysis.detect_ahead; the same numbers). For a process that has the
+            machine to itself (`gyro-ekf run`), not one of several workers.
     """
     params = params or PipelineParams()
     options = params.options
@@ -201,6 +206,10 @@ def run_trip(trip: Trip, params: PipelineParams | None = None,
     if use_calibration and calibration is not None:
         driver.ekf.set_bias(float(calibration.bias_rad_s[2]),
                             options.calibration_bias_sigma_rad_s)
-    result = drive_trip(trip, driver, progress)
+    if not detect_ahead:
+        result = drive_trip(trip, driver, progress)
+    else:
+        with DetectionsAhead(ScanDetector(trip, driver.detector_config)) as detections:
+            result = drive_trip(trip, driver, progress, detections)
     return OfflineRun(trip=trip, config=config, config_sources=sources,
                       calibration=calibration, calibration_error=reason, result=result)

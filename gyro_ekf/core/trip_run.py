@@ -2,7 +2,8 @@
 
 `drive_trip` is what `gyro-ekf run` (analysis.offline) runs: the trip's events in driver
 order (`iter_trip_events`, computed once on compact arrays), LiDAR detection a block of
-scans at a time (it does not depend on the filter), and the estimates kept as the filter's
+scans at a time (`ScanDetector`: it does not depend on the filter, so `gyro-ekf run` has a
+child find the blocks ahead, analysis.detect_ahead), and the estimates kept as the filter's
 packed rows, copied into arrays a block at a time, so a long trip holds no Python object
 per sample.
 """
@@ -17,7 +18,8 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from gyro_ekf.core.detection import PoleDetections, detect_poles_in_scans
+from gyro_ekf.core.config import DetectorConfig
+from gyro_ekf.core.detection import detect_poles_in_scans
 from gyro_ekf.core.ekf import PACKED_ROW_SIZE, unpack_rows
 from gyro_ekf.core.event_records import DriverStats, EventKind
 from gyro_ekf.core.events import EventDriver
@@ -27,8 +29,8 @@ from gyro_ekf.core.odometry_online import OdometryTracker
 from gyro_ekf.core.models import sensor_point_to_map
 from gyro_ekf.core.types import ESTIMATE_SIZE, WANDER, FloatArray, ScanSeries, Trip
 
-__all__ = ['DETECTION_RETURNS', 'Estimates', 'ROW_BLOCK', 'TripRun', 'UpdateLog', 'drive_trip',
-           'iter_trip_events']
+__all__ = ['DETECTION_RETURNS', 'Estimates', 'ROW_BLOCK', 'ScanDetector', 'TripRun', 'UpdateLog',
+           'drive_trip', 'iter_trip_events']
 
 DETECTION_RETURNS = 50_000
 """Beams per detection batch of drive_trip: the whole scans that hold this many (at least one).
@@ -71,6 +73,48 @@ def iter_trip_events(trip: Trip, block: int = 65_536
         yield from zip(all_stamps[part].tolist(),
                        [kinds_by_value[k] for k in all_kinds[part].tolist()],
                        all_series[part].tolist(), all_index[part].tolist())
+
+
+class ScanDetector:
+    """Pole detection of a trip's scans, a block of scans at a time, as drive_trip needs it.
+
+    Detection does not depend on the filter, so a whole block is found in one call (numpy's
+    per-call cost amortised, see DETECTION_RETURNS). Blocks are fixed: block k of a LiDAR
+    holds its scans [k b, (k + 1) b), b = ``block_sizes[series]``, and drive_trip asks for
+    each when it reaches its first scan; ``order`` lists them in that order, which lets
+    another process find them ahead of the run (analysis.detect_ahead).
+    """
+
+    def __init__(self, trip: Trip, config: DetectorConfig) -> None:
+        """Keep the trip's scans and the detector's configuration."""
+        self.scans = trip.scans
+        self.config = config
+        self.block_sizes = [max(1, DETECTION_RETURNS // max(len(scan.angles_rad), 1))
+                            for scan in trip.scans]
+
+    def block(self, series: int, begin: int) -> list[FloatArray]:
+        """Pole centres (sensor frame, shape (k, 2), m) of each scan of the block at begin."""
+        scan: ScanSeries = self.scans[series]
+        stop = min(begin + self.block_sizes[series], len(scan.stamp_s))
+        found = detect_poles_in_scans(
+            scan.ranges_m[begin:stop], scan.angles_rad,
+            None if scan.intensities is None else scan.intensities[begin:stop], self.config)
+        return [poles.points_sensor_m for poles in found]
+
+    def order(self) -> list[tuple[int, int]]:
+        """(series, first scan) of every block, in the order drive_trip first needs them.
+
+        The order of their first scans' events in iter_trip_events: by stamp, then series.
+        """
+        firsts = [(series, np.arange(0, len(scan.stamp_s), self.block_sizes[series]))
+                  for series, scan in enumerate(self.scans)]
+        if not firsts:
+            return []
+        stamps = np.concatenate([self.scans[series].stamp_s[index] for series, index in firsts])
+        series = np.concatenate([np.full(len(index), series) for series, index in firsts])
+        index = np.concatenate([index for _, index in firsts])
+        order = np.lexsort((index, series, stamps))
+        return list(zip(series[order].tolist(), index[order].tolist()))
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,7 +190,8 @@ def _variances(values: FloatArray | None, n: int) -> list[float | None]:
 
 
 def drive_trip(trip: Trip, driver: EventDriver,
-               progress: Callable[[int], None] | None = None) -> TripRun:
+               progress: Callable[[int], None] | None = None,
+               detections: Callable[[int, int], list[FloatArray]] | None = None) -> TripRun:
     """Run every event of a trip through a driver and collect the history.
 
     Args:
@@ -154,7 +199,12 @@ def drive_trip(trip: Trip, driver: EventDriver,
         driver: a fresh driver (its pose is the filter's start); the mounts of every LiDAR
             but the first are estimated online (EventDriver.track_mounts).
         progress: called with the number of events processed since the last call.
+        detections: (series, first scan) -> the pole centres of each scan of that block,
+            as ``ScanDetector(trip, driver.detector_config).block`` gives them (the
+            default), asked for in ``ScanDetector.order``.
     """
+    if detections is None:
+        detections = ScanDetector(trip, driver.detector_config).block
     if driver.landmarks is None:
         driver.landmarks = trip.landmarks
     # A LiDAR stated at the first one's mount shares its key (health, rest counts): untracked.
@@ -174,9 +224,7 @@ def drive_trip(trip: Trip, driver: EventDriver,
     # configured noise. Lists of floats and None, read once per event.
     rate_variances = _variances(trip.imu.yaw_rate_variance, len(yaw_rates))
     speed_variances = _variances(trip.speed.speed_variance, len(speeds))
-    angles = [scan.angles_rad for scan in trip.scans]
-    blocks = [max(1, DETECTION_RETURNS // max(len(a), 1)) for a in angles]
-    detected: dict[int, tuple[int, list[PoleDetections]]] = {}
+    detected: dict[int, tuple[int, list[FloatArray]]] = {}
     row = 0
     processed = 0
     # Rows are kept as plain floats and copied into the arrays a block at a time: two
@@ -210,15 +258,11 @@ def drive_trip(trip: Trip, driver: EventDriver,
             scan: ScanSeries = trip.scans[series]
             begin, found = detected.get(series, (0, []))
             if not begin <= index < begin + len(found):
-                # Detection does not depend on the filter: do a block of scans at once.
-                begin, stop = index, min(index + blocks[series], len(scan.stamp_s))
-                found = detect_poles_in_scans(
-                    scan.ranges_m[begin:stop], angles[series],
-                    None if scan.intensities is None else scan.intensities[begin:stop],
-                    driver.detector_config)
+                # Detection does not depend on the filter: a block of scans at once.
+                begin, found = index, detections(series, index)
                 detected[series] = (begin, found)
-            report = driver.on_detections(stamp_s, found[index - begin].points_sensor_m,
-                                          scan.mount, scan.topic)
+            report = driver.on_detections(stamp_s, found[index - begin], scan.mount,
+                                          scan.topic)
             if report.nis.size:
                 # Plain floats and the associations themselves: an index array of the
                 # pairs and a row of the points per update cost more than the maths.

@@ -28,6 +28,7 @@ from gyro_ekf.core.types import FloatArray
 from gyro_ekf.io.errors import OutputError
 from gyro_ekf.io.output_dir import staged_file
 from gyro_ekf.io.products import os_reason
+from gyro_ekf.processes import spare_core as _spare_core
 
 if TYPE_CHECKING:
     from gyro_ekf.core.trip_run import UpdateLog
@@ -89,13 +90,6 @@ def write_estimates_csv(path: Path | str, stamp_s: FloatArray, state: FloatArray
             # per-row Python loop.
             stream.write((row_format * len(table)) % tuple(table.ravel().tolist()))
     return path
-
-
-def _spare_core() -> bool:
-    """Whether a child process could run beside this one (fork, and two usable cores)."""
-    if not hasattr(os, 'fork') or not hasattr(os, 'sched_getaffinity'):
-        return False
-    return len(os.sched_getaffinity(0)) > 1
 
 
 def start_estimates_csv(path: Path | str, stamp_s: FloatArray, state: FloatArray,
