@@ -28,8 +28,9 @@ from gyro_ekf.core.config import (STATED_NOISE_FIELDS, CalibrationConfig, EkfCon
 from gyro_ekf.core.errors import CalibrationError
 from gyro_ekf.core.events import EventDriver
 from gyro_ekf.analysis.detect_ahead import DetectionsAhead
-from gyro_ekf.core.trip_run import ScanDetector, drive_trip, TripRun
-from gyro_ekf.core.types import BIAS, BiasEstimate, FloatArray, NoiseFigures, Trip
+from gyro_ekf.core.trip_run import (Estimates, ScanDetector, TripRun, UpdateLog,
+                                    corrected_yaw_rate, drive_trip, held_speed)
+from gyro_ekf.core.types import BiasEstimate, FloatArray, NoiseFigures, Trip
 from gyro_ekf.io.params_file import PipelineParams, with_lidar_mounts
 
 log = logging.getLogger(__name__)
@@ -63,14 +64,7 @@ class OfflineRun:
     @property
     def speed_m_s(self) -> FloatArray:
         """Held speed at each estimate, shape (n,), m/s (0 before the first sample)."""
-        estimates = self.result.estimates
-        speed_t = self.trip.speed.stamp_s
-        if not len(speed_t):
-            return np.zeros(len(estimates.stamp_s))
-        held = np.searchsorted(speed_t, estimates.stamp_s, side='right') - 1
-        speed = self.trip.speed.speed_m_s[np.maximum(held, 0)]
-        speed[held < 0] = 0.0
-        return np.asarray(speed, dtype=np.float64)
+        return held_speed(self.trip.speed, self.result.estimates.stamp_s)
 
     @property
     def yaw_rate_rad_s(self) -> FloatArray:
@@ -80,9 +74,8 @@ class OfflineRun:
         gyro's wander (0 unless one was found), as the live node's twist has it.
         """
         estimates = self.result.estimates
-        rate = (self.trip.imu.yaw_rate_rad_s[:len(estimates.stamp_s)] - estimates.state[:, BIAS]
-                - estimates.wander_rad_s)
-        return np.asarray(rate, dtype=np.float64)
+        return corrected_yaw_rate(self.trip.imu.yaw_rate_rad_s[:len(estimates.stamp_s)],
+                                  estimates.state, estimates.wander_rad_s)
 
 
 def effective_config(noise: NoiseFigures, params: PipelineParams | None = None,
@@ -162,7 +155,9 @@ def run_trip(trip: Trip, params: PipelineParams | None = None,
              progress: Callable[[int], None] | None = None,
              use_calibration: bool | None = None,
              use_message_covariance: bool | None = None,
-             detect_ahead: bool = False) -> OfflineRun:
+             detect_ahead: bool = False,
+             on_rows: Callable[[int, Estimates, UpdateLog], None] | None = None
+             ) -> OfflineRun:
     """Calibrate (where the trip starts static) and run the EKF over the whole trip.
 
     The filter starts at the trip's initial pose with the configured priors, so by default
@@ -184,6 +179,8 @@ def run_trip(trip: Trip, params: PipelineParams | None = None,
         detect_ahead: find the poles in a forked child ahead of the run where a core is
             free (analysis.detect_ahead; the same numbers). For a process that has the
             machine to itself (`gyro-ekf run`), not one of several workers.
+        on_rows: handed each block of final rows as the run goes (drive_trip's, e.g.
+            io.streamed_products.StreamedProducts).
     """
     params = params or PipelineParams()
     options = params.options
@@ -207,9 +204,9 @@ def run_trip(trip: Trip, params: PipelineParams | None = None,
         driver.ekf.set_bias(float(calibration.bias_rad_s[2]),
                             options.calibration_bias_sigma_rad_s)
     if not detect_ahead:
-        result = drive_trip(trip, driver, progress)
+        result = drive_trip(trip, driver, progress, on_rows=on_rows)
     else:
         with DetectionsAhead(ScanDetector(trip, driver.detector_config)) as detections:
-            result = drive_trip(trip, driver, progress, detections)
+            result = drive_trip(trip, driver, progress, detections, on_rows)
     return OfflineRun(trip=trip, config=config, config_sources=sources,
                       calibration=calibration, calibration_error=reason, result=result)

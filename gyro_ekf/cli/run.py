@@ -171,6 +171,7 @@ def run(args: argparse.Namespace) -> int:
     from gyro_ekf.io.params_file import PipelineParams, read_params_file, with_initial_pose
     from gyro_ekf.analysis.summary import summarize
     from gyro_ekf.io.bag_reader import read_bag, validate_bag
+    from gyro_ekf.io.streamed_products import StreamedProducts
     # What the run imports on first use, imported with the rest before the clock starts:
     # the real-time factor is processing time (`make bench` also gives it with start-up and
     # imports). numpy.unique (the bag reader) imports numpy.ma; the estimates bag's writer.
@@ -195,43 +196,38 @@ def run(args: argparse.Namespace) -> int:
         if not use_message_covariance:
             report.covariances_used.clear()  # read, but not used
         show = not args.no_progress and sys.stderr.isatty()
-        with _progress_bar(event_count(trip), show) as bar:
-            result = run_trip(trip, params, use_stated_noise=use_stated,
-                              progress=None if bar is None else bar.update,
-                              use_message_covariance=use_message_covariance,
-                              use_calibration=True if args.use_calibration else None,
-                              detect_ahead=True)
-        est = result.result.estimates
-        summary = summarize(result, report)
-        if bag.duplicates:
-            # Dropped by the reader, with or without --skip-bad (a message recorded twice is no
-            # bad sample): counted beside what the validation boundary dropped (by topic; the
-            # exact repeats the validation boundary dropped, if any, by stream).
-            summary['input']['duplicates_dropped'] = {
-                **bag.duplicates, **summary['input'].get('duplicates_dropped', {})}
-        # Stated (by the bag) against used (after a params file's mounts): a calibrated mount
-        # shows here.
-        summary['mounts'] = {used.topic: {
-            'stated': {'x_m': stated.mount.x_m, 'y_m': stated.mount.y_m,
-                       'yaw_deg': math.degrees(stated.mount.yaw_rad)},
-            'used': {'x_m': used.mount.x_m, 'y_m': used.mount.y_m,
-                     'yaw_deg': math.degrees(used.mount.yaw_rad)}}
-            for stated, used in zip(trip.scans, result.trip.scans)}
         # Every product is built in a staging folder that replaces the output folder only when
         # complete: a failure (disk full, read-only) leaves any previous output as it was.
         with output_dir.staged_output_dir(folder, force=args.force) as staging:
-            # The CSV is written beside the bag (a child process where a core is free).
-            csv_written = results.start_estimates_csv(
-                staging / output_dir.ESTIMATES_CSV, est.stamp_s, est.state, est.covariance)
-            try:
-                if not args.no_bag:
-                    results.write_estimates_bag(
-                        staging / output_dir.ESTIMATES_BAG, bag.start_time_ns, est.stamp_s,
-                        est.state, est.covariance, result.speed_m_s, result.yaw_rate_rad_s,
-                        storage=args.storage, trip=trip, updates=result.result.updates,
-                        path_length=args.path_length)
-            finally:
-                csv_written()
+            # The CSV and the bag are written from the rows as the run makes them (a child
+            # process where a core is free, io/streamed_products.py).
+            with StreamedProducts(staging / output_dir.ESTIMATES_CSV,
+                                  None if args.no_bag else staging / output_dir.ESTIMATES_BAG,
+                                  bag.start_time_ns, trip, storage=args.storage,
+                                  path_length=args.path_length) as products:
+                with _progress_bar(event_count(trip), show) as bar:
+                    result = run_trip(trip, params, use_stated_noise=use_stated,
+                                      progress=None if bar is None else bar.update,
+                                      use_message_covariance=use_message_covariance,
+                                      use_calibration=True if args.use_calibration else None,
+                                      detect_ahead=True, on_rows=products)
+                products.finish()
+            summary = summarize(result, report)
+            if bag.duplicates:
+                # Dropped by the reader, with or without --skip-bad (a message recorded twice
+                # is no bad sample): counted beside what the validation boundary dropped (by
+                # topic; the exact repeats the validation boundary dropped, if any, by
+                # stream).
+                summary['input']['duplicates_dropped'] = {
+                    **bag.duplicates, **summary['input'].get('duplicates_dropped', {})}
+            # Stated (by the bag) against used (after a params file's mounts): a calibrated
+            # mount shows here.
+            summary['mounts'] = {used.topic: {
+                'stated': {'x_m': stated.mount.x_m, 'y_m': stated.mount.y_m,
+                           'yaw_deg': math.degrees(stated.mount.yaw_rad)},
+                'used': {'x_m': used.mount.x_m, 'y_m': used.mount.y_m,
+                         'yaw_deg': math.degrees(used.mount.yaw_rad)}}
+                for stated, used in zip(trip.scans, result.trip.scans)}
             processed_s = time.perf_counter() - began
             summary['timing'] = {'read_s': read_s, 'run_and_outputs_s': processed_s - read_s,
                                  'real_time_factor': summary['trip']['duration_s'] / processed_s

@@ -27,10 +27,11 @@ from gyro_ekf.core.health import HealthMonitor
 from gyro_ekf.core.mount_online import OnlineMounts
 from gyro_ekf.core.odometry_online import OdometryTracker
 from gyro_ekf.core.models import sensor_point_to_map
-from gyro_ekf.core.types import ESTIMATE_SIZE, WANDER, FloatArray, ScanSeries, Trip
+from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, WANDER, FloatArray, ScanSeries,
+                                 SpeedSeries, Trip)
 
 __all__ = ['DETECTION_RETURNS', 'Estimates', 'ROW_BLOCK', 'ScanDetector', 'TripRun', 'UpdateLog',
-           'drive_trip', 'iter_trip_events']
+           'corrected_yaw_rate', 'drive_trip', 'held_speed', 'iter_trip_events']
 
 DETECTION_RETURNS = 50_000
 """Beams per detection batch of drive_trip: the whole scans that hold this many (at least one).
@@ -73,6 +74,28 @@ def iter_trip_events(trip: Trip, block: int = 65_536
         yield from zip(all_stamps[part].tolist(),
                        [kinds_by_value[k] for k in all_kinds[part].tolist()],
                        all_series[part].tolist(), all_index[part].tolist())
+
+
+def held_speed(speed: SpeedSeries, stamp_s: FloatArray) -> FloatArray:
+    """Odometry speed held at each stamp (its last sample at or before), m/s; 0 before any."""
+    stamp_s = np.asarray(stamp_s, dtype=np.float64)
+    if not len(speed.stamp_s):
+        return np.zeros(len(stamp_s))
+    held = np.searchsorted(speed.stamp_s, stamp_s, side='right') - 1
+    out = np.asarray(speed.speed_m_s[np.maximum(held, 0)], dtype=np.float64)
+    out[held < 0] = 0.0
+    return out
+
+
+def corrected_yaw_rate(measured_rad_s: FloatArray, state: FloatArray,
+                       wander_rad_s: FloatArray) -> FloatArray:
+    """Return the rate the heading moved by: measured less the bias and the wander, rad/s.
+
+    Args:
+        measured_rad_s: the gyro's yaw rate at each estimate row, shape (n,).
+        state: the rows' states, shape (n, 4); wander_rad_s: their wander, shape (n,).
+    """
+    return np.asarray(measured_rad_s - state[:, BIAS] - wander_rad_s, dtype=np.float64)
 
 
 class ScanDetector:
@@ -191,7 +214,8 @@ def _variances(values: FloatArray | None, n: int) -> list[float | None]:
 
 def drive_trip(trip: Trip, driver: EventDriver,
                progress: Callable[[int], None] | None = None,
-               detections: Callable[[int, int], list[FloatArray]] | None = None) -> TripRun:
+               detections: Callable[[int, int], list[FloatArray]] | None = None,
+               on_rows: Callable[[int, Estimates, UpdateLog], None] | None = None) -> TripRun:
     """Run every event of a trip through a driver and collect the history.
 
     Args:
@@ -202,6 +226,11 @@ def drive_trip(trip: Trip, driver: EventDriver,
         detections: (series, first scan) -> the pole centres of each scan of that block,
             as ``ScanDetector(trip, driver.detector_config).block`` gives them (the
             default), asked for in ``ScanDetector.order``.
+        on_rows: called as rows become final, in time order: (first row, those rows'
+            estimates (views of the run's arrays, valid during the call), the updates
+            applied since the last call). By then every update stamped up to the last of
+            those rows is in (a scan sorts before an IMU sample of its stamp). Lets a
+            caller write the products while the run goes on (io.streamed_products).
     """
     if detections is None:
         detections = ScanDetector(trip, driver.detector_config).block
@@ -232,15 +261,29 @@ def drive_trip(trip: Trip, driver: EventDriver,
     # of them end to end: np.array reads it faster than a list of rows.
     pending: list[float] = []
     packed_row = driver.ekf.packed_row
+    sent_updates = 0  # updates handed to on_rows
 
-    def flush() -> None:
+    def flush(last: bool = False) -> None:
+        nonlocal sent_updates
+        start = row - len(pending) // PACKED_ROW_SIZE
         if pending:
-            start = row - len(pending) // PACKED_ROW_SIZE
             rows, full = unpack_rows(pending)
             states[start:row] = rows[:, :ESTIMATE_SIZE]
             wanders[start:row] = rows[:, WANDER]
             covariances[start:row] = full[:, :ESTIMATE_SIZE, :ESTIMATE_SIZE]
             pending.clear()
+        if on_rows is not None and (start < row or last):
+            on_rows(start, Estimates(stamps[start:row], states[start:row],
+                                     covariances[start:row], wanders[start:row]),
+                    updates_since(sent_updates))
+            sent_updates = len(update_stamp)
+
+    def updates_since(first: int) -> UpdateLog:
+        return UpdateLog(stamp_s=np.array(update_stamp[first:], dtype=np.float64),
+                         landmark=np.array(update_landmark[first:], dtype=np.int64),
+                         point_map_m=np.column_stack([update_x[first:], update_y[first:]])
+                         if len(update_x) > first else np.zeros((0, 2)),
+                         nis=np.array(update_nis[first:], dtype=np.float64))
 
     # Enum members looked up once: EventKind.IMU costs a class attribute lookup per event.
     imu, speed = EventKind.IMU, EventKind.SPEED
@@ -280,7 +323,7 @@ def drive_trip(trip: Trip, driver: EventDriver,
         processed += 1
         if progress is not None and processed % 10_000 == 0:
             progress(10_000)
-    flush()
+    flush(last=True)  # (the updates after the last IMU sample too)
     if progress is not None:
         progress(processed % 10_000)
     updates = UpdateLog(

@@ -2,19 +2,20 @@
 
 Each builds its file (or bag folder) under a temporary name beside the target and renames it
 into place (`output_dir.staged_file`), so an interrupted run never leaves a half-written
-product; the folder they go into is `output_dir`'s. `start_estimates_csv` writes the CSV in
-a forked child where a core is free, beside the caller's own work (the bag).
+product; the folder they go into is `output_dir`'s. The CSV and the bag can also be written
+as the rows come (`EstimatesCsv`, `EstimatesBag`): `gyro-ekf run` has a forked child write
+them while it filters (io.streamed_products).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
+import contextlib
 import json
 import logging
 import math
 import os
 from pathlib import Path
-import pickle
 import shutil
 import tempfile
 from typing import Any, TYPE_CHECKING
@@ -28,7 +29,6 @@ from gyro_ekf.core.types import FloatArray
 from gyro_ekf.io.errors import OutputError
 from gyro_ekf.io.output_dir import staged_file
 from gyro_ekf.io.products import os_reason
-from gyro_ekf.processes import spare_core as _spare_core
 
 if TYPE_CHECKING:
     from gyro_ekf.core.trip_run import UpdateLog
@@ -77,79 +77,64 @@ def write_estimates_csv(path: Path | str, stamp_s: FloatArray, state: FloatArray
     Returns:
         The path written.
     """
-    path = Path(path)
-    count = len(stamp_s)
-    with staged_file(path) as staged, staged.open('w', encoding='ascii') as stream:
-        stream.write(CSV_HEADER + '\n')
+    csv = EstimatesCsv(path)
+    try:
+        csv.add(stamp_s, state, covariance)
+        return csv.close()
+    finally:
+        csv.abort()
+
+
+class EstimatesCsv:
+    """estimates.csv written as its rows come (``add`` in time order, then ``close``).
+
+    Staged beside the target and moved into place by close; ``abort`` drops it (after
+    close: nothing). The same bytes as one call of write_estimates_csv.
+
+    Raises (each method):
+        OutputError: the file system refused a write (read-only, full), naming the file.
+    """
+
+    def __init__(self, path: Path | str) -> None:
+        """Open the staged file and write the header."""
+        self.path = Path(path)
+        self._files = contextlib.ExitStack()
+        staged = self._files.enter_context(staged_file(self.path))
+        try:
+            self._stream = self._files.enter_context(staged.open('w', encoding='ascii'))
+            self._stream.write(CSV_HEADER + '\n')
+        except OSError as err:
+            self.abort()
+            raise OutputError(f'{self.path}: cannot write: {os_reason(err)}') from None
+
+    def add(self, stamp_s: FloatArray, state: FloatArray, covariance: FloatArray) -> None:
+        """Write rows (shapes as write_estimates_csv's)."""
+        count = len(stamp_s)
         # In blocks, so an hour-long trip never holds the whole (n, 12) table at once.
         row_format = ','.join(['%.9g'] * len(CSV_HEADER.split(','))) + '\n'
-        for start in range(0, count, _CSV_BLOCK_ROWS):
-            block = slice(start, min(start + _CSV_BLOCK_ROWS, count))
-            table = estimates_table(stamp_s[block], state[block], covariance[block])
-            # One format operation per block: what np.savetxt writes, without its
-            # per-row Python loop.
-            stream.write((row_format * len(table)) % tuple(table.ravel().tolist()))
-    return path
-
-
-def start_estimates_csv(path: Path | str, stamp_s: FloatArray, state: FloatArray,
-                        covariance: FloatArray) -> Callable[[], Path]:
-    """Start ``write_estimates_csv`` beside the caller's own work; return what waits for it.
-
-    Formatting the rows is pure Python (a tenth of a second for the 2016 log's 44.6k rows)
-    and holds the interpreter, so a thread would gain nothing: where a second core is free
-    to use, a forked child writes the file while the caller goes on (`gyro-ekf run` writes
-    the estimates bag meanwhile), and the same bytes result. Elsewhere (no fork, one core)
-    the file is written here and now. Call the returned function before using the file,
-    and also when the caller's own work failed: it reaps the child.
-
-    Raises (from the returned function, else at once):
-        OutputError, OSError: the file could not be written; the child's own exception,
-            as ``write_estimates_csv`` raises it here (naming the file).
-    """
-    path = Path(path)
-    pid = None
-    if _spare_core():
-        read_end, write_end = os.pipe()
         try:
-            pid = os.fork()
-        except OSError:  # no process to spare after all: written here
-            os.close(read_end)
-            os.close(write_end)
-    if pid is None:
-        write_estimates_csv(path, stamp_s, state, covariance)
-        return lambda: path
-    if pid == 0:  # the child: write, hand back what went wrong, leave without cleanup
-        code = 1
-        try:
-            os.close(read_end)
-            with os.fdopen(write_end, 'wb') as pipe:
-                try:
-                    write_estimates_csv(path, stamp_s, state, covariance)
-                    code = 0
-                except BaseException as err:  # noqa: BLE001 (raised again by the parent)
-                    try:
-                        pipe.write(pickle.dumps(err))
-                    except Exception:  # noqa: BLE001 (an error that does not pickle)
-                        pipe.write(pickle.dumps(OutputError(f'{path}: cannot write: {err}')))
-        finally:
-            os._exit(code)
-    os.close(write_end)
+            for start in range(0, count, _CSV_BLOCK_ROWS):
+                block = slice(start, min(start + _CSV_BLOCK_ROWS, count))
+                table = estimates_table(stamp_s[block], state[block], covariance[block])
+                # One format operation per block: what np.savetxt writes, without its
+                # per-row Python loop.
+                self._stream.write((row_format * len(table)) % tuple(table.ravel().tolist()))
+        except OSError as err:
+            self.abort()
+            raise OutputError(f'{self.path}: cannot write: {os_reason(err)}') from None
 
-    def wait() -> Path:
-        with os.fdopen(read_end, 'rb') as pipe:
-            error = pipe.read()
-        _, status = os.waitpid(pid, 0)
-        code = os.waitstatus_to_exitcode(status)
-        if code != 0:
-            if error:
-                # The child's own exception (an OSError with its errno, an OutputError): as
-                # if the file had been written here.
-                raise pickle.loads(error) from None
-            raise OutputError(f'{path}: cannot write: the process writing it ended with '
-                              f'status {code}')
-        return path
-    return wait
+    def close(self) -> Path:
+        """Move the file into place."""
+        files, self._files = self._files, contextlib.ExitStack()
+        files.close()  # the stream, then staged_file's rename
+        return self.path
+
+    def abort(self) -> None:
+        """Drop the staged file (idempotent)."""
+        files, self._files = self._files, contextlib.ExitStack()
+        # (Closing the stream on a full disk fails too: the staged file goes all the same.)
+        with contextlib.suppress(Exception):
+            files.__exit__(OutputError, OutputError(f'{self.path}: not written'), None)
 
 
 def _json_ready(value: Any) -> Any:
@@ -245,20 +230,6 @@ class _EstimateEncoder:
         return out
 
 
-class _Lookahead:
-    """Hands out the messages of a time-ordered iterator a stamp range at a time."""
-
-    def __init__(self, messages: Iterator[Any]) -> None:
-        self._messages = messages
-        self._next = next(messages, None)
-
-    def until(self, stop_ns: int | None) -> Iterator[Any]:
-        """Yield the messages stamped before stop_ns (all that are left when None)."""
-        while self._next is not None and (stop_ns is None or self._next.stamp_ns < stop_ns):
-            yield self._next
-            self._next = next(self._messages, None)
-
-
 def _pose(msgs: Any, x_m: float, y_m: float, yaw_rad: float) -> Any:
     return msgs.Pose(position=msgs.Point(x=x_m, y=y_m, z=0.0),
                      orientation=msgs.yaw_quaternion(yaw_rad))
@@ -281,6 +252,7 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     of io.visual_bag (/tf, /tf_static, ekf/path, ekf/markers, landmark_markers): the
     latched ones first, then per block of rows the per-estimate topics, the block's /tf
     and its other visual messages (log times exact; MCAP readers order by log time).
+    ``EstimatesBag`` writes the same bag while the rows are still coming.
 
     Args:
         path: the bag folder to create (must not exist).
@@ -301,79 +273,157 @@ def write_estimates_bag(path: Path | str, start_time_ns: int, stamp_s: FloatArra
     Raises:
         OutputError: the bag folder exists or cannot be written, or path_length < 1.
     """
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.rosbag2.errors import WriterError
-
-    from gyro_ekf.io import visual_bag
-    from gyro_ekf.io.visual_bag import VisualTopics
-    from gyro_ekf.io import messages as msgs
-    from gyro_ekf.io.bag_writer import LATCHED_QOS
-    from gyro_ekf.io.batch_write import enable_chunk_crcs, write_rows
-
-    path = Path(path)
-    if path.exists():
-        raise OutputError(f'{path}: exists already')
-    plugins = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
-    if storage not in plugins:
-        raise OutputError(f'{path}: unknown storage {storage!r}; expected one of '
-                          f'{sorted(plugins)}')
-    stamps_ns = ns_at(start_time_ns, stamp_s)
-    state = np.asarray(state, dtype=np.float64)
-    P = np.asarray(covariance, dtype=np.float64)
-    speed_m_s = np.asarray(speed_m_s, dtype=np.float64)
-    yaw_rate_rad_s = np.asarray(yaw_rate_rad_s, dtype=np.float64)
-    if len(stamps_ns) and (stamps_ns.min() < 0 or stamps_ns.max() // NS_PER_S > _INT32_MAX):
-        raise OutputError(f'{path}: stamps outside builtin_interfaces/Time (int32 seconds)')
-    imu_frame = imu_frame or topics.IMU_FRAME
-    encoder = _EstimateEncoder(imu_frame)
-    shown = VisualTopics(start_time_ns, stamps_ns, state, P, trip, updates,
-                         visual_bag.PATH_LENGTH if path_length is None else path_length,
-                         imu_frame)
+    bag = EstimatesBag(path, start_time_ns, stamp_s, state, covariance, speed_m_s,
+                       yaw_rate_rad_s, storage, trip=trip, path_length=path_length,
+                       visual=visual, imu_frame=imu_frame)
     try:
-        aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent))
-    except OSError as err:
-        raise OutputError(f'{path}: cannot write the estimates bag: {os_reason(err)}') from None
-    staged = aside / path.name
-    try:
-        with Writer(staged, version=_BAG_VERSION, storage_plugin=plugins[storage]) as writer:
+        if updates is not None:
+            bag.add_updates(updates)
+        return bag.close()
+    finally:
+        bag.abort()
+
+
+class EstimatesBag:
+    """``write_estimates_bag``'s bag, written as the rows become final (one writer).
+
+    The arrays are the whole run's, filled in time order by the caller: ``advance(rows)``
+    writes every block of rows that ends at or before ``rows`` once rows [0, rows) are
+    final and ``add_updates`` has brought the updates stamped up to the last of them;
+    ``close`` writes the rest (all rows final) and moves the bag into place; ``abort``
+    drops it (after close: nothing). The same bytes as one call of write_estimates_bag.
+
+    Raises (each method):
+        OutputError: as write_estimates_bag.
+    """
+
+    def __init__(self, path: Path | str, start_time_ns: int, stamp_s: FloatArray,
+                 state: FloatArray, covariance: FloatArray, speed_m_s: FloatArray,
+                 yaw_rate_rad_s: FloatArray, storage: str = 'mcap', *,
+                 trip: Trip | None = None, path_length: int | None = None,
+                 visual: bool = True, imu_frame: str = topics.IMU_FRAME) -> None:
+        """Open the bag and write its latched messages; see write_estimates_bag."""
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        from gyro_ekf.io import visual_bag
+        from gyro_ekf.io.visual_bag import VisualTopics
+        from gyro_ekf.io import messages as msgs
+        from gyro_ekf.io.bag_writer import LATCHED_QOS
+        from gyro_ekf.io.batch_write import enable_chunk_crcs
+
+        path = Path(path)
+        if path.exists():
+            raise OutputError(f'{path}: exists already')
+        plugins = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+        if storage not in plugins:
+            raise OutputError(f'{path}: unknown storage {storage!r}; expected one of '
+                              f'{sorted(plugins)}')
+        self.path = path
+        self._stamps_ns = stamps_ns = ns_at(start_time_ns, stamp_s)
+        # (No copies: a caller streaming its rows fills these arrays while the bag is written.)
+        self._state = state = np.asarray(state, dtype=np.float64)
+        self._P = covariance = np.asarray(covariance, dtype=np.float64)
+        self._speed = np.asarray(speed_m_s, dtype=np.float64)
+        self._yaw_rate = np.asarray(yaw_rate_rad_s, dtype=np.float64)
+        if len(stamps_ns) and (stamps_ns.min() < 0
+                               or stamps_ns.max() // NS_PER_S > _INT32_MAX):
+            raise OutputError(f'{path}: stamps outside builtin_interfaces/Time (int32 seconds)')
+        self._encoder = _EstimateEncoder(imu_frame or topics.IMU_FRAME)
+        self._shown = VisualTopics(start_time_ns, stamps_ns, state, covariance, trip, None,
+                                   visual_bag.PATH_LENGTH if path_length is None
+                                   else path_length, imu_frame or topics.IMU_FRAME)
+        self._visual = visual
+        self._written = 0  # rows written
+        self._writer: Any = None
+        try:
+            self._aside = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp',
+                                                dir=path.parent))
+        except OSError as err:
+            raise OutputError(f'{path}: cannot write the estimates bag: '
+                              f'{os_reason(err)}') from None
+        with self._errors():
+            self._writer = writer = Writer(self._aside / path.name, version=_BAG_VERSION,
+                                           storage_plugin=plugins[storage])
+            writer.open()
             enable_chunk_crcs(writer)
-            connections = [writer.add_connection(topics.bag_topic(topic), template.msgtype,
-                                                 typestore=msgs.TYPESTORE)
-                           for topic, template in encoder.templates()]
+            self._connections = [
+                writer.add_connection(topics.bag_topic(topic), template.msgtype,
+                                      typestore=msgs.TYPESTORE)
+                for topic, template in self._encoder.templates()]
             if visual:
-                tf = writer.add_connection(visual_bag.TF, visual_bag.TF_TYPE,
-                                           typestore=msgs.TYPESTORE)
-                sparse_connections = {visual_bag.TF: tf, **{
+                self._tf = writer.add_connection(visual_bag.TF, visual_bag.TF_TYPE,
+                                                 typestore=msgs.TYPESTORE)
+                self._sparse_connections = {visual_bag.TF: self._tf, **{
                     topic: writer.add_connection(topics.bag_topic(topic), msgtype,
                                                  typestore=msgs.TYPESTORE)
                     for topic, msgtype in ((visual_bag.EKF_PATH, visual_bag.PATH_TYPE),
                                            (visual_bag.EKF_MARKERS,
                                             visual_bag.MARKER_ARRAY_TYPE))}}
-                for topic, msgtype, data in shown.latched():
+                for topic, msgtype, data in self._shown.latched():
                     latched = writer.add_connection(topics.bag_topic(topic), msgtype,
                                                     typestore=msgs.TYPESTORE,
                                                     offered_qos_profiles=[LATCHED_QOS])
                     writer.write(latched, int(start_time_ns), data)
-                sparse = _Lookahead(shown.sparse())
+
+    def add_updates(self, updates: UpdateLog) -> None:
+        """Add the run's next applied landmark updates (in time order)."""
+        self._shown.add_updates(updates)
+
+    def advance(self, rows: int) -> None:
+        """Write the blocks of rows that end at or before rows (rows [0, rows) final)."""
+        with self._errors():
             # In blocks, so an hour-long trip never holds all its messages at once.
-            for start in range(0, len(stamps_ns), _BAG_BLOCK_ROWS):
-                block = slice(start, min(start + _BAG_BLOCK_ROWS, len(stamps_ns)))
-                write_rows(writer, connections, stamps_ns[block], encoder.encode(
-                    stamps_ns[block], state[block], P[block], speed_m_s[block],
-                    yaw_rate_rad_s[block]))
-                if not visual:
-                    continue
-                tf_stamps, tf_rows = shown.tf_rows(block)
-                write_rows(writer, [tf], tf_stamps, [tf_rows])
-                last = block.stop == len(stamps_ns)
-                for message in sparse.until(None if last else int(stamps_ns[block.stop])):
-                    writer.write(sparse_connections[message.topic], message.stamp_ns,
-                                 message.data)
-        os.replace(staged, path)
-    except WriterError as err:
-        raise OutputError(f'{path}: cannot write the estimates bag: {err}') from None
-    except OSError as err:
-        raise OutputError(f'{path}: cannot write the estimates bag: {os_reason(err)}') from None
-    finally:
-        shutil.rmtree(aside, ignore_errors=True)
-    return path
+            while self._written + _BAG_BLOCK_ROWS <= min(rows, len(self._stamps_ns) - 1):
+                self._write_block(self._written + _BAG_BLOCK_ROWS)
+
+    def close(self) -> Path:
+        """Write the rest (every row final) and move the bag into place."""
+        with self._errors():
+            while self._written < len(self._stamps_ns):
+                self._write_block(min(self._written + _BAG_BLOCK_ROWS, len(self._stamps_ns)))
+            writer, self._writer = self._writer, None
+            writer.close()
+            os.replace(self._aside / self.path.name, self.path)
+        self.abort()
+        return self.path
+
+    def abort(self) -> None:
+        """Drop what is written (idempotent; after close, only the staging folder)."""
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            with contextlib.suppress(Exception):
+                writer.close()
+        shutil.rmtree(self._aside, ignore_errors=True)
+
+    def _write_block(self, stop: int) -> None:
+        from gyro_ekf.io.batch_write import write_rows
+
+        block = slice(self._written, stop)
+        stamps_ns = self._stamps_ns
+        write_rows(self._writer, self._connections, stamps_ns[block], self._encoder.encode(
+            stamps_ns[block], self._state[block], self._P[block], self._speed[block],
+            self._yaw_rate[block]))
+        self._written = stop
+        if self._visual:
+            tf_stamps, tf_rows = self._shown.tf_rows(block)
+            write_rows(self._writer, [self._tf], tf_stamps, [tf_rows])
+            self._write_sparse(None if stop == len(stamps_ns) else int(stamps_ns[stop]))
+
+    def _write_sparse(self, stop_ns: int | None) -> None:
+        for message in self._shown.sparse_until(stop_ns):
+            self._writer.write(self._sparse_connections[message.topic], message.stamp_ns,
+                               message.data)
+
+    @contextlib.contextmanager
+    def _errors(self) -> Iterator[None]:
+        from rosbags.rosbag2.errors import WriterError
+
+        try:
+            yield
+        except WriterError as err:
+            self.abort()
+            raise OutputError(f'{self.path}: cannot write the estimates bag: {err}') from None
+        except OSError as err:
+            self.abort()
+            raise OutputError(f'{self.path}: cannot write the estimates bag: '
+                              f'{os_reason(err)}') from None

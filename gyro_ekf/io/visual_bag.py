@@ -28,7 +28,6 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-import heapq
 from typing import Any
 
 import numpy as np
@@ -251,12 +250,17 @@ class SparseMessage:
 class VisualTopics:
     """Builds the visual topics of an estimates bag from a run's rows and its trip.
 
+    The rows may still be filling while the bag is written (io.streamed_products):
+    ``sparse_until(stop_ns)`` reads only the rows stamped before stop_ns and the updates
+    ``add_updates`` has brought so far, so both must be final up to there; the stamps are
+    known from the start.
+
     Constructor args:
         start_time_ns: bag stamp of t = 0.
         stamps_ns: estimate stamps, shape (n,), ns since the epoch.
         state: shape (n, 4); covariance: shape (n, 4, 4).
         trip: the run's inputs (LiDAR mounts, map, ground truth), or None.
-        updates: the run's core.trip_run.UpdateLog, or None.
+        updates: the run's core.trip_run.UpdateLog (the first of them), or None.
         path_length: most poses in an ekf/path message (>= 1).
         imu_frame: the IMU's frame (identity on base_link in /tf_static).
 
@@ -275,9 +279,37 @@ class VisualTopics:
         self.covariance = covariance
         self.trip = trip
         self.imu_frame = imu_frame
-        self.updates = updates
         self.tf = _TfTemplate(topics.MAP_FRAME, topics.BASE_FRAME)
-        self._tf_rows = _first_of_each_period(self._relative_s(), TF_PERIOD_S)
+        relative = self._relative_s()
+        self._tf_rows = _first_of_each_period(relative, TF_PERIOD_S)
+        # ekf/path: the rows published, the rows kept in paths, each kept row's elements
+        # once encoded (filled as the rows come), the next published row to write.
+        self._path_rows = _first_of_each_period(relative, PATH_PERIOD_S)
+        self._path_kept = np.union1d(_first_of_each_period(relative, PATH_SPACING_S),
+                                     self._path_rows)
+        self._path_template = _PathTemplate(topics.MAP_FRAME)
+        self._path_first = np.empty((len(self._path_kept), len(self._path_template.first)),
+                                    dtype=np.uint8)
+        self._path_rest = np.empty((len(self._path_kept), len(self._path_template.rest)),
+                                   dtype=np.uint8)
+        self._path_encoded = 0
+        self._path_next = 0
+        # ekf/markers: their rows and the next to write; the updates as they come.
+        self._marker_rows = _first_of_each_period(relative, MARKERS_PERIOD_S)
+        self._marker_next = 0
+        self._markers_template = _MarkersTemplate()
+        # The updates so far: stamps ns, detections in the map, their landmarks (m).
+        self._update_ns = np.zeros(0, dtype=np.int64)
+        self._update_point = np.zeros((0, 2))
+        self._update_landmark = np.zeros((0, 2))
+        self._update_count = 0
+        if updates is not None:
+            self.add_updates(updates)
+        # Ground truth: all known from the start.
+        truth = None if trip is None else trip.ground_truth
+        self._truth_ns = (np.zeros(0, dtype=np.int64) if truth is None
+                          else self._to_ns(truth.stamp_s))
+        self._truth_next = 0
 
     def latched(self) -> list[tuple[str, str, bytes]]:
         """(topic, type, CDR) of the transient-local messages, stamped start_time_ns."""
@@ -307,11 +339,38 @@ class VisualTopics:
         return self.stamps_ns[chosen], self.tf.rows(self.stamps_ns[chosen],
                                                     self.state[chosen, :3])
 
-    def sparse(self) -> Iterator[SparseMessage]:
-        """Yield the other messages in time order (truth /tf, ekf/path, ekf/markers)."""
-        streams = [self._truth(), self._path(), self._markers()]
-        # Few streams, each in time order: a merge keeps the whole run out of memory.
-        yield from heapq.merge(*streams, key=lambda m: m.stamp_ns)
+    def add_updates(self, updates: Any) -> None:
+        """Add the run's next applied updates (a core.trip_run.UpdateLog, in time order)."""
+        count = len(updates.stamp_s)
+        if not count or self.trip is None or self.trip.landmarks is None:
+            return  # no markers of detections without a map
+        have = self._update_count
+        if have + count > len(self._update_ns):
+            # Grown by doubling: a long run adds a few updates at a time.
+            size = max(2 * len(self._update_ns), have + count, 1024)
+            self._update_ns = np.resize(self._update_ns, size)
+            self._update_point = np.resize(self._update_point, (size, 2))
+            self._update_landmark = np.resize(self._update_landmark, (size, 2))
+        self._update_ns[have:have + count] = self._to_ns(updates.stamp_s)
+        self._update_point[have:have + count] = np.asarray(updates.point_map_m).reshape(-1, 2)
+        self._update_landmark[have:have + count] = np.asarray(
+            self.trip.landmarks.xy_m)[updates.landmark]
+        self._update_count = have + count
+
+    def sparse_until(self, stop_ns: int | None) -> list[SparseMessage]:
+        """Return the other messages (truth /tf, ekf/path, ekf/markers) stamped before stop_ns.
+
+        In time order, each message once over successive calls; None: all that are left.
+        The rows stamped before stop_ns must be final and the updates up to the last of
+        them added.
+        """
+        rows = (len(self.stamps_ns) if stop_ns is None
+                else int(np.searchsorted(self.stamps_ns, stop_ns, side='left')))
+        messages = [*self._truth_until(stop_ns), *self._path_until(rows),
+                    *self._markers_until(rows)]
+        # Stable: at one stamp, truth before path before markers, as a merge of the three.
+        messages.sort(key=lambda m: m.stamp_ns)
+        return messages
 
     def _relative_s(self) -> FloatArray:
         return seconds_since(self.stamps_ns, self.start_time_ns)
@@ -319,60 +378,82 @@ class VisualTopics:
     def _to_ns(self, stamp_s: FloatArray) -> NDArray[np.int64]:
         return ns_at(self.start_time_ns, stamp_s)
 
-    def _truth(self) -> Iterator[SparseMessage]:
-        truth = None if self.trip is None else self.trip.ground_truth
-        if truth is None or not len(truth.stamp_s):
-            return
+    def _truth_until(self, stop_ns: int | None) -> list[SparseMessage]:
+        begin = self._truth_next
+        end = (len(self._truth_ns) if stop_ns is None
+               else int(np.searchsorted(self._truth_ns, stop_ns, side='left')))
+        self._truth_next = max(begin, end)
+        if end <= begin:
+            return []
+        assert self.trip is not None and self.trip.ground_truth is not None
         template = _TfTemplate(topics.MAP_FRAME, TRUTH_FRAME)
-        stamps = self._to_ns(truth.stamp_s)
-        for start in range(0, len(stamps), 4096):
-            part = slice(start, start + 4096)
-            rows = template.rows(stamps[part], truth.pose[part])
-            for stamp, row in zip(stamps[part].tolist(), rows):
-                yield SparseMessage(stamp, TF, row.tobytes())
+        out = []
+        for start in range(begin, end, 4096):
+            part = slice(start, min(start + 4096, end))
+            stamps = self._truth_ns[part]
+            rows = template.rows(stamps, self.trip.ground_truth.pose[part])
+            out += [SparseMessage(stamp, TF, row.tobytes())
+                    for stamp, row in zip(stamps.tolist(), rows)]
+        return out
 
-    def _path(self) -> Iterator[SparseMessage]:
-        relative = self._relative_s()
-        published = _first_of_each_period(relative, PATH_PERIOD_S)
-        kept = np.union1d(_first_of_each_period(relative, PATH_SPACING_S), published)
-        template = _PathTemplate(topics.MAP_FRAME)
-        first, rest = template.elements(self.stamps_ns[kept], self.state[kept, :3])
-        for row in published.tolist():
-            end = int(np.searchsorted(kept, row, side='right'))
-            begin = max(0, end - self.path_length)
-            yield SparseMessage(int(self.stamps_ns[row]), EKF_PATH, template.encode(
-                int(self.stamps_ns[row]), first[begin], rest[begin + 1:end]))
+    def _path_until(self, rows: int) -> list[SparseMessage]:
+        begin = self._path_next
+        end = int(np.searchsorted(self._path_rows, rows, side='left'))
+        if end <= begin:
+            return []
+        self._path_next = end
+        # Encode the kept rows the new messages reach (each once).
+        reach = int(np.searchsorted(self._path_kept, self._path_rows[end - 1], side='right'))
+        if reach > self._path_encoded:
+            kept = self._path_kept[self._path_encoded:reach]
+            self._path_first[self._path_encoded:reach], \
+                self._path_rest[self._path_encoded:reach] = self._path_template.elements(
+                    self.stamps_ns[kept], self.state[kept, :3])
+            self._path_encoded = reach
+        out = []
+        for row in self._path_rows[begin:end].tolist():
+            last = int(np.searchsorted(self._path_kept, row, side='right'))
+            first = max(0, last - self.path_length)
+            stamp = int(self.stamps_ns[row])
+            out.append(SparseMessage(stamp, EKF_PATH, self._path_template.encode(
+                stamp, self._path_first[first], self._path_rest[first + 1:last])))
+        return out
 
-    def _markers(self) -> Iterator[SparseMessage]:
-        rows = _first_of_each_period(self._relative_s(), MARKERS_PERIOD_S)
-        begin = np.zeros(len(rows), dtype=np.int64)
-        end = np.zeros(len(rows), dtype=np.int64)
-        landmark_xy = np.zeros((0, 2))
-        if self.updates is not None and len(self.updates.stamp_s) and self.trip is not None \
-                and self.trip.landmarks is not None:
-            update_ns = self._to_ns(self.updates.stamp_s)
-            landmark_xy = np.asarray(self.trip.landmarks.xy_m)[self.updates.landmark]
-            stamps = self.stamps_ns[rows]
-            # The updates of the last scan in (previous marker, this marker] that had any.
-            end = np.searchsorted(update_ns, stamps, side='right')
-            last_ns = update_ns[np.maximum(end - 1, 0)]
-            previous = np.concatenate([[np.iinfo(np.int64).min], stamps[:-1]])
-            fresh = (end > 0) & (last_ns > previous)
-            begin = np.where(fresh, np.searchsorted(update_ns, last_ns, side='left'), end)
-            end = np.where(fresh, end, begin)
-        template = _MarkersTemplate()
+    def _markers_until(self, rows: int) -> list[SparseMessage]:
+        first = self._marker_next
+        last = int(np.searchsorted(self._marker_rows, rows, side='left'))
+        if last <= first:
+            return []
+        self._marker_next = last
+        count = self._update_count
+        update_ns = self._update_ns[:count]
+        point_map, landmark_xy = self._update_point[:count], self._update_landmark[:count]
+        marker_rows = self._marker_rows[first:last]
+        stamps = self.stamps_ns[marker_rows]
+        # The updates of the last scan in (previous marker, this marker] that had any.
+        end = np.searchsorted(update_ns, stamps, side='right')
+        last_ns = (update_ns[np.maximum(end - 1, 0)] if len(update_ns)
+                   else np.zeros(len(stamps), dtype=np.int64))
+        previous = np.concatenate([[np.iinfo(np.int64).min if first == 0 else
+                                    self.stamps_ns[self._marker_rows[first - 1]]],
+                                   stamps[:-1]])
+        fresh = (end > 0) & (last_ns > previous)
+        begin = np.where(fresh, np.searchsorted(update_ns, last_ns, side='left'), end)
+        end = np.where(fresh, end, begin)
         counts = end - begin
-        for start in range(0, len(rows), 256):
+        out = []
+        for start in range(0, len(marker_rows), 256):
             part = slice(start, start + 256)
             encoded: dict[int, Iterator[NDArray[np.uint8]]] = {}
             for k in np.unique(counts[part]).tolist():
                 chosen = np.flatnonzero(counts[part] == k) + start
                 picks = begin[chosen, None] + np.arange(k)
-                encoded[k] = iter(template.encode(
-                    self.stamps_ns[rows[chosen]], self.state[rows[chosen], :3],
-                    self.covariance[rows[chosen], :2, :2],
-                    self.updates.point_map_m[picks] if k else np.zeros((len(chosen), 0, 2)),
+                encoded[k] = iter(self._markers_template.encode(
+                    stamps[chosen], self.state[marker_rows[chosen], :3],
+                    self.covariance[marker_rows[chosen], :2, :2],
+                    point_map[picks] if k else np.zeros((len(chosen), 0, 2)),
                     landmark_xy[picks] if k else np.zeros((len(chosen), 0, 2))))
-            for i in range(start, min(start + 256, len(rows))):
-                yield SparseMessage(int(self.stamps_ns[rows[i]]), EKF_MARKERS,
-                                    next(encoded[int(counts[i])]).tobytes())
+            out += [SparseMessage(int(stamps[i]), EKF_MARKERS,
+                                  next(encoded[int(counts[i])]).tobytes())
+                    for i in range(start, min(start + 256, len(marker_rows)))]
+        return out

@@ -45,58 +45,6 @@ def test_csv_rows_do_not_depend_on_the_blocks_they_are_formatted_in(tmp_path, mo
     assert len(whole.read_text().splitlines()) == 31
 
 
-@pytest.mark.parametrize('spare_core', [True, False])
-def test_csv_written_beside_the_caller_is_the_csv_written_here(tmp_path, monkeypatch,
-                                                               spare_core):
-    # With a core to spare a forked child writes it (gyro-ekf run writes the bag meanwhile);
-    # without, it is written at once. The same bytes either way.
-    if spare_core and not hasattr(os, 'fork'):
-        pytest.skip('no fork on this platform')
-    stamps, state, P = _history(300)
-    P = P * np.linspace(1.0, 2.0, 300)[:, None, None]
-    here = results.write_estimates_csv(tmp_path / 'here.csv', stamps, state, P)
-    writers = tmp_path / 'writers'
-    real = results.write_estimates_csv
-
-    def record_writer(path, *args):
-        with open(writers, 'a', encoding='ascii') as file:
-            file.write(f'{os.getpid()}\n')
-        return real(path, *args)
-    monkeypatch.setattr(results, 'write_estimates_csv', record_writer)
-    monkeypatch.setattr(results, '_spare_core', lambda: spare_core)
-    wait = results.start_estimates_csv(tmp_path / 'beside.csv', stamps, state, P)
-    assert wait() == tmp_path / 'beside.csv'
-    assert (tmp_path / 'beside.csv').read_bytes() == here.read_bytes()
-    assert (int(writers.read_text()) != os.getpid()) == spare_core
-    assert not list(tmp_path.glob('.*.tmp'))
-
-
-def test_csv_written_beside_the_caller_raises_its_error_when_waited_for(tmp_path,
-                                                                        monkeypatch):
-    # The child's own exception comes back: an OSError keeps its errno (run turns it into
-    # its one line), and nothing half-written is left.
-    if not hasattr(os, 'fork'):
-        pytest.skip('no fork on this platform')
-    monkeypatch.setattr(results, '_spare_core', lambda: True)
-    stamps, state, P = _history()
-    real = results.write_estimates_csv
-
-    def fail(path, *args):
-        real(path, *args)
-        raise OSError(28, 'No space left on device', str(path))
-    monkeypatch.setattr(results, 'write_estimates_csv', fail)
-    wait = results.start_estimates_csv(tmp_path / 'estimates.csv', stamps, state, P)
-    with pytest.raises(OSError) as raised:
-        wait()
-    assert raised.value.errno == 28 and raised.value.filename == str(tmp_path / 'estimates.csv')
-    # A folder that is not there: the OutputError naming the file, from the child.
-    monkeypatch.setattr(results, 'write_estimates_csv', real)
-    wait = results.start_estimates_csv(tmp_path / 'gone' / 'estimates.csv', stamps, state, P)
-    with pytest.raises(OutputError, match='gone/estimates.csv: cannot write'):
-        wait()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ['estimates.csv']
-
-
 def test_output_folder_is_not_overwritten_without_force(tmp_path):
     out = tmp_path / 'out'
     assert output_dir.prepare_output_dir(out) == out
