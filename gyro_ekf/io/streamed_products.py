@@ -42,6 +42,9 @@ covariances and wanders and the updates' stamps, landmarks and points, as float6
 landmarks int64)."""
 
 _PIPE_BYTES = 1 << 20
+_SEND_ROWS = 2048
+"""Rows sent at once. Each write wakes the child, and a woken child can take the CPU the run
+was on for a few ms: on the 2016 log, a send every 256 rows cost the run 0.13 s."""
 _CSV_ROWS = 4096  # rows formatted at once (see results._CSV_BLOCK_ROWS)
 
 
@@ -136,6 +139,8 @@ class StreamedProducts:
         self._local: _Writer | None = None
         self._pid: int | None = None
         self._rows = self._errors = -1
+        self._held: list[bytes] = []  # blocks not sent yet
+        self._held_rows = 0
         if spare_core():
             rows_read, rows_write = os.pipe()
             errors_read, errors_write = os.pipe()
@@ -165,7 +170,7 @@ class StreamedProducts:
             self._local.add(start, estimates, updates)
             return
         stamp_s = np.ascontiguousarray(updates.stamp_s, dtype=np.float64)
-        self._send(b''.join((
+        self._held.append(b''.join((
             _FRAME.pack(start, len(estimates.stamp_s), len(stamp_s)),
             np.ascontiguousarray(estimates.stamp_s, dtype=np.float64).tobytes(),
             np.ascontiguousarray(estimates.state, dtype=np.float64).tobytes(),
@@ -174,6 +179,13 @@ class StreamedProducts:
             stamp_s.tobytes(),
             np.ascontiguousarray(updates.landmark, dtype=np.int64).tobytes(),
             np.ascontiguousarray(updates.point_map_m, dtype=np.float64).tobytes())))
+        self._held_rows += len(estimates.stamp_s)
+        if self._held_rows >= _SEND_ROWS:
+            self._send_held()
+
+    def _send_held(self) -> None:
+        held, self._held, self._held_rows = self._held, [], 0
+        self._send(b''.join(held))
 
     def finish(self) -> None:
         """Write the rest and move both products into place (all rows given)."""
@@ -185,7 +197,8 @@ class StreamedProducts:
                 local.abort()
                 raise
             return
-        self._send(_FRAME.pack(0, -1, 0))
+        self._held.append(_FRAME.pack(0, -1, 0))
+        self._send_held()
         os.close(self._rows)
         self._rows = -1
         self._reap(wait=True)
