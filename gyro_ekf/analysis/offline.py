@@ -156,8 +156,8 @@ def run_trip(trip: Trip, params: PipelineParams | None = None,
              use_calibration: bool | None = None,
              use_message_covariance: bool | None = None,
              detect_ahead: bool = False,
-             on_rows: Callable[[int, Estimates, UpdateLog], None] | None = None
-             ) -> OfflineRun:
+             on_rows: Callable[[int, Estimates, UpdateLog], None] | None = None,
+             into: Estimates | None = None) -> OfflineRun:
     """Calibrate (where the trip starts static) and run the EKF over the whole trip.
 
     The filter starts at the trip's initial pose with the configured priors, so by default
@@ -179,8 +179,9 @@ def run_trip(trip: Trip, params: PipelineParams | None = None,
         detect_ahead: find the poles in a forked child ahead of the run where a core is
             free (analysis.detect_ahead; the same numbers). For a process that has the
             machine to itself (`gyro-ekf run`), not one of several workers.
-        on_rows: handed each block of final rows as the run goes (drive_trip's, e.g.
-            io.streamed_products.StreamedProducts).
+        on_rows, into: handed each block of final rows as the run goes, and the arrays
+            the rows go into (drive_trip's; io.streamed_products.StreamedProducts gives
+            both).
     """
     params = params or PipelineParams()
     options = params.options
@@ -204,9 +205,9 @@ def run_trip(trip: Trip, params: PipelineParams | None = None,
         driver.ekf.set_bias(float(calibration.bias_rad_s[2]),
                             options.calibration_bias_sigma_rad_s)
     if not detect_ahead:
-        result = drive_trip(trip, driver, progress, on_rows=on_rows)
+        result = drive_trip(trip, driver, progress, on_rows=on_rows, into=into)
     else:
         with DetectionsAhead(ScanDetector(trip, driver.detector_config)) as detections:
-            result = drive_trip(trip, driver, progress, detections, on_rows)
+            result = drive_trip(trip, driver, progress, detections, on_rows, into)
     return OfflineRun(trip=trip, config=config, config_sources=sources,
                       calibration=calibration, calibration_error=reason, result=result)

@@ -210,7 +210,8 @@ def run(args: argparse.Namespace) -> int:
                                       progress=None if bar is None else bar.update,
                                       use_message_covariance=use_message_covariance,
                                       use_calibration=True if args.use_calibration else None,
-                                      detect_ahead=True, on_rows=products)
+                                      detect_ahead=True, on_rows=products,
+                                      into=products.estimates)
                 products.finish()
             summary = summarize(result, report)
             if bag.duplicates:

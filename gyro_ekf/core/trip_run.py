@@ -14,6 +14,7 @@ from array import array
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,7 +32,8 @@ from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, WANDER, FloatArray, ScanSe
                                  SpeedSeries, Trip)
 
 __all__ = ['DETECTION_RETURNS', 'Estimates', 'ROW_BLOCK', 'ScanDetector', 'TripRun', 'UpdateLog',
-           'corrected_yaw_rate', 'drive_trip', 'held_speed', 'iter_trip_events']
+           'corrected_yaw_rate', 'drive_trip', 'estimate_arrays', 'held_speed',
+           'iter_trip_events']
 
 DETECTION_RETURNS = 50_000
 """Beams per detection batch of drive_trip: the whole scans that hold this many (at least one).
@@ -74,6 +76,24 @@ def iter_trip_events(trip: Trip, block: int = 65_536
         yield from zip(all_stamps[part].tolist(),
                        [kinds_by_value[k] for k in all_kinds[part].tolist()],
                        all_series[part].tolist(), all_index[part].tolist())
+
+
+def estimate_arrays(n: int, buffer: Any = None) -> Estimates:
+    """Arrays for n estimate rows (not yet filled), in buffer when given (>= 22 n float64).
+
+    Raises:
+        ValueError: buffer is too small.
+    """
+    shapes = [(n,), (n, ESTIMATE_SIZE), (n, ESTIMATE_SIZE, ESTIMATE_SIZE), (n,)]
+    if buffer is None:
+        return Estimates(*(np.empty(shape) for shape in shapes))
+    arrays, offset = [], 0
+    for shape in shapes:
+        count = math.prod(shape)
+        arrays.append(np.frombuffer(buffer, dtype=np.float64, count=count,
+                                    offset=offset).reshape(shape))
+        offset += 8 * count
+    return Estimates(*arrays)
 
 
 def held_speed(speed: SpeedSeries, stamp_s: FloatArray) -> FloatArray:
@@ -215,7 +235,8 @@ def _variances(values: FloatArray | None, n: int) -> list[float | None]:
 def drive_trip(trip: Trip, driver: EventDriver,
                progress: Callable[[int], None] | None = None,
                detections: Callable[[int, int], list[FloatArray]] | None = None,
-               on_rows: Callable[[int, Estimates, UpdateLog], None] | None = None) -> TripRun:
+               on_rows: Callable[[int, Estimates, UpdateLog], None] | None = None,
+               into: Estimates | None = None) -> TripRun:
     """Run every event of a trip through a driver and collect the history.
 
     Args:
@@ -231,6 +252,8 @@ def drive_trip(trip: Trip, driver: EventDriver,
             applied since the last call). By then every update stamped up to the last of
             those rows is in (a scan sorts before an IMU sample of its stamp). Lets a
             caller write the products while the run goes on (io.streamed_products).
+        into: the arrays to fill with the estimates (``estimate_arrays``; e.g. memory a
+            writer process shares), else new ones.
     """
     if detections is None:
         detections = ScanDetector(trip, driver.detector_config).block
@@ -240,10 +263,11 @@ def drive_trip(trip: Trip, driver: EventDriver,
     driver.track_mounts((scan.mount, scan.topic) for scan in trip.scans[1:]
                         if scan.mount != trip.scans[0].mount)
     n = len(trip.imu.stamp_s)
-    stamps = np.empty(n)
-    states = np.empty((n, ESTIMATE_SIZE))
-    wanders = np.empty(n)
-    covariances = np.empty((n, ESTIMATE_SIZE, ESTIMATE_SIZE))
+    arrays = estimate_arrays(n) if into is None else into
+    if len(arrays.stamp_s) != n:
+        raise ValueError(f'into: {len(arrays.stamp_s)} rows for {n} IMU samples')
+    stamps, states = arrays.stamp_s, arrays.state
+    covariances, wanders = arrays.covariance, arrays.wander_rad_s
     # array('d') keeps 8 bytes per value while a long trip accumulates updates.
     update_stamp, update_landmark = array('d'), array('q')
     update_x, update_y, update_nis = array('d'), array('d'), array('d')

@@ -1,13 +1,14 @@
 """estimates.csv and the estimates bag written while `gyro-ekf run` filters.
 
 Both are built from the run's rows in time order (`results.EstimatesCsv`,
-`results.EstimatesBag`), so they need not wait for the run's end: passed as drive_trip's
-``on_rows``, ``StreamedProducts`` hands each block of final rows (and the updates applied
-since the last) to a forked child where a core is free, which writes them while the run
-goes on; ``finish`` waits for the child to close both. On the 2016 log that takes the
-outputs' 0.15-0.19 s after the run down to the child's last block. Where no core is free
-(or no fork) the same writer runs in this process, block by block: the same bytes either
-way (tests compare them with write_estimates_csv and write_estimates_bag).
+`results.EstimatesBag`), so they need not wait for the run's end. ``StreamedProducts``
+holds the run's estimate arrays (drive_trip's ``into``) in memory it shares with a forked
+child where a core is free; as drive_trip's ``on_rows`` it tells the child how many rows
+are final (and hands it the updates applied since), and the child writes them while the
+run goes on; ``finish`` waits for it to close both. On the 2016 log that takes the outputs'
+0.15-0.19 s after the run down to the child's last block, and no row is copied. Where no
+core is free (or no fork) the same writer runs in this process, block by block: the same
+bytes either way (tests compare them with write_estimates_csv and write_estimates_bag).
 
 Failure: an error of the child (disk full, read-only) is raised here as it was raised
 there (an OutputError naming the file), at the next block or at ``finish``; nothing is
@@ -17,7 +18,7 @@ on an exception) stops and reaps the child and drops what it wrote.
 
 from __future__ import annotations
 
-import fcntl
+import mmap
 import os
 from pathlib import Path
 import pickle
@@ -28,7 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from gyro_ekf.core.trip_run import Estimates, UpdateLog, corrected_yaw_rate, held_speed
+from gyro_ekf.core.trip_run import (Estimates, UpdateLog, corrected_yaw_rate,
+                                    estimate_arrays, held_speed)
 from gyro_ekf.core.types import ESTIMATE_SIZE, Trip
 from gyro_ekf.io.errors import OutputError
 from gyro_ekf.io.results import EstimatesBag, EstimatesCsv
@@ -37,29 +39,32 @@ from gyro_ekf.processes import spare_core
 __all__ = ['StreamedProducts']
 
 _FRAME = struct.Struct('<qqq')
-"""A block: first row, rows, updates (rows -1: the end); then the rows' stamps, states,
-covariances and wanders and the updates' stamps, landmarks and points, as float64 (the
-landmarks int64)."""
+"""A block: first row, end row (-1: the end of the run), updates; then the updates'
+stamps, landmarks and points (float64; the landmarks int64). The rows themselves are in
+the shared arrays."""
 
-_PIPE_BYTES = 1 << 20
 _SEND_ROWS = 2048
-"""Rows sent at once. Each write wakes the child, and a woken child can take the CPU the run
-was on for a few ms: on the 2016 log, a send every 256 rows cost the run 0.13 s."""
+"""Rows announced at once. Each write wakes the child, and a woken child can take the CPU
+the run was on for a few ms: on the 2016 log, a write every 256 rows cost the run 0.13 s."""
+
 _CSV_ROWS = 4096  # rows formatted at once (see results._CSV_BLOCK_ROWS)
+_ROW_FLOATS = 2 + ESTIMATE_SIZE * (1 + ESTIMATE_SIZE)  # stamp, state, covariance, wander
 
 
 class _Writer:
-    """The products from the rows as they come: what the child (or this process) runs."""
+    """The products from the rows as they become final: what the child (or this process) runs.
+
+    ``estimates``: the run's arrays, read up to the rows announced.
+    """
 
     def __init__(self, csv_path: Path, bag_path: Path | None, start_time_ns: int,
-                 trip: Trip, storage: str, path_length: int | None) -> None:
+                 trip: Trip, storage: str, path_length: int | None,
+                 estimates: Estimates) -> None:
         self.trip = trip
+        self.estimates = estimates
         # One row per IMU sample: the stamps and held speeds are known before the rows.
         self.stamp_s = np.asarray(trip.imu.stamp_s, dtype=np.float64)
-        n = len(self.stamp_s)
-        self.state = np.zeros((n, ESTIMATE_SIZE))
-        self.covariance = np.zeros((n, ESTIMATE_SIZE, ESTIMATE_SIZE))
-        self.yaw_rate = np.zeros(n)
+        self.yaw_rate = np.zeros(len(self.stamp_s))
         self.rows = 0  # final rows
         self.csv_rows = 0  # rows in the CSV
         self.csv: EstimatesCsv | None = None
@@ -68,23 +73,22 @@ class _Writer:
             self.csv = EstimatesCsv(csv_path)
             if bag_path is not None:
                 self.bag = EstimatesBag(
-                    bag_path, start_time_ns, self.stamp_s, self.state, self.covariance,
-                    held_speed(trip.speed, self.stamp_s), self.yaw_rate, storage, trip=trip,
-                    path_length=path_length)
+                    bag_path, start_time_ns, self.stamp_s, estimates.state,
+                    estimates.covariance, held_speed(trip.speed, self.stamp_s),
+                    self.yaw_rate, storage, trip=trip, path_length=path_length)
         except BaseException:
             self.abort()
             raise
 
-    def add(self, start: int, estimates: Estimates, updates: UpdateLog) -> None:
-        stop = start + len(estimates.stamp_s)
+    def add(self, start: int, stop: int, updates: UpdateLog) -> None:
+        rows = slice(start, stop)
         if start != self.rows or stop > len(self.stamp_s) or not np.array_equal(
-                estimates.stamp_s, self.stamp_s[start:stop]):
+                self.estimates.stamp_s[rows], self.stamp_s[rows]):
             raise OutputError(f'{self.trip.name}: estimate rows {start}-{stop} out of step '
                               f'with the trip\'s IMU samples (a fault of gyro-ekf)')
-        self.state[start:stop] = estimates.state
-        self.covariance[start:stop] = estimates.covariance
-        self.yaw_rate[start:stop] = corrected_yaw_rate(
-            self.trip.imu.yaw_rate_rad_s[start:stop], estimates.state, estimates.wander_rad_s)
+        self.yaw_rate[rows] = corrected_yaw_rate(
+            self.trip.imu.yaw_rate_rad_s[rows], self.estimates.state[rows],
+            self.estimates.wander_rad_s[rows])
         self.rows = stop
         if stop - self.csv_rows >= _CSV_ROWS:
             self._csv_until(stop)
@@ -110,8 +114,9 @@ class _Writer:
 
     def _csv_until(self, stop: int) -> None:
         assert self.csv is not None
-        block = slice(self.csv_rows, stop)
-        self.csv.add(self.stamp_s[block], self.state[block], self.covariance[block])
+        rows = slice(self.csv_rows, stop)
+        self.csv.add(self.stamp_s[rows], self.estimates.state[rows],
+                     self.estimates.covariance[rows])
         self.csv_rows = stop
 
 
@@ -124,30 +129,32 @@ class StreamedProducts:
         start_time_ns, storage, path_length: as results.write_estimates_bag.
         trip: the run's inputs (one estimate row per IMU sample; mounts, map, truth).
 
-    Use as a context manager and as drive_trip's ``on_rows``; call ``finish`` after the
-    run.
+    Use as a context manager; pass ``estimates`` as drive_trip's (run_trip's) ``into`` and
+    the instance as its ``on_rows``; call ``finish`` after the run.
 
     Raises (construction, each block, finish):
-        OutputError: a product could not be written (the child's own error).
+        OutputError: a product could not be written (the child's own error), or the rows
+            are not in ``estimates``.
     """
 
     def __init__(self, csv_path: Path, bag_path: Path | None, start_time_ns: int,
                  trip: Trip, storage: str = 'mcap', path_length: int | None = None) -> None:
         """Start the writer: a forked child where a core is free, else in this process."""
-        arguments = (Path(csv_path), None if bag_path is None else Path(bag_path),
-                     int(start_time_ns), trip, storage, path_length)
+        n = len(trip.imu.stamp_s)
         self._local: _Writer | None = None
         self._pid: int | None = None
         self._rows = self._errors = -1
-        self._held: list[bytes] = []  # blocks not sent yet
+        self._held: list[bytes] = []  # blocks not announced yet
         self._held_rows = 0
-        if spare_core():
+        child = spare_core()
+        # The run's rows, in memory the child sees as the run writes them.
+        self.estimates = estimate_arrays(n, mmap.mmap(-1, max(8 * _ROW_FLOATS * n, 1))
+                                         if child else None)
+        arguments = (Path(csv_path), None if bag_path is None else Path(bag_path),
+                     int(start_time_ns), trip, storage, path_length, self.estimates)
+        if child:
             rows_read, rows_write = os.pipe()
             errors_read, errors_write = os.pipe()
-            try:
-                fcntl.fcntl(rows_write, getattr(fcntl, 'F_SETPIPE_SZ', 1031), _PIPE_BYTES)
-            except OSError:
-                pass
             try:
                 pid = os.fork()
             except OSError:
@@ -165,21 +172,20 @@ class StreamedProducts:
         self._local = _Writer(*arguments)
 
     def __call__(self, start: int, estimates: Estimates, updates: UpdateLog) -> None:
-        """Take the next block of final rows and the updates applied since the last."""
+        """Take the next block of final rows (in ``estimates``) and the updates since."""
+        if not np.may_share_memory(estimates.state, self.estimates.state):
+            raise OutputError('streamed products: the run\'s rows are not in its arrays '
+                              '(run_trip(into=products.estimates))')
+        stop = start + len(estimates.stamp_s)
         if self._local is not None:
-            self._local.add(start, estimates, updates)
+            self._local.add(start, stop, updates)
             return
         stamp_s = np.ascontiguousarray(updates.stamp_s, dtype=np.float64)
         self._held.append(b''.join((
-            _FRAME.pack(start, len(estimates.stamp_s), len(stamp_s)),
-            np.ascontiguousarray(estimates.stamp_s, dtype=np.float64).tobytes(),
-            np.ascontiguousarray(estimates.state, dtype=np.float64).tobytes(),
-            np.ascontiguousarray(estimates.covariance, dtype=np.float64).tobytes(),
-            np.ascontiguousarray(estimates.wander_rad_s, dtype=np.float64).tobytes(),
-            stamp_s.tobytes(),
+            _FRAME.pack(start, stop, len(stamp_s)), stamp_s.tobytes(),
             np.ascontiguousarray(updates.landmark, dtype=np.int64).tobytes(),
             np.ascontiguousarray(updates.point_map_m, dtype=np.float64).tobytes())))
-        self._held_rows += len(estimates.stamp_s)
+        self._held_rows += stop - start
         if self._held_rows >= _SEND_ROWS:
             self._send_held()
 
@@ -259,15 +265,13 @@ def _serve(arguments: tuple[Any, ...], rows: int, errors: int) -> None:
         with os.fdopen(rows, 'rb') as pipe:
             writer = _Writer(*arguments)
             while True:
-                start, count, updates = _FRAME.unpack(_read(pipe, _FRAME.size))
-                if count < 0:
+                start, stop, updates = _FRAME.unpack(_read(pipe, _FRAME.size))
+                if stop < 0:
                     writer.finish()
                     writer = None
                     code = 0
                     break
-                body = _read(pipe, 8 * (count * (2 + ESTIMATE_SIZE * (1 + ESTIMATE_SIZE))
-                                        + updates * 4))
-                writer.add(start, *_unpack(body, count, updates))
+                writer.add(start, stop, _updates(_read(pipe, 8 * 4 * updates), updates))
     except BaseException as err:  # noqa: BLE001 (raised again by the parent)
         if writer is not None:
             try:
@@ -298,13 +302,8 @@ def _read(pipe: Any, size: int) -> bytes:
     return data
 
 
-def _unpack(body: bytes, count: int, updates: int) -> tuple[Estimates, UpdateLog]:
-    values = np.frombuffer(body, dtype=np.float64)
-    sizes = [count, count * ESTIMATE_SIZE, count * ESTIMATE_SIZE ** 2, count, updates,
-             updates, 2 * updates]
-    parts = np.split(values, np.cumsum(sizes)[:-1])
-    estimates = Estimates(parts[0], parts[1].reshape(count, ESTIMATE_SIZE),
-                          parts[2].reshape(count, ESTIMATE_SIZE, ESTIMATE_SIZE), parts[3])
-    log = UpdateLog(stamp_s=parts[4], landmark=parts[5].view(np.int64),
-                    point_map_m=parts[6].reshape(updates, 2), nis=np.zeros(updates))
-    return estimates, log
+def _updates(body: bytes, count: int) -> UpdateLog:
+    stamp_s, landmark, point_map = np.split(np.frombuffer(body, dtype=np.float64),
+                                            [count, 2 * count])
+    return UpdateLog(stamp_s=stamp_s, landmark=landmark.view(np.int64),
+                     point_map_m=point_map.reshape(count, 2), nis=np.zeros(count))

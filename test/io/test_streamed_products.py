@@ -43,7 +43,7 @@ def _streamed(folder: Path, trip, **kwargs) -> Path:
     folder.mkdir()
     with StreamedProducts(folder / 'estimates.csv', folder / 'estimates', START_NS, trip,
                           **kwargs) as products:
-        run_trip(trip, on_rows=products)
+        run_trip(trip, on_rows=products, into=products.estimates)
         products.finish()
     return folder
 
@@ -78,7 +78,7 @@ def test_no_bag_writes_the_csv_alone(tmp_path, trip_and_run):
     folder = tmp_path / 'out'
     folder.mkdir()
     with StreamedProducts(folder / 'estimates.csv', None, START_NS, trip) as products:
-        run_trip(trip, on_rows=products)
+        run_trip(trip, on_rows=products, into=products.estimates)
         products.finish()
     assert [p.name for p in folder.iterdir()] == ['estimates.csv']
     assert (folder / 'estimates.csv').read_bytes() == (
@@ -113,7 +113,7 @@ def test_a_folder_that_cannot_be_written_is_named(tmp_path, trip_and_run):
     with pytest.raises(OutputError, match='gone/estimates.csv: cannot write'):
         with StreamedProducts(tmp_path / 'gone' / 'estimates.csv', None, START_NS,
                               trip) as products:
-            run_trip(trip, on_rows=products)
+            run_trip(trip, on_rows=products, into=products.estimates)
             products.finish()
 
 
@@ -138,13 +138,14 @@ def test_a_run_that_fails_leaves_nothing_and_no_child(tmp_path, trip_and_run, mo
     with pytest.raises(_Stopped):
         with StreamedProducts(folder / 'estimates.csv', folder / 'estimates', START_NS,
                               trip) as products:
-            run_trip(trip, on_rows=stop_at_the_fifth_block)
+            run_trip(trip, on_rows=stop_at_the_fifth_block, into=products.estimates)
     assert list(folder.iterdir()) == []
     with pytest.raises(ChildProcessError):
         os.waitpid(-1, os.WNOHANG)  # every child reaped
 
 
-def test_rows_out_of_step_with_the_trip_are_refused(tmp_path, trip_and_run):
+def test_rows_out_of_step_with_the_trip_or_not_in_its_arrays_are_refused(tmp_path,
+                                                                         trip_and_run):
     trip, run = trip_and_run
     est = run.result.estimates
     from gyro_ekf.core.trip_run import Estimates, UpdateLog
@@ -153,7 +154,15 @@ def test_rows_out_of_step_with_the_trip_are_refused(tmp_path, trip_and_run):
     with pytest.raises(OutputError, match='rows 1-3 out of step'):
         with StreamedProducts(tmp_path / 'estimates.csv', None, START_NS,
                               trip) as products:
-            products(1, Estimates(est.stamp_s[1:3], est.state[1:3], est.covariance[1:3],
-                                  est.wander_rad_s[1:3]), no_updates)
+            mine = products.estimates
+            for name in ('stamp_s', 'state', 'covariance', 'wander_rad_s'):
+                getattr(mine, name)[:3] = getattr(est, name)[:3]
+            products(1, Estimates(mine.stamp_s[1:3], mine.state[1:3], mine.covariance[1:3],
+                                  mine.wander_rad_s[1:3]), no_updates)
             products.finish()
+    with pytest.raises(OutputError, match='not in its arrays'):
+        with StreamedProducts(tmp_path / 'estimates.csv', None, START_NS,
+                              trip) as products:
+            products(0, Estimates(est.stamp_s[:3], est.state[:3], est.covariance[:3],
+                                  est.wander_rad_s[:3]), no_updates)
     assert list(tmp_path.iterdir()) == []
