@@ -74,6 +74,38 @@ def test_rows_are_the_same_whatever_the_blocks_they_are_copied_in(simulated_runs
                                       getattr(run.estimates, name))
 
 
+def test_rows_handed_on_as_they_become_final_into_given_arrays(simulated_runs):
+    # on_rows sees every row once, in order, with the updates since the last call, and the
+    # rows are those of a plain run; `into` holds them (no copy of its own).
+    trip, run = simulated_runs[0]
+    into = trip_run.estimate_arrays(len(trip.imu.stamp_s),
+                                    bytearray(8 * 22 * len(trip.imu.stamp_s)))
+    seen = []
+
+    def on_rows(start, estimates, updates):
+        assert np.shares_memory(estimates.state, into.state)
+        seen.append((start, len(estimates.stamp_s), updates.stamp_s.copy(),
+                     estimates.state.copy()))
+    streamed = drive_trip(trip, EventDriver(_config_for(trip), trip.landmarks,
+                                            trip.initial_pose), on_rows=on_rows, into=into)
+    assert streamed.estimates.state is into.state
+    assert [start for start, *_ in seen] == list(np.cumsum([0] + [k for _, k, *_ in seen])[:-1])
+    assert sum(k for _, k, *_ in seen) == len(trip.imu.stamp_s)
+    np.testing.assert_array_equal(np.concatenate([s for *_, s in seen]), run.estimates.state)
+    np.testing.assert_array_equal(np.concatenate([u for _, _, u, _ in seen]),
+                                  run.updates.stamp_s)
+    # Before the run's end, the updates handed on with rows are stamped at or before the
+    # last of them (and all those are in).
+    for start, k, updates, _ in seen[:-1]:
+        if k:
+            assert np.all(updates <= trip.imu.stamp_s[start + k - 1])
+    for name in ('stamp_s', 'covariance', 'wander_rad_s'):
+        np.testing.assert_array_equal(getattr(into, name), getattr(run.estimates, name))
+    with pytest.raises(ValueError, match='3 rows for'):
+        drive_trip(trip, EventDriver(_config_for(trip), trip.landmarks, trip.initial_pose),
+                   into=trip_run.estimate_arrays(3))
+
+
 def _tiny_trip():
     imu_t = np.array([0.0, 0.01, 0.02, 0.03])
     speed_t = np.array([0.0, 0.02])
