@@ -366,8 +366,10 @@ class VisualTopics:
         """
         rows = (len(self.stamps_ns) if stop_ns is None
                 else int(np.searchsorted(self.stamps_ns, stop_ns, side='left')))
-        messages = [*self._truth_until(stop_ns), *self._path_until(rows),
-                    *self._markers_until(rows)]
+        path = _before(self._path_rows, self._path_next, rows)
+        markers = _before(self._marker_rows, self._marker_next, rows)
+        self._path_next, self._marker_next = path.stop, markers.stop
+        messages = [*self._truth_until(stop_ns), *self._path(path), *self._markers(markers)]
         # Stable: at one stamp, truth before path before markers, as a merge of the three.
         messages.sort(key=lambda m: m.stamp_ns)
         return messages
@@ -396,14 +398,13 @@ class VisualTopics:
                     for stamp, row in zip(stamps.tolist(), rows)]
         return out
 
-    def _path_until(self, rows: int) -> list[SparseMessage]:
-        begin = self._path_next
-        end = int(np.searchsorted(self._path_rows, rows, side='left'))
-        if end <= begin:
+    def _path(self, new: range) -> list[SparseMessage]:
+        """ekf/path at the published rows of index range new."""
+        if not new:
             return []
-        self._path_next = end
         # Encode the kept rows the new messages reach (each once).
-        reach = int(np.searchsorted(self._path_kept, self._path_rows[end - 1], side='right'))
+        reach = int(np.searchsorted(self._path_kept, self._path_rows[new.stop - 1],
+                                    side='right'))
         if reach > self._path_encoded:
             kept = self._path_kept[self._path_encoded:reach]
             self._path_first[self._path_encoded:reach], \
@@ -411,7 +412,7 @@ class VisualTopics:
                     self.stamps_ns[kept], self.state[kept, :3])
             self._path_encoded = reach
         out = []
-        for row in self._path_rows[begin:end].tolist():
+        for row in self._path_rows[new.start:new.stop].tolist():
             last = int(np.searchsorted(self._path_kept, row, side='right'))
             first = max(0, last - self.path_length)
             stamp = int(self.stamps_ns[row])
@@ -419,16 +420,15 @@ class VisualTopics:
                 stamp, self._path_first[first], self._path_rest[first + 1:last])))
         return out
 
-    def _markers_until(self, rows: int) -> list[SparseMessage]:
-        first = self._marker_next
-        last = int(np.searchsorted(self._marker_rows, rows, side='left'))
-        if last <= first:
+    def _markers(self, new: range) -> list[SparseMessage]:
+        """ekf/markers at the marker rows of index range new."""
+        if not new:
             return []
-        self._marker_next = last
+        first = new.start
         count = self._update_count
         update_ns = self._update_ns[:count]
         point_map, landmark_xy = self._update_point[:count], self._update_landmark[:count]
-        marker_rows = self._marker_rows[first:last]
+        marker_rows = self._marker_rows[new.start:new.stop]
         stamps = self.stamps_ns[marker_rows]
         # The updates of the last scan in (previous marker, this marker] that had any.
         end = np.searchsorted(update_ns, stamps, side='right')
@@ -457,3 +457,8 @@ class VisualTopics:
                                   next(encoded[int(counts[i])]).tobytes())
                     for i in range(start, min(start + 256, len(marker_rows)))]
         return out
+
+
+def _before(periodic_rows: NDArray[np.int64], done: int, rows: int) -> range:
+    """Indices of periodic_rows from done on that lie before row `rows`."""
+    return range(done, max(done, int(np.searchsorted(periodic_rows, rows, side='left'))))
