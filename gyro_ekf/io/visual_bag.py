@@ -460,5 +460,5 @@ class VisualTopics:
 
 
 def _before(periodic_rows: NDArray[np.int64], done: int, rows: int) -> range:
-    """Indices of periodic_rows from done on that lie before row `rows`."""
+    """Return the indices of periodic_rows from done on that lie before row `rows`."""
     return range(done, max(done, int(np.searchsorted(periodic_rows, rows, side='left'))))
