@@ -26,7 +26,7 @@ import numpy as np
 
 from gyro_ekf.core.trip_run import ScanDetector
 from gyro_ekf.core.types import FloatArray
-from gyro_ekf.processes import spare_core
+from gyro_ekf.processes import spare_core, write_all
 
 __all__ = ['DetectionsAhead', 'MIN_BLOCKS']
 
@@ -139,7 +139,7 @@ def _detect(detector: ScanDetector, order: list[tuple[int, int]], pipe: int) -> 
             counts = np.array([len(points) for points in found], dtype=np.int32)
             points = (np.concatenate(found) if found else np.zeros((0, 2))).astype(
                 np.float64, copy=False)
-            _write_all(pipe, b''.join((
+            write_all(pipe, b''.join((
                 _HEADER.pack(series, begin, len(found), int(counts.sum())),
                 counts.tobytes(), np.ascontiguousarray(points).tobytes())))
         code = 0
@@ -147,9 +147,3 @@ def _detect(detector: ScanDetector, order: list[tuple[int, int]], pipe: int) -> 
         pass
     finally:
         os._exit(code)
-
-
-def _write_all(fd: int, data: bytes) -> None:
-    view = memoryview(data)
-    while view:
-        view = view[os.write(fd, view):]

@@ -34,7 +34,7 @@ from gyro_ekf.core.trip_run import (Estimates, UpdateLog, corrected_yaw_rate,
 from gyro_ekf.core.types import ESTIMATE_SIZE, Trip
 from gyro_ekf.io.errors import OutputError
 from gyro_ekf.io.results import EstimatesBag, EstimatesCsv
-from gyro_ekf.processes import spare_core
+from gyro_ekf.processes import spare_core, write_all
 
 __all__ = ['StreamedProducts']
 
@@ -222,10 +222,8 @@ class StreamedProducts:
             self._reap(wait=False)
 
     def _send(self, data: bytes) -> None:
-        view = memoryview(data)
         try:
-            while view:
-                view = view[os.write(self._rows, view):]
+            write_all(self._rows, data)
         except BrokenPipeError:
             os.close(self._rows)
             self._rows = -1
@@ -284,7 +282,7 @@ def _serve(arguments: tuple[Any, ...], rows: int, errors: int) -> None:
             except Exception:  # noqa: BLE001 (an error that does not pickle)
                 data = pickle.dumps(OutputError(f'cannot write the estimates: {err}'))
             try:
-                os.write(errors, data)
+                write_all(errors, data)
             except OSError:
                 pass
     finally:
