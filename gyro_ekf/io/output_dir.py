@@ -95,8 +95,9 @@ def staged_output_dir(path: Path | str, force: bool = False) -> Iterator[Path]:
 
     A previous output stays untouched until the new one is complete (then its products go,
     including any the new run does not write, such as figures after --no-plots); the folder
-    itself stays. On any failure the staging folder is removed. OS errors (read-only file
-    system, disk full) become one OutputError naming the path.
+    itself stays. On any failure the staging folder is removed, and so are the folders
+    made for it (`-o new/out` of a run that fails leaves no `new/`). OS errors (read-only
+    file system, disk full) become one OutputError naming the path.
 
     Raises:
         OutputError: as prepare_output_dir, or the file system refused a write.
@@ -105,15 +106,18 @@ def staged_output_dir(path: Path | str, force: bool = False) -> Iterator[Path]:
     where = path.absolute()  # `-o .` has no name of its own to stage beside
     try:
         base = _stage_in(where)
+        made = [folder for folder in (base, *base.parents) if not folder.exists()]
         base.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=f'.{where.name}.', suffix='.staging',
                                         dir=base))
     except OSError as err:
         raise OutputError(f'{path}: cannot write the outputs: {os_reason(err)}') from None
+    done = False
     try:
         yield staging
         os.chmod(staging, 0o777 & ~umask())
         _swap_into_place(staging, where, force)
+        done = True
     except OSError as err:
         raise OutputError(f'{path}: cannot write the outputs: {os_reason(err)}') from None
     except OutputError as err:
@@ -121,6 +125,11 @@ def staged_output_dir(path: Path | str, force: bool = False) -> Iterator[Path]:
         raise OutputError(str(err).replace(str(staging), str(path))) from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+        for folder in made if not done else ():  # deepest first, each only if empty
+            try:
+                folder.rmdir()
+            except OSError:
+                break
 
 
 def _stage_in(where: Path) -> Path:

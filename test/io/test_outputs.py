@@ -86,6 +86,22 @@ def test_an_output_folder_on_a_file_system_of_its_own_is_staged_inside_it(tmp_pa
     assert sorted(p.name for p in tmp_path.iterdir()) == ['volume']
 
 
+def test_a_failed_write_leaves_no_folder_it_made(tmp_path):
+    # Staging starts before `gyro-ekf run` filters (its products are written meanwhile): a
+    # run that fails removes the folders made for -o, and only those.
+    (tmp_path / 'kept').mkdir()
+    for out in (tmp_path / 'new' / 'deeper' / 'out', tmp_path / 'kept' / 'out'):
+        with pytest.raises(RuntimeError, match='the run failed'):
+            with output_dir.staged_output_dir(out) as staging:
+                (staging / 'summary.json').write_text('{}')
+                raise RuntimeError('the run failed')
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['kept']
+    assert list((tmp_path / 'kept').iterdir()) == []
+    with output_dir.staged_output_dir(tmp_path / 'new' / 'out') as staging:
+        (staging / 'summary.json').write_text('{}')
+    assert [p.name for p in (tmp_path / 'new' / 'out').iterdir()] == ['summary.json']
+
+
 def test_summary_json_turns_nan_into_null(tmp_path):
     path = results.write_summary_json(tmp_path / 's.json', {
         'a': math.nan, 'b': np.float64(1.5), 'c': np.array([1, 2]), 'd': {'e': np.int64(3)}})
