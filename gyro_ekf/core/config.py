@@ -47,13 +47,18 @@ class EkfConfig:
         0.0, 1.0)
     speed_noise_m_s: float = config_field(
         0.05, 'm/s', 'Speed noise sigma (input noise of the position prediction).', 0.0, 10.0)
-    # Measured and said, not applied (core/gyro_scale.py): left wrong, the bias takes in e
-    # times each turn (50 simulated trips 0.7-3 % off ended 0.02-1.1 deg/s off).
+    # Measured and said, and applied online with learn_gyro_scale (core/gyro_scale.py): left
+    # wrong, the bias takes in e times each turn (50 simulated trips 0.7-3 % off ended
+    # 0.02-1.1 deg/s off).
     gyro_scale_error: float = config_field(
         0.0, '1', 'Known scale error e of the gyro\'s yaw axis, which reads (1 + e) times the '
         'true yaw rate plus its bias: the filter turns by (w - b) / (1 + e). A MEMS gyro is '
         'off by up to a few per cent; a run whose LiDARs show it says so in its verdict, '
-        'with the figure to set here. 0: exact.', -0.5, 0.5)
+        'with the figure to set here (and applies it, with learn_gyro_scale). 0: exact.',
+        -0.5, 0.5)
+    learn_gyro_scale: bool = config_field(
+        True, '', 'Apply the gyro scale error measured against the heading the LiDARs hold '
+        '(core/gyro_scale.py) once it is clearly off the one in use; the verdict says so.')
     range_noise_m: float = config_field(
         0.02, 'm', 'LiDAR range noise sigma of a pole observation.', 1e-4, 10.0)
     bearing_noise_rad: float = config_field(

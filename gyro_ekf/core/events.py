@@ -107,7 +107,8 @@ class EventDriver:
         self._gyro_scale = 1.0 + self.config.gyro_scale_error
         # The gyro's scale, measured against the heading the LiDARs hold (core/gyro_scale.py)
         # from the integral of its raw readings.
-        self.gyro_scale = GyroScaleWatch(self.config.gyro_scale_error)
+        self.gyro_scale = GyroScaleWatch(self.config.gyro_scale_error,
+                                         self.config.learn_gyro_scale)
         self._turned = 0.0
         self.detector_config = detector_config or DetectorConfig()
         self.ekf = GyroBiasEkf(self.config, pose, bias_rad_s)
@@ -187,7 +188,9 @@ class EventDriver:
         self.bias_watch = BiasWatch()
         self.bias_rate = BiasRate(self.config.bias_rate_window_s)
         self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
-        self.gyro_scale = GyroScaleWatch(self.config.gyro_scale_error)
+        self.gyro_scale = GyroScaleWatch(self.config.gyro_scale_error,
+                                         self.config.learn_gyro_scale)
+        self._gyro_scale = 1.0 + self.config.gyro_scale_error
         self._turned = 0.0
         # A wander found before the reset is forgotten with it; the prior holds again.
         self.ekf.assume_wander(self.config.initial_wander_rad_s)
@@ -266,6 +269,7 @@ class EventDriver:
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
           self._path_yaw), noise, (gyro_scale, self._turned)) = saved
         self.gyro_scale.restore(gyro_scale)
+        self._gyro_scale = 1.0 + self.gyro_scale.in_use
         self.noise = {}
         for key, saved_noise in noise.items():
             self.lidar_noise(key).restore(saved_noise)
@@ -646,7 +650,8 @@ class EventDriver:
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
         if nis and not at_rest:
             self.bias_watch.corrected(wrap_scalar(self.ekf.yaw_rad - float(prior[YAW])))
-            self.gyro_scale.add(stamp_s, self.ekf.yaw_rad, self._turned)
+            if self.gyro_scale.add(stamp_s, self.ekf.yaw_rad, self._turned):
+                self._gyro_scale_applied()
             if tracker is None:
                 # The poses the first LiDAR holds (a second one's could carry its own
                 # mount error, which would be taken for the first's).
@@ -779,6 +784,30 @@ class EventDriver:
         self.stats.gyro_wander_rad_s = found.sigma_rad_s
         self.stats.gyro_wander_found_s = found.found_at_s
         self.stats.gyro_wander_prior_ruled_out_s = found.prior_ruled_out_s
+
+    def _gyro_scale_applied(self) -> None:
+        """Turn by the scale the LiDARs' heading measured; what its error drew on starts again.
+
+        Until now the prediction ran (e - e_old) times each turn ahead of the heading and
+        the LiDARs took it back: the bias took that in (by up to (e - e_old) times the turn
+        rate), the bias watch read it as drifts, a ramp or a noisier gyro, and the wander's
+        blocks as wander (core/gyro_scale.py). Those findings were the scale's: the watch,
+        the ramp's line and the wander's evidence start again (the prior wander with them),
+        and the bias is opened by the error the old scale put into it at the last window's
+        RMS turn rate.
+        """
+        watch = self.gyro_scale
+        change = watch.in_use - (self._gyro_scale - 1.0)
+        self._gyro_scale = 1.0 + watch.in_use
+        self.bias_watch = BiasWatch()
+        self.bias_rate = BiasRate(self.config.bias_rate_window_s)
+        self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
+        self._model_wander()
+        self._heading_dt2 = self._wander_dt = 0.0
+        self.ekf.rate_noise_scale = self.stats.gyro_noise_scale = 1.0
+        self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0
+        self.stats.bias_rate_rad_s2 = 0.0
+        self.ekf.open_bias(change * change * watch.mean_square_rate)
 
     def _rate_followed(self, lag: float | None) -> None:
         """Open the bias by a new rate's lag; hand the rate and the walks to the filter."""

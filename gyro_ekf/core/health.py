@@ -803,12 +803,16 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
     if scale and scale['found']:
         # The bias takes in the scale's error times each turn (core/gyro_scale.py): say
         # what the heading the LiDARs held shows, and what to configure.
+        applied_at = scale.get('applied_at_s')
+        effect = ('the bias takes the difference in at every turn' if applied_at is None
+                  else f'the filter turned by the configured scale until {applied_at:.1f} s, '
+                  f'by {100.0 * scale["in_use"]:+.2f} % from then on (applied online), and '
+                  f'the bias took the difference in at every turn before')
         add(DEGRADED, f'the gyro\'s scale is off: the heading the LiDARs held turned '
             f'1 / (1 + e) times what the gyro read, e = {100.0 * scale["scale_error"]:+.2f} '
             f'+- {100.0 * scale["scale_error_sigma"]:.2f} % over {scale["windows"]} '
-            f'windows, where {100.0 * scale["configured"]:+.2f} % is configured; the bias '
-            f'takes the difference in at every turn (set gyro_scale_error to '
-            f'{scale["scale_error"]:.4f})')
+            f'windows, where {100.0 * scale["configured"]:+.2f} % is configured; {effect} '
+            f'(set gyro_scale_error to {scale["scale_error"]:.4f})')
     dropped = {k: v for k, v in figures.dropped.items() if v}
     if dropped:
         add(DEGRADED, f'input dropped by validation: {sum(dropped.values())} ('

@@ -1014,7 +1014,10 @@ def _scale_values(report: dict) -> dict[str, str]:
     return {'gyro_scale_error': _optional(report['scale_error'], '.5f'),
             'gyro_scale_error_sigma': _optional(report['scale_error_sigma'], '.5f'),
             'gyro_scale_windows': str(report['windows']),
-            'gyro_scale_off': str(report['found']).lower()}
+            'gyro_scale_off': str(report['found']).lower(),
+            # The scale the filter turns by: the configured one until one is applied online.
+            'gyro_scale_error_in_use': format(report['in_use'], '.5f'),
+            'gyro_scale_applied': str(report['applied'])}
 
 
 def _odometry_values(report: dict) -> dict[str, str]:

@@ -43,12 +43,14 @@ def test_a_scale_error_is_measured_and_found(scale_error):
 
 
 def test_an_exact_gyro_whose_bias_steps_and_ramps_is_no_scale():
-    # The bias is free in every window: a step between windows and a ramp are not a scale.
-    watch = GyroScaleWatch()
+    # The bias is free in every window: a step between windows and a ramp are not a scale,
+    # nor applied as one.
+    watch = GyroScaleWatch(learn=True)
     _drive(watch, 0.0, lambda t: 0.01 + 0.002 * t / 60.0 + (0.005 if t > 3 * WINDOW_S else 0.0))
     scale, _ = watch.estimate()
     assert abs(scale) < 5e-4
     assert not watch.found()
+    assert watch.in_use == 0.0 and watch.applied == 0
 
 
 def test_nothing_is_said_before_enough_windows():
@@ -90,3 +92,56 @@ def test_a_restarted_window_drops_a_heading_jump():
         kept.add(t, shown, yaw)
     assert restarted.estimate()[0] == pytest.approx(0.0, abs=1e-6)
     assert abs(kept.estimate()[0]) > 1e-3  # taken into a window, the jump reads as a scale
+
+
+def _drive_counting(watch: GyroScaleWatch, scale_error: float, seconds: float) -> list[float]:
+    """_drive, returning the stamps at which the scale in use changed."""
+    changes = []
+    add = watch.add
+
+    def counting(stamp: float, yaw: float, angle: float) -> bool:
+        changed = add(stamp, yaw, angle)
+        if changed:
+            changes.append(stamp)
+        return changed
+
+    watch.add = counting
+    _drive(watch, scale_error, lambda t: 0.01, seconds=seconds)
+    return changes
+
+
+@pytest.mark.parametrize('scale_error', [-0.02, 0.01])
+def test_learnt_a_scale_found_is_applied_once_and_kept(scale_error):
+    watch = GyroScaleWatch(learn=True)
+    changes = _drive_counting(watch, scale_error, 400.0)
+    # Applied when the windows first find it (the MIN_WINDOWS-th closing), then kept: the
+    # windows after it agree with it within their errors.
+    assert len(changes) == 1 and watch.applied == 1
+    assert changes[0] == pytest.approx(MIN_WINDOWS * WINDOW_S, abs=WINDOW_S)
+    assert watch.applied_at_s == changes[0]
+    assert watch.in_use == pytest.approx(scale_error, abs=3e-4)
+    report = watch.report()
+    assert report['in_use'] == watch.in_use and report['applied'] == 1
+    assert report['found']  # still off the configured one: the verdict says it
+
+
+def test_not_learnt_or_exact_nothing_is_applied():
+    said = GyroScaleWatch()
+    assert _drive_counting(said, 0.01, 400.0) == [] and said.found()
+    assert said.in_use == 0.0 and said.applied == 0 and said.applied_at_s is None
+    exact = GyroScaleWatch(learn=True)
+    assert _drive_counting(exact, 0.0, 400.0) == [] and exact.in_use == 0.0
+    # Configured as it is: nothing to apply either.
+    configured = GyroScaleWatch(configured=0.01, learn=True)
+    assert _drive_counting(configured, 0.01, 400.0) == [] and configured.in_use == 0.01
+
+
+def test_restore_puts_the_scale_in_use_back():
+    watch = GyroScaleWatch(learn=True)
+    _drive(watch, 0.01, lambda t: 0.0, seconds=WINDOW_S * (MIN_WINDOWS - 1) + 1.0)
+    saved = watch.save()
+    _drive(watch, 0.01, lambda t: 0.0, seconds=100.0, seed=1,
+           start_s=WINDOW_S * (MIN_WINDOWS - 1) + 1.0)
+    assert watch.applied == 1 and watch.in_use != 0.0
+    watch.restore(saved)
+    assert watch.applied == 0 and watch.in_use == 0.0 and watch.applied_at_s is None

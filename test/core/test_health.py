@@ -213,10 +213,11 @@ def test_a_lidar_the_driver_has_no_name_for_is_named_by_its_mount():
 
 @pytest.mark.parametrize('scale_error', [-0.01, 0.01])
 def test_a_gyro_whose_scale_is_off_is_said_and_configured_away(scale_error):
-    # A MEMS gyro's scale factor is off by up to a few per cent. The filter has no state
-    # for it: the bias takes in the scale error times each turn (on 50 simulated trips
-    # with errors of 0.7-3 % the final bias ended 0.02-1.1 deg/s off). The heading the
-    # LiDARs hold measures it (core/gyro_scale.py): the run says so, with the figure.
+    # A MEMS gyro's scale factor is off by up to a few per cent. Until it is known the bias
+    # takes in the scale error times each turn (on 50 simulated trips with errors of 0.7-3 %
+    # the final bias ended 0.02-1.1 deg/s off). The heading the LiDARs hold measures it
+    # (core/gyro_scale.py): the run says so, with the figure. A 120-s trip ends as the
+    # windows find it: too late to apply.
     trip = simulate_trip(SimulationConfig(duration_s=120.0, gyro_scale_error=scale_error), 3)
     summary = summarize(run_trip(trip))
     assert abs(summary['ground_truth']['bias_error_final_deg_s']) > 0.02  # a failing run
@@ -233,3 +234,27 @@ def test_a_gyro_whose_scale_is_off_is_said_and_configured_away(scale_error):
     assert again['ground_truth']['nees_share_in_band'] >= 0.9
     assert again['health']['verdict'] == 'ok', again['health']
     assert not again['gyro_scale']['found']
+
+
+@pytest.mark.parametrize(('seed', 'scale_error'), [(3, -0.015), (1, 0.018)])
+def test_a_gyro_scale_found_is_applied_online_and_said(seed, scale_error):
+    # On a longer trip the scale found is applied (learn_gyro_scale, on by default): the
+    # filter turns by (w - b) / (1 + e) from then on and the bias no longer takes the
+    # error in at every turn. Without it the same trip ends with the bias off.
+    trip = simulate_trip(SimulationConfig(duration_s=300.0, gyro_scale_error=scale_error),
+                         seed)
+    learnt = summarize(run_trip(trip))
+    scale = learnt['gyro_scale']
+    assert scale['applied'] >= 1 and scale['applied_at_s'] < 200.0
+    assert scale['in_use'] == pytest.approx(scale_error, abs=0.001)
+    truth = learnt['ground_truth']
+    assert abs(truth['bias_error_final_deg_s']) <= 0.02
+    assert truth['nees_share_in_band'] >= 0.9 and truth['position_rmse_m'] <= 0.02
+    said = [r for r in learnt['health']['reasons'] if r.startswith("the gyro's scale is off")]
+    assert len(said) == 1 and 'applied online' in said[0], learnt['health']['reasons']
+    assert learnt['health']['verdict'] == 'degraded'
+    kept = dataclasses.replace(PipelineParams(), ekf=dataclasses.replace(
+        EkfConfig(), learn_gyro_scale=False))
+    said_only = summarize(run_trip(trip, kept))
+    assert said_only['gyro_scale']['applied'] == 0 and said_only['gyro_scale']['found']
+    assert abs(said_only['ground_truth']['bias_error_final_deg_s']) > 0.02

@@ -1,8 +1,9 @@
 """ekf_node says a gyro scale that is off in /diagnostics, as `gyro-ekf run` does.
 
 The bag is a simulated 120-s trip (seed 3) whose gyro reads 1.01 times the true yaw rate.
-The filter has no state for the scale, so its bias takes in 1 % of every turn; the heading
-the LiDARs hold measures it (core/gyro_scale.py), and both say so with the same figure.
+Until the scale is known the bias takes in 1 % of every turn; the heading the LiDARs hold
+measures it (core/gyro_scale.py), both say so with the same figure and both apply it at
+the same scan (on this trip, its last).
 
 In its own module, so its processes run in their own ROS domain next to nobody else's.
 """
@@ -38,5 +39,7 @@ def test_node_says_the_gyro_scale_as_the_offline_run_does(scaled_run):
     assert values['gyro_scale_off'] == 'true'
     # The same windows of the same data: the same figure, to the digits shown.
     assert values['gyro_scale_error'] == f"{scale['scale_error']:.5f}"
+    assert values['gyro_scale_applied'] == str(scale['applied'])
+    assert values['gyro_scale_error_in_use'] == f"{scale['in_use']:.5f}"
     assert values['verdict'] == 'degraded'
     assert any(r.startswith(SAID) for r in values['verdict_reasons'].split(' | '))
