@@ -180,6 +180,8 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     summary['online_noise'] = {lidar['name']: lidar for lidar in run.result.noise or ()}
     summary['held_start'] = run.result.held_start
     summary['gyro_scale'] = run.result.gyro_scale
+    # Samples each input's stamps say were sent and did not arrive (core/input_loss.py).
+    summary['input_loss'] = run.result.input_loss
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)
@@ -229,7 +231,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         gyro_wander_tau_s=run.config.gyro_wander_tau_s,
         mounts=[] if run.result.mounts is None else run.result.mounts.report(),
         odometry=None if run.result.odometry is None else run.result.odometry.report(),
-        gyro_scale=run.result.gyro_scale)
+        gyro_scale=run.result.gyro_scale, input_loss=run.result.input_loss or {})
     return {**health.verdict(figures), 'lidars': sensors,
             'transitions': [] if monitor is None else [
                 {'stamp_s': t.stamp_s, 'lidar': t.sensor, 'change': t.change,

@@ -47,6 +47,7 @@ from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.gyro_scale import GyroScaleWatch
+from gyro_ekf.core.input_loss import InputLoss
 from gyro_ekf.core.gyro_wander import GyroWander, block_allowed
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
@@ -110,6 +111,8 @@ class EventDriver:
         self.gyro_scale = GyroScaleWatch(self.config.gyro_scale_error,
                                          self.config.learn_gyro_scale)
         self._turned = 0.0
+        # Samples each input lost, by its own stamps (core/input_loss.py).
+        self.input_loss = {'gyro': InputLoss(), 'odometry': InputLoss()}
         self.detector_config = detector_config or DetectorConfig()
         self.ekf = GyroBiasEkf(self.config, pose, bias_rad_s)
         self.landmarks = landmarks
@@ -192,6 +195,7 @@ class EventDriver:
                                          self.config.learn_gyro_scale)
         self._gyro_scale = 1.0 + self.config.gyro_scale_error
         self._turned = 0.0
+        self.input_loss = {'gyro': InputLoss(), 'odometry': InputLoss()}
         # A wander found before the reset is forgotten with it; the prior holds again.
         self.ekf.assume_wander(self.config.initial_wander_rad_s)
         self.noise = {}
@@ -259,7 +263,8 @@ class EventDriver:
                 (self.odometry.save(), self._measured_speed_m_s, self._path_s,
                  self._path_m, self._path_yaw),
                 {key: noise.save() for key, noise in self.noise.items()},
-                (self.gyro_scale.save(), self._turned))
+                (self.gyro_scale.save(), self._turned),
+                {name: loss.save() for name, loss in self.input_loss.items()})
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
@@ -267,7 +272,9 @@ class EventDriver:
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
          watch, held, self._rate_stamp_s, self._heading_dt2,
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
-          self._path_yaw), noise, (gyro_scale, self._turned)) = saved
+          self._path_yaw), noise, (gyro_scale, self._turned), input_loss) = saved
+        for name, saved_loss in input_loss.items():
+            self.input_loss[name].restore(saved_loss)
         self.gyro_scale.restore(gyro_scale)
         self._gyro_scale = 1.0 + self.gyro_scale.in_use
         self.noise = {}
@@ -370,6 +377,7 @@ class EventDriver:
         means the configured speed noise.
         """
         self._advance(stamp_s, 'speed')
+        self.input_loss['odometry'].add(stamp_s)
         self._integrate_path(scan=False)
         # Divided by the speed scale estimated online (1 until one is applied).
         self._measured_speed_m_s = speed_m_s
@@ -402,6 +410,7 @@ class EventDriver:
                  ) -> None:
         """Do what on_imu does without building the Estimate (for callers that batch)."""
         self._advance(stamp_s, 'imu')
+        self.input_loss['gyro'].add(stamp_s)
         self.rate_rad_s = yaw_rate_rad_s
         self.rate_variance = variance
         self._rate_stamp_s = stamp_s

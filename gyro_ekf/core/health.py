@@ -66,6 +66,10 @@ VERDICT_MAX_GAP_S = 5.0
 """Longest time without a landmark update after the first one (the 2016 bound)."""
 VERDICT_MAX_START_GAP_S = 30.0
 """Longest time before the first landmark update (2023 starts 10 s with no pole in view)."""
+VERDICT_MIN_RECEIVED_SHARE = 0.9
+"""Fewer than this share of the samples an input's stamps imply arrived: degraded
+(core/input_loss.py; the course logs and the stress suite's trips, IMU gaps included, keep
+97 % and more)."""
 VERDICT_MAX_BIAS_RAD_S = math.radians(10.0)
 """A gyro bias estimate beyond 10 deg/s is implausible for a MEMS gyro (the logs: < 1 deg/s):
 the gyro or the filter is broken."""
@@ -600,6 +604,8 @@ class RunFigures:
         odometry: the online odometry estimator's report (OdometryTracker.report()).
         gyro_scale: the gyro's scale measured against the LiDARs' heading
             (GyroScaleWatch.report(), core/gyro_scale.py), or None.
+        input_loss: per input stream ('gyro', 'odometry'), the samples received and lost
+            by its own stamps (InputLoss.report(), core/input_loss.py).
         scans: LiDAR scans processed.
         finished: the run is over (offline): no update by its end is final, where a live
             node still waits ``VERDICT_MAX_START_GAP_S`` for the first one.
@@ -633,6 +639,7 @@ class RunFigures:
     scans: int = 0
     finished: bool = False
     gyro_scale: dict[str, Any] | None = None
+    input_loss: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 def samples_dropped_figures(samples_dropped: Mapping[str, int]) -> dict[str, int]:
@@ -760,6 +767,17 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
                     'its last value was held over the gap with the noise of one sample')
             add(DEGRADED, f'{stream} silent for {gap:.2f} s, longer than the longest '
                 f'prediction step {figures.input_gap_limit_s:g} s: {held}')
+    for stream, loss in figures.input_loss.items():
+        if loss['share'] < VERDICT_MIN_RECEIVED_SHARE:
+            # The filter held the last value across each lost sample: estimates go on,
+            # worse, and nothing else would say it (a node too slow for its inputs, a
+            # best-effort link that overflowed, a bag recorded from one).
+            add(DEGRADED, f'{stream}: {100.0 * loss["share"]:.1f} % of the samples its '
+                f'stamps imply arrived ({loss["received"]} received, {loss["lost"]} lost '
+                f'at a {1000.0 * loss["period_s"]:.1f} ms period), fewer than '
+                f'{100.0 * VERDICT_MIN_RECEIVED_SHARE:g} %: the last value was held across '
+                f'each lost one (inputs lost on the way or dropped by a node that could not '
+                f'keep up)')
     per_minute = math.degrees(figures.bias_largest_rate_rad_s2) * 60.0
     if figures.bias_openings:
         # The filter followed it, but its bias is then only as old as the last change: a

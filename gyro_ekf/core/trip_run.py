@@ -213,6 +213,8 @@ class TripRun:
             .held_start_report, core/held_start.py).
         gyro_scale: the gyro's scale measured against the LiDARs' heading
             (GyroScaleWatch.report, core/gyro_scale.py).
+        input_loss: per input ('gyro', 'odometry'), the samples received and those its
+            stamps imply were lost (InputLoss.report, core/input_loss.py).
     """
 
     estimates: Estimates
@@ -224,6 +226,7 @@ class TripRun:
     noise: list[dict] | None = None
     held_start: dict | None = None
     gyro_scale: dict | None = None
+    input_loss: dict | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -358,4 +361,5 @@ def drive_trip(trip: Trip, driver: EventDriver,
         nis=np.frombuffer(update_nis, dtype=np.float64))
     return TripRun(Estimates(stamps, states, covariances, wanders), updates, driver.stats,
                    driver.health, driver.mounts, driver.odometry, driver.noise_report(),
-                   driver.held_start_report(), driver.gyro_scale.report())
+                   driver.held_start_report(), driver.gyro_scale.report(),
+                   {name: loss.report() for name, loss in driver.input_loss.items()})

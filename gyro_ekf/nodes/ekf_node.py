@@ -845,7 +845,8 @@ class EkfNode(Node):
             gyro_wander_stated_rad_s=self.driver.config.gyro_wander_rad_s,
             gyro_wander_tau_s=self.driver.config.gyro_wander_tau_s,
             mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report(),
-            gyro_scale=self.driver.gyro_scale.report())
+            gyro_scale=self.driver.gyro_scale.report(),
+            input_loss={name: loss.report() for name, loss in self.driver.input_loss.items()})
         return health.verdict(figures)
 
     def _publish_mounts(self) -> None:
@@ -948,6 +949,11 @@ class EkfNode(Node):
             # The start pose given exactly, held until the platform moved (core/held_start.py).
             'start_pose_held': str(self.driver.held_start.held).lower(),
             'start_pose_released': self.driver.held_start.reason,
+            # Samples each input's stamps say were sent and did not reach the filter
+            # (core/input_loss.py): lost on the way, or dropped by a node behind.
+            **{f'{name}_received_share': f'{loss.share:.4f}'
+               for name, loss in self.driver.input_loss.items()},
+            **{f'{name}_lost': str(loss.lost) for name, loss in self.driver.input_loss.items()},
         }
         verdict = self._verdict(since)
         values['verdict'] = verdict['verdict']

@@ -1,0 +1,119 @@
+"""Samples an input lost, counted from its own stamps (core/input_loss.py), and the verdict."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from gyro_ekf.analysis.offline import run_trip
+from gyro_ekf.analysis.summary import summarize
+from gyro_ekf.core.health import VERDICT_MIN_RECEIVED_SHARE
+from gyro_ekf.core.input_loss import REFERENCE_INTERVALS, InputLoss
+from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+
+PERIOD_S = 0.005
+
+
+def _fed(stamps) -> InputLoss:
+    loss = InputLoss()
+    for stamp in stamps:
+        loss.add(float(stamp))
+    return loss
+
+
+def test_a_regular_stream_lost_nothing():
+    loss = _fed(np.arange(2000) * PERIOD_S)
+    assert loss.received == 2000 and loss.lost == 0 and loss.share == 1.0
+    assert loss.period_s == pytest.approx(PERIOD_S)
+
+
+def test_jitter_of_under_half_a_period_is_no_loss():
+    rng = np.random.default_rng(0)
+    stamps = np.arange(2000) * PERIOD_S + rng.uniform(-0.2, 0.2, 2000) * PERIOD_S
+    assert _fed(np.sort(stamps)).lost == 0
+
+
+def test_every_lost_sample_is_counted_from_the_stamps():
+    stamps = np.arange(4000) * PERIOD_S
+    # Two of every three lost after the reference, a gap of 1 s, and one sample in the
+    # reference intervals themselves.
+    kept = [k for k in range(4000)
+            if k != 10 and (k < 100 or k % 3 == 0 or k >= 3000) and not 3200 <= k < 3400]
+    loss = _fed(stamps[kept])
+    lost_thirds = sum(1 for k in range(100, 3000) if k % 3 != 0)
+    assert loss.lost == 1 + lost_thirds + 200
+    assert loss.received == len(kept)
+    assert loss.share == pytest.approx(len(kept) / 4000)
+    assert loss.report() == {'received': len(kept), 'lost': 4000 - len(kept),
+                             'share': loss.share, 'period_s': pytest.approx(PERIOD_S)}
+
+
+def test_a_stream_that_loses_most_samples_from_its_start_keeps_its_period():
+    # 60 % lost at random from the first sample: most intervals are two periods or more.
+    rng = np.random.default_rng(3)
+    keep = rng.random(4000) > 0.6
+    loss = _fed((np.arange(4000) * PERIOD_S)[keep])
+    assert loss.period_s == pytest.approx(PERIOD_S)
+    first, last = np.flatnonzero(keep)[[0, -1]]
+    assert loss.received + loss.lost == last - first + 1
+
+
+def test_one_stamp_glitch_does_not_set_the_period():
+    stamps = list(np.arange(2000) * PERIOD_S)
+    stamps.insert(5, stamps[5] - 1e-5)
+    loss = _fed(stamps)
+    assert loss.period_s == pytest.approx(PERIOD_S) and loss.lost == 0
+
+
+def test_nothing_is_judged_before_the_period_is_known_and_repeats_cost_nothing():
+    loss = _fed([0.0, 0.0, 0.5, 0.5])
+    assert loss.period_s is None and loss.lost == 0 and loss.share == 1.0
+    assert _fed(np.arange(REFERENCE_INTERVALS + 1) * PERIOD_S).period_s == pytest.approx(
+        PERIOD_S)
+
+
+def test_restore_puts_the_counts_back():
+    loss = _fed(np.arange(10) * PERIOD_S)
+    saved, before = loss.save(), loss.report()
+    for stamp in np.arange(10, 200, 2) * PERIOD_S:
+        loss.add(float(stamp))
+    assert loss.report() != before
+    loss.restore(saved)
+    assert loss.report() == before
+    for stamp in np.arange(10, 200, 2) * PERIOD_S:
+        loss.add(float(stamp))
+    assert loss.lost == 94
+
+
+def _imu_kept(trip, keep):
+    imu = trip.imu
+    return dataclasses.replace(trip, imu=dataclasses.replace(
+        imu, stamp_s=imu.stamp_s[keep], angular_velocity_rad_s=imu.angular_velocity_rad_s[keep],
+        linear_acceleration_m_s2=None if imu.linear_acceleration_m_s2 is None
+        else imu.linear_acceleration_m_s2[keep],
+        yaw_rate_variance=None if imu.yaw_rate_variance is None
+        else imu.yaw_rate_variance[keep]))
+
+
+def test_a_run_whose_gyro_lost_most_samples_says_so():
+    # As a best-effort link that overflows loses them: at random, 60 % of the gyro's
+    # samples after the static start. The filter holds each last rate; the run says it.
+    trip = simulate_trip(SimulationConfig(duration_s=40.0), 2)
+    rng = np.random.default_rng(1)
+    keep = (trip.imu.stamp_s < 8.0) | (rng.random(len(trip.imu.stamp_s)) > 0.6)
+    lossy = summarize(run_trip(_imu_kept(trip, keep)))
+    gyro = lossy['input_loss']['gyro']
+    assert gyro['received'] == int(keep.sum())
+    assert gyro['share'] < VERDICT_MIN_RECEIVED_SHARE
+    assert gyro['share'] == pytest.approx(keep.mean(), abs=0.01)
+    assert lossy['input_loss']['odometry']['lost'] == 0
+    said = [r for r in lossy['health']['reasons'] if r.startswith('gyro: ')]
+    assert len(said) == 1 and 'of the samples its stamps imply arrived' in said[0]
+    assert lossy['health']['verdict'] == 'degraded'
+    # The same trip whole: nothing lost, nothing said.
+    whole = summarize(run_trip(trip))
+    assert whole['input_loss']['gyro'] == {'received': len(trip.imu.stamp_s), 'lost': 0,
+                                           'share': 1.0, 'period_s': pytest.approx(0.005)}
+    assert not [r for r in whole['health']['reasons'] if r.startswith('gyro: ')]
