@@ -112,7 +112,8 @@ class EventDriver:
                                          self.config.learn_gyro_scale)
         self._turned = 0.0
         # Samples each input lost, by its own stamps (core/input_loss.py).
-        self.input_loss = {'gyro': InputLoss(), 'odometry': InputLoss()}
+        self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
+        self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
         self.detector_config = detector_config or DetectorConfig()
         self.ekf = GyroBiasEkf(self.config, pose, bias_rad_s)
         self.landmarks = landmarks
@@ -195,7 +196,8 @@ class EventDriver:
                                          self.config.learn_gyro_scale)
         self._gyro_scale = 1.0 + self.config.gyro_scale_error
         self._turned = 0.0
-        self.input_loss = {'gyro': InputLoss(), 'odometry': InputLoss()}
+        self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
+        self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
         # A wander found before the reset is forgotten with it; the prior holds again.
         self.ekf.assume_wander(self.config.initial_wander_rad_s)
         self.noise = {}
@@ -377,7 +379,7 @@ class EventDriver:
         means the configured speed noise.
         """
         self._advance(stamp_s, 'speed')
-        self.input_loss['odometry'].add(stamp_s)
+        self._speed_loss.add(stamp_s)
         self._integrate_path(scan=False)
         # Divided by the speed scale estimated online (1 until one is applied).
         self._measured_speed_m_s = speed_m_s
@@ -410,7 +412,7 @@ class EventDriver:
                  ) -> None:
         """Do what on_imu does without building the Estimate (for callers that batch)."""
         self._advance(stamp_s, 'imu')
-        self.input_loss['gyro'].add(stamp_s)
+        self._gyro_loss.add(stamp_s)
         self.rate_rad_s = yaw_rate_rad_s
         self.rate_variance = variance
         self._rate_stamp_s = stamp_s

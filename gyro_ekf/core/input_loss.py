@@ -52,36 +52,38 @@ def _period(intervals: tuple[float, ...]) -> float:
 class InputLoss:
     """One stream's samples received and those its stamps imply (module docstring)."""
 
-    __slots__ = ('received', 'lost', 'period_s', '_last_s', '_intervals')
+    __slots__ = ('received', 'lost', 'period_s', '_limit', '_last_s', '_intervals')
 
     def __init__(self) -> None:
         self.received = 0
         self.lost = 0
         self.period_s: float | None = None
+        self._limit: float | None = None  # LOST_FACTOR periods, s
         self._last_s: float | None = None
         self._intervals: tuple[float, ...] = ()
 
     def add(self, stamp_s: float) -> None:
         """Count a sample that arrived at stamp_s (stamps in the filter's order)."""
+        # Once the period is known, one comparison per sample: this runs at every IMU and
+        # odometry sample.
         self.received += 1
         last, self._last_s = self._last_s, stamp_s
+        limit = self._limit
+        if limit is not None:
+            if last is not None and stamp_s - last > limit:
+                self.lost += round((stamp_s - last) / self.period_s) - 1
+            return
         if last is None or stamp_s <= last:
             return
-        interval = stamp_s - last
-        period = self.period_s
-        if period is None:
-            intervals = self._intervals + (interval,)
-            if len(intervals) < REFERENCE_INTERVALS:
-                self._intervals = intervals
-                return
-            self.period_s = period = _period(intervals)
-            self._intervals = ()
-            # The reference intervals are judged too, against the period they gave.
-            self.lost += sum(round(i / period) - 1 for i in intervals
-                             if i > LOST_FACTOR * period)
+        intervals = self._intervals + (stamp_s - last,)
+        if len(intervals) < REFERENCE_INTERVALS:
+            self._intervals = intervals
             return
-        if interval > LOST_FACTOR * period:
-            self.lost += round(interval / period) - 1
+        self.period_s = period = _period(intervals)
+        self._limit = LOST_FACTOR * period
+        self._intervals = ()
+        # The reference intervals are judged too, against the period they gave.
+        self.lost += sum(round(i / period) - 1 for i in intervals if i > self._limit)
 
     @property
     def share(self) -> float:
@@ -90,10 +92,12 @@ class InputLoss:
         return 1.0 if total == 0 else self.received / total
 
     def save(self) -> tuple:
-        return (self.received, self.lost, self.period_s, self._last_s, self._intervals)
+        return (self.received, self.lost, self.period_s, self._limit, self._last_s,
+                self._intervals)
 
     def restore(self, saved: tuple) -> None:
-        (self.received, self.lost, self.period_s, self._last_s, self._intervals) = saved
+        (self.received, self.lost, self.period_s, self._limit, self._last_s,
+         self._intervals) = saved
 
     def report(self) -> dict[str, Any]:
         """JSON-ready figures (summary.json ``input``, /diagnostics, the verdict)."""
