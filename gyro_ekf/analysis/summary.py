@@ -218,8 +218,9 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         converted_from='' if converted is None else converted['source'],
         final_bias_rad_s=summary['online_bias']['final_rad_s'],
         unmapped=int(stats.unmapped), scans=int(stats.scans), finished=True,
-        input_gaps_s={'gyro': _longest_interval(run.trip.imu.stamp_s, start, end),
-                      'odometry': _longest_interval(run.trip.speed.stamp_s, start, end)},
+        # The driver's, as the EKF node's verdict has them (core/input_loss.py).
+        input_gaps_s={name: loss['longest_interval_s']
+                      for name, loss in (run.result.input_loss or {}).items()},
         input_gap_limit_s=run.config.max_prediction_step_s,
         bias_openings=int(stats.bias_openings),
         bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s),
@@ -236,12 +237,6 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
             'transitions': [] if monitor is None else [
                 {'stamp_s': t.stamp_s, 'lidar': t.sensor, 'change': t.change,
                  'reason': t.reason} for t in monitor.transitions]}
-
-
-def _longest_interval(stamps: FloatArray, start: float, end: float) -> float:
-    """Longest time between consecutive samples inside [start, end], s (0 with < 2)."""
-    inside = stamps[(stamps >= start) & (stamps <= end)]
-    return float(np.max(np.diff(inside), initial=0.0))
 
 
 def _share(flags: np.ndarray) -> float:

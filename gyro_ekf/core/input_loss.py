@@ -52,7 +52,8 @@ def _period(intervals: tuple[float, ...]) -> float:
 class InputLoss:
     """One stream's samples received and those its stamps imply (module docstring)."""
 
-    __slots__ = ('received', 'lost', 'period_s', '_limit', '_last_s', '_intervals')
+    __slots__ = ('received', 'lost', 'period_s', '_limit', '_last_s', '_intervals',
+                 '_longest_s')
 
     def __init__(self) -> None:
         self.received = 0
@@ -61,6 +62,7 @@ class InputLoss:
         self._limit: float | None = None  # LOST_FACTOR periods, s
         self._last_s: float | None = None
         self._intervals: tuple[float, ...] = ()
+        self._longest_s = 0.0
 
     def add(self, stamp_s: float) -> None:
         """Count a sample that arrived at stamp_s (stamps in the filter's order)."""
@@ -71,7 +73,10 @@ class InputLoss:
         limit = self._limit
         if limit is not None:
             if last is not None and stamp_s - last > limit:
-                self.lost += round((stamp_s - last) / self.period_s) - 1
+                interval = stamp_s - last
+                self.lost += round(interval / self.period_s) - 1
+                if interval > self._longest_s:
+                    self._longest_s = interval
             return
         if last is None or stamp_s <= last:
             return
@@ -82,8 +87,18 @@ class InputLoss:
         self.period_s = period = _period(intervals)
         self._limit = LOST_FACTOR * period
         self._intervals = ()
+        self._longest_s = max(intervals)
         # The reference intervals are judged too, against the period they gave.
         self.lost += sum(round(i / period) - 1 for i in intervals if i > self._limit)
+
+    @property
+    def longest_s(self) -> float:
+        """Longest time between two samples that arrived, s (0 with fewer than two).
+
+        Exact where it matters: once the period is known, only intervals beyond
+        LOST_FACTOR periods can be the longest one that is more than that.
+        """
+        return max(self._longest_s, max(self._intervals, default=0.0))
 
     @property
     def share(self) -> float:
@@ -93,13 +108,13 @@ class InputLoss:
 
     def save(self) -> tuple:
         return (self.received, self.lost, self.period_s, self._limit, self._last_s,
-                self._intervals)
+                self._intervals, self._longest_s)
 
     def restore(self, saved: tuple) -> None:
         (self.received, self.lost, self.period_s, self._limit, self._last_s,
-         self._intervals) = saved
+         self._intervals, self._longest_s) = saved
 
     def report(self) -> dict[str, Any]:
         """JSON-ready figures (summary.json ``input``, /diagnostics, the verdict)."""
         return {'received': self.received, 'lost': self.lost, 'share': self.share,
-                'period_s': self.period_s}
+                'period_s': self.period_s, 'longest_interval_s': self.longest_s}

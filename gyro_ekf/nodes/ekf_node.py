@@ -37,7 +37,8 @@ ekf/odometry and ekf/bias (`odometry_readers`, `bias_readers`: neither is publis
 one, to save the CPU), the zero-rate updates
 (`standing_still`: they are being applied now, core/events.py), the start pose held
 (`start_pose_held`, and why the hold ended, `start_pose_released`: core/held_start.py),
-the health verdict
+the samples each input's own stamps say were sent and never reached the filter
+(`gyro_lost`, `gyro_received_share`, `odometry_*`: core/input_loss.py), the health verdict
 of the run since the start or the last reset (`verdict`, `verdict_reasons`: core.health's,
 as `gyro-ekf run` writes it in summary.json; level WARN when degraded, ERROR when failed),
 with each LiDAR's window figures (`lidar_<scan topic>_*`, `excluded` true while its
@@ -846,7 +847,10 @@ class EkfNode(Node):
             gyro_wander_tau_s=self.driver.config.gyro_wander_tau_s,
             mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report(),
             gyro_scale=self.driver.gyro_scale.report(),
-            input_loss={name: loss.report() for name, loss in self.driver.input_loss.items()})
+            input_loss={name: loss.report() for name, loss in self.driver.input_loss.items()},
+            input_gaps_s={name: loss.longest_s
+                          for name, loss in self.driver.input_loss.items()},
+            input_gap_limit_s=self.driver.config.max_prediction_step_s)
         return health.verdict(figures)
 
     def _publish_mounts(self) -> None:

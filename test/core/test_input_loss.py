@@ -27,6 +27,11 @@ def test_a_regular_stream_lost_nothing():
     loss = _fed(np.arange(2000) * PERIOD_S)
     assert loss.received == 2000 and loss.lost == 0 and loss.share == 1.0
     assert loss.period_s == pytest.approx(PERIOD_S)
+    assert loss.longest_s == pytest.approx(PERIOD_S)
+    # The longest interval before the period is known, and after it.
+    assert _fed([0.0, 0.3, 0.31]).longest_s == pytest.approx(0.3)
+    gap = _fed(np.concatenate([np.arange(100), np.arange(140, 200)]) * PERIOD_S)
+    assert gap.longest_s == pytest.approx(41 * PERIOD_S) and gap.lost == 40
 
 
 def test_jitter_of_under_half_a_period_is_no_loss():
@@ -47,7 +52,8 @@ def test_every_lost_sample_is_counted_from_the_stamps():
     assert loss.received == len(kept)
     assert loss.share == pytest.approx(len(kept) / 4000)
     assert loss.report() == {'received': len(kept), 'lost': 4000 - len(kept),
-                             'share': loss.share, 'period_s': pytest.approx(PERIOD_S)}
+                             'share': loss.share, 'period_s': pytest.approx(PERIOD_S),
+                             'longest_interval_s': pytest.approx(201 * PERIOD_S)}
 
 
 def test_a_stream_that_loses_most_samples_from_its_start_keeps_its_period():
@@ -115,5 +121,6 @@ def test_a_run_whose_gyro_lost_most_samples_says_so():
     # The same trip whole: nothing lost, nothing said.
     whole = summarize(run_trip(trip))
     assert whole['input_loss']['gyro'] == {'received': len(trip.imu.stamp_s), 'lost': 0,
-                                           'share': 1.0, 'period_s': pytest.approx(0.005)}
+                                           'share': 1.0, 'period_s': pytest.approx(0.005),
+                                           'longest_interval_s': pytest.approx(0.005)}
     assert not [r for r in whole['health']['reasons'] if r.startswith('gyro: ')]

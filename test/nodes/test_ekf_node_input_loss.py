@@ -3,7 +3,7 @@
 The bag is a simulated 40-s trip (seed 2) whose gyro lost 60 % of its samples at random
 after the static start, as a best-effort link that overflows loses them: the stamps of
 those that arrived say how many were sent (core/input_loss.py). The node and the offline
-run count the same samples and give the same verdict reason.
+run count the same samples and the same longest silence, and give the same verdict.
 
 In its own module, so its processes run in their own ROS domain next to nobody else's.
 """
@@ -51,3 +51,7 @@ def test_node_says_the_lost_gyro_samples_as_the_offline_run_does(lossy_run):
     assert values['odometry_lost'] == '0'
     assert values['verdict'] == 'degraded'
     assert said[0] in values['verdict_reasons'].split(' | ')
+    # The input silences too, from the same counters (a run of lost samples longer than a
+    # prediction step): the node's reasons are the offline run's, word for word.
+    assert any(r.startswith('gyro silent for ') for r in offline['health']['reasons'])
+    assert values['verdict_reasons'].split(' | ') == offline['health']['reasons']
