@@ -190,6 +190,10 @@ def replay_benchmark(bag: Path, rate: float = 10.0, node_io: str = 'serialized',
     result['ekf_final_bias_deg_s'] = float(ekf['bias_deg_s']) if 'bias_deg_s' in ekf else None
     result['ekf_gyro_wander_deg_s'] = (float(ekf['gyro_wander_deg_s'])
                                        if 'gyro_wander_deg_s' in ekf else None)
+    # What the node itself said of the IMU messages that never reached its filter (its
+    # counters read the loss from the stamps, core/input_loss.py), and its verdict.
+    result['ekf_gyro_lost'] = int(ekf['gyro_lost']) if 'gyro_lost' in ekf else None
+    result['ekf_verdict'] = ekf.get('verdict')
     result['calibration_processed_share'] = result['calibration_imu_messages'] / imu_count
     result['ekf_processed_share'] = result['ekf_estimates'] / imu_count
     cal, ekf_bias = result['calibration_bias_deg_s'], result['ekf_final_bias_deg_s']
@@ -233,5 +237,7 @@ def replay_rows(results: dict[str, Any] | None) -> list[tuple[str, str]]:
              f"{100 * run['ekf_processed_share']:.1f} % of {run['imu_messages_in_bag']}"
              + ('' if goals['calibration_processed'] and goals['ekf_processed']
                 else ', MISSED')),
+            (f'{name}: EKF node says (IMU lost, verdict)',
+             f"{run.get('ekf_gyro_lost')}, {run.get('ekf_verdict')}"),
         ]
     return rows

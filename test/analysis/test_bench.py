@@ -45,7 +45,7 @@ def test_the_table_shows_both_message_paths_and_the_replay():
               'calibration_bias_deg_s': -0.9707, 'offline_final_bias_deg_s': -0.9774,
               'ekf_final_bias_deg_s': -0.9762, 'ekf_minus_offline_deg_s': 0.0012,
               'calibration_processed_share': 0.975, 'ekf_processed_share': 0.995,
-              'imu_messages_in_bag': 44578,
+              'imu_messages_in_bag': 44578, 'ekf_gyro_lost': 223, 'ekf_verdict': 'ok',
               'goals': {'calibration_bias': False, 'ekf_bias': True,
                         'calibration_processed': False, 'ekf_processed': True}}
     rows = dict(replay_rows({'runs': [replay]}))
@@ -54,6 +54,7 @@ def test_the_table_shows_both_message_paths_and_the_replay():
     assert rows[f'{name}: EKF final bias - run (deg/s)'] == '+0.0012 (-0.9762 vs -0.9774)'
     assert rows[f'{name}: IMU processed (calibration, EKF)'] == (
         '97.5 %, 99.5 % of 44578, MISSED')
+    assert rows[f'{name}: EKF node says (IMU lost, verdict)'] == '223, ok'
 
 
 def test_replay_bench_sends_the_map():
