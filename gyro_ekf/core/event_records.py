@@ -117,6 +117,11 @@ class DriverStats:
             (0: none).
         bias_rate_found: times a bias rate came into use.
         bias_largest_rate_rad_s2: the largest (signed) bias rate used, rad/s^2.
+        first_stop_end_s: when the first stop whose zero-rate updates learnt the bias
+            ended (the static start, on a trip that has one), s (None: none yet).
+        first_stop_bias_rad_s: the bias then, rad/s ...
+        first_stop_bias_sigma_rad_s: ... and its sigma, rad/s: ``health.verdict`` judges
+            the bias now against it.
     """
 
     imu: int = 0
@@ -146,6 +151,9 @@ class DriverStats:
     bias_rate_rad_s2: float = 0.0
     bias_rate_found: int = 0
     bias_largest_rate_rad_s2: float = 0.0
+    first_stop_end_s: float | None = None
+    first_stop_bias_rad_s: float | None = None
+    first_stop_bias_sigma_rad_s: float | None = None
 
     @property
     def mean_nis(self) -> float:
@@ -172,4 +180,7 @@ class DriverStats:
                 'gyro_wander_prior_ruled_out_s': self.gyro_wander_prior_ruled_out_s,
                 'bias_rate_rad_s2': self.bias_rate_rad_s2,
                 'bias_rate_found': self.bias_rate_found,
-                'bias_largest_rate_rad_s2': self.bias_largest_rate_rad_s2}
+                'bias_largest_rate_rad_s2': self.bias_largest_rate_rad_s2,
+                'first_stop_end_s': self.first_stop_end_s,
+                'first_stop_bias_rad_s': self.first_stop_bias_rad_s,
+                'first_stop_bias_sigma_rad_s': self.first_stop_bias_sigma_rad_s}

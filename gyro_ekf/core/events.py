@@ -396,6 +396,13 @@ class EventDriver:
             if self._stop_since_s is None and self.config.zero_rate_max_spread_rad_s > 0.0:
                 self._stop_since_s = stamp_s
         elif self._stop_since_s is not None:
+            stats = self.stats
+            if self.zero_rate and stats.first_stop_end_s is None:
+                # The bias the first stop's zero-rate updates learnt: a bias that stays put
+                # ends the run where this places it, within their sigmas (health.verdict).
+                stats.first_stop_end_s = stamp_s
+                stats.first_stop_bias_rad_s = self.ekf.bias_rad_s
+                stats.first_stop_bias_sigma_rad_s = math.sqrt(max(self.ekf.bias_var, 0.0))
             self._end_stop()
 
     def on_imu(self, stamp_s: float, yaw_rate_rad_s: float, variance: float | None = None

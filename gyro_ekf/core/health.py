@@ -70,6 +70,14 @@ VERDICT_MIN_RECEIVED_SHARE = 0.9
 """Fewer than this share of the samples an input's stamps imply arrived: degraded
 (core/input_loss.py; the course logs and the stress suite's trips, IMU gaps included, keep
 97 % and more)."""
+VERDICT_START_BIAS_SIGMAS = 3.0
+"""The bias at the end lying beyond this many sigmas from the one the first stop's zero-rate
+updates learnt (the static start): degraded, the bias moved. The sigma is the root of the
+sum of the two variances, larger than the difference's own (the end's estimate holds the
+start's information), so the test leans to silence: over 75 scenes of every class without a
+bias change (stress seeds 0, 31 and 32, 60-120 s) the largest was 1.84; a slow ramp that
+the bias watch's blocks never saw (seed 31 at 90 s, bias_ramp #12, 0.045 deg/s per minute,
+ending 0.028 deg/s off with the verdict ok) reads 3.1."""
 VERDICT_MAX_BIAS_RAD_S = math.radians(10.0)
 """A gyro bias estimate beyond 10 deg/s is implausible for a MEMS gyro (the logs: < 1 deg/s):
 the gyro or the filter is broken."""
@@ -606,6 +614,9 @@ class RunFigures:
             (GyroScaleWatch.report(), core/gyro_scale.py), or None.
         input_loss: per input stream ('gyro', 'odometry'), the samples received and lost
             by its own stamps (InputLoss.report(), core/input_loss.py).
+        final_bias_sigma_rad_s: the sigma of final_bias_rad_s, rad/s (None: not known).
+        start_bias: (end s, bias rad/s, sigma rad/s) of the first stop's zero-rate updates
+            (DriverStats.first_stop_*), or None (no stop learnt the bias).
         scans: LiDAR scans processed.
         finished: the run is over (offline): no update by its end is final, where a live
             node still waits ``VERDICT_MAX_START_GAP_S`` for the first one.
@@ -640,6 +651,8 @@ class RunFigures:
     finished: bool = False
     gyro_scale: dict[str, Any] | None = None
     input_loss: dict[str, dict[str, Any]] = field(default_factory=dict)
+    final_bias_sigma_rad_s: float | None = None
+    start_bias: tuple[float, float, float] | None = None
 
 
 def samples_dropped_figures(samples_dropped: Mapping[str, int]) -> dict[str, int]:
@@ -686,6 +699,18 @@ def _whiteness_reasons(sensors: list[dict[str, Any]]) -> list[tuple[str, str]]:
                     f'covariance is too small')))
                 break
     return reasons
+
+
+def _moved_from_start(figures: RunFigures) -> tuple[float, float, float] | None:
+    """Return (first stop's end s, its bias rad/s, sigmas apart) if the bias moved off it."""
+    if figures.start_bias is None or figures.final_bias_sigma_rad_s is None:
+        return None
+    end_s, start_bias, start_sigma = figures.start_bias
+    spread = math.hypot(start_sigma, figures.final_bias_sigma_rad_s)
+    if not spread > 0.0 or not math.isfinite(figures.final_bias_rad_s):
+        return None
+    sigmas = abs(figures.final_bias_rad_s - start_bias) / spread
+    return (end_s, start_bias, sigmas) if sigmas > VERDICT_START_BIAS_SIGMAS else None
 
 
 def verdict(figures: RunFigures) -> dict[str, Any]:
@@ -787,6 +812,14 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
         add(DEGRADED, f'the gyro bias changed during the run: the LiDARs saw the heading '
             f'drift and the bias was re-opened {figures.bias_openings} time(s), by up to '
             f'{math.degrees(figures.bias_largest_opening_rad_s):.3f} deg/s{ramp}')
+    elif not per_minute and _moved_from_start(figures) is not None:
+        end_s, start_bias, sigmas = _moved_from_start(figures)
+        add(DEGRADED, f'the gyro bias changed during the run: it ends '
+            f'{math.degrees(figures.final_bias_rad_s - start_bias):+.4f} deg/s from the '
+            f'{math.degrees(start_bias):.4f} deg/s the first stop\'s zero-rate updates gave '
+            f'(to {end_s:.1f} s), {sigmas:.1f} sigmas, beyond '
+            f'{VERDICT_START_BIAS_SIGMAS:g}: a bias that moved too slowly for the LiDARs\' '
+            f'blocks to show it, followed only in part (or a stop that was not still)')
     elif per_minute:
         # Found at a stop by the zero-rate updates' own samples (core/bias_rate.py).
         add(DEGRADED, f'the gyro bias changed during the run: standing still, the gyro '

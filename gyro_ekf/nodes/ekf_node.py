@@ -850,7 +850,11 @@ class EkfNode(Node):
             input_loss={name: loss.report() for name, loss in self.driver.input_loss.items()},
             input_gaps_s={name: loss.longest_s
                           for name, loss in self.driver.input_loss.items()},
-            input_gap_limit_s=self.driver.config.max_prediction_step_s)
+            input_gap_limit_s=self.driver.config.max_prediction_step_s,
+            final_bias_sigma_rad_s=math.sqrt(max(self.driver.ekf.bias_var, 0.0)),
+            start_bias=None if stats.first_stop_end_s is None else (
+                stats.first_stop_end_s, stats.first_stop_bias_rad_s,
+                stats.first_stop_bias_sigma_rad_s))
         return health.verdict(figures)
 
     def _publish_mounts(self) -> None:

@@ -88,3 +88,53 @@ def test_an_imu_gap_is_named_in_the_verdict():
     assert len(gyro) == 1 and float(gyro[0].split()[3]) == pytest.approx(0.5, abs=0.01)
     assert not any(r.startswith('odometry silent') for r in reasons)
     assert math.isfinite(summary['nis']['mean'])
+
+
+def test_a_bias_that_ends_far_from_the_first_stops_degrades_the_run():
+    rad = math.radians
+    start = (8.0, rad(-0.911), rad(0.009))
+    moved = _figures(matched=100, updates=100, final_bias_rad_s=rad(-0.9393),
+                     final_bias_sigma_rad_s=rad(0.0025), start_bias=start)
+    reasons = health.verdict(moved)['reasons']
+    assert reasons == [
+        "the gyro bias changed during the run: it ends -0.0283 deg/s from the -0.9110 deg/s "
+        "the first stop's zero-rate updates gave (to 8.0 s), 3.0 sigmas, beyond 3: a bias "
+        "that moved too slowly for the LiDARs' blocks to show it, followed only in part (or "
+        "a stop that was not still)"]  # 0.0283 / hypot(0.009, 0.0025) = 3.03
+    within = _figures(matched=100, updates=100, final_bias_rad_s=rad(-0.925),
+                      final_bias_sigma_rad_s=rad(0.0025), start_bias=start)
+    assert health.verdict(within)['verdict'] == 'ok'
+    # No stop learnt the bias, or no sigma at the end: nothing to judge.
+    for figures in (_figures(matched=100, updates=100, final_bias_rad_s=rad(-0.9393),
+                             final_bias_sigma_rad_s=rad(0.0025)),
+                    _figures(matched=100, updates=100, final_bias_rad_s=rad(-0.9393),
+                             start_bias=start)):
+        assert health.verdict(figures)['verdict'] == 'ok'
+    # A bias re-opened or a ramp followed says it already, once.
+    opened = _figures(matched=100, updates=100, final_bias_rad_s=rad(-0.9393),
+                      final_bias_sigma_rad_s=rad(0.0025), start_bias=start, bias_openings=1,
+                      bias_largest_opening_rad_s=rad(0.03))
+    assert [r.split(':')[0] for r in health.verdict(opened)['reasons']] == [
+        'the gyro bias changed during the run']
+    assert 're-opened' in health.verdict(opened)['reasons'][0]
+
+
+def test_a_slow_ramp_the_blocks_never_saw_is_said_from_the_first_stop():
+    # Stress seed 31 at 90 s, bias_ramp #12: -0.045 deg/s per minute from the start. The
+    # bias watch's blocks never found it and the run ended 0.028 deg/s off, verdict ok.
+    # Judged against the bias the static start's zero-rate updates learnt, it moved.
+    import dataclasses
+
+    from gyro_ekf.analysis.stress import base_config
+
+    ramp = simulate_trip(dataclasses.replace(
+        base_config(90.0), gyro_bias_ramp_rad_s2=-1.306566528495825e-05), 310012)
+    summary = summarize(run_trip(ramp))
+    assert abs(summary['ground_truth']['bias_error_final_deg_s']) > 0.02  # a failing run
+    said = [r for r in summary['health']['reasons']
+            if r.startswith('the gyro bias changed during the run: it ends ')]
+    assert len(said) == 1 and "the first stop's zero-rate updates gave (to 8.0 s)" in said[0]
+    assert summary['health']['verdict'] == 'degraded'
+    # The same scene with a constant bias: within the sigmas, ok.
+    clean = summarize(run_trip(simulate_trip(base_config(90.0), 310012)))
+    assert clean['health']['verdict'] == 'ok', clean['health']['reasons']
