@@ -47,8 +47,8 @@ from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.gyro_scale import GyroScaleWatch
-from gyro_ekf.core.input_loss import InputLoss
 from gyro_ekf.core.gyro_wander import GyroWander, block_allowed
+from gyro_ekf.core.input_loss import InputLoss
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
