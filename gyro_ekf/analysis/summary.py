@@ -52,6 +52,7 @@ from gyro_ekf.analysis import metrics
 from gyro_ekf.analysis.offline import OfflineRun
 from gyro_ekf.core import health
 from gyro_ekf.core.calibration import measured_axes
+from gyro_ekf.core.input_loss import silences
 from gyro_ekf.core.types import BIAS, FloatArray
 from gyro_ekf.core.validation import InputReport
 
@@ -218,9 +219,9 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         converted_from='' if converted is None else converted['source'],
         final_bias_rad_s=summary['online_bias']['final_rad_s'],
         unmapped=int(stats.unmapped), scans=int(stats.scans), finished=True,
-        # The driver's, as the EKF node's verdict has them (core/input_loss.py).
-        input_gaps_s={name: loss['longest_interval_s']
-                      for name, loss in (run.result.input_loss or {}).items()},
+        # The driver's counters to the trip's last stamp, as the EKF node's verdict has
+        # them to its newest one (core/input_loss.py).
+        input_gaps_s=silences(run.result.input_loss or {}, run.trip.end_s),
         input_gap_limit_s=run.config.max_prediction_step_s,
         bias_openings=int(stats.bias_openings),
         bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s),

@@ -812,7 +812,8 @@ class EventDriver:
         blocks as wander (core/gyro_scale.py). Those findings were the scale's: the watch,
         the ramp's line and the wander's evidence start again (the prior wander with them),
         and the bias is opened by the error the old scale put into it at the last window's
-        RMS turn rate.
+        RMS turn rate. The run's counts keep what happened before (re-openings, the largest
+        noise widening): the verdict still names them, as the estimates carried them.
         """
         watch = self.gyro_scale
         change = watch.in_use - (self._gyro_scale - 1.0)

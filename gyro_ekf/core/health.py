@@ -812,12 +812,12 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
         add(DEGRADED, f'the gyro bias changed during the run: the LiDARs saw the heading '
             f'drift and the bias was re-opened {figures.bias_openings} time(s), by up to '
             f'{math.degrees(figures.bias_largest_opening_rad_s):.3f} deg/s{ramp}')
-    elif not per_minute and _moved_from_start(figures) is not None:
-        end_s, start_bias, sigmas = _moved_from_start(figures)
+    elif not per_minute and (moved := _moved_from_start(figures)) is not None:
+        end_s, start_bias, sigmas = moved
         add(DEGRADED, f'the gyro bias changed during the run: it ends '
             f'{math.degrees(figures.final_bias_rad_s - start_bias):+.4f} deg/s from the '
             f'{math.degrees(start_bias):.4f} deg/s the first stop\'s zero-rate updates gave '
-            f'(to {end_s:.1f} s), {sigmas:.1f} sigmas, beyond '
+            f'(to {end_s:.1f} s), {sigmas:.2f} sigmas, beyond '
             f'{VERDICT_START_BIAS_SIGMAS:g}: a bias that moved too slowly for the LiDARs\' '
             f'blocks to show it, followed only in part (or a stop that was not still)')
     elif per_minute:

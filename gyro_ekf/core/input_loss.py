@@ -10,15 +10,19 @@ final bias 0.003 deg/s off, with nothing said); a bag recorded from such a link 
 loss with it.
 
 The period is taken from the first ``REFERENCE_INTERVALS`` intervals (a stream whose
-rate changes later is judged against its start): from their 10th percentile, twice the
-median of those within ``LOST_FACTOR`` times the period so far (``_period``). Not their
-median: a stream that loses more than half its samples from the start (the replay above)
-has a median interval of two periods or more; and not their smallest, which one stamp
-glitch would set. An interval counts as lost samples only beyond ``LOST_FACTOR`` periods,
-so stamp jitter of up to half a period costs nothing; each interval counts as
-``round(interval / period)`` samples. The share received is the samples that arrived over
-those the stamps imply; the verdict degrades a run below
-``health.VERDICT_MIN_RECEIVED_SHARE``.
+rate changes later is judged against its start, so one that halves its rate from then on
+reads as half lost: said, as it should be looked at). ``_period``: intervals under a
+quarter of their mean are left out (stamps taken in pairs, a glitch); from the 10th
+percentile of the rest, the mean of those within half to ``LOST_FACTOR`` times the period
+so far, four times over. Not their median: a stream that loses more than half its samples
+from the start (the replay above) has a median interval of two periods or more; not their
+smallest, which one stamp glitch would set; and not the 10th percentile alone, which jitter
+shortens. An interval counts as lost samples only beyond ``LOST_FACTOR`` periods, so an
+interval jitter of up to half a period (stamps +-0.25 of one) costs nothing; each interval
+counts as ``round(interval / period)`` samples. The share received is the samples that
+arrived over those the stamps imply; the verdict degrades a run below
+``health.VERDICT_MIN_RECEIVED_SHARE``. ``longest_s`` and ``last_s`` give the verdict its
+input silences, between samples and since the last one.
 
 The state is a few scalars and, until the period is known, a short tuple, so ``save`` and
 ``restore`` (on every event, by ``core/lagged.py``) cost O(1).
@@ -36,16 +40,13 @@ LOST_FACTOR = 1.5
 
 
 def _period(intervals: tuple[float, ...]) -> float:
-    """Return the median of the intervals within LOST_FACTOR periods, from the 10th percentile.
-
-    The 10th percentile is a period shortened by jitter; the median of the intervals within
-    LOST_FACTOR of it, a period still leaning short; within LOST_FACTOR of that, the period.
-    """
-    ordered = sorted(intervals)
+    """Return the stream's period from its reference intervals (module docstring)."""
+    floor = 0.25 * sum(intervals) / len(intervals)
+    ordered = sorted(i for i in intervals if i >= floor)
     period = ordered[len(ordered) // 10]
-    for _ in range(2):
-        near = [i for i in ordered if i <= LOST_FACTOR * period]
-        period = near[len(near) // 2]
+    for _ in range(4):
+        near = [i for i in ordered if 0.5 * period <= i <= LOST_FACTOR * period]
+        period = sum(near) / len(near)
     return period
 
 
@@ -92,6 +93,11 @@ class InputLoss:
         self.lost += sum(round(i / period) - 1 for i in intervals if i > self._limit)
 
     @property
+    def last_s(self) -> float | None:
+        """Stamp of the last sample that arrived, s (None before one)."""
+        return self._last_s
+
+    @property
     def longest_s(self) -> float:
         """Longest time between two samples that arrived, s (0 with fewer than two).
 
@@ -115,6 +121,24 @@ class InputLoss:
          self._intervals, self._longest_s) = saved
 
     def report(self) -> dict[str, Any]:
-        """JSON-ready figures (summary.json ``input``, /diagnostics, the verdict)."""
+        """JSON-ready figures (summary.json ``input_loss``, /diagnostics, the verdict)."""
         return {'received': self.received, 'lost': self.lost, 'share': self.share,
-                'period_s': self.period_s, 'longest_interval_s': self.longest_s}
+                'period_s': self.period_s, 'longest_interval_s': self.longest_s,
+                'last_s': self._last_s}
+
+
+def silences(reports: dict[str, dict[str, Any]], now_s: float | None) -> dict[str, float]:
+    """Return each stream's longest silence, s: between two samples, or since its last.
+
+    ``reports``: InputLoss.report() per stream; ``now_s``: the newest stamp of any input (a
+    stream that stopped while the others went on is silent since its last sample). A
+    stream with no sample yet is not judged.
+    """
+    out = {}
+    for name, report in reports.items():
+        last = report['last_s']
+        if last is None:
+            continue
+        since = 0.0 if now_s is None else max(now_s - last, 0.0)
+        out[name] = max(report['longest_interval_s'], since)
+    return out

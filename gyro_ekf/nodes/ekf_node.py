@@ -130,6 +130,7 @@ from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core import health
 from gyro_ekf.core.event_records import Estimate, EventKind
 from gyro_ekf.core.events import EventDriver
+from gyro_ekf.core.input_loss import silences
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
 from gyro_ekf.core.same_stamp import describe_repeat, DUPLICATE, Repeat, SAME_STAMP, \
     SameStampCheck
@@ -848,8 +849,11 @@ class EkfNode(Node):
             mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report(),
             gyro_scale=self.driver.gyro_scale.report(),
             input_loss={name: loss.report() for name, loss in self.driver.input_loss.items()},
-            input_gaps_s={name: loss.longest_s
-                          for name, loss in self.driver.input_loss.items()},
+            # Since the last sample too: an input that stopped is silent while the others
+            # go on (core/input_loss.py).
+            input_gaps_s=silences({name: loss.report()
+                                   for name, loss in self.driver.input_loss.items()},
+                                  self.driver.stamp_s),
             input_gap_limit_s=self.driver.config.max_prediction_step_s,
             final_bias_sigma_rad_s=math.sqrt(max(self.driver.ekf.bias_var, 0.0)),
             start_bias=None if stats.first_stop_end_s is None else (

@@ -137,11 +137,28 @@ def test_not_learnt_or_exact_nothing_is_applied():
 
 
 def test_restore_puts_the_scale_in_use_back():
+    # One continuous drive, saved a second before the window that applies the scale and
+    # restored after it: the same figures, and the same scale applied again at the same
+    # scan when the scans are fed once more.
+    scans = []
+
+    class Recorder:
+        def add(self, stamp, yaw, angle):
+            scans.append((stamp, yaw, angle))
+
+    _drive(Recorder(), 0.01, lambda t: 0.0, seconds=200.0)
+    cut = next(k for k, (stamp, _, _) in enumerate(scans)
+               if stamp >= WINDOW_S * MIN_WINDOWS - 1.0)
     watch = GyroScaleWatch(learn=True)
-    _drive(watch, 0.01, lambda t: 0.0, seconds=WINDOW_S * (MIN_WINDOWS - 1) + 1.0)
-    saved = watch.save()
-    _drive(watch, 0.01, lambda t: 0.0, seconds=100.0, seed=1,
-           start_s=WINDOW_S * (MIN_WINDOWS - 1) + 1.0)
-    assert watch.applied == 1 and watch.in_use != 0.0
+    for scan in scans[:cut]:
+        assert not watch.add(*scan)
+    saved, before = watch.save(), watch.report()
+    mean_square_rate = watch.mean_square_rate
+    changed = [scan[0] for scan in scans[cut:] if watch.add(*scan)]
+    assert len(changed) == 1 and watch.applied == 1 and watch.in_use != 0.0
+    after = watch.report()
     watch.restore(saved)
+    assert watch.report() == before and watch.mean_square_rate == mean_square_rate
     assert watch.applied == 0 and watch.in_use == 0.0 and watch.applied_at_s is None
+    assert [scan[0] for scan in scans[cut:] if watch.add(*scan)] == changed
+    assert watch.report() == after

@@ -10,7 +10,7 @@ import pytest
 from gyro_ekf.analysis.offline import run_trip
 from gyro_ekf.analysis.summary import summarize
 from gyro_ekf.core.health import VERDICT_MIN_RECEIVED_SHARE
-from gyro_ekf.core.input_loss import REFERENCE_INTERVALS, InputLoss
+from gyro_ekf.core.input_loss import REFERENCE_INTERVALS, InputLoss, silences
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 
 PERIOD_S = 0.005
@@ -53,7 +53,8 @@ def test_every_lost_sample_is_counted_from_the_stamps():
     assert loss.share == pytest.approx(len(kept) / 4000)
     assert loss.report() == {'received': len(kept), 'lost': 4000 - len(kept),
                              'share': loss.share, 'period_s': pytest.approx(PERIOD_S),
-                             'longest_interval_s': pytest.approx(201 * PERIOD_S)}
+                             'longest_interval_s': pytest.approx(201 * PERIOD_S),
+                             'last_s': pytest.approx(3999 * PERIOD_S)}
 
 
 def test_a_stream_that_loses_most_samples_from_its_start_keeps_its_period():
@@ -70,12 +71,35 @@ def test_one_stamp_glitch_does_not_set_the_period():
     stamps = list(np.arange(2000) * PERIOD_S)
     stamps.insert(5, stamps[5] - 1e-5)
     loss = _fed(stamps)
-    assert loss.period_s == pytest.approx(PERIOD_S) and loss.lost == 0
+    assert loss.period_s == pytest.approx(PERIOD_S, rel=1e-3) and loss.lost == 0
+
+
+def test_stamps_taken_in_pairs_are_no_loss():
+    # Two samples 0.1 ms apart every 10 ms (a driver that stamps them on the host in
+    # pairs): half the intervals are tiny, and none is a lost sample.
+    pairs = np.arange(2000) * 2 * PERIOD_S
+    loss = _fed(np.sort(np.concatenate([pairs, pairs + 1e-4])))
+    assert loss.lost == 0 and loss.share == 1.0
+
+
+@pytest.mark.parametrize('seed', range(5))
+def test_stamp_jitter_of_a_quarter_period_costs_at_most_a_few_samples(seed):
+    rng = np.random.default_rng(seed)
+    stamps = np.sort(np.arange(4000) * PERIOD_S + rng.uniform(-0.25, 0.25, 4000) * PERIOD_S)
+    loss = _fed(stamps)
+    assert loss.period_s == pytest.approx(PERIOD_S, rel=0.01)
+    assert loss.share > 0.995
 
 
 def test_nothing_is_judged_before_the_period_is_known_and_repeats_cost_nothing():
     loss = _fed([0.0, 0.0, 0.5, 0.5])
     assert loss.period_s is None and loss.lost == 0 and loss.share == 1.0
+    # A sample at the stamp of the one before (a repeat), before and after the period is
+    # known: received, no interval, nothing lost.
+    stamps = np.arange(200) * PERIOD_S
+    repeated = _fed(np.sort(np.concatenate([stamps, stamps[[3, 150]]])))
+    assert repeated.received == 202 and repeated.lost == 0
+    assert repeated.last_s == pytest.approx(199 * PERIOD_S)
     assert _fed(np.arange(REFERENCE_INTERVALS + 1) * PERIOD_S).period_s == pytest.approx(
         PERIOD_S)
 
@@ -122,5 +146,15 @@ def test_a_run_whose_gyro_lost_most_samples_says_so():
     whole = summarize(run_trip(trip))
     assert whole['input_loss']['gyro'] == {'received': len(trip.imu.stamp_s), 'lost': 0,
                                            'share': 1.0, 'period_s': pytest.approx(0.005),
-                                           'longest_interval_s': pytest.approx(0.005)}
+                                           'longest_interval_s': pytest.approx(0.005),
+                                           'last_s': trip.imu.stamp_s[-1]}
     assert not [r for r in whole['health']['reasons'] if r.startswith('gyro: ')]
+
+
+def test_silences_count_the_time_since_the_last_sample_too():
+    gyro = _fed(np.arange(400) * PERIOD_S).report()
+    stopped = _fed(np.arange(100) * 0.01).report()
+    # The odometry stopped at 0.99 s while the gyro went on to 1.995 s: silent for 1 s.
+    gaps = silences({'gyro': gyro, 'odometry': stopped, 'none': InputLoss().report()}, 1.995)
+    assert gaps == {'gyro': pytest.approx(PERIOD_S), 'odometry': pytest.approx(1.005)}
+    assert silences({'gyro': gyro}, None) == {'gyro': pytest.approx(PERIOD_S)}

@@ -195,3 +195,24 @@ def test_held_observations_are_bounded(trip):
     assert lagged.held == 3 and lagged.driver.stats.scans == 7
     with pytest.raises(CoreError, match='max_held'):
         LaggedObservations(_driver(trip), 0.5, max_held=0)
+
+
+def test_a_gyro_scale_applied_between_replays_ends_as_strict_ordering_ends():
+    # The scale is applied as a window closes (core/gyro_scale.py) while late scans are
+    # replayed around it: save and restore must carry the scale in use, the restarted
+    # bias watch and the input counters, or the two paths part.
+    scaled = simulate_trip(SimulationConfig(duration_s=140.0, static_s=0.0,
+                                            gyro_scale_error=0.015), seed=5)
+    strict_driver = _driver(scaled)
+    strict = drive_trip(scaled, strict_driver)
+    assert strict_driver.gyro_scale.applied == 1
+    lagged = LaggedObservations(_driver(scaled), history_s=0.5)
+    fates, _ = _feed_with_delay(scaled, lagged, 0.15, np.random.default_rng(2))
+    assert fates.count(ObservationFate.REPLAYED) > 0.5 * len(fates)
+    driver = lagged.driver
+    assert driver.gyro_scale.report() == strict_driver.gyro_scale.report()
+    assert driver._gyro_scale == strict_driver._gyro_scale != 1.0
+    assert {k: v.report() for k, v in driver.input_loss.items()} == {
+        k: v.report() for k, v in strict_driver.input_loss.items()}
+    assert driver.ekf.x[:4].tolist() == strict.estimates.state[-1].tolist()
+    assert driver.stats.snapshot() == strict.stats.snapshot()

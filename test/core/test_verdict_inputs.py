@@ -98,7 +98,7 @@ def test_a_bias_that_ends_far_from_the_first_stops_degrades_the_run():
     reasons = health.verdict(moved)['reasons']
     assert reasons == [
         "the gyro bias changed during the run: it ends -0.0283 deg/s from the -0.9110 deg/s "
-        "the first stop's zero-rate updates gave (to 8.0 s), 3.0 sigmas, beyond 3: a bias "
+        "the first stop's zero-rate updates gave (to 8.0 s), 3.03 sigmas, beyond 3: a bias "
         "that moved too slowly for the LiDARs' blocks to show it, followed only in part (or "
         "a stop that was not still)"]  # 0.0283 / hypot(0.009, 0.0025) = 3.03
     within = _figures(matched=100, updates=100, final_bias_rad_s=rad(-0.925),
