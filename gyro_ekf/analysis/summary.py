@@ -235,19 +235,11 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         odometry=None if run.result.odometry is None else run.result.odometry.report(),
         gyro_scale=run.result.gyro_scale, input_loss=run.result.input_loss or {},
         final_bias_sigma_rad_s=summary['online_bias']['final_sigma_rad_s'],
-        start_bias=_start_bias(stats))
+        start_bias=stats.first_stop)
     return {**health.verdict(figures), 'lidars': sensors,
             'transitions': [] if monitor is None else [
                 {'stamp_s': t.stamp_s, 'lidar': t.sensor, 'change': t.change,
                  'reason': t.reason} for t in monitor.transitions]}
-
-
-def _start_bias(stats) -> tuple[float, float, float] | None:
-    """Return the first stop's (end s, bias rad/s, sigma rad/s) (DriverStats.first_stop_*)."""
-    if stats.first_stop_end_s is None:
-        return None
-    return (stats.first_stop_end_s, stats.first_stop_bias_rad_s,
-            stats.first_stop_bias_sigma_rad_s)
 
 
 def _share(flags: np.ndarray) -> float:

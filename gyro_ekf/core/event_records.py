@@ -156,6 +156,14 @@ class DriverStats:
     first_stop_bias_sigma_rad_s: float | None = None
 
     @property
+    def first_stop(self) -> tuple[float, float, float] | None:
+        """(end s, bias rad/s, sigma rad/s) of the first stop that learnt the bias, or None."""
+        if self.first_stop_end_s is None:
+            return None
+        return (self.first_stop_end_s, self.first_stop_bias_rad_s,
+                self.first_stop_bias_sigma_rad_s)
+
+    @property
     def mean_nis(self) -> float:
         """Mean NIS of all updates (nan before the first)."""
         return self.nis_sum / self.updates if self.updates else math.nan

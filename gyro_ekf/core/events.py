@@ -189,9 +189,7 @@ class EventDriver:
         self.ekf.reset(pose, bias_rad_s)
         self.stats = DriverStats()
         self.health = HealthMonitor(self.config)
-        self.bias_watch = BiasWatch()
-        self.bias_rate = BiasRate(self.config.bias_rate_window_s)
-        self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
+        self._restart_bias_evidence()
         self.gyro_scale = GyroScaleWatch(self.config.gyro_scale_error,
                                          self.config.learn_gyro_scale)
         self._gyro_scale = 1.0 + self.config.gyro_scale_error
@@ -202,11 +200,9 @@ class EventDriver:
         self.ekf.assume_wander(self.config.initial_wander_rad_s)
         self.noise = {}
         self._block_bias = self._block_bias_variance = 0.0
-        self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0
         self.ekf.odometry_walk = 0.0
         self.held_rate = HeldRate()
         self._rate_stamp_s = None
-        self._heading_dt2 = self._wander_dt = 0.0
         self._rate_held_s = -math.inf
         self.mounts.reset()
         self.odometry.reset()
@@ -803,6 +799,14 @@ class EventDriver:
         self.stats.gyro_wander_found_s = found.found_at_s
         self.stats.gyro_wander_prior_ruled_out_s = found.prior_ruled_out_s
 
+    def _restart_bias_evidence(self) -> None:
+        """Start the bias watch, the ramp's line and the wander's blocks again, walks none."""
+        self.bias_watch = BiasWatch()
+        self.bias_rate = BiasRate(self.config.bias_rate_window_s)
+        self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
+        self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0
+        self._heading_dt2 = self._wander_dt = 0.0
+
     def _gyro_scale_applied(self) -> None:
         """Turn by the scale the LiDARs' heading measured; what its error drew on starts again.
 
@@ -818,13 +822,9 @@ class EventDriver:
         watch = self.gyro_scale
         change = watch.in_use - (self._gyro_scale - 1.0)
         self._gyro_scale = 1.0 + watch.in_use
-        self.bias_watch = BiasWatch()
-        self.bias_rate = BiasRate(self.config.bias_rate_window_s)
-        self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
+        self._restart_bias_evidence()
         self._model_wander()
-        self._heading_dt2 = self._wander_dt = 0.0
         self.ekf.rate_noise_scale = self.stats.gyro_noise_scale = 1.0
-        self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0
         self.stats.bias_rate_rad_s2 = 0.0
         self.ekf.open_bias(change * change * watch.mean_square_rate)
 

@@ -826,6 +826,7 @@ class EkfNode(Node):
             start_gap = 0.0
         else:
             start_gap = (now if first is None else first) - start
+        inputs = {name: loss.report() for name, loss in self.driver.input_loss.items()}
         figures = health.RunFigures(
             # Excluded LiDARs' detections have their own reason, not the share's.
             detections=stats.detections - stats.excluded,
@@ -848,17 +849,13 @@ class EkfNode(Node):
             gyro_wander_tau_s=self.driver.config.gyro_wander_tau_s,
             mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report(),
             gyro_scale=self.driver.gyro_scale.report(),
-            input_loss={name: loss.report() for name, loss in self.driver.input_loss.items()},
+            input_loss=inputs,
             # Since the last sample too: an input that stopped is silent while the others
             # go on (core/input_loss.py).
-            input_gaps_s=silences({name: loss.report()
-                                   for name, loss in self.driver.input_loss.items()},
-                                  self.driver.stamp_s),
+            input_gaps_s=silences(inputs, now),
             input_gap_limit_s=self.driver.config.max_prediction_step_s,
             final_bias_sigma_rad_s=math.sqrt(max(self.driver.ekf.bias_var, 0.0)),
-            start_bias=None if stats.first_stop_end_s is None else (
-                stats.first_stop_end_s, stats.first_stop_bias_rad_s,
-                stats.first_stop_bias_sigma_rad_s))
+            start_bias=stats.first_stop)
         return health.verdict(figures)
 
     def _publish_mounts(self) -> None:
