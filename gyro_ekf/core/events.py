@@ -560,6 +560,8 @@ class EventDriver:
                             self.ekf.reset(np.array(still_at), self.ekf.bias_rad_s, self.ekf.P)
                             self.gyro_scale.restart_window()
                         return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
+                    # No other LiDAR corroborates it: only what the check proves alone.
+                    moved = self.odometry.start_alone
                 if moved is not None:
                     self.odometry.apply(moved)
                     self._first_lidar_moved(key, moved)

@@ -73,9 +73,14 @@ before the path above says so. Standing still at a start pose the filter trusts 
 detections of ``start_check_s`` are fitted against that pose, by the online mount fit
 (``mount_online.fit_window``, no yaw search); the scans of a stop repeat their errors, so
 the fit's covariance is multiplied by their count (they are worth one scan). An offset
-beyond the limits above moves the mount in use as a path fit does, unless another LiDAR's
-own scans there keep its stated mount: then that one defines the body frame
-(``mount_online.OnlineMounts.hand_over``). A small yaw of the check is reported, not acted
+beyond the limits above makes the first LiDAR suspect: another LiDAR whose own scans there
+keep its stated mount then defines the body frame (``mount_online.OnlineMounts.hand_over``),
+the two disagreeing at the one pose the filter trusts. With no such LiDAR the offset moves
+the mount in use as a path fit does only when it passes an F test as well
+(``start_significance``, ``offset_f_limit``): the fit's variance comes from its residuals,
+which at a stop rest on the few poles a scan sees, so 3 sigmas of a Gaussian is too little
+(one clean start in 200 passed it, 3.07 sigmas on 5 poles, against the F test's 6.6, and the
+mount moved 2 cm by mistake held the pose off for 40 s). A small yaw of the check is reported, not acted
 on: on 75 clean simulated starts it came out with an RMS of 1.6 of its sigma, 3 beyond 3
 sigmas (and within 0.22 deg on 100). A yaw beyond ``start_yaw_limit_rad`` (0.5 deg) and
 ``start_yaw_sigmas`` (8) is acted on as an offset is: it turns the mount in use and the
@@ -146,6 +151,8 @@ class OdometrySettings:
         start_check_s: standing still at a start pose the filter trusts exactly, the first
             LiDAR's detections of this long are fitted against that pose (or of the
             whole stop, when the platform moves off sooner), s.
+        start_significance: the start check moves the mount in use by an offset beyond
+            offset_limit_m whose F test (``offset_f_limit``) passes this significance.
         prior_scale_sigma: sigma of k before the first fit (relative), for ``walk_density``.
         scale_time_s: tau of ``walk_density``: how long a speed error acts before the
             LiDARs correct what it did, s.
@@ -172,6 +179,7 @@ class OdometrySettings:
     start_yaw_limit_rad: float = math.radians(0.5)
     start_yaw_sigmas: float = 8.0
     start_check_s: float = 2.0
+    start_significance: float = 1e-3
     prior_scale_sigma: float = 0.01
     scale_time_s: float = 1.0
     gap_s: float = 2.0
@@ -247,6 +255,9 @@ class OdometryTracker:
         self._start_scans = 0
         self._start_first_s: float | None = None
         self.start_fit: dict[str, float] | None = None
+        # The part of the start check's move that may be applied with no other LiDAR to
+        # corroborate it (observe_start).
+        self.start_alone: Moved | None = None
         # The pose the start check closed at, and the same when still standing there.
         self.checked_at: tuple[float, float, float] | None = None
         self.still_at: tuple[float, float, float] | None = None
@@ -330,7 +341,8 @@ class OdometryTracker:
                 self._distance, self._last_fit_s, self.scale, self.scale_sigma, self.fit,
                 self.applied, self.fits, self._window_start_s, self.offset_m, self.yaw_rad,
                 self.offset_applied, (self._start_pose, len(self._start_points),
-                                      self._start_scans, self._start_first_s, self.start_fit),
+                                      self._start_scans, self._start_first_s, self.start_fit,
+                                      self.start_alone),
                 self._walk_fit, self._gap_end_s)
 
     def restore(self, saved: tuple) -> None:
@@ -340,7 +352,7 @@ class OdometryTracker:
          self.offset_m, self.yaw_rad, self.offset_applied, start, self._walk_fit,
          self._gap_end_s) = saved
         (self._start_pose, points, self._start_scans, self._start_first_s,
-         self.start_fit) = start
+         self.start_fit, self.start_alone) = start
         del self._start_points[points:]
         self._refresh_walk()
         if end < self._dropped:
@@ -399,6 +411,7 @@ class OdometryTracker:
 
     def _fit_start(self, pose: tuple[float, float, float], mount: LidarMount,
                    poles: FloatArray) -> Moved | None:
+        self.start_alone = None
         if len(self._start_points) < MIN_DETECTIONS:
             return None
         points = np.array(self._start_points)
@@ -422,14 +435,37 @@ class OdometryTracker:
         # it came out with an RMS of 1.6 sigmas, 3 of them beyond 3); the path fits find
         # it. A large one is plain at once and would hold the heading off for the 20 m the
         # path fit needs.
+        # Two levels. Beyond 3 of its sigmas the offset is suspect: another LiDAR that keeps
+        # its stated mount at the start pose may take over the body frame (the driver's
+        # hand-over, corroborated by that LiDAR). Moving this LiDAR's mount alone takes an
+        # F test: the fit's variance comes from its residuals, and those of a stop rest on
+        # the few poles a scan sees, not on the scans (with P poles, 2 P - 3 degrees of
+        # freedom), so its distance under the fit's x-y covariance is judged against
+        # F(2, 2 P - 3), not a Gaussian. 3 sigmas alone moved a clean start's mount in 200
+        # (seed 40 scene 24: 3.07 sigmas on 5 poles, the F test's 6.6; moved 2 cm by mistake,
+        # the mount held the pose off for 40 s).
+        poles_seen = used / self._start_scans
+        dof = max(2.0 * poles_seen - 3.0, 1.0)
+        xy = covariance[1:3, 1:3] * self._start_scans
+        delta = np.array([dx, dy])
+        try:
+            distance2 = float(delta @ np.linalg.solve(xy, delta))
+        except np.linalg.LinAlgError:
+            distance2 = math.nan
+        limit2 = offset_f_limit(settings.start_significance, dof)
+        self.start_fit.update({'sigmas': math.sqrt(distance2) if distance2 >= 0.0 else None,
+                               'sigmas_limit': math.sqrt(limit2), 'poles_per_scan': poles_seen})
         offset = math.hypot(dx, dy) > max(settings.offset_limit_m,
                                           settings.offset_sigmas * sigma)
+        proven = offset and distance2 > limit2
         turned = abs(dyaw) > max(settings.start_yaw_limit_rad,
                                  settings.start_yaw_sigmas * yaw_sigma)
+        yaw_move = (dyaw, yaw_sigma) if turned else (0.0, 0.0)
+        self.start_alone = ((dx, dy, sigma) + yaw_move if proven
+                            else (0.0, 0.0, 0.0) + yaw_move if turned else None)
         if not (offset or turned):
             return None
-        return ((dx, dy, sigma) if offset else (0.0, 0.0, 0.0)) + (
-            (dyaw, yaw_sigma) if turned else (0.0, 0.0))
+        return ((dx, dy, sigma) if offset else (0.0, 0.0, 0.0)) + yaw_move
 
     def apply(self, moved: Moved) -> None:
         """Move the first LiDAR's mount in use by a start check's (x, y, _, yaw, _)."""
@@ -599,6 +635,18 @@ class OdometryTracker:
                 'distance_m': fit.distance_m},
             'first_lidar_offset_found': self.offset_found(),
             'first_lidar_yaw_found': self.yaw_found()}
+
+
+def offset_f_limit(significance: float, dof: float) -> float:
+    """Return the squared distance an offset must pass, its variance known to ``dof`` dof.
+
+    An offset of 2 components whose covariance is known up to a variance estimated with
+    ``dof`` degrees of freedom: its squared distance under that covariance, over 2, is
+    F(2, dof), whose upper tail ``(1 + 2 x / dof)^(-dof / 2)`` inverts in closed form. For
+    many dof it tends to the Gaussian's ``-2 ln(significance)`` (3.72 sigmas at 1e-3); for
+    a stop that sees 5 poles (7 dof), 6.6 sigmas.
+    """
+    return dof * (significance ** (-2.0 / dof) - 1.0)
 
 
 def _lag_one_correlation(residual: np.ndarray) -> float:
