@@ -80,8 +80,8 @@ the mount in use as a path fit does only when it passes an F test as well
 (``start_significance``, ``offset_f_limit``): the fit's variance comes from its residuals,
 which at a stop rest on the few poles a scan sees, so 3 sigmas of a Gaussian is too
 little (one clean start in 200 passed it, 3.07 sigmas on 5 poles, against the F test's 6.6,
-and the mount moved 2 cm by mistake held the pose off for 40 s). A small yaw of the check is reported, not acted
-on: on 75 clean simulated starts it came out with an RMS of 1.6 of its sigma, 3 beyond 3
+and the mount moved 2 cm by mistake held the pose off for 40 s). A small yaw of the check
+is reported, not acted on: on 75 clean simulated starts it came out with an RMS of 1.6 of its sigma, 3 beyond 3
 sigmas (and within 0.22 deg on 100). A yaw beyond ``start_yaw_limit_rad`` (0.5 deg) and
 ``start_yaw_sigmas`` (8) is acted on as an offset is: it turns the mount in use and the
 heading (back to the start pose: at rest the looks drag it only part of the way), or hands
