@@ -68,9 +68,9 @@ odometry path is laid along a heading that drifted and the pose jumps back at th
 (such fits come out 10-17 % off, sigma 3-12 %), and the last fit before the gap stays.
 
 **Start check.** A first LiDAR off its mount drags the pose from the first scan on, well
-before the path above says so. Standing still at a start pose the filter trusts exactly
-(P0 of the pose 0, as every course log and simulated trip states it), the LiDAR's
-detections of ``start_check_s`` are fitted against that pose, by the online mount fit
+before the path above says so. Standing still at a start pose the filter trusts exactly (P0
+of the pose 0, as every course log and simulated trip states it), the LiDAR's detections of
+``start_check_s`` are fitted against that pose, by the online mount fit
 (``mount_online.fit_window``, no yaw search); the scans of a stop repeat their errors, so
 the fit's covariance is multiplied by their count (they are worth one scan). An offset
 beyond the limits above makes the first LiDAR suspect: another LiDAR whose own scans there
@@ -78,16 +78,16 @@ keep its stated mount then defines the body frame (``mount_online.OnlineMounts.h
 the two disagreeing at the one pose the filter trusts. With no such LiDAR the offset moves
 the mount in use as a path fit does only when it passes an F test as well
 (``start_significance``, ``offset_f_limit``): the fit's variance comes from its residuals,
-which at a stop rest on the few poles a scan sees, so 3 sigmas of a Gaussian is too
-little (one clean start in 200 passed it, 3.07 sigmas on 5 poles, against the F test's 6.6,
-and the mount moved 2 cm by mistake held the pose off for 40 s). A small yaw of the check
-is reported, not acted on: on 75 clean simulated starts it came out with an RMS of 1.6 of its sigma, 3 beyond 3
-sigmas (and within 0.22 deg on 100). A yaw beyond ``start_yaw_limit_rad`` (0.5 deg) and
-``start_yaw_sigmas`` (8) is acted on as an offset is: it turns the mount in use and the
-heading (back to the start pose: at rest the looks drag it only part of the way), or hands
-the body frame over. Once a yaw was applied, a path fit's yaw beyond ``yaw_refinement_rad``
-(0.02 deg) and 3 sigmas refines it. The check closes when the odometry reads a speed, so a
-trip that starts moving has none.
+which at a stop rest on the few poles a scan sees, so 3 sigmas of a Gaussian is too little
+(one clean start in 200 passed it, 3.07 sigmas on 5 poles, against the F test's 6.6, and the
+mount moved 2 cm by mistake held the pose off for 40 s). A small yaw of the check is
+reported, not acted on: on 75 clean simulated starts it came out with an RMS of 1.6 of its
+sigma, 3 beyond 3 sigmas (and within 0.22 deg on 100). A yaw beyond ``start_yaw_limit_rad``
+(0.5 deg) and ``start_yaw_sigmas`` (8) is acted on as an offset is: it turns the mount in
+use and the heading (back to the start pose: at rest the looks drag it only part of the
+way), or hands the body frame over. Once a yaw was applied, a path fit's yaw beyond
+``yaw_refinement_rad`` (0.02 deg) and 3 sigmas refines it. The check closes when the
+odometry reads a speed, so a trip that starts moving has none.
 
 The state is a handful of scalars and append-only sequences, so ``save`` and ``restore``
 (called on every event by ``core/lagged.py``) cost O(1).
