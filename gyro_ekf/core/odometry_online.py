@@ -469,11 +469,14 @@ class OdometryTracker:
         turned = abs(dyaw) > max(settings.start_yaw_limit_rad,
                                  settings.start_yaw_sigmas * yaw_sigma)
         yaw_move = (dyaw, yaw_sigma) if turned else (0.0, 0.0)
-        self.start_alone = ((dx, dy, sigma) + yaw_move if proven
-                            else (0.0, 0.0, 0.0) + yaw_move if turned else None)
-        if not (offset or turned):
-            return None
-        return ((dx, dy, sigma) if offset else (0.0, 0.0, 0.0)) + yaw_move
+
+        def move(with_offset: bool) -> Moved | None:
+            if not (with_offset or turned):
+                return None
+            return ((dx, dy, sigma) if with_offset else (0.0, 0.0, 0.0)) + yaw_move
+
+        self.start_alone = move(proven)
+        return move(offset)
 
     def apply(self, moved: Moved) -> None:
         """Move the first LiDAR's mount in use by a start check's (x, y, _, yaw, _)."""
@@ -575,7 +578,7 @@ class OdometryTracker:
             return None
         self._walk_fit = self.fit
         self._refresh_walk()
-        if sigma > settings.max_sigma or rms > settings.max_rms_m:
+        if self._clean_fit() is None:
             return None
         change = abs(scale - self.scale)
         # Once the odometry is known to be off, every clear change refines the scale.
@@ -600,20 +603,30 @@ class OdometryTracker:
         return (dx, dy, max(self.fit.offset_sigma_m) if offset else 0.0, dyaw,
                 self.fit.yaw_sigma_rad if turned else 0.0)
 
-    def yaw_found(self) -> bool:
-        """Whether the last fit turns the first LiDAR clearly off the odometry's direction."""
+    def _clean_fit(self) -> OdometryFit | None:
+        """Return the last fit when it may act, else None.
+
+        It may when its window spans no gap and its scale's sigma and its residual are
+        within their limits.
+        """
         fit, settings = self.fit, self.settings
         if (fit is None or fit.spans_gap or fit.scale_sigma > settings.max_sigma
                 or fit.rms_m > settings.max_rms_m):
+            return None
+        return fit
+
+    def yaw_found(self) -> bool:
+        """Whether the last fit turns the first LiDAR clearly off the odometry's direction."""
+        fit, settings = self._clean_fit(), self.settings
+        if fit is None:
             return False
         limit = settings.yaw_refinement_rad if self.yaw_rad else settings.yaw_limit_rad
         return abs(fit.yaw_rad) > max(limit, settings.offset_sigmas * fit.yaw_sigma_rad)
 
     def offset_found(self) -> bool:
         """Whether the last fit places the first LiDAR clearly off its stated mount."""
-        fit, settings = self.fit, self.settings
-        if (fit is None or fit.spans_gap or fit.scale_sigma > settings.max_sigma
-                or fit.rms_m > settings.max_rms_m):
+        fit, settings = self._clean_fit(), self.settings
+        if fit is None:
             return False
         limit = settings.offset_refinement_m if self.offset_applied else (
             settings.offset_limit_m)
