@@ -43,6 +43,8 @@ from gyro_ekf.core.association import (AssociationOutcome, AssociationResult,
                                        associate_by_distance, associate_packed)
 from gyro_ekf.core.bias_rate import BiasRate
 from gyro_ekf.core.bias_watch import BiasWatch
+from gyro_ekf.core.body_frame import (Offset, Shift, mixture_shift, other_right_share,
+                                      shift_estimates)
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
@@ -138,6 +140,10 @@ class EventDriver:
         self.odometry.start_at(self._trusted(pose))
         self.held_start = HeldStart(self.config.hold_exact_start
                                     and self._trusted(pose) is not None)
+        # Where the other LiDARs' scans at the trusted start pose place them, and the
+        # mixture of the two LiDARs' word on the body frame (core/body_frame.py).
+        self._start_others: dict[LidarMount, Offset] = {}
+        self.frame_shift: Shift | None = None
         self._measured_speed_m_s = 0.0
         # Stamp up to which the odometry path's distance is summed, the distance not yet
         # laid along the heading, and the heading at the last scan (_integrate_path).
@@ -209,6 +215,10 @@ class EventDriver:
         self.odometry.start_at(self._trusted(pose))
         self.held_start = HeldStart(self.config.hold_exact_start
                                     and self._trusted(pose) is not None)
+        # Where the other LiDARs' scans at the trusted start pose place them, and the
+        # mixture of the two LiDARs' word on the body frame (core/body_frame.py).
+        self._start_others: dict[LidarMount, Offset] = {}
+        self.frame_shift: Shift | None = None
         self._measured_speed_m_s = 0.0
         self._path_s, self._path_m, self._path_yaw = None, 0.0, 0.0
         self.stamp_s = None
@@ -262,7 +272,8 @@ class EventDriver:
                  self._path_m, self._path_yaw),
                 {key: noise.save() for key, noise in self.noise.items()},
                 (self.gyro_scale.save(), self._turned),
-                {name: loss.save() for name, loss in self.input_loss.items()})
+                {name: loss.save() for name, loss in self.input_loss.items()},
+                (dict(self._start_others), self.frame_shift))
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
@@ -270,7 +281,9 @@ class EventDriver:
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
          watch, held, self._rate_stamp_s, self._heading_dt2,
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
-          self._path_yaw), noise, (gyro_scale, self._turned), input_loss) = saved
+          self._path_yaw), noise, (gyro_scale, self._turned), input_loss,
+         (start_others, self.frame_shift)) = saved
+        self._start_others = dict(start_others)
         for name, saved_loss in input_loss.items():
             self.input_loss[name].restore(saved_loss)
         self.gyro_scale.restore(gyro_scale)
@@ -492,15 +505,54 @@ class EventDriver:
         h, H = observe_bias(x)
         error = float(h[0])
         rate = 0.0 if self.rate_rad_s is None else (self.rate_rad_s - error) / self._gyro_scale
+        state, covariance = x[:ESTIMATE_SIZE], P[:ESTIMATE_SIZE, :ESTIMATE_SIZE]
+        if self.frame_shift is not None:
+            # The two LiDARs' mixture (core/body_frame.py), as drive_trip reports it.
+            shift_estimates(state[None], covariance[None], self.frame_shift)
         return Estimate(stamp_s=self.stamp_s if self.stamp_s is not None else 0.0,
-                        state=x[:ESTIMATE_SIZE],
-                        covariance=P[:ESTIMATE_SIZE, :ESTIMATE_SIZE],
+                        state=state, covariance=covariance,
                         speed_m_s=self.speed_m_s, yaw_rate_rad_s=rate,
                         gyro_error_rad_s=error,
                         gyro_error_variance=float((H @ P @ H.T)[0, 0]))
 
     def on_detections(self, stamp_s: float, points_sensor_m: FloatArray,
                       mount: LidarMount, sensor: str | None = None) -> ObservationReport:
+        """Predict to stamp_s, associate the detected poles with the map, update.
+
+        Then weigh anew what the LiDARs say of the body frame (``frame_shift``); see
+        ``_on_detections``.
+        """
+        report = self._on_detections(stamp_s, points_sensor_m, mount, sensor)
+        self.frame_shift = self._frame_shift()
+        return report
+
+    def _frame_shift(self) -> Shift | None:
+        """Return the mixture's move of the reported pose (core/body_frame.py), or None.
+
+        Only while one other LiDAR's mount in use sits off its stated x, y (its yaw within
+        the online estimator's smallest change), the first LiDAR's mount was not moved and
+        the body frame never handed over.
+        """
+        trackers = self.mounts.trackers
+        for tracker in trackers.values():
+            tracker.right_share = None
+        if (len(trackers) != 1 or self.mounts.handovers or self.odometry.offset_applied):
+            return None
+        (key, tracker), = trackers.items()
+        used, stated = tracker.used, tracker.stated
+        d = (used.x_m - stated.x_m, used.y_m - stated.y_m)
+        # A yaw change too small to be made alone comes along with an offset's fit.
+        if d == (0.0, 0.0) or abs(wrap_scalar(used.yaw_rad - stated.yaw_rad)) >= (
+                tracker.settings.min_yaw_change_rad):
+            return None
+        fit = self.odometry.clean_fit()
+        path = None if fit is None else (*fit.offset_m, *fit.offset_sigma_m)
+        tracker.right_share = other_right_share(d, self.odometry.start_offset,
+                                                self._start_others.get(key), path)
+        return mixture_shift(d, tracker.right_share)
+
+    def _on_detections(self, stamp_s: float, points_sensor_m: FloatArray,
+                       mount: LidarMount, sensor: str | None = None) -> ObservationReport:
         """Predict to stamp_s, associate the detected poles with the map, update.
 
         A LiDAR the health monitor has excluded is associated but not applied (its report
@@ -543,6 +595,13 @@ class EventDriver:
                 moved = self.odometry.observe_start(
                     stamp_s, points, mount, self.landmarks.xy_m,
                     abs(self._measured_speed_m_s) > self.config.rest_speed_m_s)
+                if checking and self.odometry.checked_at is not None:
+                    # Where the other LiDARs' scans at the same pose place them.
+                    for other, other_tracker in self.mounts.trackers.items():
+                        offset = other_tracker.start_offset(self.odometry.checked_at,
+                                                            self.landmarks.xy_m)
+                        if offset is not None:
+                            self._start_others[other] = offset
                 # The start check's fit takes the scans of a stop as one (their errors
                 # repeat), so a first LiDAR 2-3 cm off can stay within its 3 sigmas, where
                 # its first look at each pole from the held start pose may already show it.

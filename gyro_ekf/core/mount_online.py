@@ -78,6 +78,7 @@ from typing import Any
 import numpy as np
 
 from gyro_ekf.core.angles import wrap_scalar
+from gyro_ekf.core.body_frame import Offset, stop_offset
 # The offline fit's steps, reused as they are so that both calibrations find the same mount.
 from gyro_ekf.core.mount_calibration import (MIN_DETECTIONS, MountSettings, _coarse_yaw,
                                              _Detections, _gauss_newton, _nearest, _to_map)
@@ -248,6 +249,9 @@ class MountTracker:
         self.converged_s: float | None = None
         # When this LiDAR stopped defining the body frame (OnlineMounts.hand_over), or None.
         self.handed_over_s: float | None = None
+        # The weight of this LiDAR being right and the first one off, in the pose the
+        # driver reports between the two (core/body_frame.py); None: no such mixture.
+        self.right_share: float | None = None
         # Its detections while standing at a start pose the filter trusts (append-only),
         # and their scans: agrees_at_start.
         self._start_points: list[tuple[float, float]] = []
@@ -286,13 +290,13 @@ class MountTracker:
         return (self._start, self._dropped + len(self._entries), self._since_fit, self._seen,
                 self._last_pose, self.state, self.fit, self._previous, self.used,
                 self.applied, self.refined, self.fits, self.converged_s,
-                len(self._start_points), self._start_scans)
+                len(self._start_points), self._start_scans, self.right_share)
 
     def restore(self, saved: tuple) -> None:
         """Put back a state from ``save``."""
         (self._start, end, self._since_fit, self._seen, self._last_pose, self.state, self.fit,
          self._previous, self.used, self.applied, self.refined, self.fits,
-         self.converged_s, start_points, self._start_scans) = saved
+         self.converged_s, start_points, self._start_scans, self.right_share) = saved
         del self._start_points[start_points:]
         if end < self._dropped:
             # Older than what was compacted away (never within a replay history): empty.
@@ -306,6 +310,22 @@ class MountTracker:
         """Add a scan taken standing still at a start pose the filter trusts exactly."""
         self._start_points.extend(map(tuple, points_sensor_m.tolist()))
         self._start_scans += 1
+
+    def start_offset(self, pose: tuple[float, float, float], poles: FloatArray
+                     ) -> Offset | None:
+        """Return the scans at the start placed at `pose` as an offset off the stated mount.
+
+        None with too few detections or no offset observable (``body_frame.stop_offset``).
+        """
+        if len(self._start_points) < MIN_DETECTIONS:
+            return None
+        points = np.array(self._start_points)
+        result = fit_window(points, np.tile(pose, (len(points), 1)), poles, self.stated,
+                            self.settings.fit, search=False)
+        if result is None or not result[3]:
+            return None
+        theta, covariance, used, _ = result
+        return stop_offset(theta, covariance, used, self._start_scans, self.stated)
 
     def agrees_at_start(self, pose: tuple[float, float, float], poles: FloatArray) -> bool:
         """Return whether the scans at the start keep the mount in use, placed at `pose`.
@@ -492,7 +512,8 @@ class MountTracker:
                 'offset_observable': fit.offset_observable, 'rms_residual_m': fit.rms_m,
                 'detections_used': fit.used, 'detections': fit.detections},
             'converged_s': self.converged_s, 'applied': self.applied,
-            'refined': self.refined, 'fits': self.fits, 'handed_over_s': self.handed_over_s}
+            'refined': self.refined, 'fits': self.fits, 'handed_over_s': self.handed_over_s,
+            'right_share': self.right_share}
 
 
 class OnlineMounts:
@@ -638,13 +659,25 @@ def verdict_reasons(mounts: list[dict[str, Any]], others: list[str],
             continue
         # Moved, whatever its size now: a mount moved beyond the limits and refined back
         # under them (4.3 mm off its stated mount) still says the LiDARs disagreed.
-        reasons.append(
-            f'LiDAR {report["name"]} mount estimated online is off its stated mount by '
-            f'x {100.0 * dx:+.1f} cm, y {100.0 * dy:+.1f} cm, yaw {dyaw:+.2f} deg (limits '
-            f'{100.0 * settings.min_offset_change_m:g} cm, '
-            f'{math.degrees(settings.min_yaw_change_rad):g} deg): either {report["name"]} '
-            f'or {first} (which with the odometry defines the body frame, and then the pose '
-            f'is off by as much) is not where its mount says')
+        text = (f'LiDAR {report["name"]} mount estimated online is off its stated mount by '
+                f'x {100.0 * dx:+.1f} cm, y {100.0 * dy:+.1f} cm, yaw {dyaw:+.2f} deg (limits '
+                f'{100.0 * settings.min_offset_change_m:g} cm, '
+                f'{math.degrees(settings.min_yaw_change_rad):g} deg): either '
+                f'{report["name"]} or {first} ')
+        share = report.get('right_share')
+        if share is None:
+            text += ('(which with the odometry defines the body frame, and then the pose is '
+                     'off by as much) is not where its mount says')
+        else:
+            # core/body_frame.py: the pose reported is the mixture of the two.
+            apart = 100.0 * math.hypot(dx, dy)
+            text += (f'is not where its mount says, {100.0 * share:.0f} % for '
+                     f'{report["name"]} being the one right by the trusted start pose and the '
+                     f'odometry: the pose is reported {share * apart:.1f} cm toward where '
+                     f'{report["name"]} puts it, its covariance widened by '
+                     f'{math.sqrt(share * (1.0 - share)) * apart:.1f} cm along the '
+                     f'disagreement')
+        reasons.append(text)
     return reasons
 
 

@@ -109,6 +109,7 @@ from typing import Any
 import numpy as np
 
 from gyro_ekf.core.angles import wrap_scalar
+from gyro_ekf.core.body_frame import Offset, stop_offset
 from gyro_ekf.core.mount_calibration import MIN_DETECTIONS, MountSettings
 from gyro_ekf.core.mount_online import fit_window
 from gyro_ekf.core.types import FloatArray, LidarMount
@@ -263,6 +264,8 @@ class OdometryTracker:
         self._start_scans = 0
         self._start_first_s: float | None = None
         self.start_fit: dict[str, float] | None = None
+        # The same fit as an offset off the stated mount, for core/body_frame.py.
+        self.start_offset: Offset | None = None
         # The part of the start check's move that may be applied with no other LiDAR to
         # corroborate it (observe_start).
         self.start_alone: Moved | None = None
@@ -350,7 +353,7 @@ class OdometryTracker:
                 self.applied, self.fits, self._window_start_s, self.offset_m, self.yaw_rad,
                 self.offset_applied, (self._start_pose, len(self._start_points),
                                       self._start_scans, self._start_first_s, self.start_fit,
-                                      self.start_alone),
+                                      self.start_alone, self.start_offset),
                 self._walk_fit, self._gap_end_s)
 
     def restore(self, saved: tuple) -> None:
@@ -360,7 +363,7 @@ class OdometryTracker:
          self.offset_m, self.yaw_rad, self.offset_applied, start, self._walk_fit,
          self._gap_end_s) = saved
         (self._start_pose, points, self._start_scans, self._start_first_s,
-         self.start_fit, self.start_alone) = start
+         self.start_fit, self.start_alone, self.start_offset) = start
         del self._start_points[points:]
         self._refresh_walk()
         if end < self._dropped:
@@ -428,8 +431,9 @@ class OdometryTracker:
         if result is None or not result[3]:
             return None
         theta, covariance, used, _ = result
-        # Every scan of a stop sees the same poles with the same beams: its errors repeat,
-        # so the scans are worth one scan, not many.
+        # The scans of a stop are worth one scan, not many (body_frame.stop_offset).
+        self.start_offset = offset = stop_offset(theta, covariance, used, self._start_scans,
+                                                 mount)
         sigma = math.sqrt(max(covariance[1, 1], covariance[2, 2], 0.0) * self._start_scans)
         yaw_sigma = math.sqrt(max(covariance[0, 0], 0.0) * self._start_scans)
         dx, dy = float(theta[1]) - mount.x_m, float(theta[2]) - mount.y_m
@@ -453,8 +457,8 @@ class OdometryTracker:
         # (seed 40 scene 24: 3.07 sigmas on 5 poles, the F test's 6.6; moved 2 cm by mistake,
         # the mount held the pose off for 40 s).
         poles_seen = used / self._start_scans
-        dof = max(2.0 * poles_seen - 3.0, 1.0)
-        xy = covariance[1:3, 1:3] * self._start_scans
+        dof = offset[5]
+        xy = np.array([[offset[2], offset[3]], [offset[3], offset[4]]])
         delta = np.array([dx, dy])
         try:
             distance2 = float(delta @ np.linalg.solve(xy, delta))
@@ -578,7 +582,7 @@ class OdometryTracker:
             return None
         self._walk_fit = self.fit
         self._refresh_walk()
-        if self._clean_fit() is None:
+        if self.clean_fit() is None:
             return None
         change = abs(scale - self.scale)
         # Once the odometry is known to be off, every clear change refines the scale.
@@ -603,7 +607,7 @@ class OdometryTracker:
         return (dx, dy, max(self.fit.offset_sigma_m) if offset else 0.0, dyaw,
                 self.fit.yaw_sigma_rad if turned else 0.0)
 
-    def _clean_fit(self) -> OdometryFit | None:
+    def clean_fit(self) -> OdometryFit | None:
         """Return the last fit when it may act, else None.
 
         It may when its window spans no gap and its scale's sigma and its residual are
@@ -617,7 +621,7 @@ class OdometryTracker:
 
     def yaw_found(self) -> bool:
         """Whether the last fit turns the first LiDAR clearly off the odometry's direction."""
-        fit, settings = self._clean_fit(), self.settings
+        fit, settings = self.clean_fit(), self.settings
         if fit is None:
             return False
         limit = settings.yaw_refinement_rad if self.yaw_rad else settings.yaw_limit_rad
@@ -625,7 +629,7 @@ class OdometryTracker:
 
     def offset_found(self) -> bool:
         """Whether the last fit places the first LiDAR clearly off its stated mount."""
-        fit, settings = self._clean_fit(), self.settings
+        fit, settings = self.clean_fit(), self.settings
         if fit is None:
             return False
         limit = settings.offset_refinement_m if self.offset_applied else (

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from gyro_ekf.core.body_frame import Shift, shift_estimates
 from gyro_ekf.core.config import DetectorConfig
 from gyro_ekf.core.detection import detect_poles_in_scans
 from gyro_ekf.core.ekf import PACKED_ROW_SIZE, unpack_rows
@@ -289,6 +290,9 @@ def drive_trip(trip: Trip, driver: EventDriver,
     pending: list[float] = []
     packed_row = driver.ekf.packed_row
     sent_updates = 0  # updates handed to on_rows
+    # The two LiDARs' mixture (core/body_frame.py) as it changes at scans: (first row, its
+    # shift), the last one holding on; estimate() reports the same.
+    shifts: list[tuple[int, Shift | None]] = [(0, None)]
 
     def flush(last: bool = False) -> None:
         nonlocal sent_updates
@@ -299,6 +303,12 @@ def drive_trip(trip: Trip, driver: EventDriver,
             wanders[start:row] = rows[:, WANDER]
             covariances[start:row] = full[:, :ESTIMATE_SIZE, :ESTIMATE_SIZE]
             pending.clear()
+            for k, (first, shift) in enumerate(shifts):
+                end = shifts[k + 1][0] if k + 1 < len(shifts) else row
+                if shift is not None and end > start and first < row:
+                    rows_of = slice(max(first, start), end)
+                    shift_estimates(states[rows_of], covariances[rows_of], shift)
+            del shifts[:-1]
         if on_rows is not None and (start < row or last):
             on_rows(start, Estimates(stamps[start:row], states[start:row],
                                      covariances[start:row], wanders[start:row]),
@@ -333,6 +343,8 @@ def drive_trip(trip: Trip, driver: EventDriver,
                 detected[series] = (begin, found)
             report = driver.on_detections(stamp_s, found[index - begin], scan.mount,
                                           scan.topic)
+            if driver.frame_shift != shifts[-1][1]:
+                shifts.append((row, driver.frame_shift))
             if report.nis.size:
                 # Plain floats and the associations themselves: an index array of the
                 # pairs and a row of the points per update cost more than the maths.

@@ -880,8 +880,9 @@ class EkfNode(Node):
                               for k in self._received}
             self._rate_base = (now, dict(self._received))
         stats = self.driver.stats
-        x = self.driver.ekf.x
-        P = self.driver.ekf.P
+        # The pose as published (with the two LiDARs' mixture, core/body_frame.py).
+        estimate = self.driver.estimate()
+        x, P = estimate.state, estimate.covariance
         outcomes = stats.outcomes
         rejected = sum(v for k, v in outcomes.items() if k != 'matched')
         since = (None if stats.last_association_s is None or self.driver.stamp_s is None
