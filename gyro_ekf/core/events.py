@@ -140,9 +140,11 @@ class EventDriver:
         self.odometry.start_at(self._trusted(pose))
         self.held_start = HeldStart(self.config.hold_exact_start
                                     and self._trusted(pose) is not None)
-        # Where the other LiDARs' scans at the trusted start pose place them, and the
-        # mixture of the two LiDARs' word on the body frame (core/body_frame.py).
-        self._start_others: dict[LidarMount, Offset] = {}
+        # Where each LiDAR's scans at the trusted start pose place it (by stated mount),
+        # the LiDAR that defines the body frame now, and the mixture of the two LiDARs'
+        # word on the body frame (core/body_frame.py).
+        self._start_offsets: dict[LidarMount, Offset] = {}
+        self._body_key: LidarMount | None = None
         self.frame_shift: Shift | None = None
         self._measured_speed_m_s = 0.0
         # Stamp up to which the odometry path's distance is summed, the distance not yet
@@ -215,9 +217,11 @@ class EventDriver:
         self.odometry.start_at(self._trusted(pose))
         self.held_start = HeldStart(self.config.hold_exact_start
                                     and self._trusted(pose) is not None)
-        # Where the other LiDARs' scans at the trusted start pose place them, and the
-        # mixture of the two LiDARs' word on the body frame (core/body_frame.py).
-        self._start_others: dict[LidarMount, Offset] = {}
+        # Where each LiDAR's scans at the trusted start pose place it (by stated mount),
+        # the LiDAR that defines the body frame now, and the mixture of the two LiDARs'
+        # word on the body frame (core/body_frame.py).
+        self._start_offsets: dict[LidarMount, Offset] = {}
+        self._body_key: LidarMount | None = None
         self.frame_shift: Shift | None = None
         self._measured_speed_m_s = 0.0
         self._path_s, self._path_m, self._path_yaw = None, 0.0, 0.0
@@ -273,7 +277,7 @@ class EventDriver:
                 {key: noise.save() for key, noise in self.noise.items()},
                 (self.gyro_scale.save(), self._turned),
                 {name: loss.save() for name, loss in self.input_loss.items()},
-                (dict(self._start_others), self.frame_shift))
+                (dict(self._start_offsets), self._body_key, self.frame_shift))
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
@@ -282,8 +286,8 @@ class EventDriver:
          watch, held, self._rate_stamp_s, self._heading_dt2,
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
           self._path_yaw), noise, (gyro_scale, self._turned), input_loss,
-         (start_others, self.frame_shift)) = saved
-        self._start_others = dict(start_others)
+         (start_offsets, self._body_key, self.frame_shift)) = saved
+        self._start_offsets = dict(start_offsets)
         for name, saved_loss in input_loss.items():
             self.input_loss[name].restore(saved_loss)
         self.gyro_scale.restore(gyro_scale)
@@ -530,13 +534,14 @@ class EventDriver:
         """Return the mixture's move of the reported pose (core/body_frame.py), or None.
 
         Only while one other LiDAR's mount in use sits off its stated x, y (its yaw within
-        the online estimator's smallest change), the first LiDAR's mount was not moved and
-        the body frame never handed over.
+        the online estimator's smallest change) and the odometry has not moved the mount of
+        the LiDAR that defines the body frame. After a hand-over the two swap roles: a
+        hand-over at the start rests on the same stop's fits, which may not tell.
         """
         trackers = self.mounts.trackers
         for tracker in trackers.values():
             tracker.right_share = None
-        if (len(trackers) != 1 or self.mounts.handovers or self.odometry.offset_applied):
+        if len(trackers) != 1 or self.odometry.offset_applied or self._body_key is None:
             return None
         (key, tracker), = trackers.items()
         used, stated = tracker.used, tracker.stated
@@ -547,8 +552,9 @@ class EventDriver:
             return None
         fit = self.odometry.clean_fit()
         path = None if fit is None else (*fit.offset_m, *fit.offset_sigma_m)
-        tracker.right_share = other_right_share(d, self.odometry.start_offset,
-                                                self._start_others.get(key), path)
+        offsets = self._start_offsets
+        tracker.right_share = other_right_share(d, offsets.get(self._body_key),
+                                                offsets.get(key), path)
         return mixture_shift(d, tracker.right_share)
 
     def _on_detections(self, stamp_s: float, points_sensor_m: FloatArray,
@@ -589,6 +595,7 @@ class EventDriver:
         else:
             # Where the odometry places the LiDARs that define the body frame.
             mount = self.odometry.first_mount(mount)
+            self._body_key = key
             if self.landmarks is not None and len(points):
                 # Moving by the odometry (the bias is not known yet to judge the gyro).
                 checking = self.odometry.checked_at is None
@@ -596,12 +603,15 @@ class EventDriver:
                     stamp_s, points, mount, self.landmarks.xy_m,
                     abs(self._measured_speed_m_s) > self.config.rest_speed_m_s)
                 if checking and self.odometry.checked_at is not None:
-                    # Where the other LiDARs' scans at the same pose place them.
+                    # Where each LiDAR's scans at the start pose place it: this one's
+                    # from the check, the others' from their own scans there.
+                    if self.odometry.start_offset is not None:
+                        self._start_offsets[key] = self.odometry.start_offset
                     for other, other_tracker in self.mounts.trackers.items():
                         offset = other_tracker.start_offset(self.odometry.checked_at,
                                                             self.landmarks.xy_m)
                         if offset is not None:
-                            self._start_others[other] = offset
+                            self._start_offsets[other] = offset
                 # The start check's fit takes the scans of a stop as one (their errors
                 # repeat), so a first LiDAR 2-3 cm off can stay within its 3 sigmas, where
                 # its first look at each pole from the held start pose may already show it.
