@@ -140,12 +140,7 @@ class EventDriver:
         self.odometry.start_at(self._trusted(pose))
         self.held_start = HeldStart(self.config.hold_exact_start
                                     and self._trusted(pose) is not None)
-        # Where each LiDAR's scans at the trusted start pose place it (by stated mount),
-        # the LiDAR that defines the body frame now, and the mixture of the two LiDARs'
-        # word on the body frame (core/body_frame.py).
-        self._start_offsets: dict[LidarMount, Offset] = {}
-        self._body_key: LidarMount | None = None
-        self.frame_shift: Shift | None = None
+        self._forget_body_frame()
         self._measured_speed_m_s = 0.0
         # Stamp up to which the odometry path's distance is summed, the distance not yet
         # laid along the heading, and the heading at the last scan (_integrate_path).
@@ -217,12 +212,7 @@ class EventDriver:
         self.odometry.start_at(self._trusted(pose))
         self.held_start = HeldStart(self.config.hold_exact_start
                                     and self._trusted(pose) is not None)
-        # Where each LiDAR's scans at the trusted start pose place it (by stated mount),
-        # the LiDAR that defines the body frame now, and the mixture of the two LiDARs'
-        # word on the body frame (core/body_frame.py).
-        self._start_offsets: dict[LidarMount, Offset] = {}
-        self._body_key: LidarMount | None = None
-        self.frame_shift: Shift | None = None
+        self._forget_body_frame()
         self._measured_speed_m_s = 0.0
         self._path_s, self._path_m, self._path_yaw = None, 0.0, 0.0
         self.stamp_s = None
@@ -232,6 +222,14 @@ class EventDriver:
         self._first_scan_s = None
         self._rest_updates = {}
         self._end_stop()
+
+    def _forget_body_frame(self) -> None:
+        """Start the two LiDARs' word on the body frame afresh (core/body_frame.py)."""
+        # Where each LiDAR's scans at the trusted start pose place it (by stated mount),
+        # the LiDAR that defines the body frame now, and the mixture reported.
+        self._start_offsets: dict[LidarMount, Offset] = {}
+        self._body_key: LidarMount | None = None
+        self.frame_shift: Shift | None = None
 
     def _trusted(self, pose: FloatArray | None) -> FloatArray | None:
         """Return the start pose when the filter trusts it exactly (P0 of the pose 0)."""
