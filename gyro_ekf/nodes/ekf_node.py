@@ -46,7 +46,9 @@ observations are kept out of the filter; each exclusion and readmission is logge
 LiDAR mounts in use (`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file from
 `gyro-ekf calibrate-mounts` given after the bag's overrides the bag's mounts, and every
 LiDAR but the one defining the body frame, `body_frame_lidar`, has its mount estimated
-online, core/mount_online.py: `mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`), and
+online, core/mount_online.py: `mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`, and
+`mount_<topic>_online_right_share` while the two LiDARs disagree and the pose published lies
+between them, core/body_frame.py), and
 the odometry's speed scale and the first LiDAR's offset estimated online
 (core/odometry_online.py: `odometry_scale` in use,
 `odometry_scale_{applied,estimate,sigma}`, `odometry_scale_uncertainty` (how far the scale in
@@ -934,7 +936,11 @@ class EkfNode(Node):
                    ('online_yaw_sigma_deg', '' if online['estimate'] is None
                     else f'{online["estimate"]["yaw_sigma_deg"]:.4f}'),
                    ('online_converged_s', '' if online['converged_s'] is None
-                    else f'{online["converged_s"]:.3f}'))},
+                    else f'{online["converged_s"]:.3f}'),
+                   # The weight of this LiDAR being right in the pose published between
+                   # it and the body frame's (core/body_frame.py); '' when none.
+                   ('online_right_share', '' if online['right_share'] is None
+                    else f'{online["right_share"]:.4f}'))},
             # The odometry's speed scale in use and its last online fit
             # (core/odometry_online.py).
             **{f'odometry_{key}': value for key, value in _odometry_values(
