@@ -13,7 +13,8 @@ alike. Either
 Before, the filter took A for granted. When B held, the pose stayed 0.4-2 cm off with a
 covariance of 2 mm until the odometry's path fit had driven the 20 m it needs
 (``core/odometry_online.py``), if ever (stress class mount_offset: 23 of 25 at seed 0, 94 %
-over seeds 0 and 40-45, every miss a first LiDAR 0.4-2.3 cm off beside an exact second).
+over seeds 0 and 40-45; 7 of its 10 misses a first LiDAR 0.4-2.3 cm off beside an exact
+second).
 
 Now what the filter reports is the mixture of the two, weighted by the evidence for each
 (Bayes, an even prior): its mean ``p + w_B R d`` and its covariance ``P + w_A w_B R d d^T
