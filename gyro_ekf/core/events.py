@@ -533,8 +533,9 @@ class EventDriver:
 
         Only while one other LiDAR's mount in use sits off its stated x, y (its yaw within
         the online estimator's smallest change) and the odometry has not moved the mount of
-        the LiDAR that defines the body frame. After a hand-over the two swap roles: a
-        hand-over at the start rests on the same stop's fits, which may not tell.
+        the LiDAR that defines the body frame. After a hand-over at the start check the two
+        swap roles: it rests on the same stop's fits, which may not tell. One made on the
+        health monitor's word (a map disagreement another LiDAR vouched against) stands.
         """
         trackers = self.mounts.trackers
         for tracker in trackers.values():
@@ -548,9 +549,14 @@ class EventDriver:
         if d == (0.0, 0.0) or abs(wrap_scalar(used.yaw_rad - stated.yaw_rad)) >= (
                 tracker.settings.min_yaw_change_rad):
             return None
+        offsets = self._start_offsets
+        if self.mounts.handovers and not (self._body_key in offsets and key in offsets):
+            # Handed over on the health monitor's word (the LiDAR disagreed with the map
+            # while this one vouched): that decided. Only a hand-over at the start check,
+            # resting on the stop's fits of both, is weighed again.
+            return None
         fit = self.odometry.clean_fit()
         path = None if fit is None else (*fit.offset_m, *fit.offset_sigma_m)
-        offsets = self._start_offsets
         tracker.right_share = other_right_share(d, offsets.get(self._body_key),
                                                 offsets.get(key), path)
         return mixture_shift(d, tracker.right_share)
