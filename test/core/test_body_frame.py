@@ -63,6 +63,22 @@ def test_the_weights_follow_the_evidence():
     assert other_right_share(D, *half, (0.0, 0.0, 0.002, 0.002)) < 0.01
 
 
+@pytest.mark.parametrize('bad', [
+    (0.01, 0.0, 0.0, 0.0, 0.0, 7.0),                       # singular covariance
+    (0.01, 0.0, 1e-6, 2e-6, 1e-6, 7.0),                    # not positive definite
+    (math.nan, 0.0, 1e-6, 0.0, 1e-6, 7.0),                 # not finite
+    (0.01, 0.0, math.inf, 0.0, 1e-6, 7.0)])
+def test_a_stop_fit_with_no_usable_covariance_says_nothing(bad):
+    # Counted, it made B certain (weight 1.0) from evidence that says nothing.
+    assert other_right_share(D, bad, bad, None) == pytest.approx(0.5)
+    assert other_right_share(D, bad, None, (math.nan, 0.0, 0.002, 0.002)) == (
+        pytest.approx(0.5))
+    good = other_right_share(D, _offset(-D[0], -D[1]), _offset(0.0, 0.0), None)
+    assert other_right_share(D, _offset(-D[0], -D[1]), bad, None) != 1.0
+    assert other_right_share(D, bad, _offset(0.0, 0.0), None) < good
+    assert other_right_share((math.nan, 0.0), None, None, None) == 0.5
+
+
 def test_a_first_lidar_a_centimetre_off_is_reported_where_the_other_puts_it():
     # Stress seed 0, mount_offset 1: the first LiDAR 1.07 cm off beside an exact rear one.
     # Taken as right, the first held the pose 1 cm off, its sigma 2 mm, until the
