@@ -129,6 +129,10 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'largest_reopening_deg_s': _deg(float(run.result.stats.bias_largest_opening_rad_s)),
         'gyro_noise_scale': float(run.result.stats.gyro_noise_scale),
         'gyro_noise_scale_max': float(run.result.stats.gyro_noise_scale_max),
+        # The gyro's spread standing still, where it lay beyond chance above the stated
+        # noise (events.EventDriver._judge_stop_noise; 0 and 1: none did).
+        'gyro_rest_noise_deg_s': _deg(float(run.result.stats.gyro_rest_noise_rad_s)),
+        'gyro_rest_noise_scale': float(run.result.stats.gyro_rest_noise_scale),
         # The gyro's wander found in the data and modelled (core/gyro_wander.py): its
         # stationary sigma (0: none found) and when it was first found (null: never).
         'gyro_wander_deg_s': _deg(float(run.result.stats.gyro_wander_rad_s)),
@@ -227,6 +231,8 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s),
         bias_largest_rate_rad_s2=float(stats.bias_largest_rate_rad_s2),
         gyro_noise_scale_max=float(stats.gyro_noise_scale_max),
+        gyro_rest_noise_scale=float(stats.gyro_rest_noise_scale),
+        gyro_rest_noise_rad_s=float(stats.gyro_rest_noise_rad_s),
         gyro_wander_rad_s=float(stats.gyro_wander_rad_s),
         gyro_wander_found_s=stats.gyro_wander_found_s,
         gyro_wander_stated_rad_s=run.config.gyro_wander_rad_s,

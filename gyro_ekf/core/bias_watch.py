@@ -131,6 +131,7 @@ class BiasWatch:
 
     __slots__ = ('_start_s', '_z_sum', '_variance', '_shared', '_correction_sum',
                  'openings', 'last_error_rad_s', '_drifts', 'walk', '_blocks', 'noise_scale',
+                 'noise_floor',
                  '_start_yaw_variance', 'block')
 
     def __init__(self) -> None:
@@ -151,6 +152,9 @@ class BiasWatch:
         self._blocks: list[_Block] = []
         self._start_yaw_variance = 0.0
         self.noise_scale = 1.0
+        # The least noise_scale may fall to: what the gyro's spread at a stop measured
+        # (set_noise_floor); 1 (the stated noise) until one did.
+        self.noise_floor = 1.0
         # (start s, length s, implied bias error db rad/s) of the last block closed and
         # judged, None when the last one was dropped (core/bias_rate.py fits its db).
         self.block: tuple[float, float, float] | None = None
@@ -165,9 +169,22 @@ class BiasWatch:
         clone.openings, clone.last_error_rad_s = self.openings, self.last_error_rad_s
         clone._drifts, clone.walk = list(self._drifts), self.walk
         clone._blocks, clone.noise_scale = list(self._blocks), self.noise_scale
+        clone.noise_floor = self.noise_floor
         clone._start_yaw_variance = self._start_yaw_variance
         clone.block = self.block
         return clone
+
+    def set_noise_floor(self, scale: float) -> None:
+        """Never let the noise factor fall below ``scale`` (a stop's gyro spread measured it).
+
+        A factor the floor set follows it; one the blocks raised above it stays unless the
+        floor is higher.
+        """
+        floor = min(max(float(scale), 1.0), MAX_NOISE_SCALE)
+        if self.noise_scale == self.noise_floor:
+            self.noise_scale = floor
+        self.noise_scale = max(self.noise_scale, floor)
+        self.noise_floor = floor
 
     def pause(self) -> None:
         """Drop the open block (at rest, a gap: its corrections would not span a drift)."""
@@ -340,8 +357,8 @@ class BiasWatch:
         blocks.pop(0)
         if mean > _NOISE_HIGH:
             scale = min(self.noise_scale * mean, MAX_NOISE_SCALE)
-        elif mean < _NOISE_LOW and self.noise_scale > 1.0:
-            scale = max(self.noise_scale * mean, 1.0)
+        elif mean < _NOISE_LOW and self.noise_scale > self.noise_floor:
+            scale = max(self.noise_scale * mean, self.noise_floor)
         else:
             return False
         self.noise_scale = scale

@@ -108,6 +108,12 @@ class DriverStats:
         gyro_noise_scale: the factor on the gyro's noise variance the innovations asked for
             (1: as stated).
         gyro_noise_scale_max: the largest such factor of the run so far.
+        gyro_rest_noise_scale: the factor on the stated gyro noise variance a stop's gyro
+            samples measured (their spread squared over the stated variance, where it lies
+            beyond chance above it; 1: none did). The noise factor never falls below it.
+        gyro_rest_noise_rad_s: the spread of that stop's gyro samples, rad/s (0: none).
+        gyro_rest_noise_samples: the samples of the stop judged last (the one with the most
+            so far; 0: none judged).
         gyro_wander_rad_s: the gyro wander's sigma found in the data (core/gyro_wander.py),
             rad/s (0: none found).
         gyro_wander_found_s: when it was first found, s (None: not found).
@@ -145,6 +151,9 @@ class DriverStats:
     bias_largest_opening_rad_s: float = 0.0
     gyro_noise_scale: float = 1.0
     gyro_noise_scale_max: float = 1.0
+    gyro_rest_noise_scale: float = 1.0
+    gyro_rest_noise_rad_s: float = 0.0
+    gyro_rest_noise_samples: int = 0
     gyro_wander_rad_s: float = 0.0
     gyro_wander_found_s: float | None = None
     gyro_wander_prior_ruled_out_s: float | None = None
@@ -183,6 +192,9 @@ class DriverStats:
                 'bias_largest_opening_rad_s': self.bias_largest_opening_rad_s,
                 'gyro_noise_scale': self.gyro_noise_scale,
                 'gyro_noise_scale_max': self.gyro_noise_scale_max,
+                'gyro_rest_noise_scale': self.gyro_rest_noise_scale,
+                'gyro_rest_noise_rad_s': self.gyro_rest_noise_rad_s,
+                'gyro_rest_noise_samples': self.gyro_rest_noise_samples,
                 'gyro_wander_rad_s': self.gyro_wander_rad_s,
                 'gyro_wander_found_s': self.gyro_wander_found_s,
                 'gyro_wander_prior_ruled_out_s': self.gyro_wander_prior_ruled_out_s,

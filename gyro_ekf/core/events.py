@@ -52,7 +52,7 @@ from gyro_ekf.core.gyro_scale import GyroScaleWatch
 from gyro_ekf.core.gyro_wander import GyroWander, block_allowed
 from gyro_ekf.core.input_loss import InputLoss
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
-from gyro_ekf.core.health import HealthMonitor, Transition
+from gyro_ekf.core.health import HealthMonitor, Transition, chi_square_upper
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
 from gyro_ekf.core.held_start import HeldStart
 from gyro_ekf.core.models import observe_bias, points_to_range_bearing, sensor_point_to_map
@@ -81,6 +81,14 @@ BIAS_LEARNT_FACTOR = 2.0
 """A bias watch block is no evidence of a wander when the bias's variance fell by more than
 this factor over it (core/gyro_wander.py): the bias was being learnt, its corrections the
 learning. Ordinary blocks while driving change it by a few per cent."""
+
+STOP_NOISE_SIGNIFICANCE = 1e-4
+"""Chance that a stop's gyro spread, on a gyro as noisy as stated, reads as noisier
+(``EventDriver._judge_stop_noise``)."""
+
+STOP_NOISE_MIN_SAMPLES = 100
+"""Fewest gyro samples of a stop whose spread is judged (0.5 s at 200 Hz): the chi-square
+quantile's approximation holds from 10 dof, and a shorter stop says little."""
 
 
 class EventDriver:
@@ -408,6 +416,8 @@ class EventDriver:
                 self._stop_since_s = stamp_s
         elif self._stop_since_s is not None:
             stats = self.stats
+            if self.zero_rate:
+                self._judge_stop_noise()
             if self.zero_rate and stats.first_stop_end_s is None:
                 # The bias the first stop's zero-rate updates learnt: a bias that stays put
                 # ends the run where this places it, within their sigmas (health.verdict).
@@ -468,6 +478,37 @@ class EventDriver:
                                                + 3.0 * math.sqrt(max(ekf.bias_var, 0.0))):
             held.release(stamp_s, 'the gyro showed a turn')
 
+    def _judge_stop_noise(self) -> None:
+        """At a still stop: a gyro noisier than stated is measured, not guessed.
+
+        Standing still the gyro reads its bias plus white noise, so the spread of the
+        stop's samples is the noise itself, known to a chi-square of n - 1 dof. Beyond
+        chance (``STOP_NOISE_SIGNIFICANCE``) above the stated variance (the held
+        message's own, else ``gyro_noise_rad_s``), the stated figure is wrong: from then
+        on (judged every ``STOP_NOISE_MIN_SAMPLES`` samples of the stop and at its end) the
+        prediction's yaw-rate noise is scaled up to the spread (the bias watch's noise
+        factor never falls below it). The figure is the stop with the most samples at its
+        latest look: the largest of many looks would read high (the first, on 100
+        samples, is known to 14 % of the variance). A spread below the stated
+        figure changes nothing: driving adds vibration a stop does not show. Before, a gyro
+        three times noisier than it said was left to the LiDARs' blocks, which read it as
+        a wander or widened the noise late: NEES shares of 0.85-0.89 (docs/stress.md).
+        """
+        n = self._stop_n
+        stats = self.stats
+        if n < STOP_NOISE_MIN_SAMPLES or n < stats.gyro_rest_noise_samples:
+            return  # a longer stop measured it better
+        stated = self.ekf.gyro_variance if self.rate_variance is None else self.rate_variance
+        if not stated > 0.0:
+            return
+        spread = self._stop_m2 / (n - 1)
+        beyond = spread > stated * chi_square_upper(STOP_NOISE_SIGNIFICANCE, n - 1) / (n - 1)
+        stats.gyro_rest_noise_samples = n
+        stats.gyro_rest_noise_scale = spread / stated if beyond else 1.0
+        stats.gyro_rest_noise_rad_s = math.sqrt(spread) if beyond else 0.0
+        self.bias_watch.set_noise_floor(stats.gyro_rest_noise_scale)
+        self.ekf.rate_noise_scale = stats.gyro_noise_scale = self.bias_watch.noise_scale
+
     def _zero_rate_update(self, stamp_s: float, rate_rad_s: float) -> None:
         """Add a gyro sample to the stop; apply it as a zero-rate update once still."""
         n = self._stop_n + 1
@@ -494,6 +535,9 @@ class EventDriver:
             self.stats.stops += 1
         ekf.update_zero_rate(rate_rad_s, max(variance, config.zero_rate_min_noise_rad_s ** 2))
         self.stats.zero_rate_updates += 1
+        if n % STOP_NOISE_MIN_SAMPLES == 0:
+            # While the stop lasts too: its heading integrates the noise the stop shows.
+            self._judge_stop_noise()
         # The samples of the stop measure the bias itself: a ramp shows in their line
         # (core/bias_rate.py, a ramp at rest).
         lag = self.bias_rate.add_rest(stamp_s, rate_rad_s, ekf.bias_rad_s)
@@ -877,6 +921,8 @@ class EventDriver:
     def _restart_bias_evidence(self) -> None:
         """Start the bias watch, the ramp's line and the wander's blocks again, walks none."""
         self.bias_watch = BiasWatch()
+        # What a stop measured of the gyro's noise stays measured.
+        self.bias_watch.set_noise_floor(self.stats.gyro_rest_noise_scale)
         self.bias_rate = BiasRate(self.config.bias_rate_window_s)
         self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
         self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0
@@ -899,7 +945,7 @@ class EventDriver:
         self._gyro_scale = 1.0 + watch.in_use
         self._restart_bias_evidence()
         self._model_wander()
-        self.ekf.rate_noise_scale = self.stats.gyro_noise_scale = 1.0
+        self.ekf.rate_noise_scale = self.stats.gyro_noise_scale = self.bias_watch.noise_scale
         self.stats.bias_rate_rad_s2 = 0.0
         self.ekf.open_bias(change * change * watch.mean_square_rate)
 

@@ -603,6 +603,9 @@ class RunFigures:
             rad/s^2 (0: none).
         gyro_noise_scale_max: the largest factor on the gyro's noise variance the LiDARs'
             heading innovations asked for (DriverStats.gyro_noise_scale_max; 1: as stated).
+        gyro_rest_noise_scale: the factor on the stated gyro noise variance a stop's spread
+            measured (DriverStats.gyro_rest_noise_scale; 1: none).
+        gyro_rest_noise_rad_s: that stop's gyro spread, rad/s (0: none).
         gyro_wander_rad_s: the gyro's wander found (DriverStats.gyro_wander_rad_s,
             core/gyro_wander.py), rad/s (0: none found).
         gyro_wander_found_s: when it was found, s (None: not found).
@@ -641,6 +644,8 @@ class RunFigures:
     bias_largest_opening_rad_s: float = 0.0
     bias_largest_rate_rad_s2: float = 0.0
     gyro_noise_scale_max: float = 1.0
+    gyro_rest_noise_scale: float = 1.0
+    gyro_rest_noise_rad_s: float = 0.0
     gyro_wander_rad_s: float = 0.0
     gyro_wander_found_s: float | None = None
     gyro_wander_stated_rad_s: float = 0.0
@@ -824,7 +829,16 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
         # Found at a stop by the zero-rate updates' own samples (core/bias_rate.py).
         add(DEGRADED, f'the gyro bias changed during the run: standing still, the gyro '
             f'samples ramped at up to {per_minute:+.3f} deg/s per minute, followed')
-    if figures.gyro_noise_scale_max > 1.0:
+    rest_scale = figures.gyro_rest_noise_scale
+    if rest_scale > 1.0:
+        # Measured standing still, where the gyro reads its bias and white noise alone
+        # (events.EventDriver._judge_stop_noise): the stated figure is wrong.
+        stated = figures.gyro_rest_noise_rad_s / math.sqrt(rest_scale)
+        add(DEGRADED, f'the gyro was noisier than configured: standing still its samples '
+            f'spread {math.degrees(figures.gyro_rest_noise_rad_s):.3f} deg/s, '
+            f'{math.sqrt(rest_scale):.1f} times the {math.degrees(stated):.3f} deg/s stated; '
+            f'the filter used the spread from then on')
+    if figures.gyro_noise_scale_max > rest_scale * (1.0 + 1e-9):
         # The bias watch widens the gyro's noise only when ten blocks' heading innovations
         # fail a chi-square test (core/bias_watch.py): the gyro is noisier than the
         # configuration says, or its noise is coloured (a wander no bias model follows).

@@ -845,6 +845,8 @@ class EkfNode(Node):
             bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s,
             bias_largest_rate_rad_s2=stats.bias_largest_rate_rad_s2,
             gyro_noise_scale_max=stats.gyro_noise_scale_max,
+            gyro_rest_noise_scale=float(stats.gyro_rest_noise_scale),
+            gyro_rest_noise_rad_s=float(stats.gyro_rest_noise_rad_s),
             gyro_wander_rad_s=stats.gyro_wander_rad_s,
             gyro_wander_found_s=stats.gyro_wander_found_s,
             gyro_wander_stated_rad_s=self.driver.config.gyro_wander_rad_s,
@@ -949,6 +951,8 @@ class EkfNode(Node):
             'zero_rate_updates': str(stats.zero_rate_updates),
             'bias_reopened': str(stats.bias_openings),
             'gyro_noise_scale': f'{stats.gyro_noise_scale:.3f}',
+            # The gyro's spread at a stop, where beyond chance above the stated noise.
+            'gyro_rest_noise_deg_s': f'{math.degrees(stats.gyro_rest_noise_rad_s):.4f}',
             # The gyro's wander found and modelled (core/gyro_wander.py), 0 when none.
             'gyro_wander_deg_s': f'{math.degrees(stats.gyro_wander_rad_s):.4f}',
             # The wander the filter models now: the prior until the blocks rule it out, the

@@ -235,3 +235,35 @@ def test_a_gyro_noisier_than_stated_scales_its_noise_and_a_consistent_one_does_n
     consistent = BiasWatch()
     _wandering(consistent, 600.0, 0.0)
     assert consistent.noise_scale == 1.0
+
+
+def test_the_noise_factor_never_falls_below_what_a_stop_measured():
+    # A stop's gyro spread measured the noise (events.EventDriver._judge_stop_noise): the
+    # blocks may raise the factor further, never take it back below that floor.
+    watch = BiasWatch()
+    watch.set_noise_floor(4.5)
+    assert watch.noise_scale == 4.5 and watch.noise_floor == 4.5
+    watch.set_noise_floor(4.0)  # a longer stop's figure: the factor it set follows it
+    assert watch.noise_scale == 4.0 and watch.noise_floor == 4.0
+    raised = watch.copy()
+    raised.noise_scale = 6.0  # as the blocks raise it: a lower floor leaves it
+    raised.set_noise_floor(3.0)
+    assert raised.noise_scale == 6.0 and raised.noise_floor == 3.0
+    # Blocks whose innovations are all 0 (Z^2 = 0, under the low bound): without the
+    # floor they take the factor back to 1 (the control below), with it to the floor.
+
+    def quiet(w):
+        for k in range(int(120.0 * SCANS_PER_S)):
+            stamp = k / SCANS_PER_S
+            if w.due(stamp):
+                w.close(stamp)
+            for _ in range(POLES):
+                w.add(stamp, 0.0, S_BB)
+            w.corrected(0.0)
+    quiet(watch)
+    assert watch.noise_scale == 4.0
+    assert watch.copy().noise_floor == 4.0
+    control = BiasWatch()
+    control.noise_scale = 4.0
+    quiet(control)
+    assert control.noise_scale == 1.0

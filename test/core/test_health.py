@@ -174,6 +174,15 @@ def test_verdict_says_when_the_gyro_was_noisier_than_configured():
     assert len(result['reasons']) == 1
     assert result['reasons'][0].startswith('the gyro was noisier than configured')
     assert 'up to 3.5 times' in result['reasons'][0]
+    # Measured at a stop (events.EventDriver._judge_stop_noise): said as such, and the
+    # LiDARs' sentence only where the blocks widened it further.
+    rest = dict(gyro_rest_noise_scale=9.0, gyro_rest_noise_rad_s=math.radians(0.75))
+    result = health.verdict(health.RunFigures(**plain, gyro_noise_scale_max=9.0, **rest))
+    assert result['reasons'] == [
+        'the gyro was noisier than configured: standing still its samples spread 0.750 '
+        'deg/s, 3.0 times the 0.250 deg/s stated; the filter used the spread from then on']
+    result = health.verdict(health.RunFigures(**plain, gyro_noise_scale_max=12.0, **rest))
+    assert len(result['reasons']) == 2 and 'up to 12.0 times' in result['reasons'][1]
 
 
 def test_verdict_says_when_the_gyro_wanders_more_than_configured():
