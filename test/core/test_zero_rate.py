@@ -283,7 +283,7 @@ def test_the_stop_judges_the_noise_against_the_messages_own_variance():
 def test_a_trip_whose_gyro_is_three_times_noisier_than_stated_is_no_wander():
     # The simulated gyro's yaw axis at 0.75 deg/s of white noise, the trip stating 0.25.
     # Before the stops measured it, the LiDARs' blocks read the excess as a wander
-    # (0.03-0.05 deg/s found on every such trip tried) and the NEES share fell to
+    # (0.025-0.047 deg/s found on all 30 such trips tried) and the NEES share fell to
     # 0.85-0.89 (docs/stress.md); now the static start measures it and says so.
     from gyro_ekf.analysis.offline import run_trip
     from gyro_ekf.analysis.summary import summarize
