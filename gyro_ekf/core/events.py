@@ -499,8 +499,8 @@ class EventDriver:
         if n < STOP_NOISE_MIN_SAMPLES or n < stats.gyro_rest_noise_samples:
             return  # a longer stop measured it better
         stated = self.ekf.gyro_variance if self.rate_variance is None else self.rate_variance
-        if not stated > 0.0:
-            return
+        if not 0.0 < stated < math.inf:
+            return  # a message stating no usable variance: nothing to judge against
         spread = self._stop_m2 / (n - 1)
         beyond = spread > stated * chi_square_upper(STOP_NOISE_SIGNIFICANCE, n - 1) / (n - 1)
         stats.gyro_rest_noise_samples = n

@@ -838,7 +838,7 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
             f'spread {math.degrees(figures.gyro_rest_noise_rad_s):.3f} deg/s, '
             f'{math.sqrt(rest_scale):.1f} times the {math.degrees(stated):.3f} deg/s stated; '
             f'the filter used the spread from then on')
-    if figures.gyro_noise_scale_max > rest_scale * (1.0 + 1e-9):
+    if figures.gyro_noise_scale_max > rest_scale:
         # The bias watch widens the gyro's noise only when ten blocks' heading innovations
         # fail a chi-square test (core/bias_watch.py): the gyro is noisier than the
         # configuration says, or its noise is coloured (a wander no bias model follows).

@@ -280,6 +280,16 @@ def test_the_stop_judges_the_noise_against_the_messages_own_variance():
     assert driver.stats.gyro_rest_noise_scale == pytest.approx(4.0, rel=0.15)
 
 
+@pytest.mark.parametrize('stated_variance', [0.0, -1e-6, math.inf, math.nan])
+def test_a_message_variance_that_says_nothing_judges_nothing(stated_variance):
+    # Zero, negative, infinite or NaN: no figure to hold the spread against, so nothing is
+    # measured or scaled (an infinite one would have read every gyro as quieter).
+    driver = _still_driver(math.radians(0.75), 1600, 6, stated_variance=stated_variance)
+    assert driver.stats.gyro_rest_noise_samples == 0
+    assert driver.stats.gyro_rest_noise_scale == 1.0
+    assert driver.ekf.rate_noise_scale == 1.0
+
+
 def test_a_trip_whose_gyro_is_three_times_noisier_than_stated_is_no_wander():
     # The simulated gyro's yaw axis at 0.75 deg/s of white noise, the trip stating 0.25.
     # Before the stops measured it, the LiDARs' blocks read the excess as a wander
