@@ -74,10 +74,11 @@ class EkfConfig:
     # LiDARs hold; that now comes in as its own walk (odometry_scale_*, below), and what
     # is left here covers the slowly changing detection errors (without it the simulated
     # trips are four times overconfident). At 0.007 m/sqrt(s), which covered both, clean
-    # simulated trips carry twice their errors' variance.
+    # simulated trips carry twice their errors' variance. With no landmark update there
+    # are no detection errors to cover: in a gap it pauses (core/events.py).
     position_random_walk_m_sqrt_s: float = config_field(
         0.0035, 'm/sqrt(s)', 'Extra translation noise q: a random walk of x and y; Q2 adds '
-        'q^2 T to each.', 0.0, 10.0)
+        'q^2 T to each, paused in a gap (no landmark update for recovery_after_s).', 0.0, 10.0)
     bias_random_walk_rad_s2: float = config_field(
         DEG / 600.0, 'rad/s^2',
         'Bias drift q_b: Q2 adds (q_b T)^2 to the bias each step (the course\'s sigma_b = '

@@ -257,6 +257,10 @@ class GyroBiasEkf:
         # The odometry's speed scale not yet known, as a random walk of x and y (m^2 per s,
         # core/odometry_online.py walk_density): Q2 adds it times T, beside q_pos^2 T.
         self.odometry_walk = 0.0
+        # q_pos stands for the LiDARs' detection errors changing slowly from scan to scan
+        # (config.py): with no landmark update for a while (a gap, core/events.py) there is
+        # nothing for it to cover, and the driver pauses it.
+        self.position_walk_paused = False
         # A rate of the bias found in the data (rad/s^2, core/bias_rate.py): each prediction
         # moves b by T times it, a known input (its uncertainty comes in bias_walk_found).
         self.bias_rate_found = 0.0
@@ -484,7 +488,8 @@ class GyroBiasEkf:
         self._s, self._p = self._maths.predict(
             self._s, self._p, float(speed_m_s), float(rate_rad_s), float(dt_s),
             self._sigma_v2 if speed_variance is None else speed_variance, rate_var,
-            self._q_pos2 + self.odometry_walk, bias_walk, hold_position,
+            (0.0 if self.position_walk_paused else self._q_pos2) + self.odometry_walk,
+            bias_walk, hold_position,
             self.wander_sigma_rad_s, self._wander_tau_s)
         if self.bias_rate_found:
             # b += T b' (the bias ramps; core/bias_rate.py): J's bias row is still [0 0 0 1].
