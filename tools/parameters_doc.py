@@ -41,7 +41,7 @@ YAML_HEADER = """\
 # copy it and change the copy.
 # Use: ros2 run gyro_ekf ekf_node --ros-args --params-file config/gyro_ekf.yaml
 # A bag's sidecar (BAG.params.yaml) adds initial_pose.*, lidar.*, noise.* and trip.*;
-# give it as a second --params-file. Floats must be written with a decimal point.
+# give it as a second --params-file. A float may be written as an integer (5 for 5.0).
 """
 
 ROS_OWN = ('use_sim_time', 'start_type_description_service')
