@@ -78,7 +78,8 @@ class EkfConfig:
     # are no detection errors to cover: in a gap it pauses (core/events.py).
     position_random_walk_m_sqrt_s: float = config_field(
         0.0035, 'm/sqrt(s)', 'Extra translation noise q: a random walk of x and y; Q2 adds '
-        'q^2 T to each, paused in a gap (no landmark update for recovery_after_s).', 0.0, 10.0)
+        'q^2 T to each, paused with no landmark update in the last recovery_after_s or none '
+        'yet.', 0.0, 10.0)
     bias_random_walk_rad_s2: float = config_field(
         DEG / 600.0, 'rad/s^2',
         'Bias drift q_b: Q2 adds (q_b T)^2 to the bias each step (the course\'s sigma_b = '

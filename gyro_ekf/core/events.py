@@ -355,12 +355,12 @@ class EventDriver:
             return
         hold = self.zero_rate
         # The position walk covers the detection errors' change between landmark updates;
-        # in a gap (no update for recovery_after_s) the pose's uncertainty grows by the
-        # odometry and the gyro alone. Kept, it tripled the position sigma over a 5-s
+        # in a gap (no update for recovery_after_s, or none yet) the pose's uncertainty
+        # grows by the odometry and the gyro alone. Kept, it tripled the position sigma over a 5-s
         # LiDAR dropout while the error stayed at 3 mm (NEES below its band).
         last = self.stats.last_association_s
         self.ekf.position_walk_paused = (
-            last is not None and self.stamp_s - last > self.config.recovery_after_s)
+            last is None or self.stamp_s - last > self.config.recovery_after_s)
         while dt_s > step:
             self._wander_dt += step * self.ekf.wander_rad_s
             self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance, hold)
