@@ -75,7 +75,8 @@ class EkfConfig:
     # is left here covers the slowly changing detection errors (without it the simulated
     # trips are four times overconfident). At 0.007 m/sqrt(s), which covered both, clean
     # simulated trips carry twice their errors' variance. With no landmark update there
-    # are no detection errors to cover: in a gap it pauses (core/events.py).
+    # are no detection errors to cover: in a gap, and before the first update, it pauses
+    # (core/events.py).
     position_random_walk_m_sqrt_s: float = config_field(
         0.0035, 'm/sqrt(s)', 'Extra translation noise q: a random walk of x and y; Q2 adds '
         'q^2 T to each, paused with no landmark update in the last recovery_after_s or none '

@@ -356,8 +356,8 @@ class EventDriver:
         hold = self.zero_rate
         # The position walk covers the detection errors' change between landmark updates;
         # in a gap (no update for recovery_after_s, or none yet) the pose's uncertainty
-        # grows by the odometry and the gyro alone. Kept, it tripled the position sigma over a 5-s
-        # LiDAR dropout while the error stayed at 3 mm (NEES below its band).
+        # grows by the odometry and the gyro alone. Kept, it tripled the position sigma
+        # over a 5-s LiDAR dropout while the error stayed at 3 mm (NEES below its band).
         last = self.stats.last_association_s
         self.ekf.position_walk_paused = (
             last is None or self.stamp_s - last > self.config.recovery_after_s)
