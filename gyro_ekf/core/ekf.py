@@ -306,6 +306,11 @@ class GyroBiasEkf:
         return self._s[WANDER]
 
     @property
+    def yaw_var(self) -> float:
+        """Variance of the heading estimate, rad^2."""
+        return self._p[_PACKED[YAW, YAW]]
+
+    @property
     def bias_var(self) -> float:
         """Variance of the bias estimate, (rad/s)^2."""
         return self._p[_PACKED[BIAS, BIAS]]

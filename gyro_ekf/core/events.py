@@ -60,6 +60,7 @@ from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
 from gyro_ekf.core.noise_online import NoiseMatch
 from gyro_ekf.core.odometry_online import (Moved, OdometrySettings, OdometryTracker,
                                            midpoint_yaw)
+from gyro_ekf.core.time_offset import MIN_UPDATES as OFFSET_MIN_UPDATES, TimeOffsetWatch
 from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, YAW, FloatArray, LandmarkMap,
                                  LidarMount)
 
@@ -121,6 +122,8 @@ class EventDriver:
         self.gyro_scale = GyroScaleWatch(self.config.gyro_scale_error,
                                          self.config.learn_gyro_scale)
         self._turned = 0.0
+        # Each LiDAR's stamps against the gyro's, from its own headings (core/time_offset.py).
+        self.time_offsets: dict[LidarMount, TimeOffsetWatch] = {}
         # Samples each input lost, by its own stamps (core/input_loss.py).
         self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
         self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
@@ -205,6 +208,7 @@ class EventDriver:
                                          self.config.learn_gyro_scale)
         self._gyro_scale = 1.0 + self.config.gyro_scale_error
         self._turned = 0.0
+        self.time_offsets = {}
         self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
         self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
         # A wander found before the reset is forgotten with it; the prior holds again.
@@ -281,7 +285,8 @@ class EventDriver:
                 (self.odometry.save(), self._measured_speed_m_s, self._path_s,
                  self._path_m, self._path_yaw),
                 {key: noise.save() for key, noise in self.noise.items()},
-                (self.gyro_scale.save(), self._turned),
+                (self.gyro_scale.save(), self._turned,
+                 {key: watch.save() for key, watch in self.time_offsets.items()}),
                 {name: loss.save() for name, loss in self.input_loss.items()},
                 (dict(self._start_offsets), self._body_key, self.frame_shift))
 
@@ -291,12 +296,17 @@ class EventDriver:
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
          watch, held, self._rate_stamp_s, self._heading_dt2,
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
-          self._path_yaw), noise, (gyro_scale, self._turned), input_loss,
+          self._path_yaw), noise, (gyro_scale, self._turned, offsets), input_loss,
          (start_offsets, self._body_key, self.frame_shift)) = saved
         self._start_offsets = dict(start_offsets)
         for name, saved_loss in input_loss.items():
             self.input_loss[name].restore(saved_loss)
         self.gyro_scale.restore(gyro_scale)
+        # The same watches (their rows are kept for this), less those begun since.
+        self.time_offsets = {key: offset for key, offset in self.time_offsets.items()
+                             if key in offsets}
+        for key, offset in self.time_offsets.items():
+            offset.restore(offsets[key])
         self._gyro_scale = 1.0 + self.gyro_scale.in_use
         self.noise = {}
         for key, saved_noise in noise.items():
@@ -642,6 +652,7 @@ class EventDriver:
         points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)
         self.stats.detections += points.shape[0]
         prior = self.ekf.x
+        prior_yaw_variance = self.ekf.yaw_var
         self._integrate_path(scan=True)
         key = mount  # the LiDAR (its stated mount): the key of its health and rest counts
         tracker = self.mounts.trackers.get(key)
@@ -682,7 +693,7 @@ class EventDriver:
                         still_at = self.odometry.still_at
                         if still_at is not None:
                             self.ekf.reset(np.array(still_at), self.ekf.bias_rad_s, self.ekf.P)
-                            self.gyro_scale.restart_window()
+                            self._restart_heading_windows()
                         return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
                     # No other LiDAR corroborates it: only what the check proves alone.
                     moved = self.odometry.start_alone
@@ -696,7 +707,7 @@ class EventDriver:
                         # it only part of the way, so moving it back by the whole offset or
                         # yaw would overshoot; an offset drags the heading too).
                         self.ekf.reset(np.array(still_at), self.ekf.bias_rad_s, self.ekf.P)
-                        self.gyro_scale.restart_window()
+                        self._restart_heading_windows()
                     mount = self.odometry.first_mount(key)
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
             return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
@@ -713,6 +724,9 @@ class EventDriver:
             if self.mounts.observe(key, stamp_s, prior.tolist(), points, self.landmarks.xy_m,
                                    excluded or tracker.holds):
                 self.health.mount_changed(key, stamp_s)
+                if key in self.time_offsets:
+                    # Its headings are taken with the new mount from here on.
+                    self.time_offsets[key].restart_window()
             mount, held = tracker.used, tracker.holds
         noise = self.lidar_noise(key) if self.config.lidar_noise_window else None
         variances = None if noise is None else noise.variances
@@ -790,6 +804,14 @@ class EventDriver:
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
         if nis and not at_rest:
             self.bias_watch.corrected(wrap_scalar(self.ekf.yaw_rad - float(prior[YAW])))
+            if len(nis) >= OFFSET_MIN_UPDATES and self.rate_rad_s is not None:
+                # This LiDAR's own heading (the prior's less its mean bearing innovation)
+                # against the gyro's integral and rate: its stamps' offset.
+                watch = self.time_offsets.get(key)
+                if watch is None:
+                    watch = self.time_offsets[key] = TimeOffsetWatch()
+                watch.add(stamp_s, float(prior[YAW]) - bearing_sum / len(nis), self._turned,
+                          self.rate_rad_s - self.ekf.bias_rad_s, prior_yaw_variance)
             if self.gyro_scale.add(stamp_s, self.ekf.yaw_rad, self._turned):
                 self._gyro_scale_applied()
             if tracker is None:
@@ -851,10 +873,21 @@ class EventDriver:
         P[YAW, YAW] += yaw_sigma * yaw_sigma
         self.ekf.reset(np.array([x[0] - c * dx + s * dy, x[1] - s * dx - c * dy,
                                  x[YAW] - dyaw]), float(x[3]), P)
-        self.gyro_scale.restart_window()
+        self._restart_heading_windows()
         for other in self.mounts.trackers:
             self.mounts.restart(other)
         self.health.mount_changed(key, self.stamp_s)
+
+    def _restart_heading_windows(self) -> None:
+        """Start the heading watches' windows again (the filter's heading was reset)."""
+        self.gyro_scale.restart_window()
+        for watch in self.time_offsets.values():
+            watch.restart_window()
+
+    def time_offset_report(self) -> list[dict]:
+        """Return each LiDAR's time offset figures (``TimeOffsetWatch.report``) with its name."""
+        return [{'name': self.health.sensor(key).name, **watch.report()}
+                for key, watch in self.time_offsets.items()]
 
     def _close_bias_block(self, stamp_s: float, at_rest: bool) -> None:
         """Before a scan's updates: judge the bias watch's block; re-open the bias on a drift."""

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from typing import Any, Hashable
 
 from gyro_ekf.core.config import EkfConfig
-from gyro_ekf.core import mount_online, odometry_online
+from gyro_ekf.core import mount_online, odometry_online, time_offset
 
 OK, DEGRADED, FAILED = 'ok', 'degraded', 'failed'
 _RANK = {OK: 0, DEGRADED: 1, FAILED: 2}
@@ -618,6 +618,8 @@ class RunFigures:
         input_loss: per input stream ('gyro', 'odometry'), the samples received and lost
             by its own stamps (InputLoss.report(), core/input_loss.py).
         final_bias_sigma_rad_s: the sigma of final_bias_rad_s, rad/s (None: not known).
+        time_offsets: each LiDAR's stamps against the gyro's (EventDriver
+            .time_offset_report(), core/time_offset.py).
         start_bias: (end s, bias rad/s, sigma rad/s) of the first stop's zero-rate updates
             (DriverStats.first_stop_*), or None (no stop learnt the bias).
         scans: LiDAR scans processed.
@@ -658,6 +660,7 @@ class RunFigures:
     input_loss: dict[str, dict[str, Any]] = field(default_factory=dict)
     final_bias_sigma_rad_s: float | None = None
     start_bias: tuple[float, float, float] | None = None
+    time_offsets: list[dict[str, Any]] = field(default_factory=list)
 
 
 def samples_dropped_figures(samples_dropped: Mapping[str, int]) -> dict[str, int]:
@@ -755,6 +758,24 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
         if unmapped > VERDICT_MAX_UNMAPPED_SHARE:
             add(DEGRADED, f'{unmapped:.1%} of detections lie far from every mapped pole, '
                 f'more than {VERDICT_MAX_UNMAPPED_SHARE:.0%}: the map or the pose is wrong')
+    for lidar in figures.time_offsets:
+        if lidar['found']:
+            # Taken at their stamps, such scans pull the heading back by omega d in every
+            # turn and the bias takes it in: the reasons below (a bias that changed, a gyro
+            # that wanders, innovations not white) are then its effects: the cause first.
+            offset_ms = 1000.0 * lidar['offset_s']
+            add(DEGRADED, f'LiDAR {lidar["name"]} and the gyro disagree in time: its '
+                f'headings follow the gyro\'s turns {abs(offset_ms):.1f} +- '
+                f'{1000.0 * lidar["offset_sigma_s"]:.1f} ms '
+                f'{"behind" if offset_ms > 0 else "ahead"} (over {lidar["windows"]} windows '
+                f'of {time_offset.WINDOW_S:g} s; at {lidar["rate_rms_deg_s"]:.1f} deg/s RMS, '
+                f'{abs(offset_ms) * lidar["rate_rms_deg_s"] / 1000.0:.3f} deg against a '
+                f'heading sigma of {lidar["heading_sigma_deg"]:.3f}): the scans are stamped '
+                f'{"late" if offset_ms > 0 else "early"} or the gyro samples '
+                f'{"early" if offset_ms > 0 else "late"} (a driver that stamps the end of '
+                f'the sweep, clocks that are not synchronised); the filter takes each at its '
+                f'stamp, so the two pull its heading apart in every turn and the bias takes '
+                f'the difference in: correct the stamps')
     for sensor in figures.sensors:
         if sensor['exclusions']:
             add(DEGRADED, f'LiDAR {sensor["name"]} excluded {sensor["exclusions"]} time(s), '

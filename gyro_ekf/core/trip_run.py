@@ -216,6 +216,8 @@ class TripRun:
             (GyroScaleWatch.report, core/gyro_scale.py).
         input_loss: per input ('gyro', 'odometry'), the samples received and those its
             stamps imply were lost (InputLoss.report, core/input_loss.py).
+        time_offsets: each LiDAR's stamps against the gyro's (EventDriver
+            .time_offset_report, core/time_offset.py).
     """
 
     estimates: Estimates
@@ -228,6 +230,7 @@ class TripRun:
     held_start: dict | None = None
     gyro_scale: dict | None = None
     input_loss: dict | None = None
+    time_offsets: list[dict] | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -374,4 +377,5 @@ def drive_trip(trip: Trip, driver: EventDriver,
     return TripRun(Estimates(stamps, states, covariances, wanders), updates, driver.stats,
                    driver.health, driver.mounts, driver.odometry, driver.noise_report(),
                    driver.held_start_report(), driver.gyro_scale.report(),
-                   {name: loss.report() for name, loss in driver.input_loss.items()})
+                   {name: loss.report() for name, loss in driver.input_loss.items()},
+                   driver.time_offset_report())

@@ -853,6 +853,7 @@ class EkfNode(Node):
             gyro_wander_tau_s=self.driver.config.gyro_wander_tau_s,
             mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report(),
             gyro_scale=self.driver.gyro_scale.report(),
+            time_offsets=self.driver.time_offset_report(),
             input_loss=inputs,
             # Since the last sample too: an input that stopped is silent while the others
             # go on (core/input_loss.py).
@@ -963,6 +964,13 @@ class EkfNode(Node):
             # of (1 + e), its standard error ('' until enough windows), and whether it lies
             # off the configured gyro_scale_error.
             **_scale_values(self.driver.gyro_scale.report()),
+            # Each LiDAR's stamps against the gyro's (core/time_offset.py), ms late ('' until
+            # enough windows), its standard error, and whether it lies clearly off.
+            **{f'time_offset_{lidar["name"]}_{key}': value
+               for lidar in self.driver.time_offset_report() for key, value in (
+                   ('ms', _optional(_milli(lidar['offset_s']), '.2f')),
+                   ('sigma_ms', _optional(_milli(lidar['offset_sigma_s']), '.2f')),
+                   ('off', str(lidar['found']).lower()))},
             # A ramping bias followed (core/bias_rate.py): its rate in use, 0 when none.
             'bias_rate_deg_s_per_min': f'{math.degrees(stats.bias_rate_rad_s2) * 60.0:.4f}',
             'standing_still': str(self.driver.zero_rate).lower(),
@@ -1033,6 +1041,11 @@ class EkfNode(Node):
 def _optional(value: float | None, spec: str) -> str:
     """Format a figure for /diagnostics; '' when there is none."""
     return '' if value is None else format(value, spec)
+
+
+def _milli(value: float | None) -> float | None:
+    """Convert s to ms, None kept."""
+    return None if value is None else 1000.0 * value
 
 
 def _scale_values(report: dict) -> dict[str, str]:
