@@ -106,6 +106,19 @@ def _scale(scale: dict[str, Any]) -> str:
             f"({off}{configured})")
 
 
+def _offsets(offsets: dict[str, dict[str, Any]]) -> str:
+    """Return the LiDAR time offset row: each LiDAR's stamps against the gyro's, ms late."""
+    from gyro_ekf.core.time_offset import MIN_WINDOWS
+    if not offsets:
+        return 'not measured (no scan with two poles while driving)'
+    return '; '.join(
+        f"{name}: not measured ({lidar['windows']} of the {MIN_WINDOWS} windows with turns "
+        'it needs)' if lidar['offset_s'] is None else
+        f"{name}: {1000.0 * lidar['offset_s']:+.1f} +- {1000.0 * lidar['offset_sigma_s']:.1f}"
+        + (' (off)' if lidar['found'] else '')
+        for name, lidar in offsets.items())
+
+
 def _table(summary: dict[str, Any]) -> str:
     def number(value: Any, fmt: str) -> str:
         return 'n/a' if value is None or (isinstance(value, float) and math.isnan(value)) \
@@ -125,6 +138,7 @@ def _table(summary: dict[str, Any]) -> str:
                                                             '.4f')),
              ('gyro wander (deg/s)', _wander(online)),
              ('gyro scale error (%)', _scale(summary['gyro_scale'])),
+             ('LiDAR stamps late against the gyro (ms)', _offsets(summary['time_offsets'])),
              ('poles associated', number(summary['association']['share_associated'], '.2%')),
              ('longest gap without a landmark (s)',
               number(summary['association']['longest_gap_s'], '.2f')),

@@ -58,7 +58,9 @@ and `odometry_first_lidar_yaw_{deg,found}` of the last fit,
 `odometry_first_lidar_yaw_in_use_deg`), and each LiDAR's range and bearing noise in use,
 measured online (core/noise_online.py: `lidar_<topic>_{range_noise_m,bearing_noise_deg}` in use,
 `lidar_<topic>_measured_{range_noise_m,bearing_noise_deg}`, `_noise_measured` (in use),
-`_noise_updates`);
+`_noise_updates`), and each LiDAR's stamps against the gyro's, measured from its headings
+(core/time_offset.py: `time_offset_<lidar>_{ms,sigma_ms,off}`, ms late, '' until enough
+windows; `off` true when the verdict names it);
 `ekf/mounts` (PoseArray in
 `base_link`, latched) holds the same mounts, one pose per `lidar.topics` entry in that
 order, published again when an online estimate replaces one.
