@@ -775,7 +775,9 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
                 f'{"early" if offset_ms > 0 else "late"} (a driver that stamps the end of '
                 f'the sweep, clocks that are not synchronised); the filter takes each at its '
                 f'stamp, so the two pull its heading apart in every turn and the bias takes '
-                f'the difference in: correct the stamps')
+                f'the difference in: correct the stamps, or add '
+                f'{lidar["offset_s"]:+.4f} to lidar.{lidar["name"]}.time_offset_s (each scan '
+                f'is taken at its stamp less it)')
     for sensor in figures.sensors:
         if sensor['exclusions']:
             add(DEGRADED, f'LiDAR {sensor["name"]} excluded {sensor["exclusions"]} time(s), '

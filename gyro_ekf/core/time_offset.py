@@ -28,9 +28,13 @@ d is the LiDAR's stamps against the gyro's: which of the two is off, the heading
 tell (the 2022 course log reads -3.1 ms, and its scans moved by 3 ms end further from its
 ground truth). The offset is reported once ``MIN_WINDOWS`` informative windows are in, and
 *found* (the run is degraded, with the figure) when it lies beyond ``SIGMAS`` standard
-errors and its heading error matters (``MATERIAL_FACTOR``). Nothing is applied: the stamps
-are the drivers' or the clocks', and a correction judged on the headings of a filter that
-the offset itself drags would be circular; the user corrects the stamps.
+errors and its heading error matters (``MATERIAL_FACTOR``). Nothing is applied online: the
+stamps are the drivers' or the clocks', and which of them is off is the user's to say. The
+user corrects the stamps, or sets the figure the verdict gives as the LiDAR's
+`lidar.<topic>.time_offset_s` (``MAX_TIME_OFFSET_S`` either way): `gyro-ekf run` (a params
+file, ``io.params_file.with_lidar_mounts``) and the EKF node then take each scan at its
+stamp less it, and the windows measure what is left (a simulated trip 30 ms late, set to
+the 30.5 ms its run read: -0.5 ms left, within the bounds, verdict ok).
 
 Measured (the 120-s simulated trips of the stress suite; the course logs): scans on time
 read -1.6 to +0.8 ms (standard errors 0.5-1.1 ms), scans 30 ms late 28.4-31.5 ms, 10 ms
@@ -72,6 +76,11 @@ filter consistent. The 2022 course log reads -3.1 +- 0.3 ms, 0.8 times, NEES sha
 (its scans moved 3 ms give 0.892: the gyro's stamps, not the LiDAR's, may be the ones
 off); simulated scans 10 ms late read 8-11 ms, found on every trip (NEES share 0.2-0.25),
 5 ms late 3-5 ms, found on two of four (0.54-0.64)."""
+
+MAX_TIME_OFFSET_S = 1.0
+"""The largest time offset a LiDAR may be configured with either way
+(`lidar.<topic>.time_offset_s`): a scan stamped a second off is a clock that is wrong, not
+an offset to correct."""
 
 MIN_UPDATES = 2
 """Fewest updates of one scan for its heading: with one pole the bearing innovation

@@ -23,8 +23,11 @@ the dataclasses' own, as for the nodes.
 
 LiDAR mounts are read in the EKF node's (and the bag sidecar's) layout, `lidar.topics` and
 `lidar.<topic>.{frame_id, x_m, y_m, yaw_rad}` (x, y and yaw required, frame_id optional);
-`gyro-ekf calibrate-mounts` writes them. `with_lidar_mounts` puts them on a trip's scans,
-overriding the mounts the bag states for those topics.
+`gyro-ekf calibrate-mounts` writes them. `lidar.<topic>.time_offset_s` (optional, and
+alone without the mount too) says how late that LiDAR's scans are stamped against the
+gyro's, as a run's verdict measures it (core/time_offset.py); the EKF node declares it
+too. `with_lidar_mounts` puts both on a trip's scans, overriding the mounts the bag states
+for those topics and taking each scan at its stamp less the offset.
 
 The start pose is read as the EKF node declares it, `initial_pose.{x_m, y_m, yaw_rad}` (all
 three, in `map`). `with_initial_pose` starts a trip there unless the bag holds an
@@ -50,6 +53,8 @@ from gyro_ekf.io.errors import ParamsFileError
 from gyro_ekf.core.config import (CalibrationConfig, DetectorConfig, EkfConfig, InputLimits,
                                   make_config, RunOptions)
 from gyro_ekf.core.errors import CoreError
+from gyro_ekf.core.stamps import NS_PER_S, ns_at, seconds_since
+from gyro_ekf.core.time_offset import MAX_TIME_OFFSET_S
 from gyro_ekf.core.types import LidarMount, Trip
 from gyro_ekf.core.validation import initial_pose_problem, mount_problem
 
@@ -80,6 +85,8 @@ class PipelineParams:
             'detector', 'options').
         options: the run options (defaults where the file sets none).
         lidars: scan topic (no slash) -> (frame_id or None, mount) the file sets.
+        lidar_time_offsets: scan topic -> how late its scans are stamped, s (the file's
+            `lidar.<topic>.time_offset_s`).
         limits: the plausible input ranges (``limits.*``, as the nodes take them).
         initial_pose: (x m, y m, yaw rad) in `map` the file sets, or None.
     """
@@ -90,6 +97,7 @@ class PipelineParams:
     explicit: dict[str, tuple[str, ...]] = field(default_factory=dict)
     options: RunOptions = field(default_factory=RunOptions)
     lidars: dict[str, tuple[str | None, LidarMount]] = field(default_factory=dict)
+    lidar_time_offsets: dict[str, float] = field(default_factory=dict)
     limits: InputLimits = field(default_factory=InputLimits)
     initial_pose: tuple[float, float, float] | None = None
 
@@ -196,12 +204,13 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
         input_limits = make_config(InputLimits, limits, source=source)
     except CoreError as err:
         raise ParamsFileError(str(err)) from None
+    mounts, time_offsets = _lidar_mounts(lidar_values, source)
     return PipelineParams(
         ekf=built['ekf'], calibration=built['calibration'], detector=built['detector'],
         explicit={**{group: tuple(sorted(v)) for group, v in values.items()},
                   'options': tuple(sorted(options))},
-        options=run_options, lidars=_lidar_mounts(lidar_values, source), limits=input_limits,
-        initial_pose=_initial_pose(pose_values, source, input_limits))
+        options=run_options, lidars=mounts, lidar_time_offsets=time_offsets,
+        limits=input_limits, initial_pose=_initial_pose(pose_values, source, input_limits))
 
 
 def _skipped(source: str, node: str, name: str) -> None:
@@ -287,16 +296,26 @@ def _initial_pose(values: dict[str, Any], source: str, limits: InputLimits
 
 
 def _lidar_mounts(values: dict[str, Any], source: str
-                  ) -> dict[str, tuple[str | None, LidarMount]]:
-    """Mounts from the flattened `lidar.*` names (without the prefix); see the docstring."""
+                  ) -> tuple[dict[str, tuple[str | None, LidarMount]], dict[str, float]]:
+    """Mounts and time offsets from the flattened `lidar.*` names (without the prefix)."""
     if not values:
-        return {}
+        return {}, {}
     topics = values.get('topics')
     if not isinstance(topics, list) or not all(isinstance(t, str) and t for t in topics):
         raise ParamsFileError(f"{source}: parameter 'lidar.topics' must be a list of scan "
                               f'topics, got {topics!r}')
     mounts: dict[str, tuple[str | None, LidarMount]] = {}
+    offsets: dict[str, float] = {}
     for topic in topics:
+        name = f'lidar.{topic}.time_offset_s'
+        offset = values.get(f'{topic}.time_offset_s')
+        if offset is not None:
+            offsets[topic] = _number(source, name, offset)
+            if abs(offsets[topic]) > MAX_TIME_OFFSET_S:
+                raise ParamsFileError(f"{source}: parameter '{name}' = {offset}: more than "
+                                      f'{MAX_TIME_OFFSET_S:g} s either way')
+            if not any(f'{topic}.{key}' in values for key in ('x_m', 'y_m', 'yaw_rad')):
+                continue  # the offset alone: the bag's mount stays
         numbers = []
         for key in ('x_m', 'y_m', 'yaw_rad'):
             name = f'lidar.{topic}.{key}'
@@ -313,16 +332,17 @@ def _lidar_mounts(values: dict[str, Any], source: str
             raise ParamsFileError(f"{source}: parameter 'lidar.{topic}.frame_id' must be a "
                                   f'string, got {frame!r}')
         mounts[topic] = (frame, LidarMount(*numbers))
-    return mounts
+    return mounts, offsets
 
 
 def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
-    """Return the trip with the params file's LiDAR mounts on the scans of the same topics.
+    """Return the trip with the params file's LiDAR mounts and time offsets on its scans.
 
-    Each override is logged with the mount the bag states; a topic the trip has no scans
-    of is logged and skipped (the file may serve several bags).
+    A mount replaces the one the bag states for that topic; a time offset takes each scan
+    at its stamp less the offset (the EKF node does the same). Each is logged; a topic the
+    trip has no scans of is logged and skipped (the file may serve several bags).
     """
-    if not params.lidars:
+    if not params.lidars and not params.lidar_time_offsets:
         return trip
     scans = []
     for series in trip.scans:
@@ -332,11 +352,20 @@ def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
                      'bag states (%g m, %g m, %g rad)', trip.name, series.topic, mount.x_m,
                      mount.y_m, mount.yaw_rad, series.mount.x_m, series.mount.y_m,
                      series.mount.yaw_rad)
-        scans.append(dataclasses.replace(series, mount=mount,
+        stamps = series.stamp_s
+        offset = params.lidar_time_offsets.get(series.topic, 0.0)
+        if offset:
+            log.info("%s: LiDAR '%s' scans taken %g ms before their stamps (the params "
+                     "file's time_offset_s)", trip.name, series.topic, 1000.0 * offset)
+            # In whole ns, as the node moves a message's stamp: a scan moved onto an IMU
+            # sample's stamp then sorts before it in both (the same order, the same numbers).
+            stamps = seconds_since(ns_at(0, stamps) - round(offset * NS_PER_S), 0)
+        scans.append(dataclasses.replace(series, mount=mount, stamp_s=stamps,
                                          frame_id=frame or series.frame_id))
-    for topic in sorted(set(params.lidars) - {s.topic for s in trip.scans}):
-        log.warning("%s: the params file sets a mount for LiDAR '%s', which has no scans in "
-                    'this trip; ignored', trip.name, topic)
+    for topic in sorted((set(params.lidars) | set(params.lidar_time_offsets))
+                        - {s.topic for s in trip.scans}):
+        log.warning("%s: the params file sets LiDAR '%s', which has no scans in this trip; "
+                    'ignored', trip.name, topic)
     return dataclasses.replace(trip, scans=tuple(scans))
 
 

@@ -138,6 +138,7 @@ from gyro_ekf.core.input_loss import silences
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
 from gyro_ekf.core.same_stamp import describe_repeat, DUPLICATE, Repeat, SAME_STAMP, \
     SameStampCheck
+from gyro_ekf.core.stamps import NS_PER_S
 from gyro_ekf.core.stream_order import StreamMerger
 from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import LandmarkMap, LidarMount
@@ -547,8 +548,13 @@ class EkfNode(Node):
         if self._refuse(coordinate_problem(points.ravel().tolist(), self._limits),
                         'landmarks hold a bad point'):
             return
-        self._push(stamp_ns(message.header.stamp), EventKind.OBSERVATION, (points, mount),
-                   topic, message.header.frame_id)
+        ns = stamp_ns(message.header.stamp)
+        offset_s = self._sidecar.time_offset_for_frame(message.header.frame_id)
+        if offset_s and ns:
+            # Scans stamped this late (lidar.<topic>.time_offset_s): taken at the stamp less
+            # it, as `gyro-ekf run` takes them (io/params_file.with_lidar_mounts).
+            ns -= round(offset_s * NS_PER_S)
+        self._push(ns, EventKind.OBSERVATION, (points, mount), topic, message.header.frame_id)
 
     def _observe_lagged(self, stamp_s: float, points: np.ndarray, mount: LidarMount) -> None:
         # Not an input that ends the idle wait: held scans wait for the speed and IMU

@@ -31,6 +31,7 @@ from rclpy.parameter import Parameter
 
 from gyro_ekf.core.config import config_fields, ConfigT, make_config
 from gyro_ekf.core.config import STATED_NOISE_FIELDS as NOISE_FIELDS
+from gyro_ekf.core.time_offset import MAX_TIME_OFFSET_S
 from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures
 from gyro_ekf.core.validation import InputReport
 from gyro_ekf.io.sidecar import CONVERTED_KEYS, CONVERTED_PARAMETER, converted_report
@@ -158,6 +159,8 @@ class SidecarParams:
         time_zero_ns: `trip.log_time_zero_ns`, ns since the epoch; 0 when not given.
         initial_pose: shape (3,): x m, y m, yaw rad in `map`.
         lidars: scan topic -> (frame_id, mount).
+        time_offsets: scan topic -> how late its scans are stamped against the gyro's, s
+            (`lidar.<topic>.time_offset_s`, 0 unless given).
         noise: stated noise figures (None = not stated).
         converted: what `gyro-ekf convert --skip-bad` dropped from the log the bag was
             written from (`trip.dropped_when_converted`: source, samples_dropped per stream,
@@ -169,6 +172,14 @@ class SidecarParams:
     lidars: dict[str, tuple[str, LidarMount]] = field(default_factory=dict)
     noise: NoiseFigures = field(default_factory=NoiseFigures)
     converted: InputReport | None = None
+    time_offsets: dict[str, float] = field(default_factory=dict)
+
+    def time_offset_for_frame(self, frame_id: str) -> float:
+        """How late the scans of the LiDAR whose frame is frame_id are stamped, s (0: none)."""
+        for topic, (frame, _) in self.lidars.items():
+            if frame == frame_id:
+                return self.time_offsets.get(topic, 0.0)
+        return 0.0
 
     def mount_for_frame(self, frame_id: str) -> LidarMount | None:
         """Mount of the LiDAR whose frame is frame_id, or None when no LiDAR has it."""
@@ -184,7 +195,8 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
 
     Args:
         node: the node.
-        lidars: declare `lidar.topics` and `lidar.<topic>.{frame_id,x_m,y_m,yaw_rad}`.
+        lidars: declare `lidar.topics` and
+            `lidar.<topic>.{frame_id,x_m,y_m,yaw_rad,time_offset_s}`.
         noise: declare `noise.{gyro_rad_s,speed_m_s,range_m,bearing_rad}` (0 = not stated)
             and `noise.landmark_m` (negative = not stated: 0 states an exact map).
         pose: declare `initial_pose.{x_m,y_m,yaw_rad}`.
@@ -207,10 +219,12 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
             declare(node, 'initial_pose.yaw_rad', 0.0, 'Initial yaw in the map frame', 'rad',
                     -2.0 * math.pi, 2.0 * math.pi)]
     mounts: dict[str, tuple[str, LidarMount]] = {}
+    offsets: dict[str, float] = {}
     if lidars:
         names = declare(node, 'lidar.topics', Parameter.Type.STRING_ARRAY,
-                        'Scan topics of the LiDARs; each has lidar.<topic>.frame_id and its '
-                        'mount lidar.<topic>.{x_m,y_m,yaw_rad} in base_link')
+                        'Scan topics of the LiDARs; each has lidar.<topic>.frame_id, its '
+                        'mount lidar.<topic>.{x_m,y_m,yaw_rad} in base_link and how late its '
+                        'scans are stamped, lidar.<topic>.time_offset_s')
         for topic in names:
             frame = declare(node, f'lidar.{topic}.frame_id', topic,
                             f'frame_id of the scans on {topic!r} (and of their landmarks)')
@@ -219,6 +233,11 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
                 declare(node, f'lidar.{topic}.y_m', 0.0, f'Leftward offset of {topic!r}', 'm'),
                 declare(node, f'lidar.{topic}.yaw_rad', 0.0, f'Yaw of {topic!r}', 'rad',
                         -2.0 * math.pi, 2.0 * math.pi)))
+            offsets[topic] = float(declare(
+                node, f'lidar.{topic}.time_offset_s', 0.0,
+                f'How late the scans of {topic!r} are stamped against the gyro\'s (each '
+                'scan is taken at its stamp less this; a run\'s verdict measures it)', 's',
+                -MAX_TIME_OFFSET_S, MAX_TIME_OFFSET_S))
     figures = NoiseFigures()
     if noise:
         stated = {}
@@ -237,7 +256,7 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
             stated[key] = value if value > 0.0 else None
         figures = NoiseFigures(**stated)
     return SidecarParams(int(zero_ns), np.array(initial, dtype=np.float64), mounts, figures,
-                         _declare_converted(node))
+                         _declare_converted(node), offsets)
 
 
 CONVERTED_DESCRIPTIONS = {

@@ -11,7 +11,7 @@ import pytest
 from health_trips import two_lidar_trip
 
 from gyro_ekf.analysis.offline import run_trip
-from gyro_ekf.io.params_file import PipelineParams
+from gyro_ekf.io.params_file import PipelineParams, read_params_text
 from gyro_ekf.analysis.summary import summarize
 from gyro_ekf.core import health
 from gyro_ekf.core.config import EkfConfig
@@ -274,9 +274,22 @@ def test_a_lidar_and_a_gyro_stamped_apart_are_said(scans_s, imu_s, offset_s):
     measured = summary['time_offsets']['scan']
     assert measured['found']
     assert measured['offset_s'] == pytest.approx(offset_s, abs=0.003)
+    assert f"add {measured['offset_s']:+.4f} to lidar.scan.time_offset_s" in reasons[0]
     # On time: measured near zero, nothing said.
     on_time = summarize(run_trip(trip))['time_offsets']['scan']
     assert not on_time['found'] and abs(on_time['offset_s']) < 0.003
+    if scans_s:
+        # The LiDAR's offset set as the run said (a params file's lidar.scan.time_offset_s):
+        # each scan is taken at its stamp less it, and the trip is within the bounds.
+        given = read_params_text('/**:\n  ros__parameters:\n    lidar:\n      topics: [scan]\n'
+                                 f"      scan: {{time_offset_s: {measured['offset_s']:.4f}}}\n")
+        assert given.lidar_time_offsets == {'scan': round(measured['offset_s'], 4)}
+        again = summarize(run_trip(_stamps_moved(trip, scans_s, imu_s), given))
+        truth = again['ground_truth']
+        assert truth['nees_share_in_band'] >= 0.9 and truth['position_rmse_m'] <= 0.02
+        assert abs(truth['bias_error_final_deg_s']) <= 0.02
+        assert again['health']['verdict'] == 'ok', again['health']['reasons']
+        assert abs(again['time_offsets']['scan']['offset_s']) < 0.003
 
 
 @pytest.mark.parametrize(('seed', 'scale_error'), [(3, -0.015), (1, 0.018)])

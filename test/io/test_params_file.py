@@ -232,3 +232,33 @@ def test_a_sigma_the_stated_noise_replaces_is_named(tmp_path, caplog):
                     '--ignore-stated-noise)']
     summary, said = runs[('--ignore-stated-noise',)]
     assert summary['config']['ekf']['gyro_noise_rad_s'] == 1.0 and said == []
+
+
+def test_a_lidar_time_offset_is_read_alone_or_with_the_mount_and_checked():
+    head = '/**:\n  ros__parameters:\n    lidar:\n      topics: [scan, scan2]\n'
+    params = read_params_text(
+        head + '      scan: {time_offset_s: 0.03}\n'
+        '      scan2: {x_m: 0.1, y_m: 0.0, yaw_rad: 3.14, time_offset_s: -0.005}\n')
+    assert params.lidar_time_offsets == {'scan': 0.03, 'scan2': -0.005}
+    # The offset alone leaves the bag's mount; with x, y and yaw, the mount is set too.
+    assert list(params.lidars) == ['scan2']
+    with pytest.raises(ParamsFileError, match="'lidar.scan.time_offset_s' = 1.5: more than 1 s"):
+        read_params_text(head + '      scan: {time_offset_s: 1.5}\n'
+                         '      scan2: {time_offset_s: 0}\n')
+    with pytest.raises(ParamsFileError, match="'lidar.scan.time_offset_s' must be a number"):
+        read_params_text(head + "      scan: {time_offset_s: '30 ms'}\n"
+                         '      scan2: {time_offset_s: 0}\n')
+
+
+def test_a_lidar_time_offset_takes_each_scan_at_its_stamp_less_it():
+    from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+    from gyro_ekf.io.params_file import with_lidar_mounts
+
+    trip = simulate_trip(SimulationConfig(duration_s=5.0, second_lidar=True), 0)
+    params = read_params_text('/**:\n  ros__parameters:\n    lidar:\n      topics: [scan2]\n'
+                              '      scan2: {time_offset_s: 0.025}\n')
+    moved = with_lidar_mounts(trip, params)
+    (scan, scan2), (moved_scan, moved_scan2) = trip.scans, moved.scans
+    assert np.array_equal(moved_scan.stamp_s, scan.stamp_s)
+    assert np.allclose(moved_scan2.stamp_s, scan2.stamp_s - 0.025, rtol=0.0, atol=1e-12)
+    assert moved_scan2.mount == scan2.mount and moved_scan2.topic == 'scan2'

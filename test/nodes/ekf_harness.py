@@ -104,9 +104,10 @@ class EkfUnderTest:
         return self.processes.log(self.name)
 
 
-def run_and_replay(ros_processes, trip, folder):
+def run_and_replay(ros_processes, trip, folder, ekf_args=(), run_args=()):
     """A trip's bag through `gyro-ekf run` and through the detector and EKF nodes.
 
+    ``ekf_args`` go to the EKF node (after the bag's params file), ``run_args`` to `run`.
     Returns summary.json, the EKF node's last diagnostics once every estimate is out
     ((level, message, values), as Probe.wait_for_every_estimate gives them) and the
     replayer's report.
@@ -121,11 +122,11 @@ def run_and_replay(ros_processes, trip, folder):
 
     bag = write_trip_bag(trip, folder / 'bag')
     assert main(['-q', 'run', str(bag), '-o', str(folder / 'out'), '--no-progress',
-                 '--no-plots', '--no-bag']) == 0
+                 '--no-plots', '--no-bag', *run_args]) == 0
     offline = json.loads((folder / 'out' / 'summary.json').read_text())
     processes, probe = ros_processes
     diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.LOSSLESS)
-    detectors = processes.lidar_nodes(bag)
+    detectors = processes.lidar_nodes(bag, *ekf_args)
     probe.wait_for_lidar_nodes(diagnostics, detectors)
     replay = processes.replay_bag(bag)
     return offline, probe.wait_for_every_estimate(diagnostics, len(trip.imu.stamp_s)), replay

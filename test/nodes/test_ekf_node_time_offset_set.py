@@ -1,0 +1,54 @@
+"""ekf_node takes a LiDAR's scans at their stamps less `lidar.<topic>.time_offset_s`.
+
+The bag is the simulated 120-s trip (seed 3) whose scans are stamped 30 ms late, as in
+test_ekf_node_time_offset.py; here the EKF node is given the offset its verdict measured,
+and `gyro-ekf run` the same in a params file. Both take each scan 30 ms before its stamp,
+measure what is left near zero and say nothing of it.
+
+In its own module, so its processes run in their own ROS domain next to nobody else's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from ekf_harness import run_and_replay
+
+pytestmark = pytest.mark.ros
+
+OFFSET_S = 0.03
+
+
+@pytest.fixture(scope='module')
+def corrected_run(ros_processes, tmp_path_factory):
+    """The bag through the nodes with the offset set, and through `run --params-file`."""
+    from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+
+    trip = simulate_trip(SimulationConfig(duration_s=120.0), 3)
+    late = dataclasses.replace(trip, scans=[
+        dataclasses.replace(scans, stamp_s=scans.stamp_s + OFFSET_S) for scans in trip.scans])
+    folder = tmp_path_factory.mktemp('corrected')
+    params = folder / 'offset.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    lidar:\n      topics: [scan]\n'
+                      f'      scan: {{time_offset_s: {OFFSET_S}}}\n')
+    return run_and_replay(ros_processes, late, folder,
+                          ekf_args=('-p', f'lidar.scan.time_offset_s:={OFFSET_S}'),
+                          run_args=('--params-file', str(params)))
+
+
+def test_node_takes_the_scans_less_the_offset_as_the_offline_run_does(corrected_run):
+    offline, (_, _, values), replay = corrected_run
+    assert 'all acknowledged: True' in replay
+    offset = offline['time_offsets']['scan']
+    assert not offset['found'] and abs(offset['offset_s']) < 0.003, offset
+    truth = offline['ground_truth']
+    assert truth['nees_share_in_band'] >= 0.9 and truth['position_rmse_m'] <= 0.02
+    assert offline['health']['verdict'] == 'ok', offline['health']['reasons']
+    print(f"left after the offset: node {values['time_offset_scan_ms']} ms, offline "
+          f"{1000 * offset['offset_s']:.2f}")
+    assert values['time_offset_scan_off'] == 'false'
+    # The same scans at the same moments: the same figure, to the digits shown.
+    assert values['time_offset_scan_ms'] == f"{1000 * offset['offset_s']:.2f}"
+    assert values['verdict'] == 'ok', values['verdict_reasons']
