@@ -94,6 +94,17 @@ WHITENESS_COMPONENTS = ('range', 'bearing', 'x', 'y')
 """Components of the innovation the whiteness test sums (x, y: a point in the LiDAR frame)."""
 WHITENESS_MIN_BLOCKS = 10
 """Fewest blocks with updates before a LiDAR's innovations are judged (50 s of driving)."""
+RANGE_MEAN_T = 5.0
+"""A LiDAR whose range innovations fail the whiteness test is said to read long or short when
+the mean of its blocks' mean range innovations lies beyond this many of their standard
+errors ...
+"""
+RANGE_MEAN_SIGMAS = 0.25
+"""... and beyond this share of the range innovations' sigma (0.5 cm at the configured 2 cm):
+a pole radius other than the detector's, or a range offset. Clean simulated trips read
++0.8-1 mm (at t 5-7, where their range test passes); an odometry 2 % off in scale +2 mm (t
+10: its along-track error, not the ranges); 8-cm poles taken for 5-cm ones -1.5 to -2.9 cm
+(t 9-26); ranges 1 cm long +0.8-0.9 cm (t 21-47)."""
 WHITENESS_WINDOW_BLOCKS = 24
 """Blocks judged together (2 minutes). A run is judged window by window, the k-th at
 WHITENESS_SIGNIFICANCE / k^2, so a run's false alarms stay within 1.64 times the
@@ -151,7 +162,7 @@ class WhitenessTest:
     """
 
     __slots__ = ('judged', '_block_start_s', '_sums', '_counts', 'chi2', 'blocks',
-                 'updates', 'window', 'worst')
+                 'updates', 'window', 'worst', '_range_m', '_range_blocks', '_range_sigma')
 
     def __init__(self, judged: bool = True):
         """Start empty; ``judged`` is False where the test does not apply (a map error)."""
@@ -168,6 +179,12 @@ class WhitenessTest:
         self.window = 1
         self.worst: list[tuple[float, int, float, int] | None] = [None] * len(
             WHITENESS_COMPONENTS)
+        # The open block's sum of range innovations, m; over the run's closed blocks: their
+        # count, and the sum and sum of squares of their mean range innovations (whether the
+        # ranges read long or short against the map, ``range_mean``).
+        self._range_m = 0.0
+        self._range_blocks = (0, 0.0, 0.0)
+        self._range_sigma = 0.0  # the sum of the range innovations' sigmas, m
 
     def copy(self) -> 'WhitenessTest':
         """Return an independent copy, for the driver's save and restore."""
@@ -177,6 +194,8 @@ class WhitenessTest:
         clone.blocks, clone.updates = self.blocks, self.updates
         clone.window = self.window
         clone.worst = list(self.worst)
+        clone._range_m, clone._range_blocks = self._range_m, self._range_blocks
+        clone._range_sigma = self._range_sigma
         return clone
 
     def add(self, stamp_s: float, y: tuple[float, float], s: tuple[float, float, float],
@@ -203,7 +222,10 @@ class WhitenessTest:
         # The rows of J = [[c, -r si], [si, r c]] give x and y.
         ryb, rsrb, r2sbb = range_m * yb, range_m * srb, range_m * range_m * sbb
         sums = self._sums
-        sums[0] += yr / math.sqrt(srr)
+        sigma_r = math.sqrt(srr)
+        self._range_m += yr
+        self._range_sigma += sigma_r
+        sums[0] += yr / sigma_r
         sums[1] += yb / math.sqrt(sbb)
         sums[2] += (c * yr - si * ryb) / math.sqrt(
             c * c * srr - 2.0 * c * si * rsrb + si * si * r2sbb)
@@ -219,7 +241,24 @@ class WhitenessTest:
             for k, total in enumerate(self._sums):
                 self.chi2[k] += total * total / self._counts
             self.blocks += 1
+            count, total, squares = self._range_blocks
+            mean = self._range_m / self._counts
+            self._range_blocks = (count + 1, total + mean, squares + mean * mean)
         self._sums, self._counts = [0.0] * len(WHITENESS_COMPONENTS), 0
+        self._range_m = 0.0
+
+    def range_mean(self) -> tuple[float, float] | None:
+        """Return (the mean of the closed blocks' mean range innovations m, its t), or None.
+
+        Over blocks, not updates: the updates within a block share slow errors, the blocks
+        far less (the whiteness test's premise). None before WHITENESS_MIN_BLOCKS blocks.
+        """
+        count, total, squares = self._range_blocks
+        if count < WHITENESS_MIN_BLOCKS:
+            return None
+        mean = total / count
+        spread = max(squares / count - mean * mean, 0.0) * count / (count - 1)
+        return mean, (mean / math.sqrt(spread / count) if spread > 0.0 else math.inf)
 
     def _next_window(self) -> None:
         """Keep the full window's least likely figures per component; start the next."""
@@ -238,7 +277,11 @@ class WhitenessTest:
         """
         test = self.copy()
         test._close()
+        range_mean = test.range_mean()
         return {'judged': self.judged, 'block_s': WHITENESS_BLOCK_S, 'window': test.window,
+                'range_mean_m': None if range_mean is None else range_mean[0],
+                'range_mean_t': None if range_mean is None else range_mean[1],
+                'range_sigma_m': self._range_sigma / self.updates if self.updates else None,
                 'blocks': test.blocks,
                 # Every window before the current one is full.
                 'total_blocks': (test.window - 1) * WHITENESS_WINDOW_BLOCKS + test.blocks,
@@ -698,13 +741,23 @@ def _whiteness_reasons(sensors: list[dict[str, Any]]) -> list[tuple[str, str]]:
                 what = component if len(component) > 1 else f'sensor-frame {component}'
                 where = ('' if test['window'] == 1 else
                          f' in the run\'s 2-minute window {window["window"]}')
+                cause = ('a motion or sensor model error (odometry scale, gyro scale or bias '
+                         'change, mount offset), the covariance is too small')
+                mean, t = test.get('range_mean_m'), test.get('range_mean_t')
+                if (component == 'range' and mean is not None and abs(t) > RANGE_MEAN_T
+                        and abs(mean) > RANGE_MEAN_SIGMAS * test['range_sigma_m']):
+                    # Long or short at every pole: the detector's pole radius or the
+                    # LiDAR's range offset, not the motion (the cause to say first).
+                    cause = (f'its ranges read {100.0 * mean:+.1f} cm against the map on '
+                             f'average (t {t:.0f} over {test["total_blocks"]} blocks): poles '
+                             f'{"thinner" if mean > 0 else "thicker"} than the detector\'s '
+                             f'pole_radius_m, or a LiDAR that reads '
+                             f'{"long" if mean > 0 else "short"}')
                 reasons.append((DEGRADED, (
                     f'LiDAR {sensor["name"]} {what} innovations are not white{where}: '
                     f'{test["block_s"]:g}-s block sums give chi-square {window["chi2"]:.0f} '
                     f'on {window["blocks"]} blocks, above {limit:.0f} (significance '
-                    f'{significance:g}): a motion or sensor model error '
-                    f'(odometry scale, gyro scale or bias change, mount offset), the '
-                    f'covariance is too small')))
+                    f'{significance:g}): {cause}')))
                 break
     return reasons
 

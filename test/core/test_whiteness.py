@@ -183,3 +183,34 @@ def test_a_slow_error_in_one_window_of_a_long_run_is_named_with_its_window():
     assert 'on 24 blocks' in reasons[0] and 'significance 8.26446e-06' in reasons[0]
     assert not any(' range ' in r for r in reasons)
     assert all('window 11:' in r for r in reasons)
+
+
+@pytest.mark.parametrize('offset_m', [0.01, -0.006])
+def test_ranges_that_read_long_or_short_at_every_pole_are_said_so(offset_m):
+    # Half a range sigma or less, at every update: the range test fails, and the mean of
+    # the blocks' mean range innovations says by how much and which way.
+    monitor = health.HealthMonitor(EkfConfig(landmark_sigma_m=0.0))
+    rng = np.random.default_rng(5)
+    sigma = np.sqrt(np.diag(S))
+    for k in range(1200):
+        for _ in range(POLES):
+            y = rng.normal(0.0, sigma) + [offset_m, 0.0]
+            monitor.innovation('scan', k / 10.0, tuple(y), S_PACKED, [5.0, 0.3])
+        monitor.record('scan', k / 10.0, POLES, POLES, 2.0 * POLES, 0.0)
+    figures = monitor.report()[0]['whiteness']
+    assert figures['range_mean_m'] == pytest.approx(offset_m, abs=0.001)
+    assert abs(figures['range_mean_t']) > health.RANGE_MEAN_T
+    reasons = [r for r in _whiteness_reasons(monitor) if ' range ' in r]
+    assert len(reasons) == 1, reasons
+    assert f'its ranges read {100.0 * offset_m:+.1f} cm against the map' in reasons[0]
+    assert ('thinner' if offset_m > 0 else 'thicker') in reasons[0]
+
+
+def test_poles_thicker_than_the_detector_takes_them_for_are_named():
+    # 8-cm poles, detected as the configured 5-cm ones: every centre lands short of its
+    # pole, and the run says which way to look (no clean trip says it: above).
+    summary = _trip_summary(pole_radius_m=0.08)
+    reasons = [r for r in summary['health']['reasons'] if 'range innovations' in r]
+    assert len(reasons) == 1, summary['health']['reasons']
+    assert "poles thicker than the detector's pole_radius_m" in reasons[0]
+    assert summary['health']['lidars'][0]['whiteness']['range_mean_m'] < -0.01
