@@ -724,9 +724,6 @@ class EventDriver:
             if self.mounts.observe(key, stamp_s, prior.tolist(), points, self.landmarks.xy_m,
                                    excluded or tracker.holds):
                 self.health.mount_changed(key, stamp_s)
-                if key in self.time_offsets:
-                    # Its headings are taken with the new mount from here on.
-                    self.time_offsets[key].restart_window()
             mount, held = tracker.used, tracker.holds
         noise = self.lidar_noise(key) if self.config.lidar_noise_window else None
         variances = None if noise is None else noise.variances
@@ -804,14 +801,9 @@ class EventDriver:
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
         if nis and not at_rest:
             self.bias_watch.corrected(wrap_scalar(self.ekf.yaw_rad - float(prior[YAW])))
-            if len(nis) >= OFFSET_MIN_UPDATES and self.rate_rad_s is not None:
-                # This LiDAR's own heading (the prior's less its mean bearing innovation)
-                # against the gyro's integral and rate: its stamps' offset.
-                watch = self.time_offsets.get(key)
-                if watch is None:
-                    watch = self.time_offsets[key] = TimeOffsetWatch()
-                watch.add(stamp_s, float(prior[YAW]) - bearing_sum / len(nis), self._turned,
-                          self.rate_rad_s - self.ekf.bias_rad_s, prior_yaw_variance)
+            if len(nis) >= OFFSET_MIN_UPDATES:
+                self._look_in_time(key, stamp_s, float(prior[YAW]) - bearing_sum / len(nis),
+                                   prior_yaw_variance)
             if self.gyro_scale.add(stamp_s, self.ekf.yaw_rad, self._turned):
                 self._gyro_scale_applied()
             if tracker is None:
@@ -1074,9 +1066,30 @@ class EventDriver:
                 if near is not None:
                     self.held_start.look(key, near, match.mahalanobis_sq, stamp_s)
         self.held_start.judge(stamp_s, 1 + len(self.mounts.trackers))
+        if matched >= OFFSET_MIN_UPDATES and not self._still():
+            # Held out, its headings against a pose the other LiDARs hold: its stamps'
+            # offset shows as well as (better than) while it takes part.
+            self._look_in_time(key, stamp_s, float(prior[YAW]) - bearing_sum / matched,
+                               self.ekf.yaw_var)
         self._judged(key, self.health.record(key, stamp_s, points.shape[0], matched,
                                              nis_sum, bearing_sum, sensor, readmit))
         return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
+
+    def _look_in_time(self, key: LidarMount, stamp_s: float, heading_rad: float,
+                      heading_variance: float) -> None:
+        """Give a LiDAR's own heading at a scan, while driving, to its time offset watch.
+
+        heading_rad: the filter's heading before the scan less the LiDAR's mean bearing
+        innovation; against the gyro's integral and rate it shows the stamps' offset
+        (core/time_offset.py).
+        """
+        if self.rate_rad_s is None:
+            return
+        watch = self.time_offsets.get(key)
+        if watch is None:
+            watch = self.time_offsets[key] = TimeOffsetWatch()
+        watch.add(stamp_s, heading_rad, self._turned, self.rate_rad_s - self.ekf.bias_rad_s,
+                  heading_variance)
 
     def _count_unmapped(self, prior: FloatArray, point: FloatArray, mount: LidarMount
                         ) -> int | None:
