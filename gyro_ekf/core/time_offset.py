@@ -42,8 +42,10 @@ late 7.9-10.7 ms, 50 ms early -50.9 to -52.7 ms; a gyro 2 % off in scale -1.4 to
 The 2016 real trip reads 8.2 +- 1.3 ms, but at its slow turns (4 deg/s RMS) that is 0.4
 times its heading sigma: not found; 2023, 1.3 and 2.1 ms.
 
-The state is a handful of sums and an append-only list of window results, so ``save`` and
-``restore`` (on every event, by ``core/lagged.py``) cost O(1).
+The state is the rows of the open window and of the one closed last (about a hundred each)
+and an append-only list of window results, so ``save`` and ``restore`` (on every event, by
+``core/lagged.py``) cost O(1); a restore reaches back over one window close at most, as the
+EKF node's `late_observation_history_s` (5 s at most) is shorter than a window.
 """
 
 from __future__ import annotations
@@ -133,7 +135,7 @@ class TimeOffsetWatch:
         self._base += first
         self.restart_window()
         if len(rows) < 6:
-            return
+            return  # too few scans for a line, a turn and a rate in one window
         t, turned, relative, rate, heading_variance = rows.T
         nuisance = np.column_stack([np.ones_like(t), t, turned])
         # Heading and rate with the window's line and turn taken out (Frisch-Waugh).
