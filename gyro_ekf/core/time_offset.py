@@ -27,8 +27,8 @@ variation (the heading's errors are correlated within a window, as for the gyro 
 d is the LiDAR's stamps against the gyro's: which of the two is off, the headings cannot
 tell (the 2022 course log reads -3.1 ms, and its scans moved by 3 ms end further from its
 ground truth). The offset is reported once ``MIN_WINDOWS`` informative windows are in, and
-*found* (the run is degraded, with the figure) when it lies beyond ``SIGMAS`` standard
-errors and its heading error matters (``MATERIAL_FACTOR``). Nothing is applied online: the
+*found* (the run is degraded, with the figure) when it lies beyond chance (``SIGNIFICANCE``,
+``t_limit``) and its heading error matters (``MATERIAL_FACTOR``). Nothing is applied online: the
 stamps are the drivers' or the clocks', and which of them is off is the user's to say. The
 user corrects the stamps, or sets the figure the verdict gives as the LiDAR's
 `lidar.<topic>.time_offset_s` (``MAX_TIME_OFFSET_S`` either way): `gyro-ekf run` (a params
@@ -68,8 +68,16 @@ MIN_RATE_RAD_S = math.radians(1.0)
 """A window is informative when its yaw rate varied about the window's fit by at least this
 RMS: a steady rate's lag cannot be told from a heading offset."""
 
-SIGMAS = 5.0
-"""An offset is found beyond this many standard errors from zero ..."""
+SIGNIFICANCE = 1e-3
+"""An offset is found when zero lies beyond Student's t at this two-sided chance (one dof
+fewer than the windows: their scatter gives the standard error) ..."""
+
+_T_LIMITS = (6.87, 5.96, 5.41, 5.04, 4.78, 4.59, 4.44, 4.32, 4.22, 4.14, 4.07, 4.01, 3.97,
+             3.92, 3.88, 3.85, 3.82, 3.79, 3.77, 3.75, 3.73, 3.71, 3.69, 3.67, 3.66, 3.65,
+             3.63, 3.62, 3.61, 3.60, 3.59, 3.58, 3.57, 3.57, 3.56, 3.55)
+"""Student's t quantiles at 1 - SIGNIFICANCE / 2 for 5 to 40 dof (scipy.stats.t.ppf); more
+dof take the last. With 6 windows a fixed 5 standard errors let one simulated trip with a
+map 0.5 % too large through at 5.3 (its turns come at the same places of the path)."""
 
 MATERIAL_FACTOR = 2.0
 """... when the heading error it makes, the offset times the RMS yaw rate, is at least this
@@ -87,6 +95,11 @@ an offset to correct."""
 MIN_UPDATES = 2
 """Fewest updates of one scan for its heading: with one pole the bearing innovation
 carries the position's error as much as the heading's."""
+
+
+def t_limit(windows: int) -> float:
+    """Return how many standard errors from zero an offset over ``windows`` windows must be."""
+    return _T_LIMITS[min(max(windows - 1, 5), 40) - 5]
 
 
 class TimeOffsetWatch:
@@ -173,7 +186,7 @@ class TimeOffsetWatch:
             return False
         offset, sigma = figures
         rate, heading_sigma = self._rms()
-        return (abs(offset) > SIGMAS * sigma
+        return (abs(offset) > t_limit(len(self.windows)) * sigma
                 and abs(offset) * rate > MATERIAL_FACTOR * heading_sigma)
 
     def save(self) -> tuple:

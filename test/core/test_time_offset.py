@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from gyro_ekf.core.time_offset import (MATERIAL_FACTOR, MIN_WINDOWS, SIGMAS, WINDOW_S,
-                                       TimeOffsetWatch)
+from gyro_ekf.core.time_offset import (MATERIAL_FACTOR, MIN_WINDOWS, WINDOW_S,
+                                       TimeOffsetWatch, t_limit)
 
 SCAN_S = 0.1
 HEADING_SIGMA = math.radians(0.02)
@@ -50,7 +50,7 @@ def test_an_offset_is_measured_and_found(offset_s):
     watch = _watch(_scans(offset_s))
     offset, sigma = watch.estimate()
     assert offset == pytest.approx(offset_s, abs=1e-3)
-    assert abs(offset) > SIGMAS * sigma
+    assert abs(offset) > t_limit(watch.report()['windows']) * sigma
     assert watch.found()
     report = watch.report()
     assert report['found'] and report['windows'] >= MIN_WINDOWS
@@ -70,11 +70,19 @@ def test_an_offset_too_small_to_matter_is_measured_but_not_found():
     # heading sigmas (0.02 deg), though far beyond its standard error.
     watch = _watch(_scans(0.01, turn_rad_s=0.06, seconds=200.0))
     offset, sigma = watch.estimate()
-    assert offset == pytest.approx(0.01, abs=1e-3) and abs(offset) > SIGMAS * sigma
+    assert offset == pytest.approx(0.01, abs=1e-3)
+    assert abs(offset) > t_limit(watch.report()['windows']) * sigma
     report = watch.report()
     effect = abs(offset) * math.radians(report['rate_rms_deg_s'])
     assert effect < MATERIAL_FACTOR * math.radians(report['heading_sigma_deg'])
     assert not watch.found()
+
+
+def test_the_limit_is_students_t_on_the_windows_scatter():
+    # 6 windows leave 5 dof: 6.87 standard errors at 1e-3; many windows near the normal's.
+    assert t_limit(MIN_WINDOWS) == 6.87
+    assert t_limit(11) == 4.59
+    assert t_limit(1000) == 3.55
 
 
 def test_nothing_is_said_before_enough_windows():
