@@ -40,7 +40,7 @@ Measured (the 120-s simulated trips of the stress suite; the course logs): scans
 read -1.6 to +0.8 ms (standard errors 0.5-1.1 ms), scans 30 ms late 28.4-31.5 ms, 10 ms
 late 7.9-10.7 ms, 50 ms early -50.9 to -52.7 ms; a gyro 2 % off in scale -1.4 to -2.4 ms.
 The 2016 real trip reads 8.2 +- 1.3 ms, but at its slow turns (4 deg/s RMS) that is 0.4
-times its heading sigma: not found; 2023, 1.3 and 2.1 ms.
+times its heading sigma: not found; 2023, +1.3 and +0.9 ms.
 
 The state is the rows of the open window and of the one closed last (about a hundred each)
 and an append-only list of window results, so ``save`` and ``restore`` (on every event, by
