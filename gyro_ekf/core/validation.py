@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from gyro_ekf.core.config import InputLimits
 from gyro_ekf.core.errors import InvalidInputError
+from gyro_ekf.core.time_offset import MAX_TIME_OFFSET_S
 from gyro_ekf.core.types import (FloatArray, GroundTruth, ImuSeries, ScanSeries, SpeedSeries,
                                  Trip)
 
@@ -163,6 +164,11 @@ def mount_problem(x_m: float, y_m: float, yaw_rad: float,
         return (f'mount offset {math.hypot(x_m, y_m):.6g} m exceeds the limit '
                 f'{limits.max_mount_offset_m:g} m')
     return angle_problem(yaw_rad, limits)
+
+
+def time_offset_problem(offset_s: float) -> str | None:
+    """Why a LiDAR's configured time offset (s, `lidar.<topic>.time_offset_s`) is refused."""
+    return value_problem(offset_s, MAX_TIME_OFFSET_S, 's')
 
 
 def angle_problem(angle_rad: float, limits: InputLimits = LIMITS) -> str | None:

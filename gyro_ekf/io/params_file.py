@@ -54,9 +54,8 @@ from gyro_ekf.core.config import (CalibrationConfig, DetectorConfig, EkfConfig, 
                                   make_config, RunOptions)
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.stamps import NS_PER_S, ns_at, seconds_since
-from gyro_ekf.core.time_offset import MAX_TIME_OFFSET_S
 from gyro_ekf.core.types import LidarMount, Trip
-from gyro_ekf.core.validation import initial_pose_problem, mount_problem
+from gyro_ekf.core.validation import initial_pose_problem, mount_problem, time_offset_problem
 
 log = logging.getLogger(__name__)
 
@@ -311,9 +310,9 @@ def _lidar_mounts(values: dict[str, Any], source: str
         offset = values.get(f'{topic}.time_offset_s')
         if offset is not None:
             offsets[topic] = _number(source, name, offset)
-            if abs(offsets[topic]) > MAX_TIME_OFFSET_S:
-                raise ParamsFileError(f"{source}: parameter '{name}' = {offset}: more than "
-                                      f'{MAX_TIME_OFFSET_S:g} s either way')
+            problem = time_offset_problem(offsets[topic])
+            if problem:
+                raise ParamsFileError(f"{source}: parameter '{name}': {problem}")
             if not any(f'{topic}.{key}' in values for key in ('x_m', 'y_m', 'yaw_rad')):
                 continue  # the offset alone: the bag's mount stays
         numbers = []

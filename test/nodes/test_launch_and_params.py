@@ -207,14 +207,21 @@ def test_a_mount_or_start_pose_out_of_its_limits_is_a_configuration_error(ros_en
     # A switch given as a number is refused, not read as a truth value (as offline).
     ('use_calibration:=1', r"'use_calibration' to '1' of type 'INTEGER', expecting type "
                            "'BOOL'"),
+    # A LiDAR's time offset beyond its range, or NaN (which would reach the stamps).
+    (('lidar.topics:=[scan]', 'lidar.scan.time_offset_s:=.nan'),
+     r'lidar.scan.time_offset_s out of range'),
+    (('lidar.topics:=[scan]', 'lidar.scan.time_offset_s:=2.0'),
+     r'lidar.scan.time_offset_s out of range'),
 ])
 def test_a_parameter_rclpy_refuses_is_one_line_and_exit_1(ros_env, param, match):
     import re
     import subprocess
     import sys
 
+    given = [arg for value in ((param,) if isinstance(param, str) else param)
+             for arg in ('-p', value)]
     result = subprocess.run([sys.executable, '-m', 'gyro_ekf.nodes.ekf_node', '--ros-args',
-                             '-p', param], env=ros_env, capture_output=True, text=True,
+                             *given], env=ros_env, capture_output=True, text=True,
                             timeout=120)
     assert result.returncode == 1
     assert re.search(match, result.stderr)
