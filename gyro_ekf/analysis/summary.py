@@ -187,6 +187,8 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     summary['gyro_scale'] = run.result.gyro_scale
     # Samples each input's stamps say were sent and did not arrive (core/input_loss.py).
     summary['input_loss'] = run.result.input_loss
+    # Lone samples far from both neighbours, left out (core/input_spikes.py).
+    summary['input_spikes'] = run.result.input_spikes
     # Each LiDAR's stamps against the gyro's, from its own headings (core/time_offset.py).
     summary['time_offsets'] = {lidar['name']: lidar for lidar in run.result.time_offsets or ()}
     summary['ground_truth'] = None
@@ -242,6 +244,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         mounts=[] if run.result.mounts is None else run.result.mounts.report(),
         odometry=None if run.result.odometry is None else run.result.odometry.report(),
         gyro_scale=run.result.gyro_scale, input_loss=run.result.input_loss or {},
+        input_spikes=run.result.input_spikes or {},
         time_offsets=run.result.time_offsets or [],
         final_bias_sigma_rad_s=summary['online_bias']['final_sigma_rad_s'],
         start_bias=stats.first_stop)

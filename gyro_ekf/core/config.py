@@ -47,6 +47,16 @@ class EkfConfig:
         0.0, 1.0)
     speed_noise_m_s: float = config_field(
         0.05, 'm/s', 'Speed noise sigma (input noise of the position prediction).', 0.0, 10.0)
+    # A lone sample farther from the value in use than its noise and these allow is held
+    # back one sample and dropped if the next one returns (core/input_spikes.py).
+    max_acceleration_m_s2: float = config_field(
+        10.0, 'm/s^2', 'Most the platform\'s speed can change per second: a lone odometry '
+        'sample farther from the speed in use than this allows (plus ten sigmas of its '
+        'noise) and followed by one that returns is a spike, left out and said.', 0.0, 1e6)
+    max_angular_acceleration_rad_s2: float = config_field(
+        20.0, 'rad/s^2', 'Most the platform\'s yaw rate can change per second: a lone gyro '
+        'sample farther from the rate in use than this allows (plus ten sigmas of its '
+        'noise) and followed by one that returns is a spike, left out and said.', 0.0, 1e6)
     # Measured and said, and applied online with learn_gyro_scale (core/gyro_scale.py): left
     # wrong, the bias takes in e times each turn (50 simulated trips 0.7-3 % off ended
     # 0.02-1.1 deg/s off).

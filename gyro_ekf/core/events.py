@@ -51,6 +51,7 @@ from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.gyro_scale import GyroScaleWatch
 from gyro_ekf.core.gyro_wander import GyroWander, block_allowed
 from gyro_ekf.core.input_loss import InputLoss
+from gyro_ekf.core.input_spikes import SpikeGate
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition, chi_square_upper
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
@@ -127,6 +128,7 @@ class EventDriver:
         # Samples each input lost, by its own stamps (core/input_loss.py).
         self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
         self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
+        self._new_spike_gates()
         self.detector_config = detector_config or DetectorConfig()
         self.ekf = GyroBiasEkf(self.config, pose, bias_rad_s)
         self.landmarks = landmarks
@@ -211,6 +213,7 @@ class EventDriver:
         self.time_offsets = {}
         self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
         self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
+        self._new_spike_gates()
         # A wander found before the reset is forgotten with it; the prior holds again.
         self.ekf.assume_wander(self.config.initial_wander_rad_s)
         self.noise = {}
@@ -234,6 +237,14 @@ class EventDriver:
         self._first_scan_s = None
         self._rest_updates = {}
         self._end_stop()
+
+    def _new_spike_gates(self) -> None:
+        """Lone bad samples of each input, held back and dropped (core/input_spikes.py)."""
+        config = self.config
+        self._gyro_spikes = SpikeGate(config.gyro_noise_rad_s,
+                                      config.max_angular_acceleration_rad_s2)
+        self._speed_spikes = SpikeGate(config.speed_noise_m_s, config.max_acceleration_m_s2)
+        self.input_spikes = {'gyro': self._gyro_spikes, 'odometry': self._speed_spikes}
 
     def _forget_body_frame(self) -> None:
         """Start the two LiDARs' word on the body frame afresh (core/body_frame.py)."""
@@ -287,7 +298,8 @@ class EventDriver:
                 {key: noise.save() for key, noise in self.noise.items()},
                 (self.gyro_scale.save(), self._turned,
                  {key: watch.save() for key, watch in self.time_offsets.items()}),
-                {name: loss.save() for name, loss in self.input_loss.items()},
+                ({name: loss.save() for name, loss in self.input_loss.items()},
+                 {name: gate.save() for name, gate in self.input_spikes.items()}),
                 (dict(self._start_offsets), self._body_key, self.frame_shift))
 
     def restore(self, saved: tuple) -> None:
@@ -296,11 +308,13 @@ class EventDriver:
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
          watch, held, self._rate_stamp_s, self._heading_dt2,
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
-          self._path_yaw), noise, (gyro_scale, self._turned, offsets), input_loss,
+          self._path_yaw), noise, (gyro_scale, self._turned, offsets), (input_loss, spikes),
          (start_offsets, self._body_key, self.frame_shift)) = saved
         self._start_offsets = dict(start_offsets)
         for name, saved_loss in input_loss.items():
             self.input_loss[name].restore(saved_loss)
+        for name, saved_gate in spikes.items():
+            self.input_spikes[name].restore(saved_gate)
         self.gyro_scale.restore(gyro_scale)
         # The same watches (their rows are kept for this), less those begun since.
         self.time_offsets = {key: offset for key, offset in self.time_offsets.items()
@@ -417,6 +431,11 @@ class EventDriver:
         self._advance(stamp_s, 'speed')
         self._speed_loss.add(stamp_s)
         self._integrate_path(scan=False)
+        taken = self._speed_spikes.admit(stamp_s, speed_m_s)
+        if taken is None:
+            self.stats.speed += 1
+            return  # held back: a lone spike is dropped at the next sample
+        speed_m_s = taken
         # Divided by the speed scale estimated online (1 until one is applied).
         self._measured_speed_m_s = speed_m_s
         self.speed_m_s, self.speed_variance = self.odometry.correct(
@@ -458,6 +477,11 @@ class EventDriver:
         """Do what on_imu does without building the Estimate (for callers that batch)."""
         self._advance(stamp_s, 'imu')
         self._gyro_loss.add(stamp_s)
+        taken = self._gyro_spikes.admit(stamp_s, yaw_rate_rad_s)
+        if taken is None:
+            self.stats.imu += 1
+            return  # held back: a lone spike is dropped at the next sample
+        yaw_rate_rad_s = taken
         self.rate_rad_s = yaw_rate_rad_s
         self.rate_variance = variance
         self._rate_stamp_s = stamp_s

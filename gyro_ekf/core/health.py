@@ -70,6 +70,8 @@ VERDICT_MIN_RECEIVED_SHARE = 0.9
 """Fewer than this share of the samples an input's stamps imply arrived: degraded
 (core/input_loss.py; the course logs and the stress suite's trips, IMU gaps included, keep
 97 % and more)."""
+_MAX_CHANGE = {'gyro': 'max_angular_acceleration_rad_s2', 'odometry': 'max_acceleration_m_s2'}
+"""The parameter that bounds each input's change per second (core/input_spikes.py)."""
 VERDICT_START_BIAS_SIGMAS = 3.0
 """The bias at the end lying beyond this many sigmas from the one the first stop's zero-rate
 updates learnt (the static start): degraded, the bias moved. The sigma is the root of the
@@ -660,6 +662,8 @@ class RunFigures:
             (GyroScaleWatch.report(), core/gyro_scale.py), or None.
         input_loss: per input stream ('gyro', 'odometry'), the samples received and lost
             by its own stamps (InputLoss.report(), core/input_loss.py).
+        input_spikes: per input stream, the lone samples far from both neighbours that
+            were left out (SpikeGate.report(), core/input_spikes.py).
         final_bias_sigma_rad_s: the sigma of final_bias_rad_s, rad/s (None: not known).
         time_offsets: each LiDAR's stamps against the gyro's (EventDriver
             .time_offset_report(), core/time_offset.py).
@@ -701,6 +705,7 @@ class RunFigures:
     finished: bool = False
     gyro_scale: dict[str, Any] | None = None
     input_loss: dict[str, dict[str, Any]] = field(default_factory=dict)
+    input_spikes: dict[str, dict[str, Any]] = field(default_factory=dict)
     final_bias_sigma_rad_s: float | None = None
     start_bias: tuple[float, float, float] | None = None
     time_offsets: list[dict[str, Any]] = field(default_factory=list)
@@ -884,6 +889,15 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
                 f'{100.0 * VERDICT_MIN_RECEIVED_SHARE:g} %: the last value was held across '
                 f'each lost one (inputs lost on the way or dropped by a node that could not '
                 f'keep up)')
+    for stream, spikes in figures.input_spikes.items():
+        if spikes['spikes']:
+            # Left out, the run is as good as without them; but a sensor or link that
+            # glitches is worth knowing about, and two bad samples in a row pass.
+            unit = 'rad/s' if stream == 'gyro' else 'm/s'
+            add(DEGRADED, f'{stream}: {spikes["spikes"]} lone sample(s) lay far from both '
+                f'neighbours (the largest {spikes["largest"]:+.3g} {unit} off the value in '
+                f'use, beyond its noise and {_MAX_CHANGE[stream]}) and were left out: a '
+                f'glitch in the sensor or its link')
     per_minute = math.degrees(figures.bias_largest_rate_rad_s2) * 60.0
     if figures.bias_openings:
         # The filter followed it, but its bias is then only as old as the last change: a

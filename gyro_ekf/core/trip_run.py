@@ -218,6 +218,8 @@ class TripRun:
             stamps imply were lost (InputLoss.report, core/input_loss.py).
         time_offsets: each LiDAR's stamps against the gyro's (EventDriver
             .time_offset_report, core/time_offset.py).
+        input_spikes: per input ('gyro', 'odometry'), the lone samples far from both
+            neighbours that were left out (SpikeGate.report, core/input_spikes.py).
     """
 
     estimates: Estimates
@@ -231,6 +233,7 @@ class TripRun:
     gyro_scale: dict | None = None
     input_loss: dict | None = None
     time_offsets: list[dict] | None = None
+    input_spikes: dict | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -378,4 +381,5 @@ def drive_trip(trip: Trip, driver: EventDriver,
                    driver.health, driver.mounts, driver.odometry, driver.noise_report(),
                    driver.held_start_report(), driver.gyro_scale.report(),
                    {name: loss.report() for name, loss in driver.input_loss.items()},
-                   driver.time_offset_report())
+                   driver.time_offset_report(),
+                   {name: gate.report() for name, gate in driver.input_spikes.items()})

@@ -38,7 +38,9 @@ one, to save the CPU), the zero-rate updates
 (`standing_still`: they are being applied now, core/events.py), the start pose held
 (`start_pose_held`, and why the hold ended, `start_pose_released`: core/held_start.py),
 the samples each input's own stamps say were sent and never reached the filter
-(`gyro_lost`, `gyro_received_share`, `odometry_*`: core/input_loss.py), the health verdict
+(`gyro_lost`, `gyro_received_share`, `odometry_*`: core/input_loss.py), the lone samples
+far from both neighbours left out of it (`gyro_spikes`, `odometry_spikes`:
+core/input_spikes.py), the health verdict
 of the run since the start or the last reset (`verdict`, `verdict_reasons`: core.health's,
 as `gyro-ekf run` writes it in summary.json; level WARN when degraded, ERROR when failed),
 with each LiDAR's window figures (`lidar_<scan topic>_*`, `excluded` true while its
@@ -863,6 +865,8 @@ class EkfNode(Node):
             gyro_scale=self.driver.gyro_scale.report(),
             time_offsets=self.driver.time_offset_report(),
             input_loss=inputs,
+            input_spikes={name: gate.report()
+                          for name, gate in self.driver.input_spikes.items()},
             # Since the last sample too: an input that stopped is silent while the others
             # go on (core/input_loss.py).
             input_gaps_s=silences(inputs, now),
@@ -990,6 +994,9 @@ class EkfNode(Node):
             **{f'{name}_received_share': f'{loss.share:.4f}'
                for name, loss in self.driver.input_loss.items()},
             **{f'{name}_lost': str(loss.lost) for name, loss in self.driver.input_loss.items()},
+            # Lone samples far from both neighbours, left out (core/input_spikes.py).
+            **{f'{name}_spikes': str(gate.spikes)
+               for name, gate in self.driver.input_spikes.items()},
         }
         verdict = self._verdict(since)
         values['verdict'] = verdict['verdict']

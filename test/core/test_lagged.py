@@ -216,3 +216,23 @@ def test_a_gyro_scale_applied_between_replays_ends_as_strict_ordering_ends():
         k: v.report() for k, v in strict_driver.input_loss.items()}
     assert driver.ekf.x[:4].tolist() == strict.estimates.state[-1].tolist()
     assert driver.stats.snapshot() == strict.stats.snapshot()
+
+
+def test_lone_input_spikes_are_dropped_as_strict_ordering_drops_them():
+    """The spike gates' held-back samples are saved and replayed with the rest."""
+    clean = simulate_trip(SimulationConfig(duration_s=20.0, static_s=2.0), seed=5)
+    rng = np.random.default_rng(5)
+    speed = clean.speed.speed_m_s.copy()
+    speed[rng.choice(np.arange(400, len(speed), 2), 10, replace=False)] += 2.0
+    rates = clean.imu.angular_velocity_rad_s.copy()
+    rates[rng.choice(np.arange(800, len(rates), 2), 10, replace=False), 2] += 1.0
+    trip = dataclasses.replace(clean, speed=dataclasses.replace(clean.speed, speed_m_s=speed),
+                               imu=dataclasses.replace(clean.imu, angular_velocity_rad_s=rates))
+    strict = drive_trip(trip, _driver(trip))
+    lagged = LaggedObservations(_driver(trip), history_s=0.5)
+    fates, _ = _feed_with_delay(trip, lagged, 0.15, np.random.default_rng(1))
+    assert fates.count(ObservationFate.REPLAYED) > 0.5 * len(fates)
+    spikes = lagged.driver.input_spikes
+    assert spikes['odometry'].spikes == 10 and spikes['gyro'].spikes == 10
+    assert lagged.driver.ekf.x[:4].tolist() == strict.estimates.state[-1].tolist()
+    assert lagged.driver.stats.snapshot() == strict.stats.snapshot()

@@ -2,8 +2,9 @@
 
 The bag is a simulated 40-s trip (seed 2) whose gyro lost 60 % of its samples at random
 after the static start, as a best-effort link that overflows loses them: the stamps of
-those that arrived say how many were sent (core/input_loss.py). The node and the offline
-run count the same samples and the same longest silence, and give the same verdict.
+those that arrived say how many were sent (core/input_loss.py). Its odometry has five lone
+samples 2 m/s off (core/input_spikes.py). The node and the offline run count the same
+samples, the same spikes and the same longest silence, and give the same verdict.
 
 In its own module, so its processes run in their own ROS domain next to nobody else's.
 """
@@ -33,7 +34,10 @@ def lossy_run(ros_processes, tmp_path_factory):
         linear_acceleration_m_s2=None if imu.linear_acceleration_m_s2 is None
         else imu.linear_acceleration_m_s2[keep])
     assert imu.yaw_rate_variance is None
-    lossy = dataclasses.replace(trip, imu=imu)
+    speed = trip.speed.speed_m_s.copy()
+    speed[[1000, 1500, 2000, 2500, 3000]] += 2.0  # 10-30 s, driving
+    lossy = dataclasses.replace(trip, imu=imu,
+                                speed=dataclasses.replace(trip.speed, speed_m_s=speed))
     return (int(keep.sum()),
             *run_and_replay(ros_processes, lossy, tmp_path_factory.mktemp('loss')))
 
@@ -49,6 +53,10 @@ def test_node_says_the_lost_gyro_samples_as_the_offline_run_does(lossy_run):
     assert values['gyro_lost'] == str(gyro['lost'])
     assert values['gyro_received_share'] == f"{gyro['share']:.4f}"
     assert values['odometry_lost'] == '0'
+    # Five lone speed samples left out by both, and said alike.
+    assert offline['input_spikes']['odometry']['spikes'] == 5
+    assert values['odometry_spikes'] == '5' and values['gyro_spikes'] == '0'
+    assert any(r.startswith('odometry: 5 lone sample(s)') for r in offline['health']['reasons'])
     assert values['verdict'] == 'degraded'
     assert said[0] in values['verdict_reasons'].split(' | ')
     # The input silences too, from the same counters (a run of lost samples longer than a
