@@ -70,8 +70,11 @@ class SpikeGate:
                  '_countdown')
 
     def __init__(self, sigma: float, max_change_per_s: float) -> None:
-        """sigma: the stream's configured noise (standard deviation, stream units);
-        max_change_per_s: most the true value can change per second (stream units / s)."""
+        """Judge a stream against its noise and the change its platform can make.
+
+        sigma: the stream's configured noise (standard deviation, stream units).
+        max_change_per_s: most the true value can change per second (stream units / s).
+        """
         self.max_change_per_s = max_change_per_s
         self.spikes = 0
         self.largest = 0.0

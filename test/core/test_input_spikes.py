@@ -137,4 +137,3 @@ def test_a_trip_with_spikes_is_within_the_bounds_and_says_so(spiky_trip):
     assert all(s['spikes'] == 0 and s['steps'] == 0
                for s in summary['input_spikes'].values())
     assert not any('lone sample' in r for r in summary['health']['reasons'])
-
