@@ -191,6 +191,8 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     summary['input_spikes'] = run.result.input_spikes
     # Each LiDAR's stamps against the gyro's, from its own headings (core/time_offset.py).
     summary['time_offsets'] = {lidar['name']: lidar for lidar in run.result.time_offsets or ()}
+    # Each LiDAR's stamps' scatter about when its scans were taken (core/stamp_jitter.py).
+    summary['stamp_jitter'] = {lidar['name']: lidar for lidar in run.result.stamp_jitter or ()}
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)
@@ -246,6 +248,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         gyro_scale=run.result.gyro_scale, input_loss=run.result.input_loss or {},
         input_spikes=run.result.input_spikes or {},
         time_offsets=run.result.time_offsets or [],
+        stamp_jitter=run.result.stamp_jitter or [],
         final_bias_sigma_rad_s=summary['online_bias']['final_sigma_rad_s'],
         start_bias=stats.first_stop)
     return {**health.verdict(figures), 'lidars': sensors,

@@ -52,6 +52,7 @@ from gyro_ekf.core.gyro_scale import GyroScaleWatch
 from gyro_ekf.core.gyro_wander import GyroWander, block_allowed
 from gyro_ekf.core.input_loss import InputLoss
 from gyro_ekf.core.input_spikes import SpikeGate
+from gyro_ekf.core.stamp_jitter import StampJitterWatch
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition, chi_square_upper
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
@@ -125,6 +126,8 @@ class EventDriver:
         self._turned = 0.0
         # Each LiDAR's stamps against the gyro's, from its own headings (core/time_offset.py).
         self.time_offsets: dict[LidarMount, TimeOffsetWatch] = {}
+        # Each LiDAR's stamps' scatter about when its scans were taken (core/stamp_jitter.py).
+        self.stamp_jitter: dict[LidarMount, StampJitterWatch] = {}
         # Samples each input lost, by its own stamps (core/input_loss.py).
         self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
         self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
@@ -211,6 +214,7 @@ class EventDriver:
         self._gyro_scale = 1.0 + self.config.gyro_scale_error
         self._turned = 0.0
         self.time_offsets = {}
+        self.stamp_jitter = {}
         self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
         self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
         self._new_spike_gates()
@@ -299,7 +303,8 @@ class EventDriver:
                 (self.gyro_scale.save(), self._turned,
                  {key: watch.save() for key, watch in self.time_offsets.items()}),
                 ({name: loss.save() for name, loss in self.input_loss.items()},
-                 {name: gate.save() for name, gate in self.input_spikes.items()}),
+                 {name: gate.save() for name, gate in self.input_spikes.items()},
+                 {key: watch.save() for key, watch in self.stamp_jitter.items()}),
                 (dict(self._start_offsets), self._body_key, self.frame_shift))
 
     def restore(self, saved: tuple) -> None:
@@ -308,13 +313,18 @@ class EventDriver:
          self.rate_variance, self._first_scan_s, rest_updates, health, stop, mounts,
          watch, held, self._rate_stamp_s, self._heading_dt2,
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
-          self._path_yaw), noise, (gyro_scale, self._turned, offsets), (input_loss, spikes),
+          self._path_yaw), noise, (gyro_scale, self._turned, offsets),
+         (input_loss, spikes, jitter),
          (start_offsets, self._body_key, self.frame_shift)) = saved
         self._start_offsets = dict(start_offsets)
         for name, saved_loss in input_loss.items():
             self.input_loss[name].restore(saved_loss)
         for name, saved_gate in spikes.items():
             self.input_spikes[name].restore(saved_gate)
+        self.stamp_jitter = {key: stamps for key, stamps in self.stamp_jitter.items()
+                             if key in jitter}
+        for key, stamps in self.stamp_jitter.items():
+            stamps.restore(jitter[key])
         self.gyro_scale.restore(gyro_scale)
         # The same watches (their rows are kept for this), less those begun since.
         self.time_offsets = {key: offset for key, offset in self.time_offsets.items()
@@ -785,6 +795,10 @@ class EventDriver:
             self._block_bias_variance = self.ekf.bias_var
         # A mount estimated online weighs less (core/mount_online.py, its item 6).
         base = 1.0 if tracker is None else tracker.noise_scale
+        jitter = (None if at_rest or self.held_start.held else
+                  self._jitter_frame(key, prior, mount, len(result.associations), variances))
+        if jitter is not None:
+            points_list = points.tolist()
         for match in result.associations:
             outcomes[_OUTCOME_KEYS[match.outcome]] += 1
             if match.outcome is AssociationOutcome.UNMATCHED:
@@ -818,11 +832,16 @@ class EventDriver:
                 elif scale == base:  # not a repeated look at rest
                     self.health.innovation(key, stamp_s, y, S,
                                            z[match.detection_index])
+                    if jitter is not None:
+                        _stamp_look(jitter, points_list[match.detection_index],
+                                    landmark_xy[match.landmark_index])
                     if not at_rest:
                         r = z[match.detection_index][0]
                         self.bias_watch.add(stamp_s, y[1], S[2],
                                             match.landmark_index,
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
+        if jitter is not None:
+            self._close_jitter_scan(jitter)
         if nis and not at_rest:
             self.bias_watch.corrected(wrap_scalar(self.ekf.yaw_rad - float(prior[YAW])))
             if len(nis) >= OFFSET_MIN_UPDATES:
@@ -904,6 +923,57 @@ class EventDriver:
         """Return each LiDAR's time offset figures (``TimeOffsetWatch.report``) with its name."""
         return [{'name': self.health.sensor(key).name, **watch.report()}
                 for key, watch in self.time_offsets.items()]
+
+    def stamp_jitter_report(self) -> list[dict]:
+        """Return each LiDAR's stamp scatter figures (``StampJitterWatch.report``) by name."""
+        return [{'name': self.health.sensor(key).name, **watch.report()}
+                for key, watch in self.stamp_jitter.items()]
+
+    def _jitter_frame(self, key: LidarMount, prior: FloatArray, mount: LidarMount,
+                      updates: int, variances: tuple[float, float] | None) -> list | None:
+        """Return what each update of a moving scan gives its stamp estimate, or None.
+
+        The sensor's pose before the scan, its velocity in its own frame, the noise its
+        poles are weighed by, the pose's covariance before the scan, and the scan's running
+        sums (core/stamp_jitter.py); None when the gyro has not spoken yet or the scan is
+        too slow to tell its stamp. Call before the scan's first update.
+        """
+        if self.rate_rad_s is None:
+            return None
+        config = self.config
+        range_var, bearing_var = variances or (config.range_noise_m ** 2,
+                                               config.bearing_noise_rad ** 2)
+        omega, speed = self.rate_rad_s - self.ekf.bias_rad_s, self.speed_m_s
+        if not StampJitterWatch.scan_is_informative(updates, omega, speed, range_var,
+                                                    bearing_var):
+            return None
+        watch = self.stamp_jitter.get(key)
+        if watch is None:
+            watch = self.stamp_jitter[key] = StampJitterWatch()
+        x, y, yaw = prior.tolist()[:3]
+        c, s = math.cos(yaw), math.sin(yaw)
+        sensor_x = x + mount.x_m * c - mount.y_m * s
+        sensor_y = y + mount.x_m * s + mount.y_m * c
+        cm, sm = math.cos(mount.yaw_rad), math.sin(mount.yaw_rad)
+        # The sensor's velocity in the body frame, then in its own frame.
+        ux, uy = speed - omega * mount.y_m, omega * mount.x_m
+        theta = yaw + mount.yaw_rad
+        landmark_var = self.ekf.landmark_var_m2
+        p = self.ekf.packed_row()
+        # The pose block of P before the scan: xx, xy, x yaw, yy, y yaw, yaw yaw.
+        pose_covariance = (p[5], p[6], p[7], p[10], p[11], p[14])
+        # d(sensor position)/d(yaw): the sensor swings about the reference point.
+        swing = (-mount.x_m * s - mount.y_m * c, mount.x_m * c - mount.y_m * s)
+        return [watch, math.cos(theta), math.sin(theta), sensor_x, sensor_y,
+                cm * ux + sm * uy, -sm * ux + cm * uy, omega, range_var + landmark_var,
+                bearing_var, landmark_var, swing, pose_covariance, 0.0, 0.0, 0.0]
+
+    def _close_jitter_scan(self, frame: list) -> None:
+        """Give a moving scan's sums to its stamp watch, with the pose's share of them."""
+        (watch, *_, (pxx, pxy, pxt, pyy, pyt, ptt), bx, by, bt) = frame
+        common = (bx * (pxx * bx + pxy * by + pxt * bt) + by * (pxy * bx + pyy * by + pyt * bt)
+                  + bt * (pxt * bx + pyt * by + ptt * bt))
+        watch.close_scan(common)
 
     def _close_bias_block(self, stamp_s: float, at_rest: bool) -> None:
         """Before a scan's updates: judge the bias watch's block; re-open the bias on a drift."""
@@ -1151,3 +1221,31 @@ class EventDriver:
         if last is None:
             last = self._first_scan_s
         return stamp_s - last > self.config.recovery_after_s
+
+
+def _stamp_look(frame: list, point: list[float], landmark: list[float]) -> None:
+    """Give one update's pole to its scan's stamp estimate (core/stamp_jitter.py).
+
+    e: the pole as measured less where the pose before the scan puts it (q); j: its
+    velocity in the sensor frame (-u - omega x p). k = W j weighs j's radial part by the
+    range variance and its tangential part by r^2 times the bearing variance (each plus
+    the map's); the scan sums k.e, k.j and, for the pose's error that all its poles share,
+    (dq/dpose)^T k.
+    """
+    (watch, c, s, sensor_x, sensor_y, ux, uy, omega, radial_var, bearing_var, map_var,
+     (swing_x, swing_y)) = frame[:12]
+    px, py = point
+    dx, dy = landmark[0] - sensor_x, landmark[1] - sensor_y
+    qx, qy = c * dx + s * dy, c * dy - s * dx
+    jx, jy = omega * py - ux, -omega * px - uy
+    r2 = px * px + py * py
+    # k = W j: (j.p) p / (r^2 radial_var) + (p x j) p_perp / (r^2 (r^2 bearing_var + map)).
+    radial = (jx * px + jy * py) / (r2 * radial_var)
+    tangential = (px * jy - py * jx) / (r2 * (r2 * bearing_var + map_var))
+    kx, ky = radial * px - tangential * py, radial * py + tangential * px
+    watch.add(kx * (px - qx) + ky * (py - qy), kx * jx + ky * jy)
+    # dq/dx = (-c, s), dq/dy = (-s, -c); dq/dyaw = (qy, -qx) less R(-theta) times the swing.
+    frame[13] += -c * kx + s * ky
+    frame[14] += -s * kx - c * ky
+    frame[15] += (kx * (qy - c * swing_x - s * swing_y)
+                  + ky * (-qx + s * swing_x - c * swing_y))

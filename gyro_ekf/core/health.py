@@ -667,6 +667,8 @@ class RunFigures:
         final_bias_sigma_rad_s: the sigma of final_bias_rad_s, rad/s (None: not known).
         time_offsets: each LiDAR's stamps against the gyro's (EventDriver
             .time_offset_report(), core/time_offset.py).
+        stamp_jitter: each LiDAR's stamps' scatter about when its scans were taken
+            (EventDriver.stamp_jitter_report(), core/stamp_jitter.py).
         start_bias: (end s, bias rad/s, sigma rad/s) of the first stop's zero-rate updates
             (DriverStats.first_stop_*), or None (no stop learnt the bias).
         scans: LiDAR scans processed.
@@ -709,6 +711,7 @@ class RunFigures:
     final_bias_sigma_rad_s: float | None = None
     start_bias: tuple[float, float, float] | None = None
     time_offsets: list[dict[str, Any]] = field(default_factory=list)
+    stamp_jitter: list[dict[str, Any]] = field(default_factory=list)
 
 
 def samples_dropped_figures(samples_dropped: Mapping[str, int]) -> dict[str, int]:
@@ -836,6 +839,18 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
                 f'the difference in: correct the stamps, or add '
                 f'{lidar["offset_s"]:+.4f} to lidar.{lidar["name"]}.time_offset_s (each scan '
                 f'is taken at its stamp less it)')
+    for lidar in figures.stamp_jitter:
+        if lidar['found']:
+            # The filter takes each stamp as exact: in turns the error every pole of a scan
+            # shares is beyond its noise, and the heading wander or bias changes it leaves
+            # behind are then its effects: the cause first.
+            add(DEGRADED, f'LiDAR {lidar["name"]}\'s stamps scatter by at least '
+                f'{1000.0 * lidar["jitter_s"]:.1f} ms about when its scans were taken (over '
+                f'{lidar["scans"]} scans of a moving platform, {lidar["variance_t"]:.0f} '
+                f'standard errors; in turns that adds {lidar["share"]:.1f} times the noise '
+                f'variance the filter allows a scan, which takes each stamp as exact): a '
+                f'driver that stamps the scans when they arrive, not when they are taken; '
+                f'stamp them by the LiDAR\'s own clock')
     for sensor in figures.sensors:
         if sensor['exclusions']:
             add(DEGRADED, f'LiDAR {sensor["name"]} excluded {sensor["exclusions"]} time(s), '

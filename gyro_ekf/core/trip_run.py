@@ -220,6 +220,8 @@ class TripRun:
             .time_offset_report, core/time_offset.py).
         input_spikes: per input ('gyro', 'odometry'), the lone samples far from both
             neighbours that were left out (SpikeGate.report, core/input_spikes.py).
+        stamp_jitter: each LiDAR's stamps' scatter about when its scans were taken
+            (EventDriver.stamp_jitter_report, core/stamp_jitter.py).
     """
 
     estimates: Estimates
@@ -234,6 +236,7 @@ class TripRun:
     input_loss: dict | None = None
     time_offsets: list[dict] | None = None
     input_spikes: dict | None = None
+    stamp_jitter: list[dict] | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -382,4 +385,5 @@ def drive_trip(trip: Trip, driver: EventDriver,
                    driver.held_start_report(), driver.gyro_scale.report(),
                    {name: loss.report() for name, loss in driver.input_loss.items()},
                    driver.time_offset_report(),
-                   {name: gate.report() for name, gate in driver.input_spikes.items()})
+                   {name: gate.report() for name, gate in driver.input_spikes.items()},
+                   driver.stamp_jitter_report())

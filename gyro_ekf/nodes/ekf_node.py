@@ -62,7 +62,9 @@ measured online (core/noise_online.py: `lidar_<topic>_{range_noise_m,bearing_noi
 `lidar_<topic>_measured_{range_noise_m,bearing_noise_deg}`, `_noise_measured` (in use),
 `_noise_updates`), and each LiDAR's stamps against the gyro's, measured from its headings
 (core/time_offset.py: `time_offset_<lidar>_{ms,sigma_ms,off}`, ms late, '' until enough
-windows; `off` true when the verdict names it);
+windows; `off` true when the verdict names it), and the scatter of each LiDAR's stamps
+about when its scans were taken (core/stamp_jitter.py: `stamp_jitter_<lidar>_{ms,found}`,
+'' until enough scans of a moving platform);
 `ekf/mounts` (PoseArray in
 `base_link`, latched) holds the same mounts, one pose per `lidar.topics` entry in that
 order, published again when an online estimate replaces one.
@@ -864,6 +866,7 @@ class EkfNode(Node):
             mounts=self.driver.mounts.report(), odometry=self.driver.odometry.report(),
             gyro_scale=self.driver.gyro_scale.report(),
             time_offsets=self.driver.time_offset_report(),
+            stamp_jitter=self.driver.stamp_jitter_report(),
             input_loss=inputs,
             input_spikes={name: gate.report()
                           for name, gate in self.driver.input_spikes.items()},
@@ -983,6 +986,12 @@ class EkfNode(Node):
                    ('ms', _optional(_milli(lidar['offset_s']), '.2f')),
                    ('sigma_ms', _optional(_milli(lidar['offset_sigma_s']), '.2f')),
                    ('off', str(lidar['found']).lower()))},
+            # Each LiDAR's stamps' scatter about when its scans were taken
+            # (core/stamp_jitter.py), ms ('' until enough scans), and whether it is found.
+            **{f'stamp_jitter_{lidar["name"]}_{key}': value
+               for lidar in self.driver.stamp_jitter_report() for key, value in (
+                   ('ms', _optional(_milli(lidar['jitter_s']), '.2f')),
+                   ('found', str(lidar['found']).lower()))},
             # A ramping bias followed (core/bias_rate.py): its rate in use, 0 when none.
             'bias_rate_deg_s_per_min': f'{math.degrees(stats.bias_rate_rad_s2) * 60.0:.4f}',
             'standing_still': str(self.driver.zero_rate).lower(),

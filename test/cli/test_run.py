@@ -181,6 +181,12 @@ def test_course_simulations_are_accurate(shared_data, tmp_path, folder):
         _assert_ok(summary)
         assert summary['online_bias']['gyro_noise_scale_max'] == 1.0
     assert not any(lidar['exclusions'] for lidar in summary['health']['lidars'])
+    # Their stamps lie on a 10-ms grid, but the scans were taken there: against the ground
+    # truth they scatter by 0.2-0.6 ms. The filter's pose error, which a scan's poles share,
+    # is in the figure's noise (core/stamp_jitter.py); left out, 2023 read 2.6 ms, found.
+    jitter = summary['stamp_jitter']
+    assert jitter and all(lidar['scans'] >= 100 and lidar['variance_t'] < 3.0
+                          and not lidar['found'] for lidar in jitter.values()), jitter
     truth = summary['ground_truth']
     assert truth['position_rmse_m'] <= 0.02
     if 'bias_error_final_deg_s' in truth:

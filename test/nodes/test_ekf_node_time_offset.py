@@ -44,3 +44,8 @@ def test_node_says_the_time_offset_as_the_offline_run_does(late_run):
     assert values['time_offset_scan_ms'] == f"{1000 * offset['offset_s']:.2f}"
     assert values['verdict'] == 'degraded'
     assert values['verdict_reasons'].split(' | ')[0].startswith(SAID)
+    # An offset is no scatter (core/stamp_jitter.py takes each scan's about their mean):
+    # not found, and the node's figure is the offline run's.
+    jitter = offline['stamp_jitter']['scan']
+    assert not jitter['found'] and values['stamp_jitter_scan_found'] == 'false'
+    assert values['stamp_jitter_scan_ms'] == f"{1000 * jitter['jitter_s']:.2f}"
