@@ -816,7 +816,15 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
                 f'{VERDICT_DEGRADED_ASSOCIATION_SHARE:.0%}')
         # ...unless they are most of what the LiDARs see: then the map or the pose is wrong.
         unmapped = figures.unmapped / figures.detections
-        if unmapped > VERDICT_MAX_UNMAPPED_SHARE:
+        if unmapped > VERDICT_MAX_UNMAPPED_SHARE and share < VERDICT_DEGRADED_ASSOCIATION_SHARE:
+            # A right pose on a map that lacks most objects still matches the poles it
+            # lists; one that matches neither has lost its way (a gyro turning the wrong
+            # way once ended 15 m off with 77 % of the rest associated: degraded, as a map
+            # that lacks most objects would be).
+            add(FAILED, f'{unmapped:.1%} of detections lie far from every mapped pole and '
+                f'{share:.1%} of the rest associated: the pose is lost (or the map is not '
+                f'of this place)')
+        elif unmapped > VERDICT_MAX_UNMAPPED_SHARE:
             add(DEGRADED, f'{unmapped:.1%} of detections lie far from every mapped pole, '
                 f'more than {VERDICT_MAX_UNMAPPED_SHARE:.0%}: the map or the pose is wrong')
     for lidar in figures.time_offsets:

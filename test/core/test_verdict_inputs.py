@@ -37,6 +37,14 @@ def test_mostly_unmapped_detections_degrade_the_run():
     assert verdict['verdict'] == 'degraded'
     assert verdict['reasons'] == ['60.0% of detections lie far from every mapped pole, more '
                                   'than 50%: the map or the pose is wrong']
+    # And most of the rest not associated either: the pose is lost.
+    verdict = health.verdict(_figures(matched=30, updates=30, unmapped=60))
+    assert verdict['verdict'] == 'failed'
+    assert verdict['reasons'] == [
+        '60.0% of detections lie far from every mapped pole and 75.0% of the rest '
+        'associated: the pose is lost (or the map is not of this place)',
+        '75.0% of detections near a mapped pole (60 far from every one not counted) '
+        'associated, below 90%']
 
 
 def test_a_silent_input_longer_than_a_prediction_step_degrades_the_run():
