@@ -14,13 +14,17 @@ LiDAR's innovations only: another LiDAR, or the filter's own heading error, does
 enter). Against the angle the gyro's raw readings integrate to (bias included), within
 each window of ``WINDOW_S`` seconds of driving::
 
-    heading(t) - turned(t) = r0 + beta * t + kappa * turned(t) - d * omega(t) + noise
+    heading(t) - turned(t) = r0 + beta * t + gamma * t^2 + kappa * turned(t)
+                             - d * omega(t) + noise
 
-with r0, beta (the bias) and kappa (a gyro scale error, ``core/gyro_scale.py``) free in
-every window, so that a bias that moves or a scale that is off is not taken for an offset;
-omega is the gyro's rate at the scan less the bias. Only omega's variation about the
+with r0, beta (the bias), gamma (its ramp) and kappa (a gyro scale error,
+``core/gyro_scale.py``) free in every window, so that a bias that moves or a scale that is
+off is not taken for an offset; omega is the gyro's rate at the scan less the bias. Without
+gamma, two bias_ramp trips of stress seed 85 (1 and 0.5 deg/s per minute) read 4.1 and -3.0
+ms, found: their turns come at the same times of their windows, so the ramp's bend leaked
+into omega's coefficient; with it, 0.0 and 0.4 ms. Only omega's variation about the
 window's fit carries d (entering and leaving turns). Each window gives the residual
-cross-products of the heading and omega after [1, t, turned]; together they give d, and
+cross-products of the heading and omega after [1, t, t^2, turned]; together they give d, and
 its standard error comes from the scatter of the windows' own d, weighted by their omega
 variation (the heading's errors are correlated within a window, as for the gyro scale).
 
@@ -37,10 +41,10 @@ stamp less it, and the windows measure what is left (a simulated trip 30 ms late
 the 30.5 ms its run read: -0.5 ms left, within the bounds, verdict ok).
 
 Measured (the 120-s simulated trips of the stress suite; the course logs): scans on time
-read -1.6 to +0.8 ms (standard errors 0.5-1.1 ms), scans 30 ms late 28.4-31.5 ms, 10 ms
-late 7.9-10.7 ms, 50 ms early -50.9 to -52.7 ms; a gyro 2 % off in scale -1.4 to -2.4 ms.
-The 2016 real trip reads 8.2 +- 1.3 ms, but at its slow turns (4 deg/s RMS) that is 0.4
-times its heading sigma: not found; 2023, +1.3 and +0.9 ms.
+read -1.6 to +0.6 ms (standard errors 0.4-1.0 ms), scans 30 ms late 27.3-31.4 ms, 10 ms
+late 7.9-10.4 ms, 50 ms early -50.4 to -53.3 ms; a gyro 2 % off in scale -1.5 to -3.5 ms.
+The 2016 real trip reads 7.9 +- 1.8 ms, but at its slow turns (4 deg/s RMS) that is 0.4
+times its heading sigma: not found; 2023, -0.6 and +0.4 ms.
 
 The state is the rows of the open window and of the one closed last (about a hundred each)
 and an append-only list of window results, so ``save`` and ``restore`` (on every event, by
@@ -82,10 +86,10 @@ map 0.5 % too large through at 5.3 (its turns come at the same places of the pat
 MATERIAL_FACTOR = 2.0
 """... when the heading error it makes, the offset times the RMS yaw rate, is at least this
 many times the heading's own sigma (RMS over the same scans): a smaller one leaves the
-filter consistent. The 2022 course log reads -3.1 +- 0.3 ms, 0.8 times, NEES share 0.947
+filter consistent. The 2022 course log reads -3.6 +- 0.4 ms, 0.9 times, NEES share 0.947
 (its scans moved 3 ms give 0.892: the gyro's stamps, not the LiDAR's, may be the ones
 off); simulated scans 10 ms late read 8-11 ms, found on every trip (NEES share 0.2-0.25),
-5 ms late 3-5 ms, found on two of four (0.54-0.64)."""
+5 ms late 3.3-5.0 ms, found on one of four (0.54-0.64; two of four before the ramp's term)."""
 
 MAX_TIME_OFFSET_S = 1.0
 """The largest time offset a LiDAR may be configured with either way
@@ -150,7 +154,7 @@ class TimeOffsetWatch:
         if len(rows) < 6:
             return  # too few scans for a line, a turn and a rate in one window
         t, turned, relative, rate, heading_variance = rows.T
-        nuisance = np.column_stack([np.ones_like(t), t, turned])
+        nuisance = np.column_stack([np.ones_like(t), t, t * t, turned])
         # Heading and rate with the window's line and turn taken out (Frisch-Waugh).
         both = np.column_stack([relative, rate])
         residual = both - nuisance @ np.linalg.lstsq(nuisance, both, rcond=None)[0]
