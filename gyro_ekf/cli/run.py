@@ -119,6 +119,23 @@ def _offsets(offsets: dict[str, dict[str, Any]]) -> str:
         for name, lidar in offsets.items())
 
 
+def _scatter(jitter: dict[str, dict[str, Any]]) -> str:
+    """Return the LiDAR stamp scatter row: each LiDAR's, ms (core/stamp_jitter.py)."""
+    from gyro_ekf.core.stamp_jitter import MIN_SCANS
+    if not jitter:
+        return 'not measured (no scan of a moving platform that could tell its stamp)'
+    return '; '.join(
+        f"{name}: not measured ({lidar['scans']} of the {MIN_SCANS} scans it needs)"
+        if lidar['jitter_s'] is None else
+        f"{name}: {1000.0 * lidar['jitter_s']:.1f}" + (' (found)' if lidar['found'] else '')
+        for name, lidar in jitter.items())
+
+
+def _spikes(spikes: dict[str, dict[str, Any]] | None) -> str:
+    """Return the row of lone input samples left out (core/input_spikes.py)."""
+    return ', '.join(f"{name} {figures['spikes']}" for name, figures in (spikes or {}).items())
+
+
 def _table(summary: dict[str, Any]) -> str:
     def number(value: Any, fmt: str) -> str:
         return 'n/a' if value is None or (isinstance(value, float) and math.isnan(value)) \
@@ -139,6 +156,8 @@ def _table(summary: dict[str, Any]) -> str:
              ('gyro wander (deg/s)', _wander(online)),
              ('gyro scale error (%)', _scale(summary['gyro_scale'])),
              ('LiDAR stamps late against the gyro (ms)', _offsets(summary['time_offsets'])),
+             ('LiDAR stamps\' scatter (ms)', _scatter(summary['stamp_jitter'])),
+             ('lone input samples left out', _spikes(summary['input_spikes'])),
              ('poles associated', number(summary['association']['share_associated'], '.2%')),
              ('longest gap without a landmark (s)',
               number(summary['association']['longest_gap_s'], '.2f')),
