@@ -126,8 +126,11 @@ class EventDriver:
         self._turned = 0.0
         # Each LiDAR's stamps against the gyro's, from its own headings (core/time_offset.py).
         self.time_offsets: dict[LidarMount, TimeOffsetWatch] = {}
-        # Each LiDAR's stamps' scatter about when its scans were taken (core/stamp_jitter.py).
+        # Each LiDAR's stamps' scatter about when its scans were taken (core/stamp_jitter.py),
+        # and the range and bearing variances a LiDAR without measured ones is weighed by.
         self.stamp_jitter: dict[LidarMount, StampJitterWatch] = {}
+        self._stated_variances = (self.config.range_noise_m ** 2,
+                                  self.config.bearing_noise_rad ** 2)
         # Samples each input lost, by its own stamps (core/input_loss.py).
         self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
         self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
@@ -938,12 +941,11 @@ class EventDriver:
         sums (core/stamp_jitter.py); None when the gyro has not spoken yet or the scan is
         too slow to tell its stamp. Call before the scan's first update.
         """
-        if self.rate_rad_s is None:
+        rate = self.rate_rad_s
+        if rate is None:
             return None
-        config = self.config
-        range_var, bearing_var = variances or (config.range_noise_m ** 2,
-                                               config.bearing_noise_rad ** 2)
-        omega, speed = self.rate_rad_s - self.ekf.bias_rad_s, self.speed_m_s
+        range_var, bearing_var = variances or self._stated_variances
+        omega, speed = rate - self.ekf.bias_rad_s, self.speed_m_s
         if not StampJitterWatch.scan_is_informative(updates, omega, speed, range_var,
                                                     bearing_var):
             return None

@@ -29,7 +29,7 @@ in a row are a change as far as this can tell: only a lone sample is a spike.
 The state is a few scalars: ``save`` and ``restore`` (on every event, core/lagged.py) are
 O(1). ``admit`` runs at every IMU and odometry sample (89 000 of them in the 2016 log's
 run, whose speed is a benchmark goal), so a sample within the limit less its time
-allowance, refreshed every ``REFRESH_SAMPLES``, is taken after two comparisons and the
+allowance, refreshed every ``REFRESH_SAMPLES``, is taken after one comparison and the
 spread's update; only the others are judged in full.
 """
 
@@ -66,8 +66,8 @@ class SpikeGate:
     """
 
     __slots__ = ('max_change_per_s', 'spikes', 'largest', 'steps', 'last_limit', '_floor',
-                 '_value', '_stamp_s', '_suspect', '_mean_abs', '_abs_sum', '_seen', '_quick',
-                 '_countdown')
+                 '_value', '_stamp_s', '_started', '_suspect', '_mean_abs', '_abs_sum',
+                 '_seen', '_armed', '_quick', '_countdown')
 
     def __init__(self, sigma: float, max_change_per_s: float) -> None:
         """Judge a stream against its noise and the change its platform can make.
@@ -82,33 +82,34 @@ class SpikeGate:
         self.last_limit: float | None = None
         # The least standard deviation of a difference of two samples.
         self._floor = math.sqrt(2.0) * sigma
-        self._value: float | None = None  # the value in use
+        self._value = 0.0  # the value in use (none before the first sample: _started)
         self._stamp_s = 0.0  # its stamp
+        self._started = False
         self._suspect: float | None = None
         # The mean absolute change of the samples taken (SPREAD_SAMPLES' exponential mean),
         # and the changes taken since it was last updated, summed.
         self._mean_abs = 0.0
         self._abs_sum = 0.0
         self._seen = 0
-        # The limit less its time allowance (inf until WARM_SAMPLES), and the samples to
-        # take before it is worked out again.
-        self._quick = math.inf
+        # The limit less its time allowance (inf until WARM_SAMPLES); the quick test's, which
+        # is -1 while no sample has come or a suspect waits, so that admit's one comparison
+        # sends those to _judge; and the samples to take before the limit is worked out again.
+        self._armed = math.inf
+        self._quick = -1.0
         self._countdown = 1
 
     def admit(self, stamp_s: float, value: float) -> float | None:
         """Judge a sample; return the value to use from now on, or None to keep the held one."""
-        held = self._value
-        if held is not None and self._suspect is None:
-            change = abs(value - held)
-            if change <= self._quick:
-                # Within the limit whatever the time since the last sample: taken.
-                self._abs_sum += change
-                self._value = value
-                self._stamp_s = stamp_s
-                self._countdown -= 1
-                if not self._countdown:
-                    self._refresh()
-                return value
+        change = abs(value - self._value)
+        if change <= self._quick:
+            # Within the limit whatever the time since the last sample: taken.
+            self._abs_sum += change
+            self._value = value
+            self._stamp_s = stamp_s
+            self._countdown -= 1
+            if not self._countdown:
+                self._refresh()
+            return value
         return self._judge(stamp_s, value)
 
     def _refresh(self) -> None:
@@ -121,20 +122,22 @@ class SpikeGate:
         weight = taken / min(self._seen, SPREAD_SAMPLES)
         self._mean_abs += weight * (self._abs_sum / taken - self._mean_abs)
         self._abs_sum = 0.0
-        self._quick = self._spread() if warm else math.inf
+        self._armed = self._quick = self._spread() if warm else math.inf
         self._countdown = taken
 
     def _spread(self) -> float:
         return SPIKE_SIGMAS * max(self._floor, _ABS_TO_SIGMA * self._mean_abs)
 
     def _judge(self, stamp_s: float, value: float) -> float | None:
-        held = self._value
-        if held is None:
-            self._value, self._stamp_s = value, stamp_s
+        if not self._started:
+            self._started = True
+            self._value, self._stamp_s, self._quick = value, stamp_s, self._armed
             return value
+        held = self._value
         suspect = self._suspect
         if suspect is not None:
             self._suspect = None
+            self._quick = self._armed
             limit = self._spread() + self.max_change_per_s * (stamp_s - self._stamp_s)
             if abs(value - held) <= limit < abs(value - suspect):
                 self.spikes += 1
@@ -149,6 +152,7 @@ class SpikeGate:
             limit = self._spread() + self.max_change_per_s * (stamp_s - self._stamp_s)
             if abs(value - held) > limit:
                 self._suspect = value
+                self._quick = -1.0
                 self.last_limit = limit
                 return None if suspect is None else held
         return self._take(stamp_s, value)
@@ -163,13 +167,13 @@ class SpikeGate:
 
     def save(self) -> tuple:
         return (self.spikes, self.largest, self.steps, self.last_limit, self._value,
-                self._stamp_s, self._suspect, self._mean_abs, self._abs_sum, self._seen,
-                self._quick, self._countdown)
+                self._stamp_s, self._started, self._suspect, self._mean_abs, self._abs_sum,
+                self._seen, self._armed, self._quick, self._countdown)
 
     def restore(self, saved: tuple) -> None:
         (self.spikes, self.largest, self.steps, self.last_limit, self._value, self._stamp_s,
-         self._suspect, self._mean_abs, self._abs_sum, self._seen, self._quick,
-         self._countdown) = saved
+         self._started, self._suspect, self._mean_abs, self._abs_sum, self._seen,
+         self._armed, self._quick, self._countdown) = saved
 
     def report(self) -> dict[str, Any]:
         """JSON-ready figures (summary.json ``input_spikes``, /diagnostics, the verdict)."""
