@@ -844,7 +844,7 @@ class EventDriver:
                                             match.landmark_index,
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
         if jitter is not None:
-            self._close_jitter_scan(jitter)
+            jitter[0].close_scan(jitter[12])
         if nis and not at_rest:
             self.bias_watch.corrected(wrap_scalar(self.ekf.yaw_rad - float(prior[YAW])))
             if len(nis) >= OFFSET_MIN_UPDATES:
@@ -933,13 +933,13 @@ class EventDriver:
                 for key, watch in self.stamp_jitter.items()]
 
     def _jitter_frame(self, key: LidarMount, prior: FloatArray, mount: LidarMount,
-                      updates: int, variances: tuple[float, float] | None) -> list | None:
+                      updates: int, variances: tuple[float, float] | None) -> tuple | None:
         """Return what each update of a moving scan gives its stamp estimate, or None.
 
         The sensor's pose before the scan, its velocity in its own frame, the noise its
-        poles are weighed by, the pose's covariance before the scan, and the scan's running
-        sums (core/stamp_jitter.py); None when the gyro has not spoken yet or the scan is
-        too slow to tell its stamp. Call before the scan's first update.
+        poles are weighed by and the pose's covariance before the scan
+        (core/stamp_jitter.py); None when the gyro has not spoken yet or the scan is too
+        slow to tell its stamp. Call before the scan's first update.
         """
         rate = self.rate_rad_s
         if rate is None:
@@ -966,16 +966,9 @@ class EventDriver:
         pose_covariance = (p[5], p[6], p[7], p[10], p[11], p[14])
         # d(sensor position)/d(yaw): the sensor swings about the reference point.
         swing = (-mount.x_m * s - mount.y_m * c, mount.x_m * c - mount.y_m * s)
-        return [watch, math.cos(theta), math.sin(theta), sensor_x, sensor_y,
+        return (watch, math.cos(theta), math.sin(theta), sensor_x, sensor_y,
                 cm * ux + sm * uy, -sm * ux + cm * uy, omega, range_var + landmark_var,
-                bearing_var, landmark_var, swing, pose_covariance, 0.0, 0.0, 0.0]
-
-    def _close_jitter_scan(self, frame: list) -> None:
-        """Give a moving scan's sums to its stamp watch, with the pose's share of them."""
-        (watch, *_, (pxx, pxy, pxt, pyy, pyt, ptt), bx, by, bt) = frame
-        common = (bx * (pxx * bx + pxy * by + pxt * bt) + by * (pxy * bx + pyy * by + pyt * bt)
-                  + bt * (pxt * bx + pyt * by + ptt * bt))
-        watch.close_scan(common)
+                bearing_var, landmark_var, swing, pose_covariance)
 
     def _close_bias_block(self, stamp_s: float, at_rest: bool) -> None:
         """Before a scan's updates: judge the bias watch's block; re-open the bias on a drift."""
@@ -1225,7 +1218,7 @@ class EventDriver:
         return stamp_s - last > self.config.recovery_after_s
 
 
-def _stamp_look(frame: list, point: list[float], landmark: list[float]) -> None:
+def _stamp_look(frame: tuple, point: list[float], landmark: list[float]) -> None:
     """Give one update's pole to its scan's stamp estimate (core/stamp_jitter.py).
 
     e: the pole as measured less where the pose before the scan puts it (q); j: its
@@ -1235,7 +1228,7 @@ def _stamp_look(frame: list, point: list[float], landmark: list[float]) -> None:
     (dq/dpose)^T k.
     """
     (watch, c, s, sensor_x, sensor_y, ux, uy, omega, radial_var, bearing_var, map_var,
-     (swing_x, swing_y)) = frame[:12]
+     (swing_x, swing_y), _) = frame
     px, py = point
     dx, dy = landmark[0] - sensor_x, landmark[1] - sensor_y
     qx, qy = c * dx + s * dy, c * dy - s * dx
@@ -1245,9 +1238,7 @@ def _stamp_look(frame: list, point: list[float], landmark: list[float]) -> None:
     radial = (jx * px + jy * py) / (r2 * radial_var)
     tangential = (px * jy - py * jx) / (r2 * (r2 * bearing_var + map_var))
     kx, ky = radial * px - tangential * py, radial * py + tangential * px
-    watch.add(kx * (px - qx) + ky * (py - qy), kx * jx + ky * jy)
     # dq/dx = (-c, s), dq/dy = (-s, -c); dq/dyaw = (qy, -qx) less R(-theta) times the swing.
-    frame[13] += -c * kx + s * ky
-    frame[14] += -s * kx - c * ky
-    frame[15] += (kx * (qy - c * swing_x - s * swing_y)
-                  + ky * (-qx + s * swing_x - c * swing_y))
+    watch.add(kx * (px - qx) + ky * (py - qy), kx * jx + ky * jy,
+              -c * kx + s * ky, -s * kx - c * ky,
+              kx * (qy - c * swing_x - s * swing_y) + ky * (-qx + s * swing_x - c * swing_y))

@@ -70,11 +70,13 @@ variance (g_k times it, on average): from there the filter's NEES falls visibly.
 class StampJitterWatch:
     """One LiDAR's per-scan stamp estimates and the scatter they show (module docstring)."""
 
-    __slots__ = ('scans', '_a', '_g', '_w', '_wd', '_wd2', '_sum_noise', '_sum_g')
+    __slots__ = ('scans', '_a', '_g', '_b', '_w', '_wd', '_wd2', '_sum_noise', '_sum_g')
 
     def __init__(self) -> None:
         self.scans = 0
-        self._a = self._g = 0.0  # the open scan's sums
+        # The open scan's sums: j^T W e, j^T W j and (dq/dpose)^T W j over (x, y, yaw).
+        self._a = self._g = 0.0
+        self._b = [0.0, 0.0, 0.0]
         # Over the scans taken, with w = 1 / var(delta)^2: sum w, sum w delta,
         # sum w delta^2, sum w var(delta), and sum g.
         self._w = self._wd = self._wd2 = self._sum_noise = self._sum_g = 0.0
@@ -90,20 +92,34 @@ class StampJitterWatch:
                        + speed_m_s * speed_m_s / range_variance)
         return g * MAX_SCAN_SIGMA_S * MAX_SCAN_SIGMA_S >= 1.0
 
-    def add(self, a: float, g: float) -> None:
-        """Add one update's j^T W e and j^T W j to the open scan."""
+    def add(self, a: float, g: float, bx: float = 0.0, by: float = 0.0, bt: float = 0.0
+            ) -> None:
+        """Add one update's j^T W e, j^T W j and (dq/dpose)^T W j to the open scan."""
         self._a += a
         self._g += g
+        b = self._b
+        b[0] += bx
+        b[1] += by
+        b[2] += bt
 
-    def close_scan(self, common: float = 0.0) -> None:
+    def close_scan(self, pose_covariance: tuple[float, ...] | None = None,
+                   common: float = 0.0) -> None:
         """End the open scan: take its stamp estimate if it is sure enough.
 
-        common: b^T P b, the variance of sum(j^T W e) that the pose's error before the
-        scan adds (b = sum((dq/dpose)^T W j)): shared by all the scan's poles, it is not
-        in g (their noise, independent).
+        pose_covariance: P of the pose before the scan (xx, xy, x yaw, yy, y yaw, yaw yaw).
+        b^T P b, with b the scan's sum of (dq/dpose)^T W j, is the variance the pose's error
+        adds to sum(j^T W e): shared by all the scan's poles, it is not in g (their noise,
+        independent). common: a variance to add to it (tests give it directly).
         """
         a, g = self._a, self._g
+        bx, by, bt = self._b
         self._a = self._g = 0.0
+        self._b = [0.0, 0.0, 0.0]
+        if pose_covariance is not None:
+            pxx, pxy, pxt, pyy, pyt, ptt = pose_covariance
+            common += (bx * (pxx * bx + pxy * by + pxt * bt)
+                       + by * (pxy * bx + pyy * by + pyt * bt)
+                       + bt * (pxt * bx + pyt * by + ptt * bt))
         if g * MAX_SCAN_SIGMA_S * MAX_SCAN_SIGMA_S < 1.0:
             return
         delta = -a / g
@@ -136,12 +152,13 @@ class StampJitterWatch:
         return variance > T_LIMIT * sigma and share >= MATERIAL_SHARE
 
     def save(self) -> tuple:
-        return (self.scans, self._a, self._g, self._w, self._wd, self._wd2, self._sum_noise,
-                self._sum_g)
+        return (self.scans, self._a, self._g, tuple(self._b), self._w, self._wd, self._wd2,
+                self._sum_noise, self._sum_g)
 
     def restore(self, saved: tuple) -> None:
-        (self.scans, self._a, self._g, self._w, self._wd, self._wd2, self._sum_noise,
+        (self.scans, self._a, self._g, b, self._w, self._wd, self._wd2, self._sum_noise,
          self._sum_g) = saved
+        self._b = list(b)
 
     def report(self) -> dict[str, Any]:
         """JSON-ready figures (summary.json stamp_jitter, /diagnostics, the verdict)."""

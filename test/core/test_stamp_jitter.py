@@ -30,7 +30,7 @@ def _watched(scatter_s, scans=2000, seed=0, common=0.0, told=True):
             g = 1e5
             # a = j^T W e with e = -j delta + noise: mean -g delta, variance g.
             watch.add(-g * delta + math.sqrt(g) * rng.standard_normal() + shared, g)
-        watch.close_scan(common if told else 0.0)
+        watch.close_scan(common=common if told else 0.0)
     return watch
 
 
