@@ -912,6 +912,18 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
                 f'{100.0 * VERDICT_MIN_RECEIVED_SHARE:g} %: the last value was held across '
                 f'each lost one (inputs lost on the way or dropped by a node that could not '
                 f'keep up)')
+    for stream, loss in figures.input_loss.items():
+        if loss.get('scatters'):
+            # A driver that stamps samples on arrival: the estimates hold up (the hold
+            # integrates over intervals off by the scatter, which does not add up), but a
+            # lost sample is no longer told from a late one.
+            period_ms = 1000.0 * loss['period_s']
+            rms_ms = 1000.0 * loss['stamp_scatter_s']
+            add(DEGRADED, f'{stream}: its stamps scatter about its {period_ms:.1f} ms grid '
+                f'(RMS {rms_ms:.2f} ms over its first samples; {loss["misplaced"]} sample(s) '
+                f'later stamped over a slot\'s edge): '
+                f'a lost sample cannot be told from a late one, so the share received is '
+                f'uncertain; stamp the samples by the sensor\'s own clock')
     for stream, spikes in figures.input_spikes.items():
         if spikes['spikes']:
             # Left out, the run is as good as without them; but a sensor or link that

@@ -1003,6 +1003,10 @@ class EkfNode(Node):
             **{f'{name}_received_share': f'{loss.share:.4f}'
                for name, loss in self.driver.input_loss.items()},
             **{f'{name}_lost': str(loss.lost) for name, loss in self.driver.input_loss.items()},
+            # Stamps scattered about their grid (a driver stamping on arrival): a lost
+            # sample can no longer be told from a late one.
+            **{f'{name}_stamps_scatter': str(loss.scatters).lower()
+               for name, loss in self.driver.input_loss.items()},
             # Lone samples far from both neighbours, left out (core/input_spikes.py).
             **{f'{name}_spikes': str(gate.spikes)
                for name, gate in self.driver.input_spikes.items()},
