@@ -52,6 +52,7 @@ from gyro_ekf.core.gyro_scale import GyroScaleWatch
 from gyro_ekf.core.gyro_wander import GyroWander, block_allowed
 from gyro_ekf.core.input_loss import InputLoss
 from gyro_ekf.core.input_spikes import SpikeGate
+from gyro_ekf.core.map_poles import MapPoleWatch
 from gyro_ekf.core.stamp_jitter import StampJitterWatch
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition, chi_square_upper
@@ -203,8 +204,10 @@ class EventDriver:
     def landmarks(self, landmarks: LandmarkMap | None) -> None:
         self._landmarks = landmarks
         self._landmark_xy = [] if landmarks is None else landmarks.xy_m.tolist()
-        # The rest counts are per landmark index: a new map starts them again.
+        # The rest counts and the looks at poles that stand elsewhere (core/map_poles.py)
+        # are per landmark index: a new map starts them again.
         self._rest_updates: dict[tuple[int, LidarMount], int] = {}
+        self.map_poles = MapPoleWatch(len(self._landmark_xy))
 
     def reset(self, pose: FloatArray | None = None, bias_rad_s: float | None = None) -> None:
         """Start over (a looped bag, a ~/reset call): new filter, held inputs and counts."""
@@ -218,6 +221,7 @@ class EventDriver:
         self._turned = 0.0
         self.time_offsets = {}
         self.stamp_jitter = {}
+        self.map_poles = MapPoleWatch(len(self._landmark_xy))
         self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
         self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
         self._new_spike_gates()
@@ -307,7 +311,8 @@ class EventDriver:
                  {key: watch.save() for key, watch in self.time_offsets.items()}),
                 ({name: loss.save() for name, loss in self.input_loss.items()},
                  {name: gate.save() for name, gate in self.input_spikes.items()},
-                 {key: watch.save() for key, watch in self.stamp_jitter.items()}),
+                 {key: watch.save() for key, watch in self.stamp_jitter.items()},
+                 self.map_poles.save()),
                 (dict(self._start_offsets), self._body_key, self.frame_shift))
 
     def restore(self, saved: tuple) -> None:
@@ -317,8 +322,9 @@ class EventDriver:
          watch, held, self._rate_stamp_s, self._heading_dt2,
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
           self._path_yaw), noise, (gyro_scale, self._turned, offsets),
-         (input_loss, spikes, jitter),
+         (input_loss, spikes, jitter, map_poles),
          (start_offsets, self._body_key, self.frame_shift)) = saved
+        self.map_poles.restore(map_poles)
         self._start_offsets = dict(start_offsets)
         for name, saved_loss in input_loss.items():
             self.input_loss[name].restore(saved_loss)
@@ -802,14 +808,22 @@ class EventDriver:
                   self._jitter_frame(key, prior, mount, len(result.associations), variances))
         if jitter is not None:
             points_list = points.tolist()
+        near_poles = None
+        pole_matches = self.map_poles.matched
         for match in result.associations:
             outcomes[_OUTCOME_KEYS[match.outcome]] += 1
             if match.outcome is AssociationOutcome.UNMATCHED:
                 near = self._count_unmapped(prior, points[match.detection_index], mount)
-                if near is not None and self.held_start.held:
-                    # Outside the gate of the pole it lies near: the strongest disagreement.
-                    self.held_start.look(key, near, match.mahalanobis_sq, stamp_s)
+                if near is not None:
+                    if near_poles is None:
+                        near_poles = []
+                    near_poles.append(near)
+                    if self.held_start.held:
+                        # Outside the gate of the pole it lies near: the strongest
+                        # disagreement.
+                        self.held_start.look(key, near[0], match.mahalanobis_sq, stamp_s)
             if match.outcome is AssociationOutcome.MATCHED:
+                pole_matches[match.landmark_index] += 1
                 scale = base
                 if at_rest:
                     look = (match.landmark_index, key)
@@ -845,6 +859,14 @@ class EventDriver:
                                             self.ekf.landmark_var_m2 / (r * r) * scale)
         if jitter is not None:
             jitter[0].close_scan(jitter[12])
+        if near_poles is not None:
+            # Detections near a pole this scan matched to none: looks at where it may
+            # stand (core/map_poles.py); near one it matched, something besides it.
+            matched = {match.landmark_index for match in result.associations
+                       if match.outcome is AssociationOutcome.MATCHED}
+            for pole, dx, dy in near_poles:
+                if pole not in matched:
+                    self.map_poles.look(pole, dx, dy)
         if nis and not at_rest:
             self.bias_watch.corrected(wrap_scalar(self.ekf.yaw_rad - float(prior[YAW])))
             if len(nis) >= OFFSET_MIN_UPDATES:
@@ -926,6 +948,10 @@ class EventDriver:
         """Return each LiDAR's time offset figures (``TimeOffsetWatch.report``) with its name."""
         return [{'name': self.health.sensor(key).name, **watch.report()}
                 for key, watch in self.time_offsets.items()]
+
+    def map_poles_report(self) -> list[dict]:
+        """Return the mapped poles found to stand elsewhere (core/map_poles.py)."""
+        return self.map_poles.report(self._landmark_xy)
 
     def stamp_jitter_report(self) -> list[dict]:
         """Return each LiDAR's stamp scatter figures (``StampJitterWatch.report``) by name."""
@@ -1153,7 +1179,7 @@ class EventDriver:
             elif match.outcome is AssociationOutcome.UNMATCHED and self.held_start.held:
                 near = self._nearest_landmark(prior, points[match.detection_index], mount)
                 if near is not None:
-                    self.held_start.look(key, near, match.mahalanobis_sq, stamp_s)
+                    self.held_start.look(key, near[0], match.mahalanobis_sq, stamp_s)
         self.held_start.judge(stamp_s, 1 + len(self.mounts.trackers))
         if matched >= OFFSET_MIN_UPDATES and not self._still():
             # Held out, its headings against a pose the other LiDARs hold: its stamps'
@@ -1181,10 +1207,11 @@ class EventDriver:
                   heading_variance)
 
     def _count_unmapped(self, prior: FloatArray, point: FloatArray, mount: LidarMount
-                        ) -> int | None:
+                        ) -> tuple[int, float, float] | None:
         """Count an unmatched detection that lies far from every landmark of the map.
 
-        Returns the nearest landmark's index when one lies within the recovery distance.
+        Returns the nearest landmark's index and the detection's offset from it in the map
+        frame (m) when one lies within the recovery distance.
         """
         nearest = self._nearest_landmark(prior, point, mount)
         if nearest is None:
@@ -1192,14 +1219,17 @@ class EventDriver:
         return nearest
 
     def _nearest_landmark(self, prior: FloatArray, point: FloatArray, mount: LidarMount
-                          ) -> int | None:
-        """Index of the landmark nearest a detection, if within the recovery distance."""
+                          ) -> tuple[int, float, float] | None:
+        """Return the landmark nearest a detection, if within the recovery distance.
+
+        As (index, dx, dy): the detection's offset from it in the map frame, m.
+        """
         x, y = sensor_point_to_map(prior, float(point[0]), float(point[1]), mount)
         nearest, best = None, self.config.recovery_max_distance_m ** 2
         for k, (lx, ly) in enumerate(self._landmark_xy):
             d2 = (lx - x) ** 2 + (ly - y) ** 2
             if d2 <= best:
-                nearest, best = k, d2
+                nearest, best = (k, x - lx, y - ly), d2
         return nearest
 
     def _still(self) -> bool:

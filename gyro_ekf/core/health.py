@@ -669,6 +669,8 @@ class RunFigures:
             .time_offset_report(), core/time_offset.py).
         stamp_jitter: each LiDAR's stamps' scatter about when its scans were taken
             (EventDriver.stamp_jitter_report(), core/stamp_jitter.py).
+        map_poles: the mapped poles found to stand elsewhere (EventDriver
+            .map_poles_report(), core/map_poles.py).
         start_bias: (end s, bias rad/s, sigma rad/s) of the first stop's zero-rate updates
             (DriverStats.first_stop_*), or None (no stop learnt the bias).
         scans: LiDAR scans processed.
@@ -712,6 +714,7 @@ class RunFigures:
     start_bias: tuple[float, float, float] | None = None
     time_offsets: list[dict[str, Any]] = field(default_factory=list)
     stamp_jitter: list[dict[str, Any]] = field(default_factory=list)
+    map_poles: list[dict[str, Any]] = field(default_factory=list)
 
 
 def samples_dropped_figures(samples_dropped: Mapping[str, int]) -> dict[str, int]:
@@ -808,6 +811,15 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
         which = 'of detections' if not figures.unmapped else (
             f'of detections near a mapped pole ({figures.unmapped} far from every one '
             f'not counted)')
+        for pole in figures.map_poles:
+            # The cause of the detections left unmatched below, and the figure to fix it.
+            (mx, my), (sx, sy) = pole['map_xy_m'], pole['seen_xy_m']
+            add(DEGRADED, f'mapped pole {pole["index"]} at ({mx:.3f}, {my:.3f}) m stands '
+                f'{pole["offset_m"]:.3f} m from there, at ({sx:.3f}, {sy:.3f}) m: '
+                f'{pole["looks"]} detections lay there (spread {pole["spread_m"]:.3f} m) in '
+                f'scans that matched it to none, {pole["matched"]} where the map has it: '
+                f'the pole moved, or the map has it wrong; '
+                f'set it there in the map')
         if share < VERDICT_FAILED_ASSOCIATION_SHARE:
             add(FAILED, f'{share:.1%} {which} associated, below '
                 f'{VERDICT_FAILED_ASSOCIATION_SHARE:.0%}')

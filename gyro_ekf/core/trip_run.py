@@ -222,6 +222,8 @@ class TripRun:
             neighbours that were left out (SpikeGate.report, core/input_spikes.py).
         stamp_jitter: each LiDAR's stamps' scatter about when its scans were taken
             (EventDriver.stamp_jitter_report, core/stamp_jitter.py).
+        map_poles: the mapped poles found to stand elsewhere (EventDriver
+            .map_poles_report, core/map_poles.py).
     """
 
     estimates: Estimates
@@ -237,6 +239,7 @@ class TripRun:
     time_offsets: list[dict] | None = None
     input_spikes: dict | None = None
     stamp_jitter: list[dict] | None = None
+    map_poles: list[dict] | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -386,4 +389,4 @@ def drive_trip(trip: Trip, driver: EventDriver,
                    {name: loss.report() for name, loss in driver.input_loss.items()},
                    driver.time_offset_report(),
                    {name: gate.report() for name, gate in driver.input_spikes.items()},
-                   driver.stamp_jitter_report())
+                   driver.stamp_jitter_report(), driver.map_poles_report())

@@ -64,7 +64,9 @@ measured online (core/noise_online.py: `lidar_<topic>_{range_noise_m,bearing_noi
 (core/time_offset.py: `time_offset_<lidar>_{ms,sigma_ms,off}`, ms late, '' until enough
 windows; `off` true when the verdict names it), and the scatter of each LiDAR's stamps
 about when its scans were taken (core/stamp_jitter.py: `stamp_jitter_<lidar>_{ms,found}`,
-'' until enough scans of a moving platform);
+'' until enough scans of a moving platform), and the mapped poles whose detections lie
+elsewhere (core/map_poles.py: `map_poles_elsewhere`, their count, and
+`map_pole_<index>_seen_at_m`, where each stands: x y in the map frame);
 `ekf/mounts` (PoseArray in
 `base_link`, latched) holds the same mounts, one pose per `lidar.topics` entry in that
 order, published again when an online estimate replaces one.
@@ -867,6 +869,7 @@ class EkfNode(Node):
             gyro_scale=self.driver.gyro_scale.report(),
             time_offsets=self.driver.time_offset_report(),
             stamp_jitter=self.driver.stamp_jitter_report(),
+            map_poles=self.driver.map_poles_report(),
             input_loss=inputs,
             input_spikes={name: gate.report()
                           for name, gate in self.driver.input_spikes.items()},
@@ -907,6 +910,7 @@ class EkfNode(Node):
         rejected = sum(v for k, v in outcomes.items() if k != 'matched')
         since = (None if stats.last_association_s is None or self.driver.stamp_s is None
                  else self.driver.stamp_s - stats.last_association_s)
+        map_poles = self.driver.map_poles_report()
         values = {
             'bias_deg_s': f'{math.degrees(x[3]):.5f}',
             'bias_sigma_deg_s': f'{math.degrees(math.sqrt(max(P[3, 3], 0.0))):.5f}',
@@ -992,6 +996,11 @@ class EkfNode(Node):
                for lidar in self.driver.stamp_jitter_report() for key, value in (
                    ('ms', _optional(_milli(lidar['jitter_s']), '.2f')),
                    ('found', str(lidar['found']).lower()))},
+            # Mapped poles whose detections lie elsewhere (core/map_poles.py): how many,
+            # and each one's index and where it stands, m.
+            'map_poles_elsewhere': str(len(map_poles)),
+            **{f'map_pole_{pole["index"]}_seen_at_m': '{:.3f} {:.3f}'.format(
+                *pole['seen_xy_m']) for pole in map_poles},
             # A ramping bias followed (core/bias_rate.py): its rate in use, 0 when none.
             'bias_rate_deg_s_per_min': f'{math.degrees(stats.bias_rate_rad_s2) * 60.0:.4f}',
             'standing_still': str(self.driver.zero_rate).lower(),
