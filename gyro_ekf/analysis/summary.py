@@ -195,6 +195,8 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     summary['stamp_jitter'] = {lidar['name']: lidar for lidar in run.result.stamp_jitter or ()}
     # Mapped poles whose detections lie elsewhere, and where (core/map_poles.py).
     summary['map_poles_elsewhere'] = run.result.map_poles or []
+    # Whether each LiDAR's scans turn the way the gyro does (core/turn_sign.py).
+    summary['turn_signs'] = {lidar['name']: lidar for lidar in run.result.turn_signs or ()}
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)
@@ -252,6 +254,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         time_offsets=run.result.time_offsets or [],
         stamp_jitter=run.result.stamp_jitter or [],
         map_poles=run.result.map_poles or [],
+        turn_signs=run.result.turn_signs or [],
         final_bias_sigma_rad_s=summary['online_bias']['final_sigma_rad_s'],
         start_bias=stats.first_stop)
     return {**health.verdict(figures), 'lidars': sensors,

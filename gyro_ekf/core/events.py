@@ -53,6 +53,7 @@ from gyro_ekf.core.gyro_wander import GyroWander, block_allowed
 from gyro_ekf.core.input_loss import InputLoss
 from gyro_ekf.core.input_spikes import SpikeGate
 from gyro_ekf.core.map_poles import MapPoleWatch
+from gyro_ekf.core.turn_sign import TurnSignCheck
 from gyro_ekf.core.stamp_jitter import StampJitterWatch
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
 from gyro_ekf.core.health import HealthMonitor, Transition, chi_square_upper
@@ -127,6 +128,8 @@ class EventDriver:
         self._turned = 0.0
         # Each LiDAR's stamps against the gyro's, from its own headings (core/time_offset.py).
         self.time_offsets: dict[LidarMount, TimeOffsetWatch] = {}
+        # Whether each LiDAR's scans turn the way the gyro does (core/turn_sign.py).
+        self.turn_signs = TurnSignCheck()
         # Each LiDAR's stamps' scatter about when its scans were taken (core/stamp_jitter.py),
         # and the range and bearing variances a LiDAR without measured ones is weighed by.
         self.stamp_jitter: dict[LidarMount, StampJitterWatch] = {}
@@ -222,6 +225,7 @@ class EventDriver:
         self.time_offsets = {}
         self.stamp_jitter = {}
         self.map_poles = MapPoleWatch(len(self._landmark_xy))
+        self.turn_signs = TurnSignCheck()
         self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
         self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
         self._new_spike_gates()
@@ -312,7 +316,7 @@ class EventDriver:
                 ({name: loss.save() for name, loss in self.input_loss.items()},
                  {name: gate.save() for name, gate in self.input_spikes.items()},
                  {key: watch.save() for key, watch in self.stamp_jitter.items()},
-                 self.map_poles.save()),
+                 self.map_poles.save(), self.turn_signs.save()),
                 (dict(self._start_offsets), self._body_key, self.frame_shift))
 
     def restore(self, saved: tuple) -> None:
@@ -322,9 +326,10 @@ class EventDriver:
          watch, held, self._rate_stamp_s, self._heading_dt2,
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
           self._path_yaw), noise, (gyro_scale, self._turned, offsets),
-         (input_loss, spikes, jitter, map_poles),
+         (input_loss, spikes, jitter, map_poles, turn_signs),
          (start_offsets, self._body_key, self.frame_shift)) = saved
         self.map_poles.restore(map_poles)
+        self.turn_signs.restore(turn_signs)
         self._start_offsets = dict(start_offsets)
         for name, saved_loss in input_loss.items():
             self.input_loss[name].restore(saved_loss)
@@ -752,6 +757,13 @@ class EventDriver:
                         self.ekf.reset(np.array(still_at), self.ekf.bias_rad_s, self.ekf.P)
                         self._restart_heading_windows()
                     mount = self.odometry.first_mount(key)
+        if self.rate_rad_s is not None:
+            # Scan to scan, without the map: an upside-down gyro or LiDAR shows here first.
+            # The bias the first stop learnt, not the filter's: a filter the flipped
+            # sensor misled takes the turn for a bias of tens of deg/s.
+            self.turn_signs.scan(key, sensor, stamp_s, points, mount, self._turned,
+                                 self.stats.first_stop_bias_rad_s or 0.0,
+                                 self._measured_speed_m_s)
         if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
             return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
         # Plain floats from here: a scan has a handful of poles, and numpy's per-call cost
@@ -881,6 +893,7 @@ class EventDriver:
                 if moved is not None:
                     self._first_lidar_moved(key, moved)
         self.held_start.judge(stamp_s, 1 + len(self.mounts.trackers))
+        self.turn_signs.associated(key, points.shape[0], len(nis))
         nis_sum = float(sum(nis))
         self._judged(key, self.health.record(key, stamp_s, points.shape[0], len(nis),
                                              nis_sum, float(bearing_sum), sensor))
@@ -948,6 +961,10 @@ class EventDriver:
         """Return each LiDAR's time offset figures (``TimeOffsetWatch.report``) with its name."""
         return [{'name': self.health.sensor(key).name, **watch.report()}
                 for key, watch in self.time_offsets.items()]
+
+    def turn_sign_report(self) -> list[dict]:
+        """Return per LiDAR whether it turns the same way as the gyro (core/turn_sign.py)."""
+        return self.turn_signs.report()
 
     def map_poles_report(self) -> list[dict]:
         """Return the mapped poles found to stand elsewhere (core/map_poles.py)."""

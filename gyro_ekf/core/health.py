@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from typing import Any, Hashable
 
 from gyro_ekf.core.config import EkfConfig
-from gyro_ekf.core import mount_online, odometry_online, time_offset
+from gyro_ekf.core import mount_online, odometry_online, time_offset, turn_sign
 
 OK, DEGRADED, FAILED = 'ok', 'degraded', 'failed'
 _RANK = {OK: 0, DEGRADED: 1, FAILED: 2}
@@ -671,6 +671,8 @@ class RunFigures:
             (EventDriver.stamp_jitter_report(), core/stamp_jitter.py).
         map_poles: the mapped poles found to stand elsewhere (EventDriver
             .map_poles_report(), core/map_poles.py).
+        turn_signs: per LiDAR, whether its scans turn the way the gyro does (EventDriver
+            .turn_sign_report(), core/turn_sign.py).
         start_bias: (end s, bias rad/s, sigma rad/s) of the first stop's zero-rate updates
             (DriverStats.first_stop_*), or None (no stop learnt the bias).
         scans: LiDAR scans processed.
@@ -715,6 +717,55 @@ class RunFigures:
     time_offsets: list[dict[str, Any]] = field(default_factory=list)
     stamp_jitter: list[dict[str, Any]] = field(default_factory=list)
     map_poles: list[dict[str, Any]] = field(default_factory=list)
+    turn_signs: list[dict[str, Any]] = field(default_factory=list)
+
+
+VERDICT_UPRIGHT_ASSOCIATION_SHARE = 0.5
+"""Share of a lone LiDAR's detections associated before its first turn at or above which
+the LiDAR is taken as upright when it and the gyro turn opposite ways (core/turn_sign.py)."""
+
+
+def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
+    """Return (level, reason) for a gyro or LiDAR that turns the other way (core/turn_sign.py)."""
+    decided = [lidar for lidar in figures.turn_signs if lidar['votes'] >= turn_sign.MIN_VOTES]
+    against = [lidar for lidar in decided if lidar['opposite_found']]
+    if not against:
+        return []
+    agree = [lidar['name'] for lidar in decided
+             if lidar['opposite'] <= (1.0 - turn_sign.FOUND_SHARE) * lidar['votes']]
+
+    def votes(lidar: dict[str, Any]) -> str:
+        return (f'in {lidar["opposite"]} of {lidar["votes"]} turns between its scans its '
+                f'poles moved as for the gyro\'s turn negated')
+
+    upside_down_gyro = ('the IMU is mounted upside down or its z axis points down '
+                        '(REP-145: z up): negate its yaw rate')
+    if agree:
+        # The others vouch for the gyro's sign: this one is mirrored. Its scans disagree
+        # with the map too, so health has most likely excluded it.
+        return [(DEGRADED, f'LiDAR {lidar["name"]} turns the other way from the gyro and '
+                 f'LiDAR {", ".join(agree)} ({votes(lidar)}): it is mounted upside down (its '
+                 f'bearings run clockwise): mount it upright or reverse its angles')
+                for lidar in against]
+    if len(against) > 1:
+        names = ', '.join(lidar['name'] for lidar in against)
+        return [(FAILED, f'the gyro turns the other way from every LiDAR ({names}; '
+                 f'{votes(against[0])}): {upside_down_gyro}')]
+    lidar, = against
+    share = lidar['associated_before_turns']
+    if share is not None and share >= VERDICT_UPRIGHT_ASSOCIATION_SHARE:
+        which = (f'before the first turn {share:.0%} of its {lidar["detections_before_turns"]} '
+                 f'detections matched the map, so {upside_down_gyro}')
+    elif share is not None:
+        which = (f'before the first turn only {share:.0%} of its '
+                 f'{lidar["detections_before_turns"]} detections matched the map, so the '
+                 f'LiDAR is mounted upside down (its bearings run clockwise): mount it upright '
+                 f'or reverse its angles')
+    else:
+        which = (f'one of them is upside down: either {upside_down_gyro}, or the LiDAR\'s '
+                 f'bearings run clockwise (mounted upside down)')
+    return [(FAILED, f'the gyro and LiDAR {lidar["name"]} turn opposite ways '
+             f'({votes(lidar)}): {which}')]
 
 
 def samples_dropped_figures(samples_dropped: Mapping[str, int]) -> dict[str, int]:
@@ -792,6 +843,8 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
     def add(level: str, text: str) -> None:
         reasons.append((level, text))
 
+    # A sensor upside down first: the association, NIS and bias reasons below follow from it.
+    reasons.extend(_turn_sign_reasons(figures))
     if figures.detections and figures.updates == 0:
         add(FAILED, f'no landmark update in {figures.start_gap_s:.1f} s although '
             f'{figures.detections} poles were detected')

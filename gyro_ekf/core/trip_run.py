@@ -224,6 +224,8 @@ class TripRun:
             (EventDriver.stamp_jitter_report, core/stamp_jitter.py).
         map_poles: the mapped poles found to stand elsewhere (EventDriver
             .map_poles_report, core/map_poles.py).
+        turn_signs: per LiDAR, whether its scans turn the way the gyro does (EventDriver
+            .turn_sign_report, core/turn_sign.py).
     """
 
     estimates: Estimates
@@ -240,6 +242,7 @@ class TripRun:
     input_spikes: dict | None = None
     stamp_jitter: list[dict] | None = None
     map_poles: list[dict] | None = None
+    turn_signs: list[dict] | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -389,4 +392,5 @@ def drive_trip(trip: Trip, driver: EventDriver,
                    {name: loss.report() for name, loss in driver.input_loss.items()},
                    driver.time_offset_report(),
                    {name: gate.report() for name, gate in driver.input_spikes.items()},
-                   driver.stamp_jitter_report(), driver.map_poles_report())
+                   driver.stamp_jitter_report(), driver.map_poles_report(),
+                   driver.turn_sign_report())

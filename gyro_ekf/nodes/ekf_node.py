@@ -870,6 +870,7 @@ class EkfNode(Node):
             time_offsets=self.driver.time_offset_report(),
             stamp_jitter=self.driver.stamp_jitter_report(),
             map_poles=self.driver.map_poles_report(),
+            turn_signs=self.driver.turn_sign_report(),
             input_loss=inputs,
             input_spikes={name: gate.report()
                           for name, gate in self.driver.input_spikes.items()},
@@ -996,6 +997,10 @@ class EkfNode(Node):
                for lidar in self.driver.stamp_jitter_report() for key, value in (
                    ('ms', _optional(_milli(lidar['jitter_s']), '.2f')),
                    ('found', str(lidar['found']).lower()))},
+            # Per LiDAR, turns between its scans that voted, and those whose poles moved as
+            # for the gyro's turn negated: an upside-down gyro or LiDAR (core/turn_sign.py).
+            **{f'turn_sign_{lidar["name"]}_{key}': str(lidar[key])
+               for lidar in self.driver.turn_sign_report() for key in ('votes', 'opposite')},
             # Mapped poles whose detections lie elsewhere (core/map_poles.py): how many,
             # and each one's index and where it stands, m.
             'map_poles_elsewhere': str(len(map_poles)),
