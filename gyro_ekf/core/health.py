@@ -745,7 +745,8 @@ def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
         # with the map too, so health has most likely excluded it.
         return [(DEGRADED, f'LiDAR {lidar["name"]} turns the other way from the gyro and '
                  f'LiDAR {", ".join(agree)} ({votes(lidar)}): it is mounted upside down (its '
-                 f'bearings run clockwise): mount it upright or reverse its angles')
+                 f'bearings run clockwise): mount it upright, or have its driver publish '
+                 f'the scans inverted (angle_increment negated)')
                 for lidar in against]
     if len(against) > 1:
         names = ', '.join(lidar['name'] for lidar in against)
@@ -760,7 +761,7 @@ def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
         which = (f'before the first turn only {share:.0%} of its '
                  f'{lidar["detections_before_turns"]} detections matched the map, so the '
                  f'LiDAR is mounted upside down (its bearings run clockwise): mount it upright '
-                 f'or reverse its angles')
+                 f'or have its driver publish the scans inverted (angle_increment negated)')
     else:
         which = (f'one of them is upside down: either {upside_down_gyro}, or the LiDAR\'s '
                  f'bearings run clockwise (mounted upside down)')

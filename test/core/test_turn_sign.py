@@ -116,6 +116,25 @@ def test_an_upside_down_second_lidar_is_named_and_the_run_holds():
     assert summary['ground_truth']['position_rmse_m'] < 0.02
 
 
+def test_an_upside_down_lidar_published_inverted_as_the_verdict_says_runs_as_upright():
+    trip = simulate_trip(SimulationConfig(duration_s=40.0), 2)
+    scans = trip.scans[0]
+    mirrored = _mirrored(scans)
+    summary = summarize(run_trip(dataclasses.replace(trip, scans=(mirrored,))))
+    first = summary['health']['reasons'][0]
+    assert 'the LiDAR is mounted upside down' in first and 'angle_increment negated' in first
+    # The same beams with the angles its driver would publish inverted: as the upright run.
+    last = scans.angle_min_rad + scans.angle_increment_rad * (scans.ranges_m.shape[1] - 1)
+    inverted = dataclasses.replace(mirrored, angle_min_rad=last,
+                                   angle_increment_rad=-scans.angle_increment_rad)
+    fixed = summarize(run_trip(dataclasses.replace(trip, scans=(inverted,))))
+    upright = summarize(run_trip(trip))
+    assert (fixed['health']['verdict'], fixed['health']['reasons']) == (
+        upright['health']['verdict'], upright['health']['reasons'])
+    assert fixed['ground_truth']['position_rmse_m'] == pytest.approx(
+        upright['ground_truth']['position_rmse_m'], rel=1e-3)
+
+
 @pytest.fixture(scope='module')
 def real_2016_trip(shared_data):
     from gyro_ekf.io.matlab import load_course_log
