@@ -725,12 +725,50 @@ VERDICT_UPRIGHT_ASSOCIATION_SHARE = 0.5
 the LiDAR is taken as upright when it and the gyro turn opposite ways (core/turn_sign.py)."""
 
 
+VERDICT_SPEED_RATIO = (0.5, 2.0)
+"""The odometry's distance over the one a LiDAR's scans show outside this range: failed, its
+sign or units wrong (core/turn_sign.py; a scale error of a few per cent is
+core/odometry_online.py's)."""
+
+
+def _gross_scale_reasons(figures: RunFigures) -> list[tuple[str, str]]:
+    """Return (level, reason) for a gyro or odometry in the wrong units or sign."""
+    reasons = []
+    for lidar in figures.turn_signs:
+        if lidar['scale_found']:
+            scale = lidar['scale']
+            cause = ('its yaw rate is in deg/s where REP-103 has rad/s' if abs(scale) > 1.0
+                     else 'a yaw rate in rad/s was converted as if it were in deg/s')
+            if scale < 0.0:
+                cause += ', and its z axis points down'
+            reasons.append((FAILED, f'the gyro reads {scale:.4g} rad per radian LiDAR '
+                            f'{lidar["name"]}\'s scans turn (in {lidar["scale_votes"]} of '
+                            f'{lidar["votes"]} turns between its scans): {cause}'))
+            break
+    for lidar in figures.turn_signs:
+        ratio = lidar['speed_ratio']
+        if lidar['opposite_found'] or ratio is None:
+            continue
+        low, high = VERDICT_SPEED_RATIO
+        if not low <= ratio <= high:
+            cause = ('its speed\'s sign is reversed (REP-103: x forward)' if ratio < 0.0
+                     else 'its speed\'s units or scale are wrong (REP-103 has m/s; a wheel '
+                     'radius or gear ratio?)')
+            reasons.append((FAILED, f'the odometry reads {ratio:.3g} m per metre LiDAR '
+                            f'{lidar["name"]}\'s scans show the platform went (over '
+                            f'{lidar["speed_pairs"]} pairs of scans): {cause}'))
+            break
+    return reasons
+
+
 def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
     """Return (level, reason) for a gyro or LiDAR that turns the other way (core/turn_sign.py)."""
+    scaled = _gross_scale_reasons(figures)
     decided = [lidar for lidar in figures.turn_signs if lidar['votes'] >= turn_sign.MIN_VOTES]
-    against = [lidar for lidar in decided if lidar['opposite_found']]
+    against = [lidar for lidar in decided
+               if lidar['opposite_found'] and not lidar['scale_found']]
     if not against:
-        return []
+        return scaled
     agree = [lidar['name'] for lidar in decided
              if lidar['opposite'] <= (1.0 - turn_sign.FOUND_SHARE) * lidar['votes']]
 
@@ -743,15 +781,16 @@ def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
     if agree:
         # The others vouch for the gyro's sign: this one is mirrored. Its scans disagree
         # with the map too, so health has most likely excluded it.
-        return [(DEGRADED, f'LiDAR {lidar["name"]} turns the other way from the gyro and '
-                 f'LiDAR {", ".join(agree)} ({votes(lidar)}): it is mounted upside down (its '
-                 f'bearings run clockwise): mount it upright, or have its driver publish '
-                 f'the scans inverted (angle_increment negated)')
-                for lidar in against]
+        return scaled + [
+            (DEGRADED, f'LiDAR {lidar["name"]} turns the other way from the gyro and LiDAR '
+             f'{", ".join(agree)} ({votes(lidar)}): it is mounted upside down (its bearings '
+             f'run clockwise): mount it upright, or have its driver publish the scans '
+             f'inverted (angle_increment negated)')
+            for lidar in against]
     if len(against) > 1:
         names = ', '.join(lidar['name'] for lidar in against)
-        return [(FAILED, f'the gyro turns the other way from every LiDAR ({names}; '
-                 f'{votes(against[0])}): {upside_down_gyro}')]
+        return scaled + [(FAILED, f'the gyro turns the other way from every LiDAR '
+                                  f'({names}; {votes(against[0])}): {upside_down_gyro}')]
     lidar, = against
     share = lidar['associated_before_turns']
     if share is not None and share >= VERDICT_UPRIGHT_ASSOCIATION_SHARE:
@@ -765,8 +804,8 @@ def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
     else:
         which = (f'one of them is upside down: either {upside_down_gyro}, or the LiDAR\'s '
                  f'bearings run clockwise (mounted upside down)')
-    return [(FAILED, f'the gyro and LiDAR {lidar["name"]} turn opposite ways '
-             f'({votes(lidar)}): {which}')]
+    return scaled + [(FAILED, f'the gyro and LiDAR {lidar["name"]} turn opposite ways '
+                              f'({votes(lidar)}): {which}')]
 
 
 def samples_dropped_figures(samples_dropped: Mapping[str, int]) -> dict[str, int]:

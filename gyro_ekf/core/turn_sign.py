@@ -1,24 +1,29 @@
-"""Whether the gyro and each LiDAR turn the same way: an upside-down sensor, found and named.
+"""A gyro or LiDAR upside down, a gyro or odometry in the wrong units or sign: named.
 
 An IMU mounted upside down (its z axis down, against REP-145) reads the yaw rate with the
 wrong sign; so do the beams of a LiDAR mounted upside down, whose bearings run clockwise.
-Either way the filter turns one way while the poles move the other: the pose is lost at the
-first turn, and the run said so only by its effects ("a bias beyond 10 deg/s", "the pose is
+A driver that publishes deg/s where REP-103 has rad/s reads 57.3 times the turn; an encoder
+wired backwards, or in cm/s, reads -1 or 100 times the speed. Each loses the pose within
+seconds, and the run said so only by its effects ("a bias beyond 10 deg/s", "the pose is
 lost", "under 50 % associated"; a gyro flipped on a 120-s trip once ended 15 m off with the
-verdict degraded), never the cause, which is one sign to set.
+verdict degraded), never the cause, which is one sign or factor to set.
 
 The check needs neither the map nor the filter's pose. A LiDAR's scan is compared with the
-first later one after the platform turned ``MIN_TURN_RAD`` within ``MAX_INTERVAL_S`` (the
-2016 log's LiDAR scans at 37 Hz, under 1 deg apart). Between the two the platform turned
-by dpsi, the gyro's integral less the bias the first stop learnt (not the filter's: one a
-flipped gyro misled takes the turns for a bias of 40 deg/s), and moved by the odometry's
-speed over the interval. The poles of the first scan are moved twice, by dpsi and by
--dpsi, and each detection of the second scores its squared distance to the nearest moved
-pole (capped at ``GATE_M`` squared, so a pole seen in one scan only costs the same under
-both; the sensor's own path is fitted to the detections within the gate, ``_score``). The
-pair votes for the sign that scores under half the other with at least two detections
-within half the gate: between the two signs the poles move by twice dpsi times their
-range, tens of centimetres.
+first later one after the gyro turned ``MIN_TURN_RAD`` within ``MAX_INTERVAL_S`` (the 2016
+log's LiDAR scans at 37 Hz, under 1 deg apart). The gyro's turn between the two is its
+integral less the bias the first stop learnt (not the filter's: one a flipped gyro misled
+takes the turns for a bias of 40 deg/s). The first scan's poles are moved by that turn
+divided by each of ``SCALES`` (what the gyro may read per radian turned: 1, -1, 57.3,
+1/57.3 and their negatives), each set shifted by the path that fits the second scan's
+detections best (``_score``), and scored by the squared distance of each detection to the
+nearest moved pole (capped at ``GATE_M`` squared, so a pole seen in one scan only costs
+the same under all). The pair votes for the scale that scores under half the next best
+with at least two detections within half the gate: between the signs the poles move by
+twice the turn times their range, tens of centimetres. The path fitted under the scale
+voted for, forward in the body frame, is what the platform went by the LiDAR; against the
+odometry's speed times the interval (over pairs that went ``MIN_PATH_M`` or more) it gives
+the odometry's ``speed_ratio``: 0.96-1.04 on the course logs, -1 for an encoder wired
+backwards.
 
 After ``MIN_VOTES`` votes, a LiDAR whose votes say -dpsi in at least ``FOUND_SHARE`` of them
 turns the other way from the gyro. With two LiDARs or more, the one that disagrees with the
@@ -61,61 +66,77 @@ FOUND_SHARE = 0.8
 MAX_VOTES = 60
 """Votes after which a LiDAR is no longer looked at."""
 
+MIN_PATH_M = 0.05
+"""Least distance the LiDAR's scans show the platform went between two scans for the pair
+to weigh the odometry's."""
 
-def _moved(points: FloatArray, mount: LidarMount, turn_rad: float, distance_m: float
-           ) -> FloatArray:
+
+DEG = 180.0 / math.pi
+
+SCALES = (1.0, -1.0, DEG, -DEG, 1.0 / DEG, -1.0 / DEG)
+"""What the gyro may read per radian turned: right, upside down, in deg/s where rad/s is
+due (REP-103), a rad/s rate converted as if it were deg/s; each either way up."""
+
+
+def _moved(points: FloatArray, mount: LidarMount, turns_rad: FloatArray) -> FloatArray:
     """Return first-scan points (sensor frame) where the second scan should see them.
 
-    The platform turned by turn_rad and went distance_m along its heading half-way through
-    the turn; the points are static.
+    One set (h, n, 2) per turn of turns_rad (h,): the platform turned about its origin,
+    the points static (the path between the scans is fitted in ``_score``).
     """
     c, s = math.cos(mount.yaw_rad), math.sin(mount.yaw_rad)
     # First scan: sensor frame to the first body frame.
     bx = mount.x_m + c * points[:, 0] - s * points[:, 1]
     by = mount.y_m + s * points[:, 0] + c * points[:, 1]
-    # Into the second body frame.
-    half = 0.5 * turn_rad
-    bx = bx - distance_m * math.cos(half)
-    by = by - distance_m * math.sin(half)
-    ct, st = math.cos(turn_rad), math.sin(turn_rad)
-    bx, by = ct * bx + st * by, -st * bx + ct * by
+    # Into the second body frame, one row per turn.
+    ct, st = np.cos(turns_rad)[:, None], np.sin(turns_rad)[:, None]
+    bx, by = ct * bx + st * by - mount.x_m, -st * bx + ct * by - mount.y_m
     # Second body frame to the sensor frame.
-    bx, by = bx - mount.x_m, by - mount.y_m
-    return np.column_stack([c * bx + s * by, -s * bx + c * by])
+    return np.stack([c * bx + s * by, -s * bx + c * by], axis=2)
 
 
-def _score(moved: FloatArray, seen: FloatArray) -> tuple[float, int]:
-    """Return (sum of capped squared distances, detections within half the gate).
+def _score(moved: FloatArray, seen: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Score sets of moved poles (h, n, 2) against the detections seen (m, 2).
 
-    The moved poles are shifted first by the mean offset of the detections within the gate
-    of one (twice): the sensor's own path between the scans is free, so a LiDAR whose
-    frame is mirrored (its path mirrored too) is judged by its turn alone.
+    Returns per set the sum of capped squared distances (h,), the detections within half
+    the gate (h,), and the shift fitted (h, 2; sensor frame, m). Each set is shifted by the
+    mean offset of the detections within the gate of one of its poles (twice): the
+    sensor's own path between the scans is free, so a LiDAR whose frame is mirrored (its
+    path mirrored too) is judged by its turn alone, and the path fitted says how far the
+    platform went.
     """
+    rows = np.arange(len(seen))
+    shift = np.zeros((len(moved), 2))
+    gate = GATE_M * GATE_M
     for _ in range(2):
-        offsets = seen[:, None, :] - moved[None, :, :]
-        d2 = (offsets ** 2).sum(axis=2)
-        nearest = d2.argmin(axis=1)
-        best = d2[np.arange(len(seen)), nearest]
-        near = best < GATE_M * GATE_M
-        if not near.any():
-            break
-        moved = moved + offsets[np.arange(len(seen)), nearest][near].mean(axis=0)
-    d2 = ((seen[:, None, :] - moved[None, :, :]) ** 2).sum(axis=2).min(axis=1)
-    return float(np.minimum(d2, GATE_M * GATE_M).sum()), int((d2 < 0.25 * GATE_M ** 2).sum())
+        offsets = seen[None, :, None, :] - (moved + shift[:, None, :])[:, None, :, :]
+        d2 = (offsets ** 2).sum(axis=3)  # (h, m, n)
+        nearest = d2.argmin(axis=2)  # (h, m)
+        best = np.take_along_axis(d2, nearest[:, :, None], axis=2)[:, :, 0]
+        near = best < gate
+        picked = offsets[np.arange(len(moved))[:, None], rows[None, :], nearest]  # (h, m, 2)
+        count = near.sum(axis=1)
+        shift += np.where(count[:, None] > 0, (picked * near[:, :, None]).sum(axis=1)
+                          / np.maximum(count, 1)[:, None], 0.0)
+    d2 = ((seen[None, :, None, :] - (moved + shift[:, None, :])[:, None, :, :]) ** 2
+          ).sum(axis=3).min(axis=2)
+    return np.minimum(d2, gate).sum(axis=1), (d2 < 0.25 * gate).sum(axis=1), shift
 
 
 class TurnSignCheck:
-    """Votes, per LiDAR, on the sign of the gyro's turn its scans show (module docstring)."""
+    """Per LiDAR, votes on the gyro's reading per radian turned, and the odometry's path."""
 
-    __slots__ = ('_last', '_votes', '_before')
+    __slots__ = ('_last', '_votes', '_before', '_paths')
 
     def __init__(self) -> None:
         # Per LiDAR: (detections, matched) of its scans before its first vote.
         self._before: dict[Hashable, tuple[int, int]] = {}
         # Per LiDAR: (stamp s, points, the gyro's raw integral rad).
         self._last: dict[Hashable, tuple[float, FloatArray, float]] = {}
-        # Per LiDAR: (name, votes, votes for -dpsi).
-        self._votes: dict[Hashable, tuple[str, int, int]] = {}
+        # Per LiDAR: (name, votes per SCALES entry).
+        self._votes: dict[Hashable, tuple[str, tuple[int, ...]]] = {}
+        # Per LiDAR: (pairs, sum of odometry x LiDAR distance, sum of LiDAR distance^2).
+        self._paths: dict[Hashable, tuple[int, float, float]] = {}
 
     def scan(self, key: Hashable, name: str, stamp_s: float, points: FloatArray,
              mount: LidarMount, turned_rad: float, bias_rad_s: float, speed_m_s: float
@@ -126,7 +147,7 @@ class TurnSignCheck:
         odometry's speed held; mount: the LiDAR's mount in use.
         """
         name_votes = self._votes.get(key)
-        if name_votes is not None and name_votes[1] >= MAX_VOTES:
+        if name_votes is not None and sum(name_votes[1]) >= MAX_VOTES:
             return
         last = self._last.get(key)
         if last is None or len(last[1]) < 2 or not 0.0 < stamp_s - last[0] <= MAX_INTERVAL_S:
@@ -137,17 +158,23 @@ class TurnSignCheck:
         if abs(turn) < MIN_TURN_RAD or len(points) < 2:
             return
         self._last[key] = (stamp_s, points, turned_rad)
-        distance = speed_m_s * dt
-        same, same_in = _score(_moved(last[1], mount, turn, distance), points)
-        other, other_in = _score(_moved(last[1], mount, -turn, distance), points)
-        if same < 0.5 * other and same_in >= 2:
-            opposite = 0
-        elif other < 0.5 * same and other_in >= 2:
-            opposite = 1
-        else:
+        scores, inliers, shifts = _score(_moved(last[1], mount, turn / np.array(SCALES)),
+                                         points)
+        order = np.argsort(scores)
+        best, second = int(order[0]), int(order[1])
+        if not (scores[best] < 0.5 * scores[second] and inliers[best] >= 2):
             return
-        _, votes, against = name_votes or (name, 0, 0)
-        self._votes[key] = (name, votes + 1, against + opposite)
+        votes = list(name_votes[1] if name_votes else (0,) * len(SCALES))
+        votes[best] += 1
+        self._votes[key] = (name, tuple(votes))
+        # The platform's path from the shift fitted with the turn voted for: the points
+        # moved back by it, in the body frame (the mid-turn heading's share neglected).
+        c, s = math.cos(mount.yaw_rad), math.sin(mount.yaw_rad)
+        lidar_m = -(c * shifts[best, 0] - s * shifts[best, 1])
+        if abs(lidar_m) >= MIN_PATH_M:
+            pairs, cross, square = self._paths.get(key, (0, 0.0, 0.0))
+            self._paths[key] = (pairs + 1, cross + speed_m_s * dt * lidar_m,
+                                square + lidar_m * lidar_m)
 
     def associated(self, key: Hashable, detections: int, matched: int) -> None:
         """Count a scan's detections and those matched to the map, before its first vote."""
@@ -155,23 +182,36 @@ class TurnSignCheck:
             before = self._before.get(key, (0, 0))
             self._before[key] = (before[0] + detections, before[1] + matched)
 
-    def save(self) -> tuple[dict, dict, dict]:
-        return dict(self._last), dict(self._votes), dict(self._before)
+    def save(self) -> tuple[dict, dict, dict, dict]:
+        return dict(self._last), dict(self._votes), dict(self._before), dict(self._paths)
 
-    def restore(self, saved: tuple[dict, dict, dict]) -> None:
-        self._last, self._votes, self._before = (dict(part) for part in saved)
+    def restore(self, saved: tuple[dict, dict, dict, dict]) -> None:
+        self._last, self._votes, self._before, self._paths = (dict(part) for part in saved)
 
     def report(self) -> list[dict[str, Any]]:
-        """Return, per LiDAR that voted, its votes, those for -dpsi, and the verdict.
+        """Return, per LiDAR that voted, its votes and what they find.
 
-        With the share of its detections matched before its first vote (None: none).
+        votes; opposite: those for a gyro upside down (any scale); scale: the gyro's reading
+        per radian most voted for, and scale_votes its votes; opposite_found, scale_found:
+        beyond FOUND_SHARE of at least MIN_VOTES; the share of its detections matched before
+        its first vote (None: none); and the odometry's distance over the LiDAR's
+        (speed_ratio, None before MIN_VOTES pairs) over speed_pairs pairs.
         """
         out = []
-        for key, (name, votes, against) in self._votes.items():
+        for key, (name, counts) in self._votes.items():
+            votes = sum(counts)
+            against = sum(n for scale, n in zip(SCALES, counts) if scale < 0.0)
+            top = max(range(len(SCALES)), key=counts.__getitem__)
             detections, matched = self._before.get(key, (0, 0))
+            pairs, cross, square = self._paths.get(key, (0, 0.0, 0.0))
             out.append({'name': name, 'votes': votes, 'opposite': against,
                         'opposite_found': votes >= MIN_VOTES and against >= FOUND_SHARE * votes,
+                        'scale': SCALES[top], 'scale_votes': counts[top],
+                        'scale_found': (abs(SCALES[top]) != 1.0 and votes >= MIN_VOTES
+                                        and counts[top] >= FOUND_SHARE * votes),
                         'detections_before_turns': detections,
                         'associated_before_turns': matched / detections if detections
-                        else None})
+                        else None,
+                        'speed_ratio': float(cross / square) if pairs >= MIN_VOTES else None,
+                        'speed_pairs': pairs})
         return out

@@ -31,9 +31,9 @@ def _seen(pose: tuple[float, float, float], mirrored: bool = False) -> np.ndarra
 
 
 def _drive(check: TurnSignCheck, gyro_sign: float, mirrored: bool, scans: int = 40) -> None:
-    # An arc at 0.5 m/s and 30 deg/s, one scan every 0.1 s; the gyro's integral as it
+    # An arc at 1 m/s and 30 deg/s, one scan every 0.1 s; the gyro's integral as it
     # reads (its sign) plus a bias of 0.5 deg/s the first stop learnt.
-    rate, speed, bias = math.radians(30.0), 0.5, math.radians(0.5)
+    rate, speed, bias = math.radians(30.0), 1.0, math.radians(0.5)
     x = y = yaw = 0.0
     for k in range(scans):
         t = 0.1 * k
@@ -53,6 +53,19 @@ def test_scans_vote_on_the_sign_of_the_gyros_turn(gyro_sign, mirrored, opposite)
     assert lidar['votes'] >= MIN_VOTES
     assert lidar['opposite'] == (lidar['votes'] if opposite else 0)
     assert lidar['opposite_found'] is opposite
+    assert lidar['scale'] == (-1.0 if opposite else 1.0) and not lidar['scale_found']
+    if not mirrored:
+        # The path the scans show, against the odometry's 1 m/s (a mirrored LiDAR's lever
+        # arm is mirrored too: off by 12 % here).
+        assert lidar['speed_ratio'] == pytest.approx(1.0, abs=0.05)
+
+
+@pytest.mark.parametrize('gyro_scale', [180.0 / math.pi, -180.0 / math.pi])
+def test_a_gyro_in_degrees_per_second_is_found(gyro_scale):
+    check = TurnSignCheck()
+    _drive(check, gyro_scale, False)
+    [lidar] = check.report()
+    assert lidar['scale'] == pytest.approx(gyro_scale) and lidar['scale_found']
 
 
 def test_straight_driving_and_few_poles_do_not_vote_and_votes_stop():
@@ -104,7 +117,30 @@ def test_an_upside_down_gyro_is_named_as_the_cause():
     upright = summarize(run_trip(trip))
     assert not upright['turn_signs']['scan']['opposite_found']
     assert upright['turn_signs']['scan']['votes'] >= MIN_VOTES
+    assert upright['turn_signs']['scan']['speed_ratio'] == pytest.approx(1.0, abs=0.1)
     assert not [r for r in upright['health']['reasons'] if 'turn' in r and 'opposite' in r]
+
+
+@pytest.mark.parametrize('stream, factor, said', [
+    ('gyro', 180.0 / math.pi, 'its yaw rate is in deg/s where REP-103 has rad/s'),
+    ('odometry', -1.0, "its speed's sign is reversed"),
+    ('odometry', 0.01, "its speed's units or scale are wrong")])
+def test_inputs_in_the_wrong_units_or_sign_are_named(stream, factor, said):
+    # Each ends metres off, failed for the pose lost or under 50 % associated; the first
+    # reason now says which input and what is wrong with it.
+    trip = simulate_trip(SimulationConfig(duration_s=40.0), 2)
+    if stream == 'gyro':
+        w = trip.imu.angular_velocity_rad_s.copy()
+        w[:, 2] *= factor
+        trip = dataclasses.replace(trip, imu=dataclasses.replace(
+            trip.imu, angular_velocity_rad_s=w))
+    else:
+        trip = dataclasses.replace(trip, speed=dataclasses.replace(
+            trip.speed, speed_m_s=trip.speed.speed_m_s * factor))
+    summary = summarize(run_trip(trip))
+    first = summary['health']['reasons'][0]
+    assert summary['health']['verdict'] == 'failed'
+    assert first.startswith(f'the {stream} reads ') and said in first, first
 
 
 def test_an_upside_down_second_lidar_is_named_and_the_run_holds():

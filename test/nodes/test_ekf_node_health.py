@@ -81,3 +81,9 @@ def test_node_reports_the_excluded_lidar_and_logs_it(mis_mounted_run):
     assert int(values['excluded_detections']) > 0
     assert 'LiDAR scan2 excluded at' in log
     assert [lidar['name'] for lidar in offline['lidars']] == ['scan', 'scan2']
+    # Both LiDARs turn as the gyro does (a stated yaw 6 deg off does not turn the other
+    # way: core/turn_sign.py), and no mapped pole stands elsewhere (core/map_poles.py).
+    for name in ('scan', 'scan2'):
+        assert int(values[f'turn_sign_{name}_votes']) >= 10
+        assert values[f'turn_sign_{name}_opposite'] == '0'
+    assert values['map_poles_elsewhere'] == '0'
