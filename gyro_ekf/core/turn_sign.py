@@ -10,30 +10,33 @@ verdict degraded), never the cause, which is one sign or factor to set.
 
 The check needs neither the map nor the filter's pose. A LiDAR's scan is compared with the
 first later one after the gyro turned ``MIN_TURN_RAD`` within ``MAX_INTERVAL_S`` (the 2016
-log's LiDAR scans at 37 Hz, under 1 deg apart). The gyro's turn between the two is its
-integral less the bias the first stop learnt (not the filter's: one a flipped gyro misled
-takes the turns for a bias of 40 deg/s). The first scan's poles are moved by that turn
-divided by each of ``SCALES`` (what the gyro may read per radian turned: 1, -1, 57.3,
-1/57.3 and their negatives), each set shifted by the path that fits the second scan's
-detections best (``_score``), and scored by the squared distance of each detection to the
-nearest moved pole (capped at ``GATE_M`` squared, so a pole seen in one scan only costs
-the same under all). The pair votes for the scale that scores under half the next best
-with at least two detections within half the gate: between the signs the poles move by
+log's LiDAR scans at 37 Hz, under 1 deg apart); until the LiDAR has ``MIN_VOTES`` votes, a
+few pairs (``LATE_PAIRS``) are also tried ``LATE_PAIR_S`` apart while moving, for a gyro
+that reads a fraction of each turn (or a platform that turns slowly). The gyro's turn
+between the two is its integral less the bias the first stop learnt (not the filter's: one
+a flipped gyro misled takes the turns for a bias of 40 deg/s). The first scan's poles are
+moved by that turn divided by each of ``SCALES`` (what the gyro may read per radian turned:
+1, -1, 57.3, 1/57.3 and their negatives), each set shifted by the path that fits the second
+scan's detections best (``_score``), and scored by the squared distance of each detection
+to the nearest moved pole (capped at ``GATE_M`` squared, so a pole seen in one scan only
+costs the same under all). The pair votes for the scale that scores under half the next
+best with at least two detections within half the gate: between the signs the poles move by
 twice the turn times their range, tens of centimetres. The path fitted under the scale
 voted for, forward in the body frame, is what the platform went by the LiDAR; against the
 odometry's speed times the interval (over pairs that went ``MIN_PATH_M`` or more) it gives
-the odometry's ``speed_ratio``: 0.96-1.04 on the course logs, -1 for an encoder wired
+the odometry's ``speed_ratio``: 0.95-1.03 on the course logs, -1 for an encoder wired
 backwards.
 
-After ``MIN_VOTES`` votes, a LiDAR whose votes say -dpsi in at least ``FOUND_SHARE`` of them
-turns the other way from the gyro. With two LiDARs or more, the one that disagrees with the
-others is the one upside down; all of them against the gyro, the gyro is. With one LiDAR,
-scan to scan cannot tell the two apart (a mirrored world is as consistent as the real one);
-the map can, before the first turn misled the filter: an upside-down gyro leaves the
-detections of the scans before the LiDAR's first vote associated as usual (``associated``:
-99.8 % on the 2016 log with its gyro negated), an upside-down LiDAR's match the map nowhere
-(2 % on that log mirrored). Voting stops at ``MAX_VOTES`` per LiDAR, so a long run costs a
-few hundred scans' work.
+After ``MIN_VOTES`` votes, a LiDAR whose votes are for a negative scale in at least
+``FOUND_SHARE`` of them turns the other way from the gyro, and one whose votes are for one
+scale other than 1 or -1 as often finds the gyro in the wrong units. With two LiDARs or
+more, the one that disagrees with the others is the one upside down; all of them against
+the gyro, the gyro is. With one LiDAR, scan to scan cannot tell the two apart (a mirrored
+world is as consistent as the real one); the map can, before the first turn misled the
+filter: an upside-down gyro leaves the detections of the scans before the LiDAR's first
+vote associated as usual (``associated``: 99.8 % on the 2016 log with its gyro negated), an
+upside-down LiDAR's match the map nowhere (2 % on that log mirrored). Voting stops at
+``MAX_VOTES`` per LiDAR, so a long run costs a few hundred scans' work.
 
 The state is per LiDAR the last scan's points and a few counts, replaced, never changed in
 place, so ``save`` and ``restore`` (on every event, by ``core/lagged.py``) cost O(LiDARs).
@@ -65,6 +68,16 @@ FOUND_SHARE = 0.8
 
 MAX_VOTES = 60
 """Votes after which a LiDAR is no longer looked at."""
+
+LATE_PAIR_S = 0.4
+"""A pair is tried on time alone once the gyro turned less than ``MIN_TURN_RAD`` in this."""
+
+LATE_PAIRS = 40
+"""Pairs tried on time alone per LiDAR, at most (each costs about 0.2 ms), and only while
+it has fewer than ``MIN_VOTES`` votes."""
+
+LATE_PAIR_SPEED_M_S = 0.05
+"""Least odometry speed for a pair on time alone (standing still, nothing is told)."""
 
 MIN_PATH_M = 0.05
 """Least distance the LiDAR's scans show the platform went between two scans for the pair
@@ -126,7 +139,7 @@ def _score(moved: FloatArray, seen: FloatArray) -> tuple[FloatArray, FloatArray,
 class TurnSignCheck:
     """Per LiDAR, votes on the gyro's reading per radian turned, and the odometry's path."""
 
-    __slots__ = ('_last', '_votes', '_before', '_paths')
+    __slots__ = ('_last', '_votes', '_before', '_paths', '_late')
 
     def __init__(self) -> None:
         # Per LiDAR: (detections, matched) of its scans before its first vote.
@@ -137,6 +150,8 @@ class TurnSignCheck:
         self._votes: dict[Hashable, tuple[str, tuple[int, ...]]] = {}
         # Per LiDAR: (pairs, sum of odometry x LiDAR distance, sum of LiDAR distance^2).
         self._paths: dict[Hashable, tuple[int, float, float]] = {}
+        # Per LiDAR: pairs tried on time alone (LATE_PAIRS at most).
+        self._late: dict[Hashable, int] = {}
 
     def scan(self, key: Hashable, name: str, stamp_s: float, points: FloatArray,
              mount: LidarMount, turned_rad: float, bias_rad_s: float, speed_m_s: float
@@ -155,8 +170,16 @@ class TurnSignCheck:
             return
         dt = stamp_s - last[0]
         turn = turned_rad - last[2] - bias_rad_s * dt
-        if abs(turn) < MIN_TURN_RAD or len(points) < 2:
+        if len(points) < 2:
             return
+        if abs(turn) < MIN_TURN_RAD:
+            # A gyro that reads a fraction of the turn (or a platform that turns slowly)
+            # never reaches it: a few pairs are tried on time alone, while moving.
+            late = self._late.get(key, 0)
+            if (dt < LATE_PAIR_S or late >= LATE_PAIRS or abs(speed_m_s) < LATE_PAIR_SPEED_M_S
+                    or (name_votes is not None and sum(name_votes[1]) >= MIN_VOTES)):
+                return
+            self._late[key] = late + 1
         self._last[key] = (stamp_s, points, turned_rad)
         scores, inliers, shifts = _score(_moved(last[1], mount, turn / np.array(SCALES)),
                                          points)
@@ -182,11 +205,13 @@ class TurnSignCheck:
             before = self._before.get(key, (0, 0))
             self._before[key] = (before[0] + detections, before[1] + matched)
 
-    def save(self) -> tuple[dict, dict, dict, dict]:
-        return dict(self._last), dict(self._votes), dict(self._before), dict(self._paths)
+    def save(self) -> tuple[dict, ...]:
+        return (dict(self._last), dict(self._votes), dict(self._before), dict(self._paths),
+                dict(self._late))
 
-    def restore(self, saved: tuple[dict, dict, dict, dict]) -> None:
-        self._last, self._votes, self._before, self._paths = (dict(part) for part in saved)
+    def restore(self, saved: tuple[dict, ...]) -> None:
+        self._last, self._votes, self._before, self._paths, self._late = (
+            dict(part) for part in saved)
 
     def report(self) -> list[dict[str, Any]]:
         """Return, per LiDAR that voted, its votes and what they find.

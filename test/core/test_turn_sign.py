@@ -60,10 +60,12 @@ def test_scans_vote_on_the_sign_of_the_gyros_turn(gyro_sign, mirrored, opposite)
         assert lidar['speed_ratio'] == pytest.approx(1.0, abs=0.05)
 
 
-@pytest.mark.parametrize('gyro_scale', [180.0 / math.pi, -180.0 / math.pi])
+@pytest.mark.parametrize('gyro_scale', [180.0 / math.pi, -180.0 / math.pi, math.pi / 180.0])
 def test_a_gyro_in_degrees_per_second_is_found(gyro_scale):
+    # The last reads a fraction of each turn: its pairs are tried on time alone, one in
+    # 0.4 s of the 12-s arc.
     check = TurnSignCheck()
-    _drive(check, gyro_scale, False)
+    _drive(check, gyro_scale, False, scans=120)
     [lidar] = check.report()
     assert lidar['scale'] == pytest.approx(gyro_scale) and lidar['scale_found']
 
@@ -123,6 +125,7 @@ def test_an_upside_down_gyro_is_named_as_the_cause():
 
 @pytest.mark.parametrize('stream, factor, said', [
     ('gyro', 180.0 / math.pi, 'its yaw rate is in deg/s where REP-103 has rad/s'),
+    ('gyro', math.pi / 180.0, 'a yaw rate in rad/s was converted as if it were in deg/s'),
     ('odometry', -1.0, "its speed's sign is reversed"),
     ('odometry', 0.01, "its speed's units or scale are wrong")])
 def test_inputs_in_the_wrong_units_or_sign_are_named(stream, factor, said):
