@@ -131,6 +131,21 @@ def _scatter(jitter: dict[str, dict[str, Any]]) -> str:
         for name, lidar in jitter.items())
 
 
+def _against_lidars(signs: dict[str, dict[str, Any]]) -> str:
+    """Return the row of what the gyro and odometry read against each LiDAR's scans.
+
+    The gyro's reading per radian the scans turn most voted for (votes), and the odometry's
+    metres per metre they show (core/turn_sign.py).
+    """
+    if not signs:
+        return 'not measured (no two scans with two poles while turning)'
+    return '; '.join(
+        f"{name}: gyro x{lidar['scale']:.4g} ({lidar['scale_votes']} of {lidar['votes']}), "
+        + ('odometry not measured' if lidar['speed_ratio'] is None
+           else f"odometry x{lidar['speed_ratio']:.3f}")
+        for name, lidar in signs.items())
+
+
 def _spikes(spikes: dict[str, dict[str, Any]] | None) -> str:
     """Return the row of lone input samples left out (core/input_spikes.py)."""
     return ', '.join(f"{name} {figures['spikes']}" for name, figures in (spikes or {}).items())
@@ -158,6 +173,11 @@ def _table(summary: dict[str, Any]) -> str:
              ('LiDAR stamps late against the gyro (ms)', _offsets(summary['time_offsets'])),
              ('LiDAR stamps\' scatter (ms)', _scatter(summary['stamp_jitter'])),
              ('lone input samples left out', _spikes(summary['input_spikes'])),
+             ('gyro and odometry against the LiDARs\' scans',
+              _against_lidars(summary['turn_signs'])),
+             ('mapped poles elsewhere', ', '.join(
+                 f"{pole['index']} at ({pole['seen_xy_m'][0]:.3f}, {pole['seen_xy_m'][1]:.3f})"
+                 for pole in summary['map_poles_elsewhere']) or 'none'),
              ('poles associated', number(summary['association']['share_associated'], '.2%')),
              ('longest gap without a landmark (s)',
               number(summary['association']['longest_gap_s'], '.2f')),
