@@ -37,7 +37,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gyro_ekf.core import _ekf_kernel as kernel
-from gyro_ekf.core.angles import wrap_scalar
 from gyro_ekf.core.ekf import (innovation, innovation_covariance, normalised_innovation_sq,
                                unpack_rows)
 from gyro_ekf.core.errors import CoreError
@@ -301,10 +300,7 @@ def _mahalanobis_rows(z: list[list[float]], packed_row: list[float], R: FloatArr
         except CoreError as err:
             raise CoreError(f'mahalanobis_sq: {err}; check P and R') from None
         per_landmark.append((range_m, bearing, i00, i01, i11))
-    distance_sq = kernel.mahalanobis_sq
-    rows = [[distance_sq(z_range - h0, wrap_scalar(z_bearing - h1), i00, i01, i11)
-             for h0, h1, i00, i01, i11 in per_landmark]
-            for z_range, z_bearing in z]
+    rows = kernel.mahalanobis_table(z, per_landmark)
     if at_sensor:
         rows = [[math.inf if math.isnan(d2) else d2 for d2 in row] for row in rows]
     return rows

@@ -106,6 +106,26 @@ def test_h_H_R_and_S_equal_the_textbook(mount):
                normalised_innovation_sq(y, S))
 
 
+def test_the_mahalanobis_table_is_the_distance_of_every_pair():
+    from gyro_ekf.core.angles import wrap_scalar
+    # Bearings on both sides of +-pi among them, where the difference wraps.
+    observations = [[float(r), float(b)] for r, b in zip(RNG.uniform(0.5, 20.0, 7),
+                                                         RNG.uniform(-math.pi, math.pi, 7))]
+    observations += [[5.0, math.pi - 1e-3], [5.0, -math.pi + 1e-3]]
+    predictions = [(float(r), float(b), float(i00), 0.3 * float(i01), float(i11))
+                   for r, b, i00, i01, i11 in zip(
+                       RNG.uniform(0.5, 20.0, 9), RNG.uniform(-math.pi, math.pi, 9),
+                       RNG.uniform(1.0, 400.0, 9), RNG.uniform(-1.0, 1.0, 9),
+                       RNG.uniform(100.0, 1e4, 9))]
+    predictions.append((5.0, -math.pi + 2e-3, 100.0, 0.0, 1e4))
+    table = kernel.mahalanobis_table(observations, predictions)
+    assert table == [[kernel.mahalanobis_sq(r - h0, wrap_scalar(b - h1), i00, i01, i11)
+                      for h0, h1, i00, i01, i11 in predictions] for r, b in observations]
+    # Across +-pi the bearings are 3e-3 rad apart, not 2 pi.
+    assert table[-2][-1] == pytest.approx(1e4 * (math.pi - 1e-3 - (-math.pi + 2e-3)
+                                                 - 2.0 * math.pi) ** 2)
+
+
 @pytest.mark.parametrize('mount', MOUNTS)
 @pytest.mark.parametrize('noise_scale', [1.0, 3.5])
 def test_update_equals_the_textbook(mount, noise_scale):
