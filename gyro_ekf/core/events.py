@@ -128,7 +128,8 @@ class EventDriver:
         self._turned = 0.0
         # Each LiDAR's stamps against the gyro's, from its own headings (core/time_offset.py).
         self.time_offsets: dict[LidarMount, TimeOffsetWatch] = {}
-        # Whether each LiDAR's scans turn the way the gyro does (core/turn_sign.py).
+        # What the gyro and the odometry read against each LiDAR's scans: a sensor upside
+        # down, in the wrong units or sign (core/turn_sign.py).
         self.turn_signs = TurnSignCheck()
         # Each LiDAR's stamps' scatter about when its scans were taken (core/stamp_jitter.py),
         # and the range and bearing variances a LiDAR without measured ones is weighed by.
@@ -758,7 +759,8 @@ class EventDriver:
                         self._restart_heading_windows()
                     mount = self.odometry.first_mount(key)
         if self.rate_rad_s is not None:
-            # Scan to scan, without the map: an upside-down gyro or LiDAR shows here first.
+            # Scan to scan, without the map: a gyro or LiDAR upside down, or a gyro or
+            # odometry in the wrong units or sign, shows here first.
             # The bias the first stop learnt, not the filter's: a filter the flipped
             # sensor misled takes the turn for a bias of tens of deg/s.
             self.turn_signs.scan(key, sensor, stamp_s, points, mount, self._turned,
@@ -963,7 +965,7 @@ class EventDriver:
                 for key, watch in self.time_offsets.items()]
 
     def turn_sign_report(self) -> list[dict]:
-        """Return per LiDAR whether it turns the same way as the gyro (core/turn_sign.py)."""
+        """Return per LiDAR what the gyro and odometry read against it (core/turn_sign.py)."""
         return self.turn_signs.report()
 
     def map_poles_report(self) -> list[dict]:

@@ -671,8 +671,9 @@ class RunFigures:
             (EventDriver.stamp_jitter_report(), core/stamp_jitter.py).
         map_poles: the mapped poles found to stand elsewhere (EventDriver
             .map_poles_report(), core/map_poles.py).
-        turn_signs: per LiDAR, whether its scans turn the way the gyro does (EventDriver
-            .turn_sign_report(), core/turn_sign.py).
+        turn_signs: per LiDAR, what the gyro reads per radian its scans turn and the
+            odometry per metre they show the platform went (EventDriver.turn_sign_report(),
+            core/turn_sign.py).
         start_bias: (end s, bias rad/s, sigma rad/s) of the first stop's zero-rate updates
             (DriverStats.first_stop_*), or None (no stop learnt the bias).
         scans: LiDAR scans processed.

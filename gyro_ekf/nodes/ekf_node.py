@@ -66,7 +66,9 @@ windows; `off` true when the verdict names it), and the scatter of each LiDAR's 
 about when its scans were taken (core/stamp_jitter.py: `stamp_jitter_<lidar>_{ms,found}`,
 '' until enough scans of a moving platform), and the mapped poles whose detections lie
 elsewhere (core/map_poles.py: `map_poles_elsewhere`, their count, and
-`map_pole_<index>_seen_at_m`, where each stands: x y in the map frame);
+`map_pole_<index>_seen_at_m`, where each stands: x y in the map frame), and per LiDAR the
+turns between its scans that voted on what the gyro reads and those that found it upside
+down (core/turn_sign.py: `turn_sign_<lidar>_{votes,opposite}`);
 `ekf/mounts` (PoseArray in
 `base_link`, latched) holds the same mounts, one pose per `lidar.topics` entry in that
 order, published again when an online estimate replaces one.
