@@ -8,6 +8,11 @@ bag sidecar's `lidar.*` layout that `gyro-ekf run --params-file` and the EKF nod
 LiDAR whose fit is not clearly better than its stated mount (`--min-improvement`) keeps the
 stated mount in the file: fits of exact mounts land a few hundredths of a degree off, and
 that costs the filter more than it gains.
+
+Each LiDAR's stamps against the gyro's are measured too, on a run of that LiDAR alone with
+the mount the file gets (`core/time_offset.py`, as `run` measures them): one found late or
+early beyond its sigmas is written as `lidar.<topic>.time_offset_s`, which `run` and the EKF
+node take each scan's stamp less.
 """
 
 from __future__ import annotations
@@ -49,8 +54,13 @@ def _share(text: str) -> float:
     return value
 
 
-def params_yaml(estimates: list, reference: object) -> str:
-    """Return the mounts as params-file text, the reference LiDAR's as the bag states it."""
+def params_yaml(estimates: list, reference: object,
+                offsets: dict[str, dict] | None = None) -> str:
+    """Return the mounts as params-file text, the reference LiDAR's as the bag states it.
+
+    offsets: per topic, its time offset figures (estimate_time_offsets); those found are
+    written as `time_offset_s`.
+    """
     import yaml
 
     lidar: dict = {'topics': [reference.topic] + [e.topic for e in estimates]}
@@ -62,6 +72,9 @@ def params_yaml(estimates: list, reference: object) -> str:
         mount = e.proposed
         lidar[e.topic] = {'frame_id': e.frame_id, 'x_m': float(mount.x_m),
                           'y_m': float(mount.y_m), 'yaw_rad': float(mount.yaw_rad)}
+    for topic, figures in (offsets or {}).items():
+        if figures['found'] and topic in lidar:
+            lidar[topic]['time_offset_s'] = round(float(figures['offset_s']), 6)
     header = ('# gyro_ekf LiDAR mounts (SI) from calibrate-mounts; the first LiDAR is the '
               'reference.\n# Give it to `gyro-ekf run --params-file` or a node\'s '
               '--ros-args --params-file.\n')
@@ -106,12 +119,48 @@ def run(args: argparse.Namespace) -> int:
     warn_dropped(report)
     found = estimate_mounts(trip, source, MountSettings(min_improvement=args.min_improvement))
     reference = trip.scans[0]
+    offsets = estimate_time_offsets(trip, found)
     print(_table(found, reference))
+    print(_offsets_table(offsets))
     if output is not None:
         with staged_file(output) as staging:
-            staging.write_text(params_yaml(found, reference), encoding='utf-8')
+            staging.write_text(params_yaml(found, reference, offsets), encoding='utf-8')
         log.info('%s: wrote the mounts of %d LiDARs', output, len(found) + 1)
     return 0
+
+
+def _offsets_table(offsets: dict[str, dict]) -> str:
+    """Return the time offsets' lines: each LiDAR's stamps late against the gyro's, ms."""
+    from gyro_ekf.core.time_offset import MIN_WINDOWS
+    lines = ['time offset, each LiDAR alone (ms late against the gyro):']
+    for topic, figures in offsets.items():
+        if figures['offset_s'] is None:
+            lines.append(f"  {topic}: not measured ({figures['windows']} of the {MIN_WINDOWS} "
+                         'windows with turns it needs)')
+        else:
+            lines.append(f"  {topic}: {1000.0 * figures['offset_s']:+.1f} +- "
+                         f"{1000.0 * figures['offset_sigma_s']:.1f} "
+                         + ('(written)' if figures['found'] else '(within its sigmas: not '
+                            'written)'))
+    return '\n'.join(lines)
+
+
+def estimate_time_offsets(trip: object, estimates: list) -> dict[str, dict]:
+    """Return each LiDAR's time offset figures (TimeOffsetWatch.report), by topic.
+
+    From the offline pipeline on that LiDAR alone with the mount the params file gets (its
+    own stamps against the gyro's integral; a mount's yaw is free in each window).
+    """
+    from gyro_ekf.analysis.offline import run_trip
+    from gyro_ekf.core.time_offset import TimeOffsetWatch
+
+    mounts = {e.topic: e.proposed for e in estimates}
+    offsets = {}
+    for series in trip.scans:
+        alone = dataclasses.replace(series, mount=mounts.get(series.topic, series.mount))
+        reports = run_trip(dataclasses.replace(trip, scans=(alone,))).result.time_offsets
+        offsets[series.topic] = reports[0] if reports else TimeOffsetWatch().report()
+    return offsets
 
 
 def estimate_mounts(trip: object, source: str, settings: object = None) -> list:
