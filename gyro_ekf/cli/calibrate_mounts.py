@@ -72,8 +72,10 @@ def params_yaml(estimates: list, reference: object,
         mount = e.proposed
         lidar[e.topic] = {'frame_id': e.frame_id, 'x_m': float(mount.x_m),
                           'y_m': float(mount.y_m), 'yaw_rad': float(mount.yaw_rad)}
+    from gyro_ekf.core.validation import time_offset_problem
     for topic, figures in (offsets or {}).items():
-        if figures['found'] and topic in lidar:
+        if (figures['found'] and topic in lidar
+                and time_offset_problem(figures['offset_s']) is None):
             lidar[topic]['time_offset_s'] = round(float(figures['offset_s']), 6)
     header = ('# gyro_ekf LiDAR mounts (SI) from calibrate-mounts; the first LiDAR is the '
               'reference.\n# Give it to `gyro-ekf run --params-file` or a node\'s '
@@ -117,9 +119,12 @@ def run(args: argparse.Namespace) -> int:
     source = str(args.bag)
     trip, report = validate_bag(bag, Path(args.bag).name, skip_bad=args.skip_bad)
     warn_dropped(report)
-    found = estimate_mounts(trip, source, MountSettings(min_improvement=args.min_improvement))
+    # One run on the first LiDAR alone: the mounts' reference path and its time offset.
+    first = reference_run(trip, source)
+    found = estimate_mounts(trip, source, MountSettings(min_improvement=args.min_improvement),
+                            first)
     reference = trip.scans[0]
-    offsets = estimate_time_offsets(trip, found)
+    offsets = estimate_time_offsets(trip, found, first)
     print(_table(found, reference))
     print(_offsets_table(offsets))
     if output is not None:
@@ -132,46 +137,53 @@ def run(args: argparse.Namespace) -> int:
 def _offsets_table(offsets: dict[str, dict]) -> str:
     """Return the time offsets' lines: each LiDAR's stamps late against the gyro's, ms."""
     from gyro_ekf.core.time_offset import MIN_WINDOWS
+    from gyro_ekf.core.validation import time_offset_problem
     lines = ['time offset, each LiDAR alone (ms late against the gyro):']
     for topic, figures in offsets.items():
         if figures['offset_s'] is None:
             lines.append(f"  {topic}: not measured ({figures['windows']} of the {MIN_WINDOWS} "
                          'windows with turns it needs)')
         else:
+            problem = time_offset_problem(figures['offset_s'])
             lines.append(f"  {topic}: {1000.0 * figures['offset_s']:+.1f} +- "
                          f"{1000.0 * figures['offset_sigma_s']:.1f} "
-                         + ('(written)' if figures['found'] else '(within its sigmas: not '
-                            'written)'))
+                         + (f'(not written: {problem})' if figures['found'] and problem
+                            else '(written)' if figures['found']
+                            else '(within its sigmas: not written)'))
     return '\n'.join(lines)
 
 
-def estimate_time_offsets(trip: object, estimates: list) -> dict[str, dict]:
+def estimate_time_offsets(trip: object, estimates: list, first: object = None
+                          ) -> dict[str, dict]:
     """Return each LiDAR's time offset figures (TimeOffsetWatch.report), by topic.
 
     From the offline pipeline on that LiDAR alone with the mount the params file gets (its
-    own stamps against the gyro's integral; a mount's yaw is free in each window).
+    own stamps against the gyro's integral; a mount's yaw is free in each window); first:
+    reference_run's, which is the first LiDAR's (None: run again).
     """
     from gyro_ekf.analysis.offline import run_trip
     from gyro_ekf.core.time_offset import TimeOffsetWatch
 
     mounts = {e.topic: e.proposed for e in estimates}
     offsets = {}
-    for series in trip.scans:
-        alone = dataclasses.replace(series, mount=mounts.get(series.topic, series.mount))
-        reports = run_trip(dataclasses.replace(trip, scans=(alone,))).result.time_offsets
+    for k, series in enumerate(trip.scans):
+        if k == 0 and first is not None:
+            alone_run = first
+        else:
+            alone = dataclasses.replace(series, mount=mounts.get(series.topic, series.mount))
+            alone_run = run_trip(dataclasses.replace(trip, scans=(alone,)))
+        reports = alone_run.result.time_offsets
         offsets[series.topic] = reports[0] if reports else TimeOffsetWatch().report()
     return offsets
 
 
-def estimate_mounts(trip: object, source: str, settings: object = None) -> list:
-    """Estimate every LiDAR's mount but the first's, along the first LiDAR's own path.
+def reference_run(trip: object, source: str) -> object:
+    """Return the offline pipeline's run on the first LiDAR alone: the reference path.
 
     Raises:
-        BagError: no map, no second LiDAR, or a LiDAR whose mount cannot be estimated.
+        BagError: no map, or no second LiDAR to calibrate against it.
     """
     from gyro_ekf.analysis.offline import run_trip
-    from gyro_ekf.core.errors import CoreError
-    from gyro_ekf.core.mount_calibration import calibrate_mounts
     from gyro_ekf.io.errors import BagError
 
     if not len(trip.landmarks):
@@ -182,12 +194,28 @@ def estimate_mounts(trip: object, source: str, settings: object = None) -> list:
         raise BagError(f'{source}: no LiDAR to calibrate: the first LiDAR is the reference '
                        f'and the bag has no other scan topic (scan topics: {topics})')
     reference = trip.scans[0]
-    # The reference path: the whole offline pipeline on the first LiDAR alone.
     ref = run_trip(dataclasses.replace(trip, scans=(reference,)))
-    estimates = ref.result.estimates
     stats = ref.result.stats
     log.info("%s: reference path from LiDAR '%s' alone (%d of %d detections associated)",
              source, reference.topic, stats.updates, stats.detections)
+    return ref
+
+
+def estimate_mounts(trip: object, source: str, settings: object = None,
+                    first: object = None) -> list:
+    """Estimate every LiDAR's mount but the first's, along the first LiDAR's own path.
+
+    first: reference_run's (None: run it here).
+
+    Raises:
+        BagError: no map, no second LiDAR, or a LiDAR whose mount cannot be estimated.
+    """
+    from gyro_ekf.core.errors import CoreError
+    from gyro_ekf.core.mount_calibration import calibrate_mounts
+    from gyro_ekf.io.errors import BagError
+
+    # The reference path: the whole offline pipeline on the first LiDAR alone.
+    estimates = (first or reference_run(trip, source)).result.estimates
     try:
         return calibrate_mounts(trip, estimates.stamp_s, estimates.state[:, :3],
                                 settings=settings, source=source)

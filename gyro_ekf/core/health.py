@@ -764,12 +764,11 @@ def _gross_scale_reasons(figures: RunFigures) -> list[tuple[str, str]]:
 
 def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
     """Return (level, reason) for a gyro or LiDAR that turns the other way (core/turn_sign.py)."""
-    scaled = _gross_scale_reasons(figures)
     decided = [lidar for lidar in figures.turn_signs if lidar['votes'] >= turn_sign.MIN_VOTES]
     against = [lidar for lidar in decided
                if lidar['opposite_found'] and not lidar['scale_found']]
     if not against:
-        return scaled
+        return []
     agree = [lidar['name'] for lidar in decided
              if lidar['opposite'] <= (1.0 - turn_sign.FOUND_SHARE) * lidar['votes']]
 
@@ -782,7 +781,7 @@ def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
     if agree:
         # The others vouch for the gyro's sign: this one is mirrored. Its scans disagree
         # with the map too, so health has most likely excluded it.
-        return scaled + [
+        return [
             (DEGRADED, f'LiDAR {lidar["name"]} turns the other way from the gyro and LiDAR '
              f'{", ".join(agree)} ({votes(lidar)}): it is mounted upside down (its bearings '
              f'run clockwise): mount it upright, or have its driver publish the scans '
@@ -790,8 +789,8 @@ def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
             for lidar in against]
     if len(against) > 1:
         names = ', '.join(lidar['name'] for lidar in against)
-        return scaled + [(FAILED, f'the gyro turns the other way from every LiDAR '
-                                  f'({names}; {votes(against[0])}): {upside_down_gyro}')]
+        return [(FAILED, f'the gyro turns the other way from every LiDAR ({names}; '
+                         f'{votes(against[0])}): {upside_down_gyro}')]
     lidar, = against
     share = lidar['associated_before_turns']
     if share is not None and share >= VERDICT_UPRIGHT_ASSOCIATION_SHARE:
@@ -805,8 +804,8 @@ def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
     else:
         which = (f'one of them is upside down: either {upside_down_gyro}, or the LiDAR\'s '
                  f'bearings run clockwise (mounted upside down)')
-    return scaled + [(FAILED, f'the gyro and LiDAR {lidar["name"]} turn opposite ways '
-                              f'({votes(lidar)}): {which}')]
+    return [(FAILED, f'the gyro and LiDAR {lidar["name"]} turn opposite ways '
+                     f'({votes(lidar)}): {which}')]
 
 
 def samples_dropped_figures(samples_dropped: Mapping[str, int]) -> dict[str, int]:
@@ -884,7 +883,9 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
     def add(level: str, text: str) -> None:
         reasons.append((level, text))
 
-    # A sensor upside down first: the association, NIS and bias reasons below follow from it.
+    # A sensor upside down or in the wrong units first: the association, NIS and bias
+    # reasons below follow from it.
+    reasons.extend(_gross_scale_reasons(figures))
     reasons.extend(_turn_sign_reasons(figures))
     if figures.detections and figures.updates == 0:
         add(FAILED, f'no landmark update in {figures.start_gap_s:.1f} s although '
