@@ -345,6 +345,16 @@ class InputReport:
             **({'duplicates_dropped': dict(self.duplicates)} if self.duplicates else {})}
 
 
+MANY_BEYOND = 10
+"""Samples beyond a limit that, with ``MANY_BEYOND_SHARE`` of the series, read as a series
+in other units rather than corrupt samples (the error says so)."""
+
+MANY_BEYOND_SHARE = 0.01
+
+UNITS_SHARE = 0.1
+"""Share of a series beyond its limit that is refused even with skip_bad."""
+
+
 class _Stream:
     """The checks of one series: a keep mask that bad rows leave, or the first error."""
 
@@ -414,15 +424,40 @@ class _Stream:
         self.report.count(field_name, reason, first, int(new.sum()))
         self.keep &= ~new
 
-    def values(self, field_name: str, values: NDArray, limit: float, unit: str) -> None:
-        """Rows of `values` (shape (n,)) must be finite and within +-limit."""
+    def values(self, field_name: str, values: NDArray, limit: float, unit: str,
+               setting: str = '') -> None:
+        """Rows of `values` (shape (n,)) must be finite and within +-limit.
+
+        Many rows beyond the limit are no corrupt samples but a series in other units (a
+        speed in cm/s, a rate in mrad/s) or a limit too low for the platform: the error
+        says so, with how many and the largest (`setting` names the limit's parameter),
+        and refuses the series even with skip_bad once ``UNITS_SHARE`` of it is beyond
+        (dropping them would run the filter on the rest, scaled as wrongly).
+        """
         array = np.asarray(values, dtype=np.float64)
         finite = np.isfinite(array)
         self.flag(field_name, ~finite, NOT_FINITE, lambda i: f'{array[i]} is not finite')
         with np.errstate(invalid='ignore'):
             beyond = finite & (np.abs(array) > limit)
-        self.flag(field_name, beyond, BEYOND_LIMIT,
-                  lambda i: value_problem(float(array[i]), limit, unit) or '')
+        count = int((beyond & self.keep).sum())
+        many = count >= max(MANY_BEYOND, MANY_BEYOND_SHARE * array.size)
+
+        def describe(i: int) -> str:
+            problem = value_problem(float(array[i]), limit, unit) or ''
+            if not many:
+                return problem
+            largest = float(np.abs(array[beyond]).max())
+            limit_name = f' ({setting})' if setting else ''
+            return (f'{problem}{limit_name}, and so do {count} of its {array.size} samples, '
+                    f'up to {largest:.4g} {unit}: not a few corrupt samples but the series '
+                    f'in other units than {unit} (REP-103: SI units), or a limit too low for '
+                    'this platform')
+
+        if many and count >= UNITS_SHARE * array.size and self.report.skip_bad:
+            first = int(np.argmax(beyond & self.keep))
+            raise InvalidInputError(self.source, field_name, first,
+                                    describe(first) + ' (too many to skip)')
+        self.flag(field_name, beyond, BEYOND_LIMIT, describe)
 
     def time(self) -> None:
         """Stamps finite and non-decreasing, forward steps within max_stamp_jump_s.
@@ -571,7 +606,7 @@ def _check_imu(imu: ImuSeries, stream: _Stream, limits: InputLimits) -> ImuSerie
     for axis, known in zip(range(3), imu.axes_known):
         if known:
             stream.values(f'imu.angular_velocity.{"xyz"[axis]}', rates[:, axis],
-                          limits.max_yaw_rate_rad_s, 'rad/s')
+                          limits.max_yaw_rate_rad_s, 'rad/s', 'limits.max_yaw_rate_rad_s')
     if imu.linear_acceleration_m_s2 is not None:
         accel = np.asarray(imu.linear_acceleration_m_s2)
         for axis in range(3):
@@ -716,7 +751,8 @@ def validate_trip(trip: Trip, source: str, limits: InputLimits = LIMITS,
     _refuse_empty(source, 'imu', imu.stamp_s, report)
 
     stream = _Stream('speed', trip.speed.stamp_s, source, limits, report)
-    stream.values('speed.speed_m_s', trip.speed.speed_m_s, limits.max_speed_m_s, 'm/s')
+    stream.values('speed.speed_m_s', trip.speed.speed_m_s, limits.max_speed_m_s, 'm/s',
+                  'limits.max_speed_m_s')
     variances = _variances(trip.speed.speed_variance, limits.max_speed_m_s, _SPEED_VARIANCE,
                            report)
     stream.compare('speed.speed_m_s', trip.speed.speed_m_s)

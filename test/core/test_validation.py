@@ -111,6 +111,32 @@ def test_bad_speed(value, reason):
         'speed': 1}
 
 
+@pytest.mark.parametrize('factor', [100.0, 1000.0])
+def test_a_speed_in_cm_or_mm_per_second_is_named_and_not_skipped(factor):
+    # Every moving sample beyond the limit: no corrupt samples to drop, the series' units.
+    trip = _trip()
+    moving = np.abs(trip.speed.speed_m_s) * factor > 50.0
+    assert moving.mean() > 0.1
+    speeds = np.where(moving, trip.speed.speed_m_s * factor, trip.speed.speed_m_s)
+    bad = dataclasses.replace(trip, speed=SpeedSeries(trip.speed.stamp_s, speeds))
+    first = int(np.argmax(moving))
+    pattern = (rf'x: speed.speed_m_s\[{first}\]: \|[0-9.]+\| m/s exceeds the limit 50 m/s '
+               rf'\(limits.max_speed_m_s\), and so do {int(moving.sum())} of its '
+               rf'{speeds.size} samples, up to [0-9.]+ m/s: not a few corrupt samples but the '
+               r'series in other units than m/s')
+    with pytest.raises(InvalidInputError, match=pattern):
+        validate_trip(bad, 'x')
+    with pytest.raises(InvalidInputError, match=pattern + r'.*\(too many to skip\)'):
+        validate_trip(bad, 'x', skip_bad=True)
+    # A handful beyond it are corrupt samples: dropped with skip_bad, the message plain.
+    few = trip.speed.speed_m_s.copy()
+    few[np.flatnonzero(moving)[:9]] = 80.0
+    bad = dataclasses.replace(trip, speed=SpeedSeries(trip.speed.stamp_s, few))
+    with pytest.raises(InvalidInputError, match=r'exceeds the limit 50 m/s$'):
+        validate_trip(bad, 'x')
+    assert validate_trip(bad, 'x', skip_bad=True)[1].samples_dropped == {'speed': 9}
+
+
 def test_scans_negative_range_and_nan_intensity_drop_the_scan():
     trip = _trip()
     scan = trip.scans[0]
