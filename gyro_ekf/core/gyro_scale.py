@@ -25,7 +25,10 @@ would be far too small.
 
 e = 1 / alpha - 1 is reported once ``MIN_WINDOWS`` informative windows are in, and found
 (the run is degraded, with the figure to set ``gyro_scale_error`` to) when it lies farther
-than ``SIGMAS`` standard errors and ``MIN_SCALE_DIFFERENCE`` from the configured one.
+than ``MIN_SCALE_DIFFERENCE`` and a threshold of standard errors from the configured one:
+``SIGMAS`` from 6 windows on, Student's t for fewer (the scatter of 3 windows has 2
+degrees of freedom: 9.9 standard errors at 3 windows, 5.8 at 4, 4.6 at 5, each crossed by
+chance 1 % of the time, as 4 is at 6).
 
 **Applied** (``learn``, ``EkfConfig.learn_gyro_scale``): when a window closes and e lies
 that far from the scale in use, it becomes the scale in use (``add`` returns True; later
@@ -34,10 +37,11 @@ integral, so applying a scale does not change what they measure. The driver then
 again what the old scale's error drew on (``events.EventDriver._gyro_scale_applied``). A
 scale applied by mistake would turn every later turn wrong, and the heading the windows rest
 on is held by LiDARs whose mounts and map are taken as right; so it is applied only as
-found (4 standard errors, 0.2 %, 6 windows of 20 s), and said in the verdict either way. On
-32 simulated 300-s trips 0.5-3 % off it was applied at 120 s on every one, and 31 ended
-within the bounds (4 of 16 before; the other one's NEES share 0.895 carries the first 120
-s). Over exact gyros (30-minute trips, stress suites) the windows read at most 0.01 %.
+found (the thresholds above, 0.2 %, 3 windows of 20 s at least), and said in the verdict
+either way. On 12 simulated 120-s trips 0.5-3 % off it is applied at 60 s on every one
+(with 6 windows first, at 120 s, the end of the trip: a 3 % gyro's bias ended 0.26-0.64
+deg/s off, now 0.026-0.029). Over exact gyros (30-minute trips, stress suites) the windows
+read at most 0.01 %.
 
 The state is a handful of sums and an append-only list of window results, so ``save`` and
 ``restore`` (on every event, by ``core/lagged.py``) cost O(1).
@@ -54,14 +58,22 @@ WINDOW_S = 20.0
 """Length of a window, s: long enough to hold a turn and a straight, short enough that the
 bias, free in each window, stays nearly constant within it."""
 
-MIN_WINDOWS = 6
-"""Fewest informative windows before the scale is reported (the scatter needs a few)."""
+MIN_WINDOWS = 3
+"""Fewest informative windows before the scale is reported: the scatter's 2 degrees of
+freedom, made up for by a wider threshold (``_THRESHOLDS``)."""
 
 MIN_TURN_RAD = math.radians(5.0)
 """A window is informative when its turn varied about a steady rate by at least this RMS."""
 
 SIGMAS = 4.0
-"""A scale is found beyond this many standard errors from the one configured."""
+"""A scale is found beyond this many standard errors from the one configured (with 6 or
+more windows; fewer take ``_THRESHOLDS``)."""
+
+# The standard error comes from the windows' own scatter, with m - 1 degrees of freedom,
+# so its ratio to the error is Student's t, not normal: a fixed 4 would be crossed by
+# chance 6 % of the time at 3 windows. Each m below gets t's two-sided 1 % point, the chance
+# of 4 at 6 windows (t 4.03 on 5 degrees of freedom); from 6 on, 4 holds (chance below it).
+_THRESHOLDS = {3: 9.925, 4: 5.841, 5: 4.604}
 
 MIN_SCALE_DIFFERENCE = 0.002
 """... and beyond this (0.2 %): what a LiDAR-held heading resolves over a trip's turns."""
@@ -134,7 +146,7 @@ class GyroScaleWatch:
         scale, sigma = figures
         off = abs(scale - self.in_use)
         least = MIN_REFINEMENT if self.applied else MIN_SCALE_DIFFERENCE
-        if not (off > SIGMAS * sigma and off > least):
+        if not (off > self._sigmas() * sigma and off > least):
             return False
         self.in_use = scale
         self.applied += 1
@@ -182,7 +194,11 @@ class GyroScaleWatch:
             return False
         scale, sigma = figures
         off = abs(scale - self.configured)
-        return off > SIGMAS * sigma and off > MIN_SCALE_DIFFERENCE
+        return off > self._sigmas() * sigma and off > MIN_SCALE_DIFFERENCE
+
+    def _sigmas(self) -> float:
+        """Return the standard errors a scale must lie off by, for the windows in so far."""
+        return _THRESHOLDS.get(len(self.windows), SIGMAS)
 
     def save(self) -> tuple:
         return (self._start, self._psi, self._last_yaw, self._sums, len(self.windows),

@@ -53,6 +53,27 @@ def test_an_exact_gyro_whose_bias_steps_and_ramps_is_no_scale():
     assert watch.in_use == 0.0 and watch.applied == 0
 
 
+@pytest.mark.parametrize('windows', [3, 4, 5, 6])
+def test_few_windows_cross_the_threshold_by_chance_about_1_percent_of_the_time(windows):
+    # The standard error comes from the windows' own scatter, so with few windows the
+    # threshold is Student's t, not a normal 4: exact gyros whose windows scatter by 0.5 %
+    # (MIN_SCALE_DIFFERENCE out of the way) would otherwise find a scale 6 % of the time at
+    # three windows.
+    rng = np.random.default_rng(windows)
+    trials, crossed, crossed_at_4 = 20000, 0, 0
+    for _ in range(trials):
+        watch = GyroScaleWatch()
+        weights = rng.uniform(0.5, 2.0, windows)
+        alphas = 1.0 + rng.normal(0.0, 0.005, windows) / np.sqrt(weights)
+        watch.windows = [(float(w), float(w * a)) for w, a in zip(weights, alphas)]
+        scale, sigma = watch.estimate()
+        crossed += abs(scale) > watch._sigmas() * sigma
+        crossed_at_4 += abs(scale) > 4.0 * sigma
+    assert 0.005 < crossed / trials < 0.015 if windows < 6 else crossed / trials < 0.015
+    if windows == 3:
+        assert crossed_at_4 / trials > 0.04
+
+
 def test_nothing_is_said_before_enough_windows():
     watch = GyroScaleWatch()
     _drive(watch, 0.03, lambda t: 0.0, seconds=WINDOW_S * (MIN_WINDOWS - 1))

@@ -221,20 +221,26 @@ def test_a_lidar_the_driver_has_no_name_for_is_named_by_its_mount():
 
 
 @pytest.mark.parametrize('scale_error', [-0.01, 0.01])
-def test_a_gyro_whose_scale_is_off_is_said_and_configured_away(scale_error):
+def test_a_gyro_whose_scale_is_off_is_said_applied_and_configured_away(scale_error):
     # A MEMS gyro's scale factor is off by up to a few per cent. Until it is known the bias
     # takes in the scale error times each turn (on 50 simulated trips with errors of 0.7-3 %
     # the final bias ended 0.02-1.1 deg/s off). The heading the LiDARs hold measures it
-    # (core/gyro_scale.py): the run says so, with the figure. A 120-s trip ends as the
-    # windows find it: too late to apply.
+    # (core/gyro_scale.py): the run says so, with the figure, and applies it online once
+    # three windows find it (60 s into this 120-s trip), in time for the bias to recover.
     trip = simulate_trip(SimulationConfig(duration_s=120.0, gyro_scale_error=scale_error), 3)
-    summary = summarize(run_trip(trip))
-    assert abs(summary['ground_truth']['bias_error_final_deg_s']) > 0.02  # a failing run
-    assert summary['health']['verdict'] != 'ok', summary['health']
-    said = [r for r in summary['health']['reasons'] if r.startswith("the gyro's scale is off")]
-    assert len(said) == 1, summary['health']['reasons']
-    assert summary['gyro_scale']['found']
-    assert summary['gyro_scale']['scale_error'] == pytest.approx(scale_error, abs=0.001)
+    not_learnt = dataclasses.replace(PipelineParams(), ekf=dataclasses.replace(
+        EkfConfig(), learn_gyro_scale=False))
+    for params, bias_off in ((not_learnt, True), (PipelineParams(), False)):
+        summary = summarize(run_trip(trip, params))
+        bias_error = abs(summary['ground_truth']['bias_error_final_deg_s'])
+        assert (bias_error > 0.02) == bias_off, bias_error  # failing unless applied
+        assert summary['health']['verdict'] == 'degraded', summary['health']
+        said = [r for r in summary['health']['reasons']
+                if r.startswith("the gyro's scale is off")]
+        assert len(said) == 1, summary['health']['reasons']
+        assert summary['gyro_scale']['found']
+        assert summary['gyro_scale']['scale_error'] == pytest.approx(scale_error, abs=0.001)
+        assert summary['gyro_scale']['applied'] == (0 if bias_off else 1)
     # Set to the figure the run gave, the next run is within the bounds and ok.
     given = dataclasses.replace(PipelineParams(), ekf=dataclasses.replace(
         EkfConfig(), gyro_scale_error=round(summary['gyro_scale']['scale_error'], 4)))
