@@ -189,6 +189,8 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     summary['input_loss'] = run.result.input_loss
     # Lone samples far from both neighbours, left out (core/input_spikes.py).
     summary['input_spikes'] = run.result.input_spikes
+    # A gyro repeating one value, its repeats left out (core/input_frozen.py).
+    summary['gyro_frozen'] = run.result.gyro_frozen
     # Each LiDAR's stamps against the gyro's, from its own headings (core/time_offset.py).
     summary['time_offsets'] = {lidar['name']: lidar for lidar in run.result.time_offsets or ()}
     # Each LiDAR's stamps' scatter about when its scans were taken (core/stamp_jitter.py).
@@ -251,6 +253,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         odometry=None if run.result.odometry is None else run.result.odometry.report(),
         gyro_scale=run.result.gyro_scale, input_loss=run.result.input_loss or {},
         input_spikes=run.result.input_spikes or {},
+        gyro_frozen=run.result.gyro_frozen,
         time_offsets=run.result.time_offsets or [],
         stamp_jitter=run.result.stamp_jitter or [],
         map_poles=run.result.map_poles or [],

@@ -151,6 +151,14 @@ def _spikes(spikes: dict[str, dict[str, Any]] | None) -> str:
     return ', '.join(f"{name} {figures['spikes']}" for name, figures in (spikes or {}).items())
 
 
+def _frozen(frozen: dict[str, Any] | None) -> str:
+    """Return the row of a gyro's runs of one repeated value (core/input_frozen.py)."""
+    if not frozen or not frozen['runs']:
+        return 'no'
+    return (f"{frozen['runs']} time(s), the longest {frozen['longest_s']:.2f} s "
+            f"({frozen['samples']} samples left out)")
+
+
 def _table(summary: dict[str, Any]) -> str:
     def number(value: Any, fmt: str) -> str:
         return 'n/a' if value is None or (isinstance(value, float) and math.isnan(value)) \
@@ -173,6 +181,7 @@ def _table(summary: dict[str, Any]) -> str:
              ('LiDAR stamps late against the gyro (ms)', _offsets(summary['time_offsets'])),
              ('LiDAR stamps\' scatter (ms)', _scatter(summary['stamp_jitter'])),
              ('lone input samples left out', _spikes(summary['input_spikes'])),
+             ('gyro frozen (repeats left out)', _frozen(summary['gyro_frozen'])),
              ('gyro and odometry against the LiDARs\' scans',
               _against_lidars(summary['turn_signs'])),
              ('mapped poles elsewhere', ', '.join(

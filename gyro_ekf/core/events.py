@@ -51,6 +51,7 @@ from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
 from gyro_ekf.core.gyro_scale import GyroScaleWatch
 from gyro_ekf.core.gyro_wander import GyroWander, block_allowed
 from gyro_ekf.core.input_loss import InputLoss
+from gyro_ekf.core.input_frozen import FrozenWatch
 from gyro_ekf.core.input_spikes import SpikeGate
 from gyro_ekf.core.map_poles import MapPoleWatch
 from gyro_ekf.core.turn_sign import TurnSignCheck
@@ -261,6 +262,8 @@ class EventDriver:
                                       config.max_angular_acceleration_rad_s2)
         self._speed_spikes = SpikeGate(config.speed_noise_m_s, config.max_acceleration_m_s2)
         self.input_spikes = {'gyro': self._gyro_spikes, 'odometry': self._speed_spikes}
+        # A gyro repeating one value: its repeats left out (core/input_frozen.py).
+        self.gyro_frozen = FrozenWatch()
 
     def _forget_body_frame(self) -> None:
         """Start the two LiDARs' word on the body frame afresh (core/body_frame.py)."""
@@ -317,7 +320,7 @@ class EventDriver:
                 ({name: loss.save() for name, loss in self.input_loss.items()},
                  {name: gate.save() for name, gate in self.input_spikes.items()},
                  {key: watch.save() for key, watch in self.stamp_jitter.items()},
-                 self.map_poles.save(), self.turn_signs.save()),
+                 self.map_poles.save(), self.turn_signs.save(), self.gyro_frozen.save()),
                 (dict(self._start_offsets), self._body_key, self.frame_shift))
 
     def restore(self, saved: tuple) -> None:
@@ -327,9 +330,10 @@ class EventDriver:
          watch, held, self._rate_stamp_s, self._heading_dt2,
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
           self._path_yaw), noise, (gyro_scale, self._turned, offsets),
-         (input_loss, spikes, jitter, map_poles, turn_signs),
+         (input_loss, spikes, jitter, map_poles, turn_signs, frozen),
          (start_offsets, self._body_key, self.frame_shift)) = saved
         self.map_poles.restore(map_poles)
+        self.gyro_frozen.restore(frozen)
         self.turn_signs.restore(turn_signs)
         self._start_offsets = dict(start_offsets)
         for name, saved_loss in input_loss.items():
@@ -502,6 +506,9 @@ class EventDriver:
         """Do what on_imu does without building the Estimate (for callers that batch)."""
         self._advance(stamp_s, 'imu')
         self._gyro_loss.add(stamp_s)
+        if self.gyro_frozen.left_out(stamp_s, yaw_rate_rad_s):
+            self.stats.imu += 1
+            return  # a repeat of a frozen value: the held rate ages as in a gap
         taken = self._gyro_spikes.admit(stamp_s, yaw_rate_rad_s)
         if taken is None:
             self.stats.imu += 1

@@ -664,6 +664,8 @@ class RunFigures:
             by its own stamps (InputLoss.report(), core/input_loss.py).
         input_spikes: per input stream, the lone samples far from both neighbours that
             were left out (SpikeGate.report(), core/input_spikes.py).
+        gyro_frozen: the gyro's runs of one repeated value, their repeats left out
+            (FrozenWatch.report(), core/input_frozen.py), or None.
         final_bias_sigma_rad_s: the sigma of final_bias_rad_s, rad/s (None: not known).
         time_offsets: each LiDAR's stamps against the gyro's (EventDriver
             .time_offset_report(), core/time_offset.py).
@@ -713,6 +715,7 @@ class RunFigures:
     gyro_scale: dict[str, Any] | None = None
     input_loss: dict[str, dict[str, Any]] = field(default_factory=dict)
     input_spikes: dict[str, dict[str, Any]] = field(default_factory=dict)
+    gyro_frozen: dict[str, Any] | None = None
     final_bias_sigma_rad_s: float | None = None
     start_bias: tuple[float, float, float] | None = None
     time_offsets: list[dict[str, Any]] = field(default_factory=list)
@@ -760,6 +763,20 @@ def _gross_scale_reasons(figures: RunFigures) -> list[tuple[str, str]]:
                             f'{lidar["speed_pairs"]} pairs of scans): {cause}'))
             break
     return reasons
+
+
+def _frozen_reasons(frozen: dict[str, Any] | None) -> list[tuple[str, str]]:
+    """Return (level, reason) for a gyro that repeated one value (core/input_frozen.py)."""
+    if not frozen or not frozen['runs']:
+        return []
+    # Left out, its repeats are an IMU gap the LiDARs bridge; but a driver that hangs or a
+    # link that replays is worth knowing about, its first repeats were taken, and what a
+    # long one did to the heading and the bias follows from it (named before those).
+    return [(DEGRADED, f'gyro: it repeated one value sample after sample {frozen["runs"]} '
+             f'time(s) (the first at {frozen["first_at_s"]:.1f} s, the longest for '
+             f'{frozen["longest_s"]:.2f} s), far beyond the chance its own repeats give: a '
+             f'driver that froze or a link that replays its last sample; from there on the '
+             f'repeats were left out ({frozen["samples"]} sample(s)), as in an IMU gap')]
 
 
 def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
@@ -887,6 +904,7 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
     # reasons below follow from it.
     reasons.extend(_gross_scale_reasons(figures))
     reasons.extend(_turn_sign_reasons(figures))
+    reasons.extend(_frozen_reasons(figures.gyro_frozen))
     if figures.detections and figures.updates == 0:
         add(FAILED, f'no landmark update in {figures.start_gap_s:.1f} s although '
             f'{figures.detections} poles were detected')

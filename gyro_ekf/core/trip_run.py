@@ -226,6 +226,8 @@ class TripRun:
             .map_poles_report, core/map_poles.py).
         turn_signs: per LiDAR, whether its scans turn the way the gyro does (EventDriver
             .turn_sign_report, core/turn_sign.py).
+        gyro_frozen: the gyro's runs of one repeated value, their repeats left out
+            (FrozenWatch.report, core/input_frozen.py).
     """
 
     estimates: Estimates
@@ -243,6 +245,7 @@ class TripRun:
     stamp_jitter: list[dict] | None = None
     map_poles: list[dict] | None = None
     turn_signs: list[dict] | None = None
+    gyro_frozen: dict | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -393,4 +396,4 @@ def drive_trip(trip: Trip, driver: EventDriver,
                    driver.time_offset_report(),
                    {name: gate.report() for name, gate in driver.input_spikes.items()},
                    driver.stamp_jitter_report(), driver.map_poles_report(),
-                   driver.turn_sign_report())
+                   driver.turn_sign_report(), driver.gyro_frozen.report())

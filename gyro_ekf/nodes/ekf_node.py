@@ -40,7 +40,8 @@ one, to save the CPU), the zero-rate updates
 the samples each input's own stamps say were sent and never reached the filter
 (`gyro_lost`, `gyro_received_share`, `odometry_*`: core/input_loss.py), the lone samples
 far from both neighbours left out of it (`gyro_spikes`, `odometry_spikes`:
-core/input_spikes.py), the health verdict
+core/input_spikes.py), a gyro's repeats of one value left out (`gyro_frozen_runs`,
+`gyro_frozen_samples`: core/input_frozen.py), the health verdict
 of the run since the start or the last reset (`verdict`, `verdict_reasons`: core.health's,
 as `gyro-ekf run` writes it in summary.json; level WARN when degraded, ERROR when failed),
 with each LiDAR's window figures (`lidar_<scan topic>_*`, `excluded` true while its
@@ -876,6 +877,7 @@ class EkfNode(Node):
             input_loss=inputs,
             input_spikes={name: gate.report()
                           for name, gate in self.driver.input_spikes.items()},
+            gyro_frozen=self.driver.gyro_frozen.report(),
             # Since the last sample too: an input that stopped is silent while the others
             # go on (core/input_loss.py).
             input_gaps_s=silences(inputs, now),
@@ -1026,6 +1028,9 @@ class EkfNode(Node):
             # Lone samples far from both neighbours, left out (core/input_spikes.py).
             **{f'{name}_spikes': str(gate.spikes)
                for name, gate in self.driver.input_spikes.items()},
+            # A gyro repeating one value, its repeats left out (core/input_frozen.py).
+            'gyro_frozen_runs': str(self.driver.gyro_frozen.runs),
+            'gyro_frozen_samples': str(self.driver.gyro_frozen.samples),
         }
         verdict = self._verdict(since)
         values['verdict'] = verdict['verdict']
