@@ -13,6 +13,14 @@ Each LiDAR's stamps against the gyro's are measured too, on a run of that LiDAR 
 the mount the file gets (`core/time_offset.py`, as `run` measures them): one found late or
 early beyond its sigmas is written as `lidar.<topic>.time_offset_s`, which `run` and the EKF
 node take each scan's stamp less.
+
+And each LiDAR's ranges against the map: one that reads long or short is written with
+`lidar.<topic>.range_offset_m`, which `run` and the EKF node move its poles by. Every LiDAR
+but the first fits it with its mount (`core.mount_calibration`). The first, the reference,
+reads it in its range innovations (their mean beyond the verdict's limits,
+core/health.py): it runs alone again with that offset added, until what is left is within
+them (the filter takes part of an offset into the pose, so a first run reads about nine
+tenths of it), and that run is the reference the others are fitted along.
 """
 
 from __future__ import annotations
@@ -55,11 +63,14 @@ def _share(text: str) -> float:
 
 
 def params_yaml(estimates: list, reference: object,
-                offsets: dict[str, dict] | None = None) -> str:
+                offsets: dict[str, dict] | None = None,
+                first_range: dict | None = None) -> str:
     """Return the mounts as params-file text, the reference LiDAR's as the bag states it.
 
     offsets: per topic, its time offset figures (estimate_time_offsets); those found are
-    written as `time_offset_s`.
+    written as `time_offset_s`. first_range: the reference LiDAR's range offset figures
+    (first_range_offset), written as its `range_offset_m` when found; the others' come
+    with their fitted mounts.
     """
     import yaml
 
@@ -72,6 +83,10 @@ def params_yaml(estimates: list, reference: object,
         mount = e.proposed
         lidar[e.topic] = {'frame_id': e.frame_id, 'x_m': float(mount.x_m),
                           'y_m': float(mount.y_m), 'yaw_rad': float(mount.yaw_rad)}
+        if e.significant and e.range_offset_m:
+            lidar[e.topic]['range_offset_m'] = round(float(e.range_offset_m), 5)
+    if first_range and first_range['found']:
+        lidar[reference.topic]['range_offset_m'] = round(float(first_range['offset_m']), 5)
     from gyro_ekf.core.validation import time_offset_problem
     for topic, figures in (offsets or {}).items():
         if (figures['found'] and topic in lidar
@@ -119,17 +134,20 @@ def run(args: argparse.Namespace) -> int:
     source = str(args.bag)
     trip, report = validate_bag(bag, Path(args.bag).name, skip_bad=args.skip_bad)
     warn_dropped(report)
-    # One run on the first LiDAR alone: the mounts' reference path and its time offset.
-    first = reference_run(trip, source)
+    # One run on the first LiDAR alone (again with its range offset, if it reads long or
+    # short): the mounts' reference path and its time offset.
+    first_range, first = first_range_offset(trip, reference_run(trip, source))
     found = estimate_mounts(trip, source, MountSettings(min_improvement=args.min_improvement),
                             first)
     reference = trip.scans[0]
     offsets = estimate_time_offsets(trip, found, first)
     print(_table(found, reference))
     print(_offsets_table(offsets))
+    print(_ranges_table(reference.topic, first_range, found))
     if output is not None:
         with staged_file(output) as staging:
-            staging.write_text(params_yaml(found, reference, offsets), encoding='utf-8')
+            staging.write_text(params_yaml(found, reference, offsets, first_range),
+                               encoding='utf-8')
         log.info('%s: wrote the mounts of %d LiDARs', output, len(found) + 1)
     return 0
 
@@ -153,6 +171,61 @@ def _offsets_table(offsets: dict[str, dict]) -> str:
     return '\n'.join(lines)
 
 
+def _ranges_table(topic: str, first: dict, estimates: list) -> str:
+    """Return the range offsets' lines: how much each LiDAR's ranges read long, cm."""
+    lines = ['range offset (cm long against the map):']
+    if first['offset_m'] is None:
+        lines.append(f'  {topic}: not measured (too few blocks of updates)')
+    elif first['found']:
+        lines.append(f"  {topic}: {100.0 * first['offset_m']:+.2f} (written; alone, "
+                     f"{first['runs']} runs, {100.0 * (first['left_m'] or 0.0):+.2f} left)")
+    else:
+        lines.append(f"  {topic}: {100.0 * first['left_m']:+.2f} at t {first['left_t']:.1f} "
+                     "alone (within the verdict's limits: not written)")
+    for e in estimates:
+        if e.range_offset_m and e.significant:
+            lines.append(f'  {e.topic}: {100.0 * e.range_offset_m:+.2f} +- '
+                         f'{100.0 * e.range_offset_sigma_m:.2f} (written, with its mount)')
+        else:
+            lines.append(f'  {e.topic}: within its sigmas and 0.5 cm, or not observable: not '
+                         'written')
+    return '\n'.join(lines)
+
+
+def first_range_offset(trip: object, first: object) -> tuple[dict, object]:
+    """Return the first LiDAR's range offset figures, and its run alone with it applied.
+
+    The first LiDAR is the reference the others' mounts (and range offsets) are fitted
+    against, so its own range offset comes from its range innovations against the map:
+    from its run alone (``first``, reference_run's), then again with the offset their mean
+    gives added, up to ``RANGE_RUNS`` runs in all, until that mean is within the verdict's
+    limits (health.range_offset_found). Figures: offset_m (the sum applied; None: not
+    measured), found, runs, left_m and left_t (the mean and its t in the last run).
+    """
+    from gyro_ekf.analysis.offline import run_trip
+    from gyro_ekf.core.health import range_offset_found
+
+    series, run = trip.scans[0], first
+    applied, count = 0.0, 1
+    while True:
+        lidars = run.result.health.report() if run.result.health is not None else []
+        whiteness = (lidars[0].get('whiteness') if lidars else None) or {}
+        mean, t = whiteness.get('range_mean_m'), whiteness.get('range_mean_t')
+        if mean is None or not range_offset_found(whiteness) or count == RANGE_RUNS:
+            break
+        applied += mean
+        count += 1
+        alone = dataclasses.replace(series, range_offset_m=applied)
+        run = run_trip(dataclasses.replace(trip, scans=(alone,)))
+    figures = {'offset_m': applied if applied or mean is not None else None,
+               'found': bool(applied), 'runs': count, 'left_m': mean, 'left_t': t}
+    return figures, run
+
+
+RANGE_RUNS = 4
+"""Runs of the first LiDAR alone at most, the first included, to measure its range offset."""
+
+
 def estimate_time_offsets(trip: object, estimates: list, first: object = None
                           ) -> dict[str, dict]:
     """Return each LiDAR's time offset figures (TimeOffsetWatch.report), by topic.
@@ -165,12 +238,14 @@ def estimate_time_offsets(trip: object, estimates: list, first: object = None
     from gyro_ekf.core.time_offset import TimeOffsetWatch
 
     mounts = {e.topic: e.proposed for e in estimates}
+    ranges = {e.topic: e.range_offset_m for e in estimates if e.significant}
     offsets = {}
     for k, series in enumerate(trip.scans):
         if k == 0 and first is not None:
             alone_run = first
         else:
-            alone = dataclasses.replace(series, mount=mounts.get(series.topic, series.mount))
+            alone = dataclasses.replace(series, mount=mounts.get(series.topic, series.mount),
+                                        range_offset_m=ranges.get(series.topic, 0.0))
             alone_run = run_trip(dataclasses.replace(trip, scans=(alone,)))
         reports = alone_run.result.time_offsets
         offsets[series.topic] = reports[0] if reports else TimeOffsetWatch().report()

@@ -107,6 +107,20 @@ a pole radius other than the detector's, or a range offset. Clean simulated trip
 +0.8-1 mm (at t 5-7, where their range test passes); an odometry 2 % off in scale +2 mm (t
 10: its along-track error, not the ranges); 8-cm poles taken for 5-cm ones -1.5 to -2.9 cm
 (t 9-26); ranges 1 cm long +0.8-0.9 cm (t 21-47)."""
+
+
+def range_offset_found(whiteness: dict[str, Any]) -> bool:
+    """Whether a LiDAR's ranges read long or short at every pole (WhitenessTest.figures).
+
+    The mean of its blocks' mean range innovations beyond ``RANGE_MEAN_T`` standard errors
+    and ``RANGE_MEAN_SIGMAS`` of the innovations' sigma (calibrate-mounts measures the
+    offset by this; the verdict names it where the range test fails).
+    """
+    mean, t = whiteness.get('range_mean_m'), whiteness.get('range_mean_t')
+    return (mean is not None and abs(t) > RANGE_MEAN_T
+            and abs(mean) > RANGE_MEAN_SIGMAS * whiteness['range_sigma_m'])
+
+
 WHITENESS_WINDOW_BLOCKS = 24
 """Blocks judged together (2 minutes). A run is judged window by window, the k-th at
 WHITENESS_SIGNIFICANCE / k^2, so a run's false alarms stay within 1.64 times the
@@ -863,15 +877,15 @@ def _whiteness_reasons(sensors: list[dict[str, Any]]) -> list[tuple[str, str]]:
                 cause = ('a motion or sensor model error (odometry scale, gyro scale or bias '
                          'change, mount offset), the covariance is too small')
                 mean, t = test.get('range_mean_m'), test.get('range_mean_t')
-                if (component == 'range' and mean is not None and abs(t) > RANGE_MEAN_T
-                        and abs(mean) > RANGE_MEAN_SIGMAS * test['range_sigma_m']):
+                if component == 'range' and range_offset_found(test):
                     # Long or short at every pole: the detector's pole radius or the
                     # LiDAR's range offset, not the motion (the cause to say first).
                     cause = (f'its ranges read {100.0 * mean:+.1f} cm against the map on '
                              f'average (t {t:.0f} over {test["total_blocks"]} blocks): poles '
                              f'{"thinner" if mean > 0 else "thicker"} than the detector\'s '
                              f'pole_radius_m, or a LiDAR that reads '
-                             f'{"long" if mean > 0 else "short"}')
+                             f'{"long" if mean > 0 else "short"} (gyro-ekf calibrate-mounts '
+                             f'measures its lidar.{sensor["name"]}.range_offset_m)')
                 reasons.append((DEGRADED, (
                     f'LiDAR {sensor["name"]} {what} innovations are not white{where}: '
                     f'{test["block_s"]:g}-s block sums give chi-square {window["chi2"]:.0f} '

@@ -238,6 +238,22 @@ def sensor_point_to_map(state: list[float] | FloatArray, x_m: float, y_m: float,
     return xl + ch * x_m - sh * y_m, yl + sh * x_m + ch * y_m
 
 
+def points_less_range(points_sensor_m: FloatArray, offset_m: float) -> FloatArray:
+    """Points (k, 2) in the sensor frame moved offset_m toward the sensor along their rays.
+
+    The poles a LiDAR whose ranges read offset_m long saw, where they stand
+    (``lidar.<topic>.range_offset_m``): a range offset moves every return of a pole along
+    its own beam, so the centre moves along the ray to it by as much. Points nearer than
+    the offset are left where they are (no pole is detected that near).
+    """
+    points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)
+    if not offset_m or not len(points):
+        return points
+    ranges = np.hypot(points[:, 0], points[:, 1])
+    scale = np.where(ranges > abs(offset_m), 1.0 - offset_m / np.maximum(ranges, 1e-300), 1.0)
+    return points * scale[:, None]
+
+
 def points_to_range_bearing(points_sensor_m: FloatArray) -> FloatArray:
     """Points (k, 2) in the sensor frame to observations (k, 2): range m, bearing rad."""
     points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)

@@ -15,11 +15,15 @@ and its residual is p minus the nearest map pole. The fit:
    reflectors that are not in the map or the other half of a wrong association do not
    decide) wins. Gauss-Newton alone would lock onto the wrong pole for errors of a few
    degrees, where detections sit tens of centimetres off.
-2. **Gauss-Newton** on (a, mx, my) with Huber weights, re-associating each detection to its
-   nearest pole every iteration; detections farther than ``gate_m`` from every pole are
-   left out. Where the x, y offset is not observable (sigma above ``max_offset_sigma_m``,
-   e.g. few poles seen from one side), the fit keeps the stated x, y and solves the yaw
-   alone.
+2. **Gauss-Newton** on (a, mx, my, e) with Huber weights, re-associating each detection to
+   its nearest pole every iteration; detections farther than ``gate_m`` from every pole are
+   left out. e is the LiDAR's range offset: each detection is taken e nearer along its ray
+   (d (1 - e / |d|)), since a LiDAR that reads long moves every return of a pole along its
+   beam; poles seen at many bearings tell it from an offset of the mount (a LiDAR 3 cm long
+   fitted without it moved the mount 2 cm instead). Where e is not observable (sigma above
+   ``max_offset_sigma_m``) the fit keeps e = 0; where the x, y offset is not either (e.g. few
+   poles seen from one side), the stated x, y too, and solves the yaw alone. A range offset
+   is proposed only beyond ``min_range_offset_m`` and 3 of its sigmas.
 
 Sigmas are from the normal equations scaled by the weighted residual variance. Detections
 of successive scans share the reference trajectory's errors, so they are not independent:
@@ -58,7 +62,10 @@ class MountSettings:
         coarse_gate_m: residuals beyond this count as this in the coarse search, m.
         gate_m: detections farther than this from every pole are left out of the fit, m.
         huber_m: Huber threshold on the residual norm, m.
-        max_offset_sigma_m: above this sigma the x, y offset is called unobservable, m.
+        max_offset_sigma_m: above this sigma the x, y offset (or the range offset) is
+            called unobservable, m.
+        min_range_offset_m: a fitted range offset nearer 0 than this is taken as 0, m (the
+            verdict's 0.5 cm: a quarter of the configured range noise, health.py).
         iterations: most Gauss-Newton iterations.
         rest_distance_m, rest_yaw_rad: a scan is used only when the reference pose moved
             this far or turned this much since the last scan used (a stop counts once).
@@ -72,6 +79,7 @@ class MountSettings:
     gate_m: float = 0.25
     huber_m: float = 0.02
     max_offset_sigma_m: float = 0.02
+    min_range_offset_m: float = 0.005
     iterations: int = 30
     rest_distance_m: float = 0.05
     rest_yaw_rad: float = math.radians(1.0)
@@ -89,6 +97,9 @@ class MountEstimate:
         mount: the estimated mount (x, y as stated when not offset_observable).
         sigma: 1-sigma of yaw (rad), x (m) and y (m); x, y are NaN when not estimated.
         offset_observable: whether x, y were estimated.
+        range_offset_m: how much its ranges read long, m (0 when not estimated or not
+            clearly off 0: see MountSettings.min_range_offset_m).
+        range_offset_sigma_m: its 1-sigma, m (NaN when not estimated).
         rms_residual_m: RMS distance of the used detections to their poles, m.
         rms_residual_stated_m: the same under the stated mount (same gate), m.
         detections: detections used in the final fit.
@@ -109,6 +120,8 @@ class MountEstimate:
     detections: int
     detections_total: int
     significant: bool = True
+    range_offset_m: float = 0.0
+    range_offset_sigma_m: float = math.nan
 
     @property
     def proposed(self) -> LidarMount:
@@ -127,6 +140,11 @@ class _Detections:
 
     points: FloatArray       # (n, 2) sensor frame, m
     pose: FloatArray         # (n, 3) platform pose, m, m, rad
+
+    @property
+    def ranges(self) -> FloatArray:
+        """Range of each detection, (n,), m."""
+        return np.hypot(self.points[:, 0], self.points[:, 1])
 
 
 def _reference_pose(stamp_s: FloatArray, ref_stamp_s: FloatArray, ref_pose: FloatArray
@@ -179,13 +197,18 @@ def _detections(scans: ScanSeries, ref_stamp_s: FloatArray, ref_pose: FloatArray
     return _Detections(np.concatenate(points), _reference_pose(stamp, ref_stamp_s, ref_pose))
 
 
-def _to_map(found: _Detections, yaw: float, x: float, y: float) -> FloatArray:
-    """Put the detections in the map frame under mount (yaw, x, y), shape (n, 2)."""
+def _to_map(found: _Detections, yaw: float, x: float, y: float, offset: float = 0.0
+            ) -> FloatArray:
+    """Put the detections in the map frame under mount (yaw, x, y), shape (n, 2).
+
+    offset: the LiDAR's range offset, m (each detection taken that much nearer on its ray).
+    """
     phi = found.pose[:, 2]
     c, s = np.cos(phi), np.sin(phi)
     ca, sa = math.cos(yaw), math.sin(yaw)
-    px = x + ca * found.points[:, 0] - sa * found.points[:, 1]
-    py = y + sa * found.points[:, 0] + ca * found.points[:, 1]
+    points = found.points * (1.0 - offset / found.ranges)[:, None] if offset else found.points
+    px = x + ca * points[:, 0] - sa * points[:, 1]
+    py = y + sa * points[:, 0] + ca * points[:, 1]
     return np.column_stack([found.pose[:, 0] + c * px - s * py,
                             found.pose[:, 1] + s * px + c * py])
 
@@ -209,13 +232,17 @@ def _coarse_yaw(found: _Detections, poles: FloatArray, stated: LidarMount,
     return float(candidates[int(np.argmin(totals))])
 
 
-def _jacobian(found: _Detections, yaw: float) -> FloatArray:
-    """d(map point)/d(yaw, x, y), shape (n, 2, 3)."""
+def _jacobian(found: _Detections, yaw: float, offset: float = 0.0) -> FloatArray:
+    """d(map point)/d(yaw, x, y, range offset), shape (n, 2, 4)."""
     phi = found.pose[:, 2]
     heading = phi + yaw
     c, s = np.cos(heading), np.sin(heading)
-    px, py = found.points[:, 0], found.points[:, 1]
-    jac = np.empty((len(phi), 2, 3))
+    ux, uy = found.points[:, 0] / found.ranges, found.points[:, 1] / found.ranges
+    px, py = found.points[:, 0] - offset * ux, found.points[:, 1] - offset * uy
+    jac = np.empty((len(phi), 2, 4))
+    # d/d offset: the point moves back along its ray, R(phi + yaw) (-u).
+    jac[:, 0, 3] = -(c * ux - s * uy)
+    jac[:, 1, 3] = -(s * ux + c * uy)
     # d/d yaw of R(phi) R(yaw) d = R(phi + yaw) [-dy, dx].
     jac[:, 0, 0] = -c * py - s * px
     jac[:, 1, 0] = -s * py + c * px
@@ -224,13 +251,19 @@ def _jacobian(found: _Detections, yaw: float) -> FloatArray:
     return jac
 
 
+def _offset(theta: FloatArray) -> float:
+    """Return the range offset of a parameter vector (yaw, x, y[, offset]), m."""
+    return float(theta[3]) if len(theta) > 3 else 0.0
+
+
 def _gauss_newton(found: _Detections, poles: FloatArray, start: FloatArray,
                   free: list[int], settings: MountSettings
                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Robust fit of the `free` parameters of (yaw, x, y) from `start`.
+    """Robust fit of the `free` parameters of (yaw, x, y[, range offset]) from `start`.
 
-    Returns the parameters, their covariance (3, 3; NaN where not free) and the mask of
-    detections inside the gate at the end.
+    Returns the parameters, their covariance (NaN where not free; as many rows as `start`
+    has parameters: without a range offset, it is 0) and the mask of detections inside the
+    gate at the end.
     """
     theta = start.copy()
     used = np.zeros(len(found.points), dtype=bool)
@@ -239,7 +272,7 @@ def _gauss_newton(found: _Detections, poles: FloatArray, start: FloatArray,
         used = distance <= settings.gate_m
         if used.sum() < MIN_DETECTIONS:
             break
-        jac = _jacobian(found, theta[0])[used][:, :, free]
+        jac = _jacobian(found, theta[0], _offset(theta))[used][:, :, free]
         weight = np.minimum(1.0, settings.huber_m / np.maximum(distance[used], 1e-12))
         normal = np.einsum('n,nij,nik->jk', weight, jac, jac)
         gradient = np.einsum('n,nij,ni->j', weight, jac, residual[used])
@@ -249,10 +282,10 @@ def _gauss_newton(found: _Detections, poles: FloatArray, start: FloatArray,
             break
     residual, distance = _nearest(_to_map(found, *theta), poles)
     used = distance <= settings.gate_m
-    covariance = np.full((3, 3), math.nan)
+    covariance = np.full((len(theta), len(theta)), math.nan)
     count = int(used.sum())
     if count > len(free):
-        jac = _jacobian(found, theta[0])[used][:, :, free]
+        jac = _jacobian(found, theta[0], _offset(theta))[used][:, :, free]
         weight = np.minimum(1.0, settings.huber_m / np.maximum(distance[used], 1e-12))
         normal = np.einsum('n,nij,nik->jk', weight, jac, jac)
         variance = float(np.sum(weight * distance[used] ** 2)) / (2 * count - len(free))
@@ -297,12 +330,19 @@ def calibrate_mount(scans: ScanSeries, landmarks_xy_m: FloatArray, ref_stamp_s: 
         raise CoreError(f'{where}: only {len(found.points)} pole detections; at least '
                         f'{MIN_DETECTIONS} are needed to calibrate the mount')
     stated = scans.mount
-    start = np.array([_coarse_yaw(found, poles, stated, settings), stated.x_m, stated.y_m])
-    theta, covariance, used = _gauss_newton(found, poles, start, [0, 1, 2], settings)
-    sigma_xy = np.sqrt(np.abs(np.diag(covariance)[1:]))
-    observable = bool(used.sum() >= MIN_DETECTIONS and np.all(np.isfinite(sigma_xy))
-                      and np.all(sigma_xy <= settings.max_offset_sigma_m))
-    if not observable:
+    start = np.array([_coarse_yaw(found, poles, stated, settings), stated.x_m, stated.y_m,
+                      0.0])
+
+    def observable(covariance: FloatArray, used: FloatArray, axes: list[int]) -> bool:
+        sigmas = np.sqrt(np.abs(np.diag(covariance)[axes]))
+        return bool(used.sum() >= MIN_DETECTIONS and np.all(np.isfinite(sigmas))
+                    and np.all(sigmas <= settings.max_offset_sigma_m))
+
+    theta, covariance, used = _gauss_newton(found, poles, start, [0, 1, 2, 3], settings)
+    if not observable(covariance, used, [1, 2, 3]):
+        theta, covariance, used = _gauss_newton(found, poles, start, [0, 1, 2], settings)
+    xy_observable = observable(covariance, used, [1, 2])
+    if not xy_observable:
         theta, covariance, used = _gauss_newton(found, poles, start, [0], settings)
     count = int(used.sum())
     if count < MIN_DETECTIONS:
@@ -310,13 +350,18 @@ def calibrate_mount(scans: ScanSeries, landmarks_xy_m: FloatArray, ref_stamp_s: 
                         f'{settings.gate_m:g} m of a map pole under any mount within '
                         f'+-{math.degrees(settings.search_rad):g} deg; at least '
                         f'{MIN_DETECTIONS} are needed (is the map or the reference right?)')
+    # A range offset within its noise is no offset: the fit of an exact LiDAR lands a few
+    # millimetres off 0, and moving its poles by that costs more than it gains.
+    range_sigma = float(np.sqrt(abs(covariance[3, 3])))
+    if not (abs(theta[3]) > max(settings.min_range_offset_m, 3.0 * range_sigma)):
+        theta[3] = 0.0
     distance = _nearest(_to_map(found, *theta), poles)[1][used]
     stated_distance = _nearest(_to_map(found, stated.yaw_rad, stated.x_m, stated.y_m),
                                poles)[1]
     stated_used = stated_distance[stated_distance <= settings.gate_m]
     # Kept next to the stated yaw (185 deg, not -175 deg), as a person compares them.
     yaw = stated.yaw_rad + wrap_scalar(float(theta[0]) - stated.yaw_rad)
-    sigma = np.sqrt(np.abs(np.diag(covariance)))
+    sigma = np.sqrt(np.abs(np.diag(covariance)[:3]))
     rms = float(np.sqrt(np.mean(distance ** 2)))
     rms_stated = float(np.sqrt(np.mean(stated_used ** 2))) if len(stated_used) else math.nan
     # A stated mount that lays fewer detections inside the gate also counts as worse.
@@ -326,9 +371,10 @@ def calibrate_mount(scans: ScanSeries, landmarks_xy_m: FloatArray, ref_stamp_s: 
         topic=scans.topic, frame_id=scans.frame_id, stated=stated,
         mount=LidarMount(float(theta[1]), float(theta[2]), yaw),
         sigma=(float(sigma[0]), float(sigma[1]), float(sigma[2])),
-        offset_observable=observable,
+        offset_observable=xy_observable,
         rms_residual_m=rms, rms_residual_stated_m=rms_stated,
-        detections=count, detections_total=len(found.points), significant=significant)
+        detections=count, detections_total=len(found.points), significant=significant,
+        range_offset_m=float(theta[3]), range_offset_sigma_m=range_sigma)
 
 
 def calibrate_mounts(trip: Trip, ref_stamp_s: FloatArray, ref_pose: FloatArray,

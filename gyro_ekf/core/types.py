@@ -110,6 +110,9 @@ class ScanSeries:
         mount: where the sensor sits on the platform.
         topic: bag topic name without the leading slash ('scan', 'scan2').
         frame_id: TF frame of the sensor ('laser', 'laser2').
+        range_offset_m: how much its ranges read long, m (``lidar.<topic>.range_offset_m``
+            of a params file; 0 as recorded): its poles are moved that much toward it
+            (models.points_less_range), the ranges themselves left as recorded.
     """
 
     stamp_s: FloatArray
@@ -122,6 +125,7 @@ class ScanSeries:
     mount: LidarMount = field(default_factory=LidarMount)
     topic: str = 'scan'
     frame_id: str = 'laser'
+    range_offset_m: float = 0.0
 
     @property
     def beam_count(self) -> int:

@@ -171,6 +171,16 @@ def time_offset_problem(offset_s: float) -> str | None:
     return value_problem(offset_s, MAX_TIME_OFFSET_S, 's')
 
 
+MAX_RANGE_OFFSET_M = 1.0
+"""Largest |range offset| a LiDAR may be configured with (`lidar.<topic>.range_offset_m`):
+a few centimetres is a LiDAR's calibration; a metre is a mistake."""
+
+
+def range_offset_problem(offset_m: float) -> str | None:
+    """Why a LiDAR's configured range offset (m, `lidar.<topic>.range_offset_m`) is refused."""
+    return value_problem(offset_m, MAX_RANGE_OFFSET_M, 'm')
+
+
 def angle_problem(angle_rad: float, limits: InputLimits = LIMITS) -> str | None:
     """Why a stated angle (rad; an initial or mount yaw) is refused, or None."""
     return value_problem(angle_rad, limits.max_angle_rad, 'rad')

@@ -25,9 +25,12 @@ LiDAR mounts are read in the EKF node's (and the bag sidecar's) layout, `lidar.t
 `lidar.<topic>.{frame_id, x_m, y_m, yaw_rad}` (x, y and yaw required, frame_id optional);
 `gyro-ekf calibrate-mounts` writes them. `lidar.<topic>.time_offset_s` (optional, and
 alone without the mount too) says how late that LiDAR's scans are stamped against the
-gyro's, as a run's verdict measures it (core/time_offset.py); the EKF node declares it
-too. `with_lidar_mounts` puts both on a trip's scans, overriding the mounts the bag states
-for those topics and taking each scan at its stamp less the offset.
+gyro's, as a run's verdict measures it (core/time_offset.py), and
+`lidar.<topic>.range_offset_m` (optional too) how much its ranges read long, as a run's
+verdict measures it against the map (its poles are moved that much toward it); the EKF node
+declares both. `with_lidar_mounts` puts them on a trip's scans, overriding the mounts the
+bag states for those topics, taking each scan at its stamp less the offset and giving
+each its range offset.
 
 The start pose is read as the EKF node declares it, `initial_pose.{x_m, y_m, yaw_rad}` (all
 three, in `map`). `with_initial_pose` starts a trip there unless the bag holds an
@@ -55,7 +58,8 @@ from gyro_ekf.core.config import (CalibrationConfig, DetectorConfig, EkfConfig, 
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.stamps import NS_PER_S, ns_at, seconds_since
 from gyro_ekf.core.types import LidarMount, Trip
-from gyro_ekf.core.validation import initial_pose_problem, mount_problem, time_offset_problem
+from gyro_ekf.core.validation import (initial_pose_problem, mount_problem,
+                                      range_offset_problem, time_offset_problem)
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +90,8 @@ class PipelineParams:
         lidars: scan topic (no slash) -> (frame_id or None, mount) the file sets.
         lidar_time_offsets: scan topic -> how late its scans are stamped, s (the file's
             `lidar.<topic>.time_offset_s`).
+        lidar_range_offsets: scan topic -> how much its ranges read long, m (the file's
+            `lidar.<topic>.range_offset_m`).
         limits: the plausible input ranges (``limits.*``, as the nodes take them).
         initial_pose: (x m, y m, yaw rad) in `map` the file sets, or None.
     """
@@ -97,6 +103,7 @@ class PipelineParams:
     options: RunOptions = field(default_factory=RunOptions)
     lidars: dict[str, tuple[str | None, LidarMount]] = field(default_factory=dict)
     lidar_time_offsets: dict[str, float] = field(default_factory=dict)
+    lidar_range_offsets: dict[str, float] = field(default_factory=dict)
     limits: InputLimits = field(default_factory=InputLimits)
     initial_pose: tuple[float, float, float] | None = None
 
@@ -203,12 +210,13 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
         input_limits = make_config(InputLimits, limits, source=source)
     except CoreError as err:
         raise ParamsFileError(str(err)) from None
-    mounts, time_offsets = _lidar_mounts(lidar_values, source)
+    mounts, time_offsets, range_offsets = _lidar_mounts(lidar_values, source)
     return PipelineParams(
         ekf=built['ekf'], calibration=built['calibration'], detector=built['detector'],
         explicit={**{group: tuple(sorted(v)) for group, v in values.items()},
                   'options': tuple(sorted(options))},
         options=run_options, lidars=mounts, lidar_time_offsets=time_offsets,
+        lidar_range_offsets=range_offsets,
         limits=input_limits, initial_pose=_initial_pose(pose_values, source, input_limits))
 
 
@@ -295,26 +303,31 @@ def _initial_pose(values: dict[str, Any], source: str, limits: InputLimits
 
 
 def _lidar_mounts(values: dict[str, Any], source: str
-                  ) -> tuple[dict[str, tuple[str | None, LidarMount]], dict[str, float]]:
-    """Mounts and time offsets from the flattened `lidar.*` names (without the prefix)."""
+                  ) -> tuple[dict[str, tuple[str | None, LidarMount]], dict[str, float],
+                             dict[str, float]]:
+    """Mounts, time and range offsets from the flattened `lidar.*` names (no prefix)."""
     if not values:
-        return {}, {}
+        return {}, {}, {}
     topics = values.get('topics')
     if not isinstance(topics, list) or not all(isinstance(t, str) and t for t in topics):
         raise ParamsFileError(f"{source}: parameter 'lidar.topics' must be a list of scan "
                               f'topics, got {topics!r}')
     mounts: dict[str, tuple[str | None, LidarMount]] = {}
     offsets: dict[str, float] = {}
+    ranges: dict[str, float] = {}
     for topic in topics:
-        name = f'lidar.{topic}.time_offset_s'
-        offset = values.get(f'{topic}.time_offset_s')
-        if offset is not None:
-            offsets[topic] = _number(source, name, offset)
-            problem = time_offset_problem(offsets[topic])
-            if problem:
-                raise ParamsFileError(f"{source}: parameter '{name}': {problem}")
-            if not any(f'{topic}.{key}' in values for key in ('x_m', 'y_m', 'yaw_rad')):
-                continue  # the offset alone: the bag's mount stays
+        for key, found, problem_of in (('time_offset_s', offsets, time_offset_problem),
+                                       ('range_offset_m', ranges, range_offset_problem)):
+            name = f'lidar.{topic}.{key}'
+            offset = values.get(f'{topic}.{key}')
+            if offset is not None:
+                found[topic] = _number(source, name, offset)
+                problem = problem_of(found[topic])
+                if problem:
+                    raise ParamsFileError(f"{source}: parameter '{name}': {problem}")
+        if not any(f'{topic}.{key}' in values for key in ('x_m', 'y_m', 'yaw_rad')) and (
+                topic in offsets or topic in ranges):
+            continue  # the offsets alone: the bag's mount stays
         numbers = []
         for key in ('x_m', 'y_m', 'yaw_rad'):
             name = f'lidar.{topic}.{key}'
@@ -331,17 +344,18 @@ def _lidar_mounts(values: dict[str, Any], source: str
             raise ParamsFileError(f"{source}: parameter 'lidar.{topic}.frame_id' must be a "
                                   f'string, got {frame!r}')
         mounts[topic] = (frame, LidarMount(*numbers))
-    return mounts, offsets
+    return mounts, offsets, ranges
 
 
 def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
-    """Return the trip with the params file's LiDAR mounts and time offsets on its scans.
+    """Return the trip with the params file's LiDAR mounts and offsets on its scans.
 
     A mount replaces the one the bag states for that topic; a time offset takes each scan
-    at its stamp less the offset (the EKF node does the same). Each is logged; a topic the
-    trip has no scans of is logged and skipped (the file may serve several bags).
+    at its stamp less the offset, and a range offset moves its poles that much toward the
+    LiDAR (the EKF node does the same). Each is logged; a topic the trip has no scans of is
+    logged and skipped (the file may serve several bags).
     """
-    if not params.lidars and not params.lidar_time_offsets:
+    if not params.lidars and not params.lidar_time_offsets and not params.lidar_range_offsets:
         return trip
     scans = []
     for series in trip.scans:
@@ -359,10 +373,16 @@ def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
             # In whole ns, as the node moves a message's stamp: a scan moved onto an IMU
             # sample's stamp then sorts before it in both (the same order, the same numbers).
             stamps = seconds_since(ns_at(0, stamps) - round(offset * NS_PER_S), 0)
+        range_offset = params.lidar_range_offsets.get(series.topic, series.range_offset_m)
+        if range_offset:
+            log.info("%s: LiDAR '%s' ranges read %+g cm long (the params file's "
+                     'range_offset_m): its poles moved that much toward it', trip.name,
+                     series.topic, 100.0 * range_offset)
         scans.append(dataclasses.replace(series, mount=mount, stamp_s=stamps,
-                                         frame_id=frame or series.frame_id))
-    for topic in sorted((set(params.lidars) | set(params.lidar_time_offsets))
-                        - {s.topic for s in trip.scans}):
+                                         frame_id=frame or series.frame_id,
+                                         range_offset_m=range_offset))
+    for topic in sorted((set(params.lidars) | set(params.lidar_time_offsets)
+                         | set(params.lidar_range_offsets)) - {s.topic for s in trip.scans}):
         log.warning("%s: the params file sets LiDAR '%s', which has no scans in this trip; "
                     'ignored', trip.name, topic)
     return dataclasses.replace(trip, scans=tuple(scans))

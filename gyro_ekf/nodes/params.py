@@ -33,7 +33,7 @@ from gyro_ekf.core.config import config_fields, ConfigT, make_config
 from gyro_ekf.core.config import STATED_NOISE_FIELDS as NOISE_FIELDS
 from gyro_ekf.core.time_offset import MAX_TIME_OFFSET_S
 from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures
-from gyro_ekf.core.validation import InputReport
+from gyro_ekf.core.validation import InputReport, MAX_RANGE_OFFSET_M
 from gyro_ekf.io.sidecar import CONVERTED_KEYS, CONVERTED_PARAMETER, converted_report
 
 
@@ -161,6 +161,8 @@ class SidecarParams:
         lidars: scan topic -> (frame_id, mount).
         time_offsets: scan topic -> how late its scans are stamped against the gyro's, s
             (`lidar.<topic>.time_offset_s`, 0 unless given).
+        range_offsets: scan topic -> how much its ranges read long, m
+            (`lidar.<topic>.range_offset_m`, 0 unless given).
         noise: stated noise figures (None = not stated).
         converted: what `gyro-ekf convert --skip-bad` dropped from the log the bag was
             written from (`trip.dropped_when_converted`: source, samples_dropped per stream,
@@ -173,12 +175,20 @@ class SidecarParams:
     noise: NoiseFigures = field(default_factory=NoiseFigures)
     converted: InputReport | None = None
     time_offsets: dict[str, float] = field(default_factory=dict)
+    range_offsets: dict[str, float] = field(default_factory=dict)
 
     def time_offset_for_frame(self, frame_id: str) -> float:
         """How late the scans of the LiDAR whose frame is frame_id are stamped, s (0: none)."""
         for topic, (frame, _) in self.lidars.items():
             if frame == frame_id:
                 return self.time_offsets.get(topic, 0.0)
+        return 0.0
+
+    def range_offset_for_frame(self, frame_id: str) -> float:
+        """How much the LiDAR whose frame is frame_id reads long, m (0: none)."""
+        for topic, (frame, _) in self.lidars.items():
+            if frame == frame_id:
+                return self.range_offsets.get(topic, 0.0)
         return 0.0
 
     def mount_for_frame(self, frame_id: str) -> LidarMount | None:
@@ -196,7 +206,7 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
     Args:
         node: the node.
         lidars: declare `lidar.topics` and
-            `lidar.<topic>.{frame_id,x_m,y_m,yaw_rad,time_offset_s}`.
+            `lidar.<topic>.{frame_id,x_m,y_m,yaw_rad,time_offset_s,range_offset_m}`.
         noise: declare `noise.{gyro_rad_s,speed_m_s,range_m,bearing_rad}` (0 = not stated)
             and `noise.landmark_m` (negative = not stated: 0 states an exact map).
         pose: declare `initial_pose.{x_m,y_m,yaw_rad}`.
@@ -220,11 +230,13 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
                     -2.0 * math.pi, 2.0 * math.pi)]
     mounts: dict[str, tuple[str, LidarMount]] = {}
     offsets: dict[str, float] = {}
+    ranges: dict[str, float] = {}
     if lidars:
         names = declare(node, 'lidar.topics', Parameter.Type.STRING_ARRAY,
                         'Scan topics of the LiDARs; each has lidar.<topic>.frame_id, its '
-                        'mount lidar.<topic>.{x_m,y_m,yaw_rad} in base_link and how late its '
-                        'scans are stamped, lidar.<topic>.time_offset_s')
+                        'mount lidar.<topic>.{x_m,y_m,yaw_rad} in base_link, how late its '
+                        'scans are stamped, lidar.<topic>.time_offset_s, and how long its '
+                        'ranges read, lidar.<topic>.range_offset_m')
         for topic in names:
             frame = declare(node, f'lidar.{topic}.frame_id', topic,
                             f'frame_id of the scans on {topic!r} (and of their landmarks)')
@@ -238,6 +250,11 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
                 f'How late the scans of {topic!r} are stamped against the gyro\'s (each '
                 'scan is taken at its stamp less this; a run\'s verdict measures it)', 's',
                 -MAX_TIME_OFFSET_S, MAX_TIME_OFFSET_S))
+            ranges[topic] = float(declare(
+                node, f'lidar.{topic}.range_offset_m', 0.0,
+                f'How much the ranges of {topic!r} read long (its poles are moved this much '
+                'toward it; a run\'s verdict measures it against the map)', 'm',
+                -MAX_RANGE_OFFSET_M, MAX_RANGE_OFFSET_M))
     figures = NoiseFigures()
     if noise:
         stated = {}
@@ -256,7 +273,7 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
             stated[key] = value if value > 0.0 else None
         figures = NoiseFigures(**stated)
     return SidecarParams(int(zero_ns), np.array(initial, dtype=np.float64), mounts, figures,
-                         _declare_converted(node), offsets)
+                         _declare_converted(node), offsets, ranges)
 
 
 CONVERTED_DESCRIPTIONS = {

@@ -6,6 +6,8 @@ import dataclasses
 import json
 import math
 
+import numpy as np
+
 import pytest
 import yaml
 
@@ -222,3 +224,34 @@ def test_a_second_lidar_stamped_late_gets_its_time_offset_written(tmp_path, caps
     summary = _run(bag, tmp_path / 'out', '--params-file', str(params))
     assert not [r for r in summary['health']['reasons'] if 'scan2' in r], summary['health']
     assert summary['ground_truth']['position_rmse_m'] < 0.02
+
+
+@pytest.mark.parametrize('which', [0, 1])
+def test_a_lidar_that_reads_long_gets_its_range_offset_written(tmp_path, capsys, which):
+    # Every range 3 cm long, on the first LiDAR (the reference: read from its own range
+    # innovations, run again until none is left) or the second (fitted with its mount,
+    # which without it took the offset as 2 cm of x). Without the file the run is degraded
+    # for ranges that read long; with it, nothing is said and the bounds hold.
+    from gyro_ekf.io.bag_writer import write_trip_bag
+    trip = simulate_trip(SimulationConfig(duration_s=120.0, second_lidar=True), 31)
+    scans = list(trip.scans)
+    ranges = scans[which].ranges_m
+    scans[which] = dataclasses.replace(scans[which], ranges_m=np.where(
+        np.isfinite(ranges), ranges + 0.03, ranges).astype(np.float32))
+    bag = write_trip_bag(dataclasses.replace(trip, scans=tuple(scans)), tmp_path / 'bag')
+    topic = scans[which].topic
+    plain = _run(bag, tmp_path / 'plain')
+    assert any(r.startswith(f'LiDAR {topic} range innovations are not white')
+               and f'lidar.{topic}.range_offset_m' in r for r in plain['health']['reasons'])
+    params = tmp_path / 'mounts.yaml'
+    capsys.readouterr()
+    assert main(['-q', 'calibrate-mounts', str(bag), '-o', str(params)]) == 0
+    out = capsys.readouterr().out
+    assert f'  {topic}: +3.0' in out and '(written' in out
+    lidar = yaml.safe_load(params.read_text())['/**']['ros__parameters']['lidar']
+    assert lidar[topic]['range_offset_m'] == pytest.approx(0.03, abs=0.002)
+    assert 'range_offset_m' not in lidar[scans[1 - which].topic]
+    summary = _run(bag, tmp_path / 'out', '--params-file', str(params))
+    assert summary['health']['verdict'] == 'ok', summary['health']
+    truth = summary['ground_truth']
+    assert truth['position_rmse_m'] < 0.02 and truth['nees_share_in_band'] >= 0.9

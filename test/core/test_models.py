@@ -188,3 +188,15 @@ def test_map_uncertainty_adds_its_variance_to_range_and_over_range_squared_to_be
     np.testing.assert_allclose(R[1], sensor + np.diag([0.03 ** 2, (0.03 / 8.0) ** 2]),
                                rtol=1e-15)
     np.testing.assert_array_equal(models.observation_noise(5.0, sensor, 0.0), sensor)
+
+
+def test_points_less_range_moves_each_point_toward_the_sensor_along_its_ray():
+    from gyro_ekf.core.models import points_less_range
+    points = np.array([[3.0, 4.0], [-2.0, 0.0], [0.01, 0.0]])
+    moved = points_less_range(points, 0.5)
+    np.testing.assert_allclose(moved[0], [2.7, 3.6])
+    np.testing.assert_allclose(moved[1], [-1.5, 0.0])
+    np.testing.assert_array_equal(moved[2], points[2])  # nearer than the offset: left
+    np.testing.assert_allclose(points_less_range(points[:2], -0.5)[1], [-2.5, 0.0])
+    assert points_less_range(points, 0.0) is not None
+    np.testing.assert_array_equal(points_less_range(points, 0.0), points)

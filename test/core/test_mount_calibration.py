@@ -71,6 +71,24 @@ def test_a_correct_mount_is_left_as_it_is(seed):
     assert found.mount.x_m == pytest.approx(0.46, abs=0.005)
     assert found.mount.y_m == pytest.approx(0.0, abs=0.005)
     assert not found.significant and found.proposed == found.stated
+    assert found.range_offset_m == 0.0
+
+
+@pytest.mark.parametrize('offset_m', [0.03, -0.02])
+def test_a_second_lidar_that_reads_long_or_short_gets_its_range_offset(offset_m):
+    # Every return of a pole moved along its beam: fitted without the offset, the mount took
+    # it as 2 cm of x; with it, the mount stays and the offset is read to a millimetre.
+    trip = _trip(31, 0.0)
+    scan2 = trip.scans[1]
+    ranges = np.where(np.isfinite(scan2.ranges_m), scan2.ranges_m + offset_m, scan2.ranges_m)
+    trip = dataclasses.replace(trip, scans=(trip.scans[0], dataclasses.replace(
+        scan2, ranges_m=ranges.astype(np.float32))))
+    (found,) = calibrate_mounts(trip, *_reference(trip))
+    assert found.range_offset_m == pytest.approx(offset_m, abs=0.001)
+    assert 0.0 < found.range_offset_sigma_m < 0.001
+    assert found.mount.x_m == pytest.approx(0.46, abs=0.002)
+    assert abs(math.degrees(found.yaw_error_rad)) < 0.02
+    assert found.significant
 
 
 def test_a_small_error_is_still_clearly_better_than_the_stated_mount():

@@ -1,9 +1,10 @@
 """ekf_node takes a LiDAR's scans at their stamps less `lidar.<topic>.time_offset_s`.
 
 The bag is the simulated 120-s trip (seed 3) whose scans are stamped 30 ms late, as in
-test_ekf_node_time_offset.py; here the EKF node is given the offset its verdict measured,
-and `gyro-ekf run` the same in a params file. Both take each scan 30 ms before its stamp,
-measure what is left near zero and say nothing of it.
+test_ekf_node_time_offset.py, and whose ranges read 3 cm long; here the EKF node is given
+the offsets a verdict measures, and `gyro-ekf run` the same in a params file. Both take
+each scan 30 ms before its stamp and its poles 3 cm nearer (`range_offset_m`), measure
+what is left near zero and say nothing of it.
 
 In its own module, so its processes run in their own ROS domain next to nobody else's.
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 
 from ekf_harness import run_and_replay
@@ -19,6 +21,7 @@ from ekf_harness import run_and_replay
 pytestmark = pytest.mark.ros
 
 OFFSET_S = 0.03
+RANGE_OFFSET_M = 0.03
 
 
 @pytest.fixture(scope='module')
@@ -28,13 +31,17 @@ def corrected_run(ros_processes, tmp_path_factory):
 
     trip = simulate_trip(SimulationConfig(duration_s=120.0), 3)
     late = dataclasses.replace(trip, scans=[
-        dataclasses.replace(scans, stamp_s=scans.stamp_s + OFFSET_S) for scans in trip.scans])
+        dataclasses.replace(scans, stamp_s=scans.stamp_s + OFFSET_S,
+                            ranges_m=(scans.ranges_m + RANGE_OFFSET_M).astype(np.float32))
+        for scans in trip.scans])
     folder = tmp_path_factory.mktemp('corrected')
     params = folder / 'offset.yaml'
     params.write_text('/**:\n  ros__parameters:\n    lidar:\n      topics: [scan]\n'
-                      f'      scan: {{time_offset_s: {OFFSET_S}}}\n')
+                      f'      scan: {{time_offset_s: {OFFSET_S}, '
+                      f'range_offset_m: {RANGE_OFFSET_M}}}\n')
     return run_and_replay(ros_processes, late, folder,
-                          ekf_args=('-p', f'lidar.scan.time_offset_s:={OFFSET_S}'),
+                          ekf_args=('-p', f'lidar.scan.time_offset_s:={OFFSET_S}',
+                                    '-p', f'lidar.scan.range_offset_m:={RANGE_OFFSET_M}'),
                           run_args=('--params-file', str(params)))
 
 
@@ -52,3 +59,6 @@ def test_node_takes_the_scans_less_the_offset_as_the_offline_run_does(corrected_
     # The same scans at the same moments: the same figure, to the digits shown.
     assert values['time_offset_scan_ms'] == f"{1000 * offset['offset_s']:.2f}"
     assert values['verdict'] == 'ok', values['verdict_reasons']
+    # The ranges too: the range innovations' mean as near zero as an exact LiDAR's.
+    whiteness = offline['health']['lidars'][0]['whiteness']
+    assert abs(whiteness['range_mean_m']) < 0.003, whiteness
