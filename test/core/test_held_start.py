@@ -181,16 +181,16 @@ def test_every_lidar_that_looked_must_disagree_to_release():
 def test_a_heading_error_shifting_every_bearing_alike_releases_before_the_nis_sum_would():
     from gyro_ekf.core.health import chi_square_tail
     held = HeldStart(True)
-    # Seven poles, each bearing 1.5 sigmas the same way (a heading a little off): the NIS
-    # sum, 2 dof a pole, hardly notices; the bearings' mean does.
+    # Seven poles, each bearing 1.7 sigmas the same way (a heading a little off): the NIS
+    # sum, 2 dof a pole, stays within chance; the bearings' mean does not.
     for landmark in range(7):
-        held.look('a', landmark, 2.0 + 1.5 ** 2, 0.0, bearing_z=1.5)
-    assert chi_square_tail(7 * (2.0 + 1.5 ** 2), 14) > 0.005
+        held.look('a', landmark, 2.0 + 1.7 ** 2, 0.0, bearing_z=1.7)
+    assert chi_square_tail(7 * (2.0 + 1.7 ** 2), 14) > 10 * held.significance
     held.judge(0.6, expected=1)
     assert not held.held
     # Bearings scattered both ways as much say nothing about the heading.
     scattered = HeldStart(True)
     for landmark in range(8):
-        scattered.look('a', landmark, 2.0 + 1.5 ** 2, 0.0, bearing_z=1.5 * (-1) ** landmark)
+        scattered.look('a', landmark, 2.0 + 1.7 ** 2, 0.0, bearing_z=1.7 * (-1) ** landmark)
     scattered.judge(0.6, expected=1)
     assert scattered.held
