@@ -33,8 +33,8 @@ from pathlib import Path
 
 from gyro_ekf.cli.convert import add_skip_bad_argument, warn_dropped
 
-HELP = ('estimate the mounts of every LiDAR but the first against the map and write them '
-        'as a params file')
+HELP = ('estimate the mounts of every LiDAR but the first against the map, and every '
+        "LiDAR's time and range offsets, and write them as a params file")
 
 log = logging.getLogger(__name__)
 
