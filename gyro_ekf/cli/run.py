@@ -140,7 +140,9 @@ def _against_lidars(signs: dict[str, dict[str, Any]]) -> str:
     if not signs:
         return 'not measured (no two scans with two poles while turning)'
     return '; '.join(
-        f"{name}: gyro x{lidar['scale']:.4g} ({lidar['scale_votes']} of {lidar['votes']}), "
+        (f"{name}: gyro x{lidar['scale']:.4g} ({lidar['scale_votes']} of {lidar['votes']}), "
+         if lidar['votes'] else f"{name}: gyro x0 ({lidar.get('unseen_turns', 0)} turns "
+         'unseen), ')
         + ('odometry not measured' if lidar['speed_ratio'] is None
            else f"odometry x{lidar['speed_ratio']:.3f}")
         for name, lidar in signs.items())

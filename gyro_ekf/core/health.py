@@ -753,6 +753,17 @@ def _gross_scale_reasons(figures: RunFigures) -> list[tuple[str, str]]:
     """Return (level, reason) for a gyro or odometry in the wrong units or sign."""
     reasons = []
     for lidar in figures.turn_signs:
+        if lidar.get('unseen_found') and lidar['unseen_turns'] > lidar['votes']:
+            # The scans turned where the gyro read nothing more often than a turn it read
+            # voted (a gyro that reads its noise votes now and then, on no scale).
+            reasons.append((FAILED, f'the gyro reads almost none of the turns LiDAR '
+                            f'{lidar["name"]}\'s scans show (in {lidar["unseen_turns"]} pairs '
+                            f'of scans they turned, by up to {lidar["unseen_largest_deg"]:.0f} '
+                            f'deg, where it read under a tenth of it): its z axis is not the '
+                            f'platform\'s yaw axis (an IMU mounted on its side, REP-145: z up; '
+                            f'or a dead axis)'))
+            return reasons
+    for lidar in figures.turn_signs:
         if lidar['scale_found']:
             scale = lidar['scale']
             cause = ('its yaw rate is in deg/s where REP-103 has rad/s' if abs(scale) > 1.0

@@ -27,6 +27,14 @@ odometry's speed times the interval (over pairs that went ``MIN_PATH_M`` or more
 the odometry's ``speed_ratio``: 0.95-1.03 on the course logs, -1 for an encoder wired
 backwards.
 
+A gyro whose z axis does not see the turns at all (an IMU mounted on its side reads them on
+x or y, a dead axis reads nothing) never votes: every scale of a reading of nothing is
+nothing. So each pair on time alone is also scored at every turn of ``UNSEEN_TURNS_RAD``
+(-30 to +30 deg), and one whose scans turned ``MIN_TURN_RAD`` or more (scoring under half
+of the gyro's own turn) where the gyro read under ``UNSEEN_SHARE`` of it counts as a turn
+unseen (``_look_for_unseen_turn``). On the course logs none is (60 votes each); on simulated
+trips with the z axis dead or on its side, 20-22 of the 40 pairs tried.
+
 After ``MIN_VOTES`` votes, a LiDAR whose votes are for a negative scale in at least
 ``FOUND_SHARE`` of them turns the other way from the gyro, and one whose votes are for one
 scale other than 1 or -1 as often finds the gyro in the wrong units. With two LiDARs or
@@ -78,6 +86,13 @@ it has fewer than ``MIN_VOTES`` votes."""
 
 LATE_PAIR_SPEED_M_S = 0.05
 """Least odometry speed for a pair on time alone (standing still, nothing is told)."""
+
+UNSEEN_TURNS_RAD = np.radians(np.arange(-30.0, 30.5, 1.0))
+"""Turns a pair on time alone is also scored at, rad: where the scans turned, whatever the
+gyro read (a gyro that reads none of the turns never votes on ``SCALES``)."""
+
+UNSEEN_SHARE = 0.1
+"""A pair's scans turned unseen when the gyro read under this share of their turn."""
 
 MIN_PATH_M = 0.05
 """Least distance the LiDAR's scans show the platform went between two scans for the pair
@@ -139,7 +154,7 @@ def _score(moved: FloatArray, seen: FloatArray) -> tuple[FloatArray, FloatArray,
 class TurnSignCheck:
     """Per LiDAR, votes on the gyro's reading per radian turned, and the odometry's path."""
 
-    __slots__ = ('_last', '_votes', '_before', '_paths', '_late')
+    __slots__ = ('_last', '_votes', '_before', '_paths', '_late', '_unseen')
 
     def __init__(self) -> None:
         # Per LiDAR: (detections, matched) of its scans before its first vote.
@@ -152,6 +167,9 @@ class TurnSignCheck:
         self._paths: dict[Hashable, tuple[int, float, float]] = {}
         # Per LiDAR: pairs tried on time alone (LATE_PAIRS at most).
         self._late: dict[Hashable, int] = {}
+        # Per LiDAR: (name, pairs whose scans turned where the gyro read almost none, the
+        # largest such turn rad).
+        self._unseen: dict[Hashable, tuple[str, int, float]] = {}
 
     def scan(self, key: Hashable, name: str, stamp_s: float, points: FloatArray,
              mount: LidarMount, turned_rad: float, bias_rad_s: float, speed_m_s: float
@@ -181,6 +199,8 @@ class TurnSignCheck:
                 return
             self._late[key] = late + 1
         self._last[key] = (stamp_s, points, turned_rad)
+        if abs(turn) < MIN_TURN_RAD:
+            self._look_for_unseen_turn(key, name, last[1], points, mount, turn)
         scores, inliers, shifts = _score(_moved(last[1], mount, turn / np.array(SCALES)),
                                          points)
         order = np.argsort(scores)
@@ -199,6 +219,24 @@ class TurnSignCheck:
             self._paths[key] = (pairs + 1, cross + speed_m_s * dt * lidar_m,
                                 square + lidar_m * lidar_m)
 
+    def _look_for_unseen_turn(self, key: Hashable, name: str, before: FloatArray,
+                              points: FloatArray, mount: LidarMount, turn: float) -> None:
+        """Count a pair on time alone whose scans turned where the gyro read almost none.
+
+        Its scans scored at every turn of UNSEEN_TURNS_RAD (the path fitted at each): one
+        of MIN_TURN_RAD or more that scores under half of the gyro's own turn, with two
+        detections within half the gate, while the gyro read under UNSEEN_SHARE of it: a gyro
+        whose z axis does not see the platform's turns (an IMU on its side, a dead axis).
+        """
+        scores, inliers, _ = _score(_moved(before, mount, np.append(UNSEEN_TURNS_RAD, turn)),
+                                    points)
+        best = int(np.argmin(scores[:-1]))
+        seen = float(UNSEEN_TURNS_RAD[best])
+        if (abs(seen) >= MIN_TURN_RAD and scores[best] < 0.5 * scores[-1]
+                and inliers[best] >= 2 and abs(turn) < UNSEEN_SHARE * abs(seen)):
+            _, count, largest = self._unseen.get(key, (name, 0, 0.0))
+            self._unseen[key] = (name, count + 1, max(largest, abs(seen)))
+
     def associated(self, key: Hashable, detections: int, matched: int) -> None:
         """Count a scan's detections and those matched to the map, before its first vote."""
         if key not in self._votes:
@@ -207,10 +245,10 @@ class TurnSignCheck:
 
     def save(self) -> tuple[dict, ...]:
         return (dict(self._last), dict(self._votes), dict(self._before), dict(self._paths),
-                dict(self._late))
+                dict(self._late), dict(self._unseen))
 
     def restore(self, saved: tuple[dict, ...]) -> None:
-        self._last, self._votes, self._before, self._paths, self._late = (
+        self._last, self._votes, self._before, self._paths, self._late, self._unseen = (
             dict(part) for part in saved)
 
     def report(self) -> list[dict[str, Any]]:
@@ -219,11 +257,17 @@ class TurnSignCheck:
         votes; opposite: those for a gyro upside down (any scale); scale: the gyro's reading
         per radian most voted for, and scale_votes its votes; opposite_found, scale_found:
         beyond FOUND_SHARE of at least MIN_VOTES; the share of its detections matched before
-        its first vote (None: none); and the odometry's distance over the LiDAR's
-        (speed_ratio, None before MIN_VOTES pairs) over speed_pairs pairs.
+        its first vote (None: none); the odometry's distance over the LiDAR's
+        (speed_ratio, None before MIN_VOTES pairs) over speed_pairs pairs; and the pairs
+        whose scans turned where the gyro read almost none (unseen_turns, the largest
+        unseen_largest_deg; unseen_found: MIN_VOTES of them at least).
         """
         out = []
-        for key, (name, counts) in self._votes.items():
+        entries = dict(self._votes)
+        for key, (name, _, _) in self._unseen.items():
+            entries.setdefault(key, (name, (0,) * len(SCALES)))
+        for key, (name, counts) in entries.items():
+            _, unseen, largest = self._unseen.get(key, (name, 0, 0.0))
             votes = sum(counts)
             against = sum(n for scale, n in zip(SCALES, counts) if scale < 0.0)
             top = max(range(len(SCALES)), key=counts.__getitem__)
@@ -238,5 +282,7 @@ class TurnSignCheck:
                         'associated_before_turns': matched / detections if detections
                         else None,
                         'speed_ratio': float(cross / square) if pairs >= MIN_VOTES else None,
-                        'speed_pairs': pairs})
+                        'speed_pairs': pairs, 'unseen_turns': unseen,
+                        'unseen_largest_deg': math.degrees(largest),
+                        'unseen_found': unseen >= MIN_VOTES})
         return out

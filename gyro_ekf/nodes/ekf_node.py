@@ -69,7 +69,8 @@ about when its scans were taken (core/stamp_jitter.py: `stamp_jitter_<lidar>_{ms
 elsewhere (core/map_poles.py: `map_poles_elsewhere`, their count, and
 `map_pole_<index>_seen_at_m`, where each stands: x y in the map frame), and per LiDAR the
 turns between its scans that voted on what the gyro reads and those that found it upside
-down (core/turn_sign.py: `turn_sign_<lidar>_{votes,opposite}`);
+down or its z axis blind to the turns (core/turn_sign.py:
+`turn_sign_<lidar>_{votes,opposite,unseen_turns}`);
 `ekf/mounts` (PoseArray in
 `base_link`, latched) holds the same mounts, one pose per `lidar.topics` entry in that
 order, published again when an online estimate replaces one.
@@ -1010,7 +1011,8 @@ class EkfNode(Node):
             # Per LiDAR, turns between its scans that voted, and those whose poles moved as
             # for the gyro's turn negated: an upside-down gyro or LiDAR (core/turn_sign.py).
             **{f'turn_sign_{lidar["name"]}_{key}': str(lidar[key])
-               for lidar in self.driver.turn_sign_report() for key in ('votes', 'opposite')},
+               for lidar in self.driver.turn_sign_report()
+               for key in ('votes', 'opposite', 'unseen_turns')},
             # Mapped poles whose detections lie elsewhere (core/map_poles.py): how many,
             # and each one's index and where it stands, m.
             'map_poles_elsewhere': str(len(map_poles)),

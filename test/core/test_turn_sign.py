@@ -70,6 +70,23 @@ def test_a_gyro_in_degrees_per_second_is_found(gyro_scale):
     assert lidar['scale'] == pytest.approx(gyro_scale) and lidar['scale_found']
 
 
+def test_a_gyro_that_reads_none_of_the_turns_is_found_and_a_good_one_is_not():
+    # Its turns below MIN_TURN_RAD: only pairs on time alone are tried, where the scans
+    # still show the arc's 12-15 deg every 0.4-0.5 s.
+    check = TurnSignCheck()
+    _drive(check, 0.0, False, scans=120)
+    [lidar] = check.report()
+    assert lidar['votes'] == 0 and lidar['unseen_found']
+    assert lidar['unseen_turns'] >= MIN_VOTES
+    # 30 deg/s over the 0.4-0.5 s between the pair's scans.
+    assert 12.0 <= lidar['unseen_largest_deg'] <= 15.5
+    # A gyro that reads them votes, and never finds a turn it did not read.
+    check = TurnSignCheck()
+    _drive(check, 1.0, False, scans=120)
+    [lidar] = check.report()
+    assert lidar['votes'] >= MIN_VOTES and lidar['unseen_turns'] == 0
+
+
 def test_straight_driving_and_few_poles_do_not_vote_and_votes_stop():
     check = TurnSignCheck()
     for k in range(20):  # straight ahead: the two signs are the same turn
@@ -174,6 +191,27 @@ def test_an_upside_down_lidar_published_inverted_as_the_verdict_says_runs_as_upr
         upright['ground_truth']['position_rmse_m'], rel=1e-3)
 
 
+@pytest.mark.parametrize('how', ['dead', 'on its side'])
+def test_a_gyro_whose_z_axis_misses_the_turns_is_named(how):
+    # A dead z axis reads 0; an IMU on its side reads the turns on x and its x axis's
+    # bias and noise on z. Either loses the pose (its effects were the reasons: a bias
+    # beyond 10 deg/s, the pose lost); the first reason now says the z axis is blind.
+    trip = simulate_trip(SimulationConfig(duration_s=40.0), 2)
+    w = trip.imu.angular_velocity_rad_s.copy()
+    if how == 'dead':
+        w[:, 2] = 0.0
+    else:
+        w[:, [0, 2]] = w[:, [2, 0]]
+    summary = summarize(run_trip(dataclasses.replace(trip, imu=dataclasses.replace(
+        trip.imu, angular_velocity_rad_s=w))))
+    first = summary['health']['reasons'][0]
+    assert summary['health']['verdict'] == 'failed'
+    assert first.startswith('the gyro reads almost none of the turns LiDAR scan') and (
+        'an IMU mounted on its side' in first), first
+    upright = summarize(run_trip(trip))['turn_signs']['scan']
+    assert upright['unseen_turns'] == 0
+
+
 @pytest.fixture(scope='module')
 def real_2016_trip(shared_data):
     from gyro_ekf.io.matlab import load_course_log
@@ -190,6 +228,7 @@ def test_the_real_2016_log_with_a_sensor_upside_down_names_which(real_2016_trip,
     trip = real_2016_trip
     upright = summarize(run_trip(trip))['turn_signs']['scan']
     assert upright['votes'] >= MIN_VOTES and upright['opposite'] == 0
+    assert upright['unseen_turns'] == 0
     if upside_down == 'gyro':
         trip, named = _gyro_negated(trip), 'the IMU is mounted upside down'
     else:
