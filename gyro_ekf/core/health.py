@@ -826,8 +826,9 @@ def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
         return [
             (DEGRADED, f'LiDAR {lidar["name"]} turns the other way from the gyro and LiDAR '
              f'{", ".join(agree)} ({votes(lidar)}): it is mounted upside down (its bearings '
-             f'run clockwise): mount it upright, or have its driver publish the scans '
-             f'inverted (angle_increment negated)')
+             f'run clockwise): set lidar.{lidar["name"]}.upside_down: true, mount it '
+             f'upright, or have its driver publish the scans inverted (angle_increment '
+             f'negated)')
             for lidar in against]
     if len(against) > 1:
         names = ', '.join(lidar['name'] for lidar in against)
@@ -841,8 +842,9 @@ def _turn_sign_reasons(figures: RunFigures) -> list[tuple[str, str]]:
     elif share is not None:
         which = (f'before the first turn only {share:.0%} of its '
                  f'{lidar["detections_before_turns"]} detections matched the map, so the '
-                 f'LiDAR is mounted upside down (its bearings run clockwise): mount it upright '
-                 f'or have its driver publish the scans inverted (angle_increment negated)')
+                 f'LiDAR is mounted upside down (its bearings run clockwise): set '
+                 f'lidar.{lidar["name"]}.upside_down: true, mount it upright, or have its '
+                 f'driver publish the scans inverted (angle_increment negated)')
     else:
         which = (f'one of them is upside down: either {upside_down_gyro}, or the LiDAR\'s '
                  f'bearings run clockwise (mounted upside down)')

@@ -254,6 +254,18 @@ def points_less_range(points_sensor_m: FloatArray, offset_m: float) -> FloatArra
     return points * scale[:, None]
 
 
+def points_upright(points_sensor_m: FloatArray) -> FloatArray:
+    """Points (k, 2) of a LiDAR mounted upside down, in the frame of one mounted upright.
+
+    Upside down is turned half a turn about its x axis (roll pi, ``lidar.<topic>
+    .upside_down``): x still points where its mount's yaw says, but its bearings run
+    clockwise seen from above, so y is negated. (Half a turn about y instead is this and
+    a yaw of 180 deg more.)
+    """
+    points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)
+    return points * np.array([1.0, -1.0])
+
+
 def points_to_range_bearing(points_sensor_m: FloatArray) -> FloatArray:
     """Points (k, 2) in the sensor frame to observations (k, 2): range m, bearing rad."""
     points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)

@@ -28,7 +28,7 @@ from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.health import HealthMonitor
 from gyro_ekf.core.mount_online import OnlineMounts
 from gyro_ekf.core.odometry_online import OdometryTracker
-from gyro_ekf.core.models import points_less_range, sensor_point_to_map
+from gyro_ekf.core.models import points_less_range, points_upright, sensor_point_to_map
 from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, WANDER, FloatArray, ScanSeries,
                                  SpeedSeries, Trip)
 
@@ -143,11 +143,14 @@ class ScanDetector:
         found = detect_poles_in_scans(
             scan.ranges_m[begin:stop], scan.angles_rad,
             None if scan.intensities is None else scan.intensities[begin:stop], self.config)
+        points = [poles.points_sensor_m for poles in found]
+        if scan.upside_down:
+            # Mounted upside down (the params file's upside_down), as the node takes it.
+            points = [points_upright(p) for p in points]
         if scan.range_offset_m:
             # A LiDAR that reads long (the params file's range_offset_m), as the node does.
-            return [points_less_range(poles.points_sensor_m, scan.range_offset_m)
-                    for poles in found]
-        return [poles.points_sensor_m for poles in found]
+            points = [points_less_range(p, scan.range_offset_m) for p in points]
+        return points
 
     def order(self) -> list[tuple[int, int]]:
         """(series, first scan) of every block, in the order drive_trip first needs them.

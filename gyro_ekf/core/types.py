@@ -113,6 +113,8 @@ class ScanSeries:
         range_offset_m: how much its ranges read long, m (``lidar.<topic>.range_offset_m``
             of a params file; 0 as recorded): its poles are moved that much toward it
             (models.points_less_range), the ranges themselves left as recorded.
+        upside_down: mounted upside down (``lidar.<topic>.upside_down`` of a params file):
+            its poles are mirrored into an upright LiDAR's frame (models.points_upright).
     """
 
     stamp_s: FloatArray
@@ -126,6 +128,7 @@ class ScanSeries:
     topic: str = 'scan'
     frame_id: str = 'laser'
     range_offset_m: float = 0.0
+    upside_down: bool = False
 
     @property
     def beam_count(self) -> int:

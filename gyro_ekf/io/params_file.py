@@ -27,10 +27,12 @@ LiDAR mounts are read in the EKF node's (and the bag sidecar's) layout, `lidar.t
 alone without the mount too) says how late that LiDAR's scans are stamped against the
 gyro's, as a run's verdict measures it (core/time_offset.py), and
 `lidar.<topic>.range_offset_m` (optional too) how much its ranges read long, as a run's
-verdict measures it against the map (its poles are moved that much toward it); the EKF node
-declares both. `with_lidar_mounts` puts them on a trip's scans, overriding the mounts the
-bag states for those topics, taking each scan at its stamp less the offset and giving
-each its range offset.
+verdict measures it against the map (its poles are moved that much toward it), and
+`lidar.<topic>.upside_down` (true or false) a LiDAR mounted upside down (half a turn about
+its x axis: its poles are mirrored into an upright one's frame); the EKF node declares all
+three. `with_lidar_mounts` puts them on a trip's scans, overriding the mounts the bag
+states for those topics, taking each scan at its stamp less the offset and giving each
+its range offset and whether it is upside down.
 
 The start pose is read as the EKF node declares it, `initial_pose.{x_m, y_m, yaw_rad}` (all
 three, in `map`). `with_initial_pose` starts a trip there unless the bag holds an
@@ -92,6 +94,8 @@ class PipelineParams:
             `lidar.<topic>.time_offset_s`).
         lidar_range_offsets: scan topic -> how much its ranges read long, m (the file's
             `lidar.<topic>.range_offset_m`).
+        lidars_upside_down: scan topics of LiDARs mounted upside down (the file's
+            `lidar.<topic>.upside_down: true`).
         limits: the plausible input ranges (``limits.*``, as the nodes take them).
         initial_pose: (x m, y m, yaw rad) in `map` the file sets, or None.
     """
@@ -104,6 +108,7 @@ class PipelineParams:
     lidars: dict[str, tuple[str | None, LidarMount]] = field(default_factory=dict)
     lidar_time_offsets: dict[str, float] = field(default_factory=dict)
     lidar_range_offsets: dict[str, float] = field(default_factory=dict)
+    lidars_upside_down: frozenset[str] = frozenset()
     limits: InputLimits = field(default_factory=InputLimits)
     initial_pose: tuple[float, float, float] | None = None
 
@@ -210,13 +215,13 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
         input_limits = make_config(InputLimits, limits, source=source)
     except CoreError as err:
         raise ParamsFileError(str(err)) from None
-    mounts, time_offsets, range_offsets = _lidar_mounts(lidar_values, source)
+    mounts, time_offsets, range_offsets, upside_down = _lidar_mounts(lidar_values, source)
     return PipelineParams(
         ekf=built['ekf'], calibration=built['calibration'], detector=built['detector'],
         explicit={**{group: tuple(sorted(v)) for group, v in values.items()},
                   'options': tuple(sorted(options))},
         options=run_options, lidars=mounts, lidar_time_offsets=time_offsets,
-        lidar_range_offsets=range_offsets,
+        lidar_range_offsets=range_offsets, lidars_upside_down=upside_down,
         limits=input_limits, initial_pose=_initial_pose(pose_values, source, input_limits))
 
 
@@ -304,10 +309,10 @@ def _initial_pose(values: dict[str, Any], source: str, limits: InputLimits
 
 def _lidar_mounts(values: dict[str, Any], source: str
                   ) -> tuple[dict[str, tuple[str | None, LidarMount]], dict[str, float],
-                             dict[str, float]]:
-    """Mounts, time and range offsets from the flattened `lidar.*` names (no prefix)."""
+                             dict[str, float], frozenset[str]]:
+    """Mounts, time and range offsets, LiDARs upside down, from the `lidar.*` names."""
     if not values:
-        return {}, {}, {}
+        return {}, {}, {}, frozenset()
     topics = values.get('topics')
     if not isinstance(topics, list) or not all(isinstance(t, str) and t for t in topics):
         raise ParamsFileError(f"{source}: parameter 'lidar.topics' must be a list of scan "
@@ -315,7 +320,14 @@ def _lidar_mounts(values: dict[str, Any], source: str
     mounts: dict[str, tuple[str | None, LidarMount]] = {}
     offsets: dict[str, float] = {}
     ranges: dict[str, float] = {}
+    flipped: set[str] = set()
     for topic in topics:
+        upside_down = values.get(f'{topic}.upside_down', False)
+        if not isinstance(upside_down, bool):
+            raise ParamsFileError(f"{source}: parameter 'lidar.{topic}.upside_down' must be "
+                                  f'true or false, got {upside_down!r}')
+        if upside_down:
+            flipped.add(topic)
         for key, found, problem_of in (('time_offset_s', offsets, time_offset_problem),
                                        ('range_offset_m', ranges, range_offset_problem)):
             name = f'lidar.{topic}.{key}'
@@ -326,7 +338,7 @@ def _lidar_mounts(values: dict[str, Any], source: str
                 if problem:
                     raise ParamsFileError(f"{source}: parameter '{name}': {problem}")
         if not any(f'{topic}.{key}' in values for key in ('x_m', 'y_m', 'yaw_rad')) and (
-                topic in offsets or topic in ranges):
+                topic in offsets or topic in ranges or f'{topic}.upside_down' in values):
             continue  # the offsets alone: the bag's mount stays
         numbers = []
         for key in ('x_m', 'y_m', 'yaw_rad'):
@@ -344,7 +356,7 @@ def _lidar_mounts(values: dict[str, Any], source: str
             raise ParamsFileError(f"{source}: parameter 'lidar.{topic}.frame_id' must be a "
                                   f'string, got {frame!r}')
         mounts[topic] = (frame, LidarMount(*numbers))
-    return mounts, offsets, ranges
+    return mounts, offsets, ranges, frozenset(flipped)
 
 
 def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
@@ -355,7 +367,8 @@ def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
     LiDAR (the EKF node does the same). Each is logged; a topic the trip has no scans of is
     logged and skipped (the file may serve several bags).
     """
-    if not params.lidars and not params.lidar_time_offsets and not params.lidar_range_offsets:
+    if not (params.lidars or params.lidar_time_offsets or params.lidar_range_offsets
+            or params.lidars_upside_down):
         return trip
     scans = []
     for series in trip.scans:
@@ -378,11 +391,17 @@ def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
             log.info("%s: LiDAR '%s' ranges read %+g cm long (the params file's "
                      'range_offset_m): its poles moved that much toward it', trip.name,
                      series.topic, 100.0 * range_offset)
+        upside_down = series.upside_down or series.topic in params.lidars_upside_down
+        if upside_down:
+            log.info("%s: LiDAR '%s' mounted upside down (the params file's upside_down): "
+                     "its poles mirrored into an upright one's frame", trip.name, series.topic)
         scans.append(dataclasses.replace(series, mount=mount, stamp_s=stamps,
                                          frame_id=frame or series.frame_id,
-                                         range_offset_m=range_offset))
+                                         range_offset_m=range_offset,
+                                         upside_down=upside_down))
     for topic in sorted((set(params.lidars) | set(params.lidar_time_offsets)
-                         | set(params.lidar_range_offsets)) - {s.topic for s in trip.scans}):
+                         | set(params.lidar_range_offsets) | params.lidars_upside_down)
+                        - {s.topic for s in trip.scans}):
         log.warning("%s: the params file sets LiDAR '%s', which has no scans in this trip; "
                     'ignored', trip.name, topic)
     return dataclasses.replace(trip, scans=tuple(scans))

@@ -148,7 +148,7 @@ from gyro_ekf.core.input_loss import silences
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
 from gyro_ekf.core.same_stamp import describe_repeat, DUPLICATE, Repeat, SAME_STAMP, \
     SameStampCheck
-from gyro_ekf.core.models import points_less_range
+from gyro_ekf.core.models import points_less_range, points_upright
 from gyro_ekf.core.stamps import NS_PER_S
 from gyro_ekf.core.stream_order import StreamMerger
 from gyro_ekf.core.stamp_gate import StampGate
@@ -565,6 +565,10 @@ class EkfNode(Node):
             # Scans stamped this late (lidar.<topic>.time_offset_s): taken at the stamp less
             # it, as `gyro-ekf run` takes them (io/params_file.with_lidar_mounts).
             ns -= round(offset_s * NS_PER_S)
+        if self._sidecar.upside_down_for_frame(message.header.frame_id):
+            # A LiDAR mounted upside down (lidar.<topic>.upside_down): its poles mirrored
+            # into an upright one's frame, as `gyro-ekf run` takes them.
+            points = points_upright(points)
         range_offset_m = self._sidecar.range_offset_for_frame(message.header.frame_id)
         if range_offset_m:
             # A LiDAR that reads long (lidar.<topic>.range_offset_m): its poles moved that

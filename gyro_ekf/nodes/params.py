@@ -163,6 +163,8 @@ class SidecarParams:
             (`lidar.<topic>.time_offset_s`, 0 unless given).
         range_offsets: scan topic -> how much its ranges read long, m
             (`lidar.<topic>.range_offset_m`, 0 unless given).
+        upside_down: scan topics of LiDARs mounted upside down
+            (`lidar.<topic>.upside_down`).
         noise: stated noise figures (None = not stated).
         converted: what `gyro-ekf convert --skip-bad` dropped from the log the bag was
             written from (`trip.dropped_when_converted`: source, samples_dropped per stream,
@@ -176,6 +178,12 @@ class SidecarParams:
     converted: InputReport | None = None
     time_offsets: dict[str, float] = field(default_factory=dict)
     range_offsets: dict[str, float] = field(default_factory=dict)
+    upside_down: frozenset[str] = frozenset()
+
+    def upside_down_for_frame(self, frame_id: str) -> bool:
+        """Whether the LiDAR whose frame is frame_id is mounted upside down."""
+        return any(frame == frame_id and topic in self.upside_down
+                   for topic, (frame, _) in self.lidars.items())
 
     def time_offset_for_frame(self, frame_id: str) -> float:
         """How late the scans of the LiDAR whose frame is frame_id are stamped, s (0: none)."""
@@ -206,7 +214,8 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
     Args:
         node: the node.
         lidars: declare `lidar.topics` and
-            `lidar.<topic>.{frame_id,x_m,y_m,yaw_rad,time_offset_s,range_offset_m}`.
+            `lidar.<topic>.{frame_id,x_m,y_m,yaw_rad,time_offset_s,range_offset_m,
+            upside_down}`.
         noise: declare `noise.{gyro_rad_s,speed_m_s,range_m,bearing_rad}` (0 = not stated)
             and `noise.landmark_m` (negative = not stated: 0 states an exact map).
         pose: declare `initial_pose.{x_m,y_m,yaw_rad}`.
@@ -231,12 +240,14 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
     mounts: dict[str, tuple[str, LidarMount]] = {}
     offsets: dict[str, float] = {}
     ranges: dict[str, float] = {}
+    flipped: set[str] = set()
     if lidars:
         names = declare(node, 'lidar.topics', Parameter.Type.STRING_ARRAY,
                         'Scan topics of the LiDARs; each has lidar.<topic>.frame_id, its '
                         'mount lidar.<topic>.{x_m,y_m,yaw_rad} in base_link, how late its '
-                        'scans are stamped, lidar.<topic>.time_offset_s, and how long its '
-                        'ranges read, lidar.<topic>.range_offset_m')
+                        'scans are stamped, lidar.<topic>.time_offset_s, how long its '
+                        'ranges read, lidar.<topic>.range_offset_m, and whether it is mounted '
+                        'upside down, lidar.<topic>.upside_down')
         for topic in names:
             frame = declare(node, f'lidar.{topic}.frame_id', topic,
                             f'frame_id of the scans on {topic!r} (and of their landmarks)')
@@ -255,6 +266,11 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
                 f'How much the ranges of {topic!r} read long (its poles are moved this much '
                 'toward it; a run\'s verdict measures it against the map)', 'm',
                 -MAX_RANGE_OFFSET_M, MAX_RANGE_OFFSET_M))
+            if declare(node, f'lidar.{topic}.upside_down', False,
+                       f'{topic!r} is mounted upside down (half a turn about its x axis: its '
+                       'poles are mirrored into an upright LiDAR\'s frame; the verdict says '
+                       'when it turns the other way from the gyro)'):
+                flipped.add(topic)
     figures = NoiseFigures()
     if noise:
         stated = {}
@@ -273,7 +289,7 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
             stated[key] = value if value > 0.0 else None
         figures = NoiseFigures(**stated)
     return SidecarParams(int(zero_ns), np.array(initial, dtype=np.float64), mounts, figures,
-                         _declare_converted(node), offsets, ranges)
+                         _declare_converted(node), offsets, ranges, frozenset(flipped))
 
 
 CONVERTED_DESCRIPTIONS = {

@@ -179,6 +179,7 @@ def test_an_upside_down_lidar_published_inverted_as_the_verdict_says_runs_as_upr
     summary = summarize(run_trip(dataclasses.replace(trip, scans=(mirrored,))))
     first = summary['health']['reasons'][0]
     assert 'the LiDAR is mounted upside down' in first and 'angle_increment negated' in first
+    assert 'set lidar.scan.upside_down: true' in first
     # The same beams with the angles its driver would publish inverted: as the upright run.
     last = scans.angle_min_rad + scans.angle_increment_rad * (scans.ranges_m.shape[1] - 1)
     inverted = dataclasses.replace(mirrored, angle_min_rad=last,
@@ -188,6 +189,18 @@ def test_an_upside_down_lidar_published_inverted_as_the_verdict_says_runs_as_upr
     assert (fixed['health']['verdict'], fixed['health']['reasons']) == (
         upright['health']['verdict'], upright['health']['reasons'])
     assert fixed['ground_truth']['position_rmse_m'] == pytest.approx(
+        upright['ground_truth']['position_rmse_m'], rel=1e-3)
+    # Or the scans as they are, with the params file's upside_down: the same.
+    from gyro_ekf.io.params_file import read_params_text, with_lidar_mounts
+    params = read_params_text('/**:\n  ros__parameters:\n    lidar:\n      topics: [scan]\n'
+                              '      scan: {upside_down: true}\n')
+    assert params.lidars_upside_down == {'scan'} and not params.lidars
+    given = with_lidar_mounts(dataclasses.replace(trip, scans=(mirrored,)), params)
+    assert given.scans[0].upside_down and given.scans[0].mount == scans.mount
+    flipped = summarize(run_trip(given))
+    assert (flipped['health']['verdict'], flipped['health']['reasons']) == (
+        upright['health']['verdict'], upright['health']['reasons'])
+    assert flipped['ground_truth']['position_rmse_m'] == pytest.approx(
         upright['ground_truth']['position_rmse_m'], rel=1e-3)
 
 

@@ -261,6 +261,9 @@ def test_a_lidar_range_offset_is_read_checked_and_moves_its_poles():
     assert params.lidar_range_offsets == {'scan': 0.03} and not params.lidars
     with pytest.raises(ParamsFileError, match=r"'lidar.scan.range_offset_m': \|2\| m exceeds"):
         read_params_text(head + '      scan: {range_offset_m: 2.0}\n')
+    with pytest.raises(ParamsFileError, match="'lidar.scan.upside_down' must be true or "
+                                              "false, got 'yes please'"):
+        read_params_text(head + "      scan: {upside_down: 'yes please'}\n")
     # A LiDAR 3 cm long: its scans as recorded, its poles moved 3 cm toward it.
     trip = simulate_trip(SimulationConfig(duration_s=20.0), 0)
     scan = trip.scans[0]

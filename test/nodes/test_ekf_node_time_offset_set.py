@@ -1,10 +1,11 @@
 """ekf_node takes a LiDAR's scans at their stamps less `lidar.<topic>.time_offset_s`.
 
 The bag is the simulated 120-s trip (seed 3) whose scans are stamped 30 ms late, as in
-test_ekf_node_time_offset.py, and whose ranges read 3 cm long; here the EKF node is given
-the offsets a verdict measures, and `gyro-ekf run` the same in a params file. Both take
-each scan 30 ms before its stamp and its poles 3 cm nearer (`range_offset_m`), measure
-what is left near zero and say nothing of it.
+test_ekf_node_time_offset.py, whose ranges read 3 cm long, and whose LiDAR is mounted
+upside down (its beams in reverse order); here the EKF node is given what a verdict
+measures, and `gyro-ekf run` the same in a params file. Both take each scan 30 ms before
+its stamp, its poles 3 cm nearer (`range_offset_m`) and mirrored into an upright LiDAR's
+frame (`upside_down`), measure what is left near zero and say nothing of it.
 
 In its own module, so its processes run in their own ROS domain next to nobody else's.
 """
@@ -31,17 +32,22 @@ def corrected_run(ros_processes, tmp_path_factory):
 
     trip = simulate_trip(SimulationConfig(duration_s=120.0), 3)
     late = dataclasses.replace(trip, scans=[
-        dataclasses.replace(scans, stamp_s=scans.stamp_s + OFFSET_S,
-                            ranges_m=(scans.ranges_m + RANGE_OFFSET_M).astype(np.float32))
+        dataclasses.replace(
+            scans, stamp_s=scans.stamp_s + OFFSET_S,
+            ranges_m=np.ascontiguousarray(scans.ranges_m[:, ::-1] + RANGE_OFFSET_M,
+                                          dtype=np.float32),
+            intensities=None if scans.intensities is None
+            else np.ascontiguousarray(scans.intensities[:, ::-1]))
         for scans in trip.scans])
     folder = tmp_path_factory.mktemp('corrected')
     params = folder / 'offset.yaml'
     params.write_text('/**:\n  ros__parameters:\n    lidar:\n      topics: [scan]\n'
                       f'      scan: {{time_offset_s: {OFFSET_S}, '
-                      f'range_offset_m: {RANGE_OFFSET_M}}}\n')
+                      f'range_offset_m: {RANGE_OFFSET_M}, upside_down: true}}\n')
     return run_and_replay(ros_processes, late, folder,
                           ekf_args=('-p', f'lidar.scan.time_offset_s:={OFFSET_S}',
-                                    '-p', f'lidar.scan.range_offset_m:={RANGE_OFFSET_M}'),
+                                    '-p', f'lidar.scan.range_offset_m:={RANGE_OFFSET_M}',
+                                    '-p', 'lidar.scan.upside_down:=true'),
                           run_args=('--params-file', str(params)))
 
 
