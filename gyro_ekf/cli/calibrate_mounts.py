@@ -85,8 +85,12 @@ def params_yaml(estimates: list, reference: object,
                           'y_m': float(mount.y_m), 'yaw_rad': float(mount.yaw_rad)}
         if e.significant and e.range_offset_m:
             lidar[e.topic]['range_offset_m'] = round(float(e.range_offset_m), 5)
+        if e.significant and e.upside_down:
+            lidar[e.topic]['upside_down'] = True
     if first_range and first_range['found']:
         lidar[reference.topic]['range_offset_m'] = round(float(first_range['offset_m']), 5)
+    if reference.upside_down:
+        lidar[reference.topic]['upside_down'] = True
     from gyro_ekf.core.validation import time_offset_problem
     for topic, figures in (offsets or {}).items():
         if (figures['found'] and topic in lidar
@@ -104,7 +108,7 @@ def _table(estimates: list, reference: object) -> str:
              'detections', 'written')]
     rows.append((reference.topic, f'{math.degrees(reference.mount.yaw_rad):.3f}',
                  f'{reference.mount.x_m:.4f}', f'{reference.mount.y_m:.4f}', 'reference', '',
-                 '', 'stated'))
+                 '', 'stated, upside down' if reference.upside_down else 'stated'))
     for e in estimates:
         sy, sx, sxy = e.sigma
         xy = ((f'{e.mount.x_m:.4f} +- {sx:.4f}', f'{e.mount.y_m:.4f} +- {sxy:.4f}')
@@ -115,7 +119,8 @@ def _table(estimates: list, reference: object) -> str:
                      f'{e.stated.y_m:.4f}',
                      f'{e.rms_residual_m:.4f} (stated {e.rms_residual_stated_m:.4f})',
                      f'{e.detections}/{e.detections_total}',
-                     'fit' if e.significant else 'stated (fit not clearly better)'))
+                     ('fit, upside down' if e.upside_down else 'fit') if e.significant
+                     else 'stated (fit not clearly better)'))
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     return '\n'.join('  '.join(f'{cell:<{w}}' for cell, w in zip(row, widths)).rstrip()
                      for row in rows)
@@ -134,9 +139,11 @@ def run(args: argparse.Namespace) -> int:
     source = str(args.bag)
     trip, report = validate_bag(bag, Path(args.bag).name, skip_bad=args.skip_bad)
     warn_dropped(report)
-    # One run on the first LiDAR alone (again with its range offset, if it reads long or
-    # short): the mounts' reference path and its time offset.
-    first_range, first = first_range_offset(trip, reference_run(trip, source))
+    # One run on the first LiDAR alone (again upside down, if its scans turn against the
+    # gyro's, and with its range offset, if it reads long or short): the mounts' reference
+    # path and its time offset.
+    trip, first = first_upside_down(trip, reference_run(trip, source))
+    first_range, first = first_range_offset(trip, first)
     found = estimate_mounts(trip, source, MountSettings(min_improvement=args.min_improvement),
                             first)
     reference = trip.scans[0]
@@ -192,6 +199,39 @@ def _ranges_table(topic: str, first: dict, estimates: list) -> str:
     return '\n'.join(lines)
 
 
+def first_upside_down(trip: object, first: object) -> tuple[object, object]:
+    """Return the trip and the first LiDAR's run alone, upside down if it is.
+
+    Its run alone (``first``) says so: its scans turn against the gyro's
+    (core/turn_sign.py), and before the first turn its detections matched the map under
+    half as often as an upright LiDAR's would (health.VERDICT_UPRIGHT_ASSOCIATION_SHARE:
+    a gyro upside down leaves them matched). It runs again mirrored
+    (ScanSeries.upside_down); kept so when that run associates more of its detections.
+    """
+    from gyro_ekf.analysis.offline import run_trip
+    from gyro_ekf.core.health import VERDICT_UPRIGHT_ASSOCIATION_SHARE
+
+    series = trip.scans[0]
+    signs = [lidar for lidar in first.result.turn_signs or () if lidar['name'] == series.topic]
+    share = signs[0]['associated_before_turns'] if signs else None
+    if not (signs and signs[0]['opposite_found'] and share is not None
+            and share < VERDICT_UPRIGHT_ASSOCIATION_SHARE):
+        return trip, first
+    flipped = dataclasses.replace(series, upside_down=not series.upside_down)
+    run = run_trip(dataclasses.replace(trip, scans=(flipped,)))
+
+    def associated(run: object) -> float:
+        stats = run.result.stats
+        return stats.updates / stats.detections if stats.detections else 0.0
+
+    if associated(run) <= associated(first):
+        return trip, first
+    log.info("LiDAR '%s' is upside down: its scans turn against the gyro's and match the map "
+             'mirrored (%.0f %% of its detections associated, %.0f %% as stated)',
+             series.topic, 100.0 * associated(run), 100.0 * associated(first))
+    return dataclasses.replace(trip, scans=(flipped,) + tuple(trip.scans[1:])), run
+
+
 def first_range_offset(trip: object, first: object) -> tuple[dict, object]:
     """Return the first LiDAR's range offset figures, and its run alone with it applied.
 
@@ -239,13 +279,15 @@ def estimate_time_offsets(trip: object, estimates: list, first: object = None
 
     mounts = {e.topic: e.proposed for e in estimates}
     ranges = {e.topic: e.range_offset_m for e in estimates if e.significant}
+    flipped = {e.topic for e in estimates if e.significant and e.upside_down}
     offsets = {}
     for k, series in enumerate(trip.scans):
         if k == 0 and first is not None:
             alone_run = first
         else:
             alone = dataclasses.replace(series, mount=mounts.get(series.topic, series.mount),
-                                        range_offset_m=ranges.get(series.topic, 0.0))
+                                        range_offset_m=ranges.get(series.topic, 0.0),
+                                        upside_down=series.topic in flipped)
             alone_run = run_trip(dataclasses.replace(trip, scans=(alone,)))
         reports = alone_run.result.time_offsets
         offsets[series.topic] = reports[0] if reports else TimeOffsetWatch().report()

@@ -100,6 +100,8 @@ class MountEstimate:
         range_offset_m: how much its ranges read long, m (0 when not estimated or not
             clearly off 0: see MountSettings.min_range_offset_m).
         range_offset_sigma_m: its 1-sigma, m (NaN when not estimated).
+        upside_down: its detections lie on the map mirrored (half a turn about its x axis):
+            mount and range offset are those of the LiDAR so taken.
         rms_residual_m: RMS distance of the used detections to their poles, m.
         rms_residual_stated_m: the same under the stated mount (same gate), m.
         detections: detections used in the final fit.
@@ -122,6 +124,7 @@ class MountEstimate:
     significant: bool = True
     range_offset_m: float = 0.0
     range_offset_sigma_m: float = math.nan
+    upside_down: bool = False
 
     @property
     def proposed(self) -> LidarMount:
@@ -330,6 +333,63 @@ def calibrate_mount(scans: ScanSeries, landmarks_xy_m: FloatArray, ref_stamp_s: 
         raise CoreError(f'{where}: only {len(found.points)} pole detections; at least '
                         f'{MIN_DETECTIONS} are needed to calibrate the mount')
     stated = scans.mount
+    theta, covariance, used, xy_observable = _fit(found, poles, stated, settings)
+    # Upside down (half a turn about x), a LiDAR's poles are its upright twin's mirrored:
+    # no mount lays them on the map, and the fit that lays the most (a few per cent of
+    # them, at a yaw and offset off by degrees and decimetres) would be written as if it
+    # did. Both ways up are fitted; the one that lays more detections on poles is the
+    # LiDAR's.
+    raw = found
+    flipped = _Detections(raw.points * np.array([1.0, -1.0]), raw.pose)
+    fit_flipped = _fit(flipped, poles, stated, settings)
+    upside_down = bool(fit_flipped[2].sum() > used.sum())
+    if upside_down:
+        found = flipped
+        theta, covariance, used, xy_observable = fit_flipped
+    count = int(used.sum())
+    if count < MIN_DETECTIONS:
+        raise CoreError(f'{where}: only {count} of {len(found.points)} detections lie within '
+                        f'{settings.gate_m:g} m of a map pole under any mount within '
+                        f'+-{math.degrees(settings.search_rad):g} deg; at least '
+                        f'{MIN_DETECTIONS} are needed (is the map or the reference right?)')
+    # A range offset within its noise is no offset: the fit of an exact LiDAR lands a few
+    # millimetres off 0, and moving its poles by that costs more than it gains.
+    range_sigma = float(np.sqrt(abs(covariance[3, 3])))
+    if not (abs(theta[3]) > max(settings.min_range_offset_m, 3.0 * range_sigma)):
+        theta[3] = 0.0
+    distance = _nearest(_to_map(found, *theta), poles)[1][used]
+    as_stated = flipped if scans.upside_down else raw
+    stated_distance = _nearest(_to_map(as_stated, stated.yaw_rad, stated.x_m, stated.y_m),
+                               poles)[1]
+    stated_used = stated_distance[stated_distance <= settings.gate_m]
+    # Kept next to the stated yaw (185 deg, not -175 deg), as a person compares them.
+    yaw = stated.yaw_rad + wrap_scalar(float(theta[0]) - stated.yaw_rad)
+    sigma = np.sqrt(np.abs(np.diag(covariance)[:3]))
+    rms = float(np.sqrt(np.mean(distance ** 2)))
+    rms_stated = float(np.sqrt(np.mean(stated_used ** 2))) if len(stated_used) else math.nan
+    # A stated mount that lays fewer detections inside the gate also counts as worse, and
+    # a LiDAR found upside down differs from one stated upright whatever its mount.
+    significant = bool(not len(stated_used) or len(stated_used) < 0.95 * count
+                       or rms_stated > (1.0 + settings.min_improvement) * rms
+                       or upside_down != scans.upside_down)
+    return MountEstimate(
+        topic=scans.topic, frame_id=scans.frame_id, stated=stated,
+        mount=LidarMount(float(theta[1]), float(theta[2]), yaw),
+        sigma=(float(sigma[0]), float(sigma[1]), float(sigma[2])),
+        offset_observable=xy_observable,
+        rms_residual_m=rms, rms_residual_stated_m=rms_stated,
+        detections=count, detections_total=len(found.points), significant=significant,
+        range_offset_m=float(theta[3]), range_offset_sigma_m=range_sigma,
+        upside_down=upside_down)
+
+
+def _fit(found: _Detections, poles: FloatArray, stated: LidarMount, settings: MountSettings
+         ) -> tuple[FloatArray, FloatArray, FloatArray, bool]:
+    """Fit (yaw, x, y, range offset) from the coarse yaw search: what is observable.
+
+    Returns the parameters, their covariance, the detections used and whether x, y were
+    fitted.
+    """
     start = np.array([_coarse_yaw(found, poles, stated, settings), stated.x_m, stated.y_m,
                       0.0])
 
@@ -344,37 +404,7 @@ def calibrate_mount(scans: ScanSeries, landmarks_xy_m: FloatArray, ref_stamp_s: 
     xy_observable = observable(covariance, used, [1, 2])
     if not xy_observable:
         theta, covariance, used = _gauss_newton(found, poles, start, [0], settings)
-    count = int(used.sum())
-    if count < MIN_DETECTIONS:
-        raise CoreError(f'{where}: only {count} of {len(found.points)} detections lie within '
-                        f'{settings.gate_m:g} m of a map pole under any mount within '
-                        f'+-{math.degrees(settings.search_rad):g} deg; at least '
-                        f'{MIN_DETECTIONS} are needed (is the map or the reference right?)')
-    # A range offset within its noise is no offset: the fit of an exact LiDAR lands a few
-    # millimetres off 0, and moving its poles by that costs more than it gains.
-    range_sigma = float(np.sqrt(abs(covariance[3, 3])))
-    if not (abs(theta[3]) > max(settings.min_range_offset_m, 3.0 * range_sigma)):
-        theta[3] = 0.0
-    distance = _nearest(_to_map(found, *theta), poles)[1][used]
-    stated_distance = _nearest(_to_map(found, stated.yaw_rad, stated.x_m, stated.y_m),
-                               poles)[1]
-    stated_used = stated_distance[stated_distance <= settings.gate_m]
-    # Kept next to the stated yaw (185 deg, not -175 deg), as a person compares them.
-    yaw = stated.yaw_rad + wrap_scalar(float(theta[0]) - stated.yaw_rad)
-    sigma = np.sqrt(np.abs(np.diag(covariance)[:3]))
-    rms = float(np.sqrt(np.mean(distance ** 2)))
-    rms_stated = float(np.sqrt(np.mean(stated_used ** 2))) if len(stated_used) else math.nan
-    # A stated mount that lays fewer detections inside the gate also counts as worse.
-    significant = bool(not len(stated_used) or len(stated_used) < 0.95 * count
-                       or rms_stated > (1.0 + settings.min_improvement) * rms)
-    return MountEstimate(
-        topic=scans.topic, frame_id=scans.frame_id, stated=stated,
-        mount=LidarMount(float(theta[1]), float(theta[2]), yaw),
-        sigma=(float(sigma[0]), float(sigma[1]), float(sigma[2])),
-        offset_observable=xy_observable,
-        rms_residual_m=rms, rms_residual_stated_m=rms_stated,
-        detections=count, detections_total=len(found.points), significant=significant,
-        range_offset_m=float(theta[3]), range_offset_sigma_m=range_sigma)
+    return theta, covariance, used, xy_observable
 
 
 def calibrate_mounts(trip: Trip, ref_stamp_s: FloatArray, ref_pose: FloatArray,
