@@ -146,9 +146,9 @@ from gyro_ekf.core.event_records import Estimate, EventKind
 from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.input_loss import silences
 from gyro_ekf.core.lagged import LaggedObservations, ObservationFate
+from gyro_ekf.core.models import points_less_range, points_upright
 from gyro_ekf.core.same_stamp import describe_repeat, DUPLICATE, Repeat, SAME_STAMP, \
     SameStampCheck
-from gyro_ekf.core.models import points_less_range, points_upright
 from gyro_ekf.core.stamps import NS_PER_S
 from gyro_ekf.core.stream_order import StreamMerger
 from gyro_ekf.core.stamp_gate import StampGate
