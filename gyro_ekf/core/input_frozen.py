@@ -10,11 +10,13 @@ degraded, but none of the reasons named the gyro.
 
 A live gyro is never frozen by chance: its white noise makes two samples in a row the same
 float only where its output is quantised, and then a few times in a row (the course logs:
-3 at most, on the 2021 log's quantised gyro; never on the others). So a run of repeats is
-frozen when it is at least ``MIN_REPEATS`` long and its chance, p^k for k repeats in a row
-where p is the stream's own share of repeats outside frozen runs, is below ``CHANCE``: a
-gyro that repeats one sample in two by its quantisation needs 30 repeats, one in ten needs
-``MIN_REPEATS``. From then on, until the value changes, each sample is left out: the driver
+3 at most, on the 2021 log's quantised gyro, whose pairs repeat 2.4 % of the time; never on
+the others). So once the stream has shown ``MIN_PAIRS`` pairs and repeats no more than
+``NOISY_SHARE`` of them (a gyro without noise, a simulator's or a test's constant rate,
+repeats by its nature, and is not judged), a run of repeats is frozen when it is at least
+``MIN_REPEATS`` long and its chance, p^k for k repeats in a row where p is the stream's own
+share of repeats outside frozen runs, is below ``CHANCE`` (at p = 0.2, 13 repeats: so
+``MIN_REPEATS``). From then on, until the value changes, each sample is left out: the driver
 holds the last rate taken (the frozen value at the freeze's start, a true sample then) and
 treats the rest as an IMU gap (core/held_rate.py), so the heading's uncertainty grows as the
 turn the gyro no longer shows may have moved it.
@@ -39,6 +41,12 @@ MIN_REPEATS = 19
 
 CHANCE = 1e-9
 """A run of repeats less likely than this by the stream's own repeat share is frozen."""
+
+MIN_PAIRS = 1000
+"""Pairs of samples in a row (5 s at 200 Hz) a stream shows before its repeats are judged."""
+
+NOISY_SHARE = 0.2
+"""A stream whose repeat share is above this is not judged: it repeats by its nature."""
 
 
 class FrozenWatch:
@@ -96,10 +104,19 @@ class FrozenWatch:
         self.longest_s = max(self.longest_s, stamp_s - self._start_s)
         return True
 
-    def _repeats_needed(self) -> int:
-        """Return the repeats in a row whose chance by the stream's repeat share is CHANCE."""
-        # Laplace's rule: a stream with few pairs seen yet counts as repeating half of them.
+    def _repeats_needed(self) -> int | float:
+        """Return the repeats in a row whose chance by the stream's repeat share is CHANCE.
+
+        Infinite (not judged) before MIN_PAIRS pairs, or for a stream that repeats more
+        than NOISY_SHARE of them: quantised coarser than its noise, or without noise (a
+        simulator's or a test's constant rate), it repeats by its nature.
+        """
+        if self._pairs < MIN_PAIRS:
+            return math.inf
+        # Laplace's rule: a share of the pairs seen, never 0.
         share = (self._repeat_pairs + 1) / (self._pairs + 2)
+        if share > NOISY_SHARE:
+            return math.inf
         return max(MIN_REPEATS, math.ceil(math.log(CHANCE) / math.log(share)))
 
     def _end_run(self) -> None:

@@ -9,7 +9,7 @@ import pytest
 
 from gyro_ekf.analysis.offline import run_trip
 from gyro_ekf.analysis.summary import summarize
-from gyro_ekf.core.input_frozen import MIN_REPEATS, FrozenWatch
+from gyro_ekf.core.input_frozen import MIN_PAIRS, MIN_REPEATS, FrozenWatch
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 
 PERIOD_S = 0.005
@@ -62,24 +62,27 @@ def test_a_freeze_is_found_and_its_repeats_left_out(lsb):
 def test_a_noise_free_gyro_at_rest_reading_exactly_0_is_not_frozen():
     # A simulator's gyro without noise: exactly 0 at rest, for seconds; the same value
     # otherwise is a freeze.
-    values = np.concatenate([_gyro(1000), np.zeros(2000), _gyro(1000, seed=1)])
+    values = np.concatenate([_gyro(1500), np.zeros(2000), _gyro(1000, seed=1)])
     watch = FrozenWatch()
     assert not _fed(watch, values).any() and watch.runs == 0
-    values[1000:3000] = 0.001
+    values[1500:3500] = 0.001
     assert _fed(FrozenWatch(), values).sum() > 1900
 
 
-def test_a_gyro_that_repeats_often_needs_a_longer_run():
-    # Two pairs in three repeat: a run of 19 repeats happens by chance (p^19 = 5e-4),
-    # frozen only from about 51 (p^51 below 1e-9).
+def test_a_stream_that_repeats_by_its_nature_is_not_judged():
+    # Two pairs in three repeat (quantised far coarser than its noise), or every one (a
+    # constant rate, as a noise-free simulator or a test gives): no run is a freeze.
     rng = np.random.default_rng(2)
     values = np.cumsum(rng.random(60_000) > 2.0 / 3.0).astype(float)
+    values = np.concatenate([values, np.full(2000, -1.0)])
     watch = FrozenWatch()
-    assert not _fed(watch, values).any()
-    values = np.concatenate([values, np.full(200, -1.0)])
+    assert not _fed(watch, values).any() and watch.runs == 0
     watch = FrozenWatch()
-    left_out = _fed(watch, values)
-    assert watch.runs == 1 and 45 <= np.flatnonzero(left_out)[0] - 60_000 <= 60
+    assert not _fed(watch, np.full(5000, 0.02)).any() and watch.runs == 0
+    # Nor one before it has shown MIN_PAIRS pairs.
+    values = _gyro(MIN_PAIRS + 500)
+    values[MIN_PAIRS // 2:MIN_PAIRS] = values[MIN_PAIRS // 2]
+    assert not _fed(FrozenWatch(), values).any()
 
 
 def test_save_and_restore_put_a_run_back():
