@@ -180,24 +180,22 @@ class SidecarParams:
     range_offsets: dict[str, float] = field(default_factory=dict)
     upside_down: frozenset[str] = frozenset()
 
+    def topic_for_frame(self, frame_id: str) -> str | None:
+        """Scan topic of the LiDAR whose frame is frame_id, or None when no LiDAR has it."""
+        return next((topic for topic, (frame, _) in self.lidars.items() if frame == frame_id),
+                    None)
+
     def upside_down_for_frame(self, frame_id: str) -> bool:
         """Whether the LiDAR whose frame is frame_id is mounted upside down."""
-        return any(frame == frame_id and topic in self.upside_down
-                   for topic, (frame, _) in self.lidars.items())
+        return self.topic_for_frame(frame_id) in self.upside_down
 
     def time_offset_for_frame(self, frame_id: str) -> float:
         """How late the scans of the LiDAR whose frame is frame_id are stamped, s (0: none)."""
-        for topic, (frame, _) in self.lidars.items():
-            if frame == frame_id:
-                return self.time_offsets.get(topic, 0.0)
-        return 0.0
+        return self.time_offsets.get(self.topic_for_frame(frame_id), 0.0)
 
     def range_offset_for_frame(self, frame_id: str) -> float:
         """How much the LiDAR whose frame is frame_id reads long, m (0: none)."""
-        for topic, (frame, _) in self.lidars.items():
-            if frame == frame_id:
-                return self.range_offsets.get(topic, 0.0)
-        return 0.0
+        return self.range_offsets.get(self.topic_for_frame(frame_id), 0.0)
 
     def mount_for_frame(self, frame_id: str) -> LidarMount | None:
         """Mount of the LiDAR whose frame is frame_id, or None when no LiDAR has it."""
