@@ -359,6 +359,15 @@ def _lidar_mounts(values: dict[str, Any], source: str
     return mounts, offsets, ranges, frozenset(flipped)
 
 
+def stamps_less(stamp_s: np.ndarray, offset_s: float) -> np.ndarray:
+    """Return the stamps less a LiDAR's time offset (`lidar.<topic>.time_offset_s`), s.
+
+    In whole ns, as the node moves a message's stamp: a scan moved onto an IMU sample's
+    stamp then sorts before it in both (the same order, the same numbers).
+    """
+    return seconds_since(ns_at(0, stamp_s) - round(offset_s * NS_PER_S), 0)
+
+
 def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
     """Return the trip with the params file's LiDAR mounts and offsets on its scans.
 
@@ -383,9 +392,7 @@ def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
         if offset:
             log.info("%s: LiDAR '%s' scans taken %g ms before their stamps (the params "
                      "file's time_offset_s)", trip.name, series.topic, 1000.0 * offset)
-            # In whole ns, as the node moves a message's stamp: a scan moved onto an IMU
-            # sample's stamp then sorts before it in both (the same order, the same numbers).
-            stamps = seconds_since(ns_at(0, stamps) - round(offset * NS_PER_S), 0)
+            stamps = stamps_less(stamps, offset)
         range_offset = params.lidar_range_offsets.get(series.topic, series.range_offset_m)
         if range_offset:
             log.info("%s: LiDAR '%s' ranges read %+g cm long (the params file's "

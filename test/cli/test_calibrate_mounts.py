@@ -127,15 +127,43 @@ def test_an_exact_mount_is_written_as_stated_unless_asked_for_every_fit(tmp_path
     assert "--min-improvement: '-1': must be a number from 0 to 10" in capsys.readouterr().err
 
 
-def test_a_bag_without_a_map_or_without_a_second_lidar_gets_one_line(tmp_path, capsys):
-    single = _simulate(tmp_path, 33)
+def test_a_lone_lidar_gets_its_time_and_range_offsets_and_which_way_up_written(
+        tmp_path, capsys):
+    # One LiDAR, upside down, reading 3 cm long, its scans stamped 30 ms late: its mount is
+    # the reference, but the rest is measured on its runs alone.
+    trip = simulate_trip(SimulationConfig(duration_s=120.0), seed=32)
+    (scan,) = trip.scans
+    ranges = np.where(np.isfinite(scan.ranges_m) & (scan.ranges_m > 0), scan.ranges_m + 0.03,
+                      scan.ranges_m)[:, ::-1]
+    scan = dataclasses.replace(
+        scan, ranges_m=np.ascontiguousarray(ranges, dtype=np.float32),
+        intensities=(None if scan.intensities is None
+                     else np.ascontiguousarray(scan.intensities[:, ::-1])),
+        stamp_s=scan.stamp_s + 0.03)
+    bag = write_trip_bag(dataclasses.replace(trip, scans=(scan,)), tmp_path / 'lone')
+    params = tmp_path / 'p.yaml'
     capsys.readouterr()
-    assert main(['-q', 'calibrate-mounts', str(single), '-o', str(tmp_path / 'p.yaml')]) == 1
-    error = capsys.readouterr().err.strip()
-    assert error.count('\n') == 0
-    assert f"{single}: no LiDAR to calibrate" in error and "'scan'" in error
-    assert not (tmp_path / 'p.yaml').exists()
+    assert main(['-q', 'calibrate-mounts', str(bag), '-o', str(params)]) == 0
+    out = capsys.readouterr().out
+    assert _row(out, 'scan')[-4:] == ['reference', 'stated,', 'upside', 'down']
+    assert "no other LiDAR: 'scan' is the reference" in out
+    written = yaml.safe_load(params.read_text())['/**']['ros__parameters']['lidar']
+    assert written['topics'] == ['scan']
+    assert written['scan']['upside_down'] is True
+    assert written['scan']['range_offset_m'] == pytest.approx(0.03, abs=0.002)
+    assert written['scan']['time_offset_s'] == pytest.approx(0.03, abs=0.003)
 
+    plain = _run(bag, tmp_path / 'plain')
+    after = _run(bag, tmp_path / 'after', '--params-file', str(params))
+    assert plain['health']['verdict'] == 'failed'
+    truth = after['ground_truth']
+    assert truth['position_rmse_m'] <= 0.02
+    assert abs(truth['bias_error_final_deg_s']) <= 0.02
+    assert truth['nees_share_in_band'] >= 0.9
+    assert after['health']['verdict'] == 'ok', after['health']['reasons']
+
+
+def test_a_bag_without_a_map_gets_one_line(tmp_path, capsys):
     trip = simulate_trip(SimulationConfig(duration_s=10.0, second_lidar=True), seed=34)
     no_map = write_trip_bag(dataclasses.replace(trip, landmarks=LandmarkMap(
         trip.landmarks.xy_m[:0])), tmp_path / 'nomap')
@@ -217,7 +245,7 @@ def test_a_second_lidar_stamped_late_gets_its_time_offset_written(tmp_path, caps
     capsys.readouterr()
     assert main(['-q', 'calibrate-mounts', str(bag), '-o', str(params)]) == 0
     out = capsys.readouterr().out
-    assert 'scan2: +' in out and '(written)' in out
+    assert 'scan2: +' in out and '(written' in out
     lidar = yaml.safe_load(params.read_text())['/**']['ros__parameters']['lidar']
     assert lidar['scan2']['time_offset_s'] == pytest.approx(0.030, abs=0.004)
     assert 'time_offset_s' not in lidar['scan']
