@@ -365,6 +365,22 @@ UNITS_SHARE = 0.1
 """Share of a series beyond its limit that is refused even with skip_bad."""
 
 
+def many_beyond(count: int, total: int) -> bool:
+    """Whether ``count`` of ``total`` samples beyond a limit read as a series in other units."""
+    return count >= max(MANY_BEYOND, MANY_BEYOND_SHARE * total)
+
+
+def units_hint(count: int, of: str, largest: float, unit: str, setting: str = '') -> str:
+    """Return what to add to a limit's problem once many samples are beyond it (many_beyond).
+
+    of: what count is a share of ("of its 12001 samples"); setting: the limit's parameter.
+    """
+    limit_name = f' ({setting})' if setting else ''
+    return (f'{limit_name}, and so do {count} {of}, up to {largest:.4g} {unit}: not a few '
+            f'corrupt samples but the series in other units than {unit} (REP-103: SI '
+            'units), or a limit too low for this platform')
+
+
 class _Stream:
     """The checks of one series: a keep mask that bad rows leave, or the first error."""
 
@@ -450,18 +466,14 @@ class _Stream:
         with np.errstate(invalid='ignore'):
             beyond = finite & (np.abs(array) > limit)
         count = int((beyond & self.keep).sum())
-        many = count >= max(MANY_BEYOND, MANY_BEYOND_SHARE * array.size)
+        many = many_beyond(count, array.size)
 
         def describe(i: int) -> str:
             problem = value_problem(float(array[i]), limit, unit) or ''
             if not many:
                 return problem
-            largest = float(np.abs(array[beyond]).max())
-            limit_name = f' ({setting})' if setting else ''
-            return (f'{problem}{limit_name}, and so do {count} of its {array.size} samples, '
-                    f'up to {largest:.4g} {unit}: not a few corrupt samples but the series '
-                    f'in other units than {unit} (REP-103: SI units), or a limit too low for '
-                    'this platform')
+            return problem + units_hint(count, f'of its {array.size} samples',
+                                        float(np.abs(array[beyond]).max()), unit, setting)
 
         if many and count >= UNITS_SHARE * array.size and self.report.skip_bad:
             first = int(np.argmax(beyond & self.keep))

@@ -154,8 +154,8 @@ from gyro_ekf.core.stream_order import StreamMerger
 from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import LandmarkMap, LidarMount
 from gyro_ekf.core.validation import coordinate_problem, duplicate_landmark_problem, \
-    initial_pose_problem, message_variance, \
-    mount_problem, rate_problem, speed_problem
+    initial_pose_problem, many_beyond, message_variance, \
+    mount_problem, rate_problem, speed_problem, units_hint
 from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.io import messages
 from gyro_ekf.io.landmarks_file import read_landmarks_file
@@ -367,6 +367,10 @@ class EkfNode(Node):
         self._reported_quiet = True
         self._reported_drops = dict(self.dropped)
         self._received = dict.fromkeys(['imu', 'odom', 'landmarks'], 0)
+        # Per input, samples refused beyond their limit and the largest: many read as
+        # other units (_beyond).
+        self._beyond_limit = dict.fromkeys(['imu', 'odom'], (0, 0.0))
+        self._units_said: set[str] = set()
         self._rate_base = (self.get_clock().now(), dict(self._received))
         self._rates_hz = dict.fromkeys(self._received, 0.0)
         self._last_estimate: Estimate | None = None
@@ -458,6 +462,28 @@ class EkfNode(Node):
         self._drop(drop_reason(problem, otherwise), f'{what}: {problem}')
         return True
 
+    def _beyond(self, stream: str, value: float, problem: str | None, unit: str,
+                setting: str) -> str | None:
+        """Return a refused value's problem, told when many of its stream's lie beyond.
+
+        As the offline check (core.validation.units_hint): many samples beyond a limit are
+        a series in other units (a speed in cm/s), not a few corrupt ones.
+        """
+        if problem is None or not math.isfinite(value):
+            return problem
+        count, largest = self._beyond_limit[stream]
+        count, largest = count + 1, max(largest, abs(value))
+        self._beyond_limit[stream] = (count, largest)
+        if not many_beyond(count, self._received[stream]):
+            return problem
+        problem += units_hint(count, f"of the {self._received[stream]} received on "
+                              f"'{stream}'", largest, unit, setting)
+        if stream not in self._units_said:
+            # Once, past the drop warning's throttle: the first drop read as one bad sample.
+            self._units_said.add(stream)
+            self.get_logger().error(f'dropping {stream}: {problem}')
+        return problem
+
     def _on_imu(self, message: Imu) -> None:
         if not self._imu_usable(float(message.angular_velocity.z), message.header.frame_id):
             return
@@ -492,7 +518,8 @@ class EkfNode(Node):
         self._received['imu'] += 1
         # The comparison is the fast path (NaN fails it too); the check says why.
         if not -self._max_rate <= rate <= self._max_rate and self._refuse(
-                rate_problem(rate, self._limits), 'imu yaw rate'):
+                self._beyond('imu', rate, rate_problem(rate, self._limits), 'rad/s',
+                             'limits.max_yaw_rate_rad_s'), 'imu yaw rate'):
             return False
         if self._messages.bias_frame != frame_id:
             # The bias is the IMU's: ekf/bias is in its frame, live and offline.
@@ -529,7 +556,8 @@ class EkfNode(Node):
         """Check and queue a speed sample (either path); odom_pose() is (x m, y m, yaw rad)."""
         self._received['odom'] += 1
         if not -self._max_speed <= speed <= self._max_speed and self._refuse(
-                speed_problem(speed, self._limits), 'odom speed'):
+                self._beyond('odom', speed, speed_problem(speed, self._limits), 'm/s',
+                             'limits.max_speed_m_s'), 'odom speed'):
             return
         if self._odom_frame:
             self._odom_pose = odom_pose()

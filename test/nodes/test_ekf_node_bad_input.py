@@ -50,6 +50,22 @@ def _count(key: str, at_least: int):
     return lambda values: int(values.get(key, '0') or 0) >= at_least
 
 
+def test_a_speed_in_other_units_is_said_to_be_one_once_many_samples_are_beyond(start_ekf):
+    # Odometry in cm/s: 1 m/s reads 100, beyond the 50 m/s limit, sample after sample. The
+    # first drop reads as a corrupt sample; once 10 are beyond, the node says what the
+    # offline check says (core.validation.units_hint), once.
+    ekf = start_ekf('units')
+    start = 1_700_000_000 * 10 ** 9 + 7 * STEP_NS
+    ekf.send_pairs(start, 0, 50, speed=1.0)
+    ekf.send_pairs(start, 50, 80, speed=100.0)
+    ekf.wait_for(_count('dropped_out_of_range', 30), 'the 30 speeds in cm/s dropped')
+    said = [line for line in ekf.log().splitlines() if 'other units than m/s' in line]
+    assert len(said) == 1, ekf.log()[-3000:]
+    assert re.search(r"dropping odom: \|100\| m/s exceeds the limit 50 m/s "
+                     r"\(limits\.max_speed_m_s\), and so do 10 of the \d+ received on 'odom', "
+                     r"up to 100 m/s: not a few corrupt samples", said[0]), said[0]
+
+
 def test_implausible_and_non_finite_values_are_dropped_per_reason(start_ekf):
     from gyro_ekf.nodes.conversions import quaternion_yaw
 
