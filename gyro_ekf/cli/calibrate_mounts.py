@@ -94,7 +94,7 @@ def params_yaml(estimates: list, reference: object,
         lidar[reference.topic]['upside_down'] = True
     from gyro_ekf.core.validation import time_offset_problem
     for topic, figures in (offsets or {}).items():
-        if (figures['written'] and topic in lidar
+        if (figures['found'] and topic in lidar
                 and time_offset_problem(figures['offset_s']) is None):
             lidar[topic]['time_offset_s'] = round(float(figures['offset_s']), 6)
     header = ('# gyro_ekf LiDAR mounts (SI) from calibrate-mounts; the first LiDAR is the '
@@ -180,9 +180,9 @@ def _offsets_table(offsets: dict[str, dict]) -> str:
                     if figures.get('runs', 1) > 1 and figures['left_s'] is not None else '')
             lines.append(f"  {topic}: {1000.0 * figures['offset_s']:+.1f} +- "
                          f"{1000.0 * figures['offset_sigma_s']:.1f} "
-                         + (f'(not written: {problem})' if figures['written'] and problem
-                            else f'(written{left})' if figures['written']
-                            else f'(within {TIME_WRITE_SIGMAS:g} standard errors of 0: not '
+                         + (f'(not written: {problem})' if figures['found'] and problem
+                            else f'(written{left})' if figures['found']
+                            else '(not found: within its sigmas, or too small to matter; not '
                             'written)'))
     return '\n'.join(lines)
 
@@ -284,15 +284,13 @@ def estimate_time_offsets(trip: object, estimates: list, first: object = None,
     window. first: reference_run's, which is the first LiDAR's (None: run again);
     first_range_m: the first LiDAR's range offset (first_range_offset).
 
-    A LiDAR whose offset lies beyond ``TIME_WRITE_SIGMAS`` standard errors (not only one
-    the verdict finds) runs alone again with its stamps less the offset, and what that run
-    reads is added, up to ``TIME_RUNS`` runs in all, until what is left lies within
-    ``TIME_LEFT_SIGMAS`` of its standard errors: the bias takes part of an offset in and
-    the windows' standard error is wide before it is applied (a trip 30 ms late read
+    A LiDAR whose offset is found runs alone again with its stamps less the offset, and
+    what that run reads is added, up to ``TIME_RUNS`` runs in all, until what is left lies
+    within ``TIME_LEFT_SIGMAS`` of its standard errors: the bias takes part of an offset in
+    and the windows' standard error is wide before it is applied (a trip 30 ms late read
     33.9 +- 1.8 ms; written, its run read -2.7 +- 0.5 ms left, NEES share 0.62, below the
-    limits that say an offset). Figures: offset_s (the sum applied), offset_sigma_s,
-    windows and found (the first run's), written, runs, left_s and left_sigma_s (the last
-    run's).
+    limits that say an offset). Figures: offset_s (the sum applied), offset_sigma_s and
+    windows (the first run's), found, runs, left_s and left_sigma_s (the last run's).
     """
     from gyro_ekf.analysis.offline import run_trip
     from gyro_ekf.core.time_offset import TimeOffsetWatch
@@ -315,10 +313,8 @@ def estimate_time_offsets(trip: object, estimates: list, first: object = None,
         figures = measured(first if k == 0 and first is not None
                            else run_trip(dataclasses.replace(trip, scans=(alone,))))
         figures = dict(figures, runs=1, left_s=figures['offset_s'],
-                       left_sigma_s=figures['offset_sigma_s'],
-                       written=figures['offset_s'] is not None and abs(
-                           figures['offset_s']) > TIME_WRITE_SIGMAS * figures['offset_sigma_s'])
-        if figures['written']:
+                       left_sigma_s=figures['offset_sigma_s'])
+        if figures['found']:
             applied = figures['offset_s']
             while True:
                 again = dataclasses.replace(alone, stamp_s=stamps_less(series.stamp_s, applied))
@@ -333,13 +329,6 @@ def estimate_time_offsets(trip: object, estimates: list, first: object = None,
         offsets[series.topic] = figures
     return offsets
 
-
-TIME_WRITE_SIGMAS = 3.0
-"""A LiDAR's time offset is written once it lies beyond this many standard errors of 0.
-Less than the verdict asks (core/time_offset.py: beyond chance at 1e-3 and a heading error
-of 2 sigmas): a run cannot tell 2 ms from 0 and says nothing, yet one-LiDAR simulated trips
-stamped 2 ms late have NEES shares of 0.82-0.89 (docs/stress.md); written, an offset read
-wrong by its 0.3-0.9 ms standard error costs nothing measurable (1 ms late: 0.92-0.96)."""
 
 TIME_RUNS = 4
 """Runs of a LiDAR alone at most, the first included, to measure its time offset."""
