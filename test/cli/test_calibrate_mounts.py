@@ -163,6 +163,31 @@ def test_a_lone_lidar_gets_its_time_and_range_offsets_and_which_way_up_written(
     assert after['health']['verdict'] == 'ok', after['health']['reasons']
 
 
+@pytest.mark.parametrize('seed, error, written', [
+    (200, ('--lidar-yaw-error-deg', '0.3'), (0.3, 0.46, 0.0)),
+    (202, ('--lidar-offset-m', '0.01', '0.005'), (0.0, 0.47, 0.005))])
+def test_a_lone_lidar_off_its_mount_gets_the_mount_the_odometry_shows_written(
+        tmp_path, capsys, seed, error, written):
+    # The first LiDAR is the reference of the others, but its run alone moves its mount when
+    # the path it holds lies off the odometry's; until then the pose was off as much.
+    bag = _simulate(tmp_path, seed, *error, duration_s=120)
+    params = tmp_path / 'p.yaml'
+    capsys.readouterr()
+    assert main(['-q', 'calibrate-mounts', str(bag), '-o', str(params)]) == 0
+    assert ' '.join(_row(capsys.readouterr().out, 'scan')[-4:]) == 'moved against the odometry'
+    mount = yaml.safe_load(params.read_text())['/**']['ros__parameters']['lidar']['scan']
+    assert (math.degrees(mount['yaw_rad']), mount['x_m'], mount['y_m']) == pytest.approx(
+        written, abs=0.02)
+    plain = _run(bag, tmp_path / 'plain')
+    after = _run(bag, tmp_path / 'after', '--params-file', str(params))
+    assert any('sits off its stated mount against the odometry' in reason
+               for reason in plain['health']['reasons'])
+    assert plain['ground_truth']['nees_share_in_band'] < 0.9
+    assert after['health']['verdict'] == 'ok', after['health']['reasons']
+    assert after['ground_truth']['nees_share_in_band'] >= 0.9
+    assert after['ground_truth']['position_rmse_m'] <= 0.02
+
+
 def test_a_bag_without_a_map_gets_one_line(tmp_path, capsys):
     trip = simulate_trip(SimulationConfig(duration_s=10.0, second_lidar=True), seed=34)
     no_map = write_trip_bag(dataclasses.replace(trip, landmarks=LandmarkMap(
