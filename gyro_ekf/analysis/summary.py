@@ -191,6 +191,12 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     summary['input_spikes'] = run.result.input_spikes
     # A gyro repeating one value, its repeats left out (core/input_frozen.py).
     summary['gyro_frozen'] = run.result.gyro_frozen
+    # The odometry's own sample-to-sample spread, taken as its noise where it was well
+    # beyond the stated one (EkfConfig.learn_speed_noise; 0: never).
+    stats = run.result.stats
+    summary['speed_noise'] = {'widened_samples': int(stats.speed_noise_widened),
+                              'measured_m_s': float(stats.speed_noise_m_s),
+                              'stated_m_s': float(stats.speed_noise_stated_m_s)}
     # Each LiDAR's stamps against the gyro's, from its own headings (core/time_offset.py).
     summary['time_offsets'] = {lidar['name']: lidar for lidar in run.result.time_offsets or ()}
     # Each LiDAR's stamps' scatter about when its scans were taken (core/stamp_jitter.py).
@@ -245,6 +251,8 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         gyro_noise_scale_max=float(stats.gyro_noise_scale_max),
         gyro_rest_noise_scale=float(stats.gyro_rest_noise_scale),
         gyro_rest_noise_rad_s=float(stats.gyro_rest_noise_rad_s),
+        speed_noise_m_s=float(stats.speed_noise_m_s),
+        speed_noise_stated_m_s=float(stats.speed_noise_stated_m_s),
         gyro_wander_rad_s=float(stats.gyro_wander_rad_s),
         gyro_wander_found_s=stats.gyro_wander_found_s,
         gyro_wander_stated_rad_s=run.config.gyro_wander_rad_s,

@@ -153,6 +153,14 @@ def _spikes(spikes: dict[str, dict[str, Any]] | None) -> str:
     return ', '.join(f"{name} {figures['spikes']}" for name, figures in (spikes or {}).items())
 
 
+def _speed_noise(noise: dict[str, Any]) -> str:
+    """Return the row of the odometry's noise taken from its own spread (learn_speed_noise)."""
+    if not noise['widened_samples']:
+        return 'as stated'
+    return (f"up to {noise['measured_m_s']:.3f} m/s over the {noise['stated_m_s']:.3f} stated, "
+            f"on {noise['widened_samples']} samples")
+
+
 def _frozen(frozen: dict[str, Any] | None) -> str:
     """Return the row of a gyro's runs of one repeated value (core/input_frozen.py)."""
     if not frozen or not frozen['runs']:
@@ -184,6 +192,7 @@ def _table(summary: dict[str, Any]) -> str:
              ('LiDAR stamps\' scatter (ms)', _scatter(summary['stamp_jitter'])),
              ('lone input samples left out', _spikes(summary['input_spikes'])),
              ('gyro frozen (repeats left out)', _frozen(summary['gyro_frozen'])),
+             ('odometry noise from its own spread', _speed_noise(summary['speed_noise'])),
              ('gyro and odometry against the LiDARs\' scans',
               _against_lidars(summary['turn_signs'])),
              ('mapped poles elsewhere', ', '.join(

@@ -47,6 +47,13 @@ class EkfConfig:
         0.0, 1.0)
     speed_noise_m_s: float = config_field(
         0.05, 'm/s', 'Speed noise sigma (input noise of the position prediction).', 0.0, 10.0)
+    # A driver's twist covariance is often a constant nobody measured: simulated odometry
+    # 10 times noisier than its messages said left the pose overconfident (NEES share
+    # 0.83-0.88, one of three with the verdict ok; core/events.py, docs/stress.md).
+    learn_speed_noise: bool = config_field(
+        True, '', 'Take the odometry\'s white noise from the spread of its own samples '
+        '(sample to sample) where that is more than sqrt(2) times the noise its messages, '
+        'or speed_noise_m_s, state.')
     # A lone sample farther from the value in use than its noise and these allow is held
     # back one sample and dropped if the next one returns (core/input_spikes.py).
     max_acceleration_m_s2: float = config_field(

@@ -123,6 +123,10 @@ class DriverStats:
             (0: none).
         bias_rate_found: times a bias rate came into use.
         bias_largest_rate_rad_s2: the largest (signed) bias rate used, rad/s^2.
+        speed_noise_widened: odometry samples taken with the stream's own spread as their
+            noise, larger than the stated (EkfConfig.learn_speed_noise; 0: none).
+        speed_noise_m_s: the largest such spread, m/s (0: none).
+        speed_noise_stated_m_s: the stated noise it was taken over last, m/s (0: none).
         first_stop_end_s: when the first stop whose zero-rate updates learnt the bias
             ended (the static start, on a trip that has one), s (None: none yet).
         first_stop_bias_rad_s: the bias then, rad/s ...
@@ -160,6 +164,9 @@ class DriverStats:
     bias_rate_rad_s2: float = 0.0
     bias_rate_found: int = 0
     bias_largest_rate_rad_s2: float = 0.0
+    speed_noise_widened: int = 0
+    speed_noise_m_s: float = 0.0
+    speed_noise_stated_m_s: float = 0.0
     first_stop_end_s: float | None = None
     first_stop_bias_rad_s: float | None = None
     first_stop_bias_sigma_rad_s: float | None = None
@@ -198,6 +205,9 @@ class DriverStats:
                 'gyro_wander_rad_s': self.gyro_wander_rad_s,
                 'gyro_wander_found_s': self.gyro_wander_found_s,
                 'gyro_wander_prior_ruled_out_s': self.gyro_wander_prior_ruled_out_s,
+                'speed_noise_widened': self.speed_noise_widened,
+                'speed_noise_m_s': self.speed_noise_m_s,
+                'speed_noise_stated_m_s': self.speed_noise_stated_m_s,
                 'bias_rate_rad_s2': self.bias_rate_rad_s2,
                 'bias_rate_found': self.bias_rate_found,
                 'bias_largest_rate_rad_s2': self.bias_largest_rate_rad_s2,

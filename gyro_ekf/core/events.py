@@ -72,6 +72,10 @@ from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, YAW, FloatArray, LandmarkM
 
 _NO_NIS = np.zeros(0)
 _NO_NIS.flags.writeable = False
+SPEED_NOISE_FACTOR = 2.0
+"""The odometry's own spread is taken as its noise once its variance is this many times the
+stated one (EkfConfig.learn_speed_noise)."""
+
 _OUTCOME_KEYS = {outcome: outcome.name.lower() for outcome in AssociationOutcome}
 
 MAX_PREDICTION_STEPS = 1000
@@ -465,6 +469,8 @@ class EventDriver:
             self.stats.speed += 1
             return  # held back: a lone spike is dropped at the next sample
         speed_m_s = taken
+        if self.config.learn_speed_noise:
+            variance = self._speed_noise(variance)
         # Divided by the speed scale estimated online (1 until one is applied).
         self._measured_speed_m_s = speed_m_s
         self.speed_m_s, self.speed_variance = self.odometry.correct(
@@ -490,6 +496,24 @@ class EventDriver:
                 stats.first_stop_bias_rad_s = self.ekf.bias_rad_s
                 stats.first_stop_bias_sigma_rad_s = math.sqrt(max(self.ekf.bias_var, 0.0))
             self._end_stop()
+
+    def _speed_noise(self, variance: float | None) -> float | None:
+        """Return the speed variance to use: the stated one, or the stream's spread if larger.
+
+        The stated one is the message's own (``variance``) or speed_noise_m_s (None). The
+        spread is the odometry's sample-to-sample scatter (SpikeGate.white_sigma), taken
+        once its square exceeds ``SPEED_NOISE_FACTOR`` times the stated variance: a
+        platform's own changes add to it, so it is taken only well beyond.
+        """
+        sigma = self._speed_spikes.white_sigma()
+        stated = self.config.speed_noise_m_s ** 2 if variance is None else variance
+        if sigma is None or sigma * sigma <= SPEED_NOISE_FACTOR * stated:
+            return variance
+        stats = self.stats
+        stats.speed_noise_widened += 1
+        stats.speed_noise_m_s = max(stats.speed_noise_m_s, sigma)
+        stats.speed_noise_stated_m_s = math.sqrt(stated)
+        return sigma * sigma
 
     def on_imu(self, stamp_s: float, yaw_rate_rad_s: float, variance: float | None = None
                ) -> Estimate:

@@ -665,6 +665,9 @@ class RunFigures:
         gyro_rest_noise_scale: the factor on the stated gyro noise variance a stop's spread
             measured (DriverStats.gyro_rest_noise_scale; 1: none).
         gyro_rest_noise_rad_s: that stop's gyro spread, rad/s (0: none).
+        speed_noise_m_s: the odometry's largest sample-to-sample spread taken as its noise,
+            beyond what it states (DriverStats.speed_noise_m_s; 0: none) ...
+        speed_noise_stated_m_s: ... and the noise it states, m/s.
         gyro_wander_rad_s: the gyro's wander found (DriverStats.gyro_wander_rad_s,
             core/gyro_wander.py), rad/s (0: none found).
         gyro_wander_found_s: when it was found, s (None: not found).
@@ -718,6 +721,8 @@ class RunFigures:
     gyro_noise_scale_max: float = 1.0
     gyro_rest_noise_scale: float = 1.0
     gyro_rest_noise_rad_s: float = 0.0
+    speed_noise_m_s: float = 0.0
+    speed_noise_stated_m_s: float = 0.0
     gyro_wander_rad_s: float = 0.0
     gyro_wander_found_s: float | None = None
     gyro_wander_stated_rad_s: float = 0.0
@@ -1115,6 +1120,15 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
             f'spread {math.degrees(figures.gyro_rest_noise_rad_s):.3f} deg/s, '
             f'{math.sqrt(rest_scale):.1f} times the {math.degrees(stated):.3f} deg/s stated; '
             f'the filter used the spread from then on')
+    if figures.speed_noise_m_s > 0.0:
+        # The odometry's own spread, well beyond the noise its messages (or the
+        # configuration) state (EkfConfig.learn_speed_noise): the stated figure is wrong.
+        stated = figures.speed_noise_stated_m_s
+        add(DEGRADED, f'the odometry was noisier than it states: its samples scatter up to '
+            f'{figures.speed_noise_m_s:.3f} m/s (sample to sample, over sqrt 2), '
+            f'{figures.speed_noise_m_s / stated:.1f} times the {stated:.3f} m/s stated (its '
+            f'twist covariance, else speed_noise_m_s); the filter took that scatter as its '
+            f'noise')
     if figures.gyro_noise_scale_max > rest_scale:
         # The bias watch widens the gyro's noise only when ten blocks' heading innovations
         # fail a chi-square test (core/bias_watch.py): the gyro is noisier than the

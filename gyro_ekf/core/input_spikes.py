@@ -51,6 +51,9 @@ WARM_SAMPLES = 50
 REFRESH_SAMPLES = 16
 """Samples taken between two refreshes of the quick limit (the spread moves slowly)."""
 
+_HALF_ROOT = math.sqrt(0.5)
+"""A difference of two samples of white noise has sqrt(2) times its standard deviation."""
+
 _ABS_TO_SIGMA = math.sqrt(math.pi / 2.0)
 """Mean absolute value of a zero-mean normal variable, over its standard deviation: 1 / this."""
 
@@ -127,6 +130,17 @@ class SpikeGate:
 
     def _spread(self) -> float:
         return SPIKE_SIGMAS * max(self._floor, _ABS_TO_SIGMA * self._mean_abs)
+
+    def white_sigma(self) -> float | None:
+        """Return the white noise the stream shows, its own units (None before it is warm).
+
+        The standard deviation of a difference of two samples, over sqrt(2): what a sample
+        scatters about the signal where the signal changes little from one sample to the
+        next (a change the platform makes adds to it: an upper bound).
+        """
+        if self._seen < WARM_SAMPLES:
+            return None
+        return _ABS_TO_SIGMA * self._mean_abs * _HALF_ROOT
 
     def _judge(self, stamp_s: float, value: float) -> float | None:
         if not self._started:

@@ -41,7 +41,9 @@ the samples each input's own stamps say were sent and never reached the filter
 (`gyro_lost`, `gyro_received_share`, `odometry_*`: core/input_loss.py), the lone samples
 far from both neighbours left out of it (`gyro_spikes`, `odometry_spikes`:
 core/input_spikes.py), a gyro's repeats of one value left out (`gyro_frozen_runs`,
-`gyro_frozen_samples`: core/input_frozen.py), the health verdict
+`gyro_frozen_samples`: core/input_frozen.py), the odometry samples taken with their own
+sample-to-sample spread as their noise, larger than stated (`odometry_noise_widened`,
+`odometry_noise_m_s`: core/events.py, learn_speed_noise), the health verdict
 of the run since the start or the last reset (`verdict`, `verdict_reasons`: core.health's,
 as `gyro-ekf run` writes it in summary.json; level WARN when degraded, ERROR when failed),
 with each LiDAR's window figures (`lidar_<scan topic>_*`, `excluded` true while its
@@ -903,6 +905,8 @@ class EkfNode(Node):
             gyro_noise_scale_max=stats.gyro_noise_scale_max,
             gyro_rest_noise_scale=float(stats.gyro_rest_noise_scale),
             gyro_rest_noise_rad_s=float(stats.gyro_rest_noise_rad_s),
+            speed_noise_m_s=float(stats.speed_noise_m_s),
+            speed_noise_stated_m_s=float(stats.speed_noise_stated_m_s),
             gyro_wander_rad_s=stats.gyro_wander_rad_s,
             gyro_wander_found_s=stats.gyro_wander_found_s,
             gyro_wander_stated_rad_s=self.driver.config.gyro_wander_rad_s,
@@ -1071,6 +1075,9 @@ class EkfNode(Node):
             # A gyro repeating one value, its repeats left out (core/input_frozen.py).
             'gyro_frozen_runs': str(self.driver.gyro_frozen.runs),
             'gyro_frozen_samples': str(self.driver.gyro_frozen.samples),
+            # The odometry's own spread taken as its noise (EkfConfig.learn_speed_noise).
+            'odometry_noise_widened': str(self.driver.stats.speed_noise_widened),
+            'odometry_noise_m_s': f'{self.driver.stats.speed_noise_m_s:.4f}',
         }
         verdict = self._verdict(since)
         values['verdict'] = verdict['verdict']

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from gyro_ekf.analysis.offline import run_trip
+from gyro_ekf.io.params_file import PipelineParams
 from gyro_ekf.analysis.summary import summarize
+from gyro_ekf.core.config import EkfConfig
 from gyro_ekf.core.input_spikes import SPIKE_SIGMAS, WARM_SAMPLES, SpikeGate
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 
@@ -79,6 +81,45 @@ def test_a_stream_noisier_than_configured_widens_its_own_limit():
     gate = SpikeGate(SIGMA, max_change_per_s=0.0)
     _fed(gate, stamps, values)
     assert gate.spikes == 1
+
+
+def test_the_stream_shows_its_own_white_noise_once_warm():
+    stamps, values = _stream(5_000, seed=2, sigma=3.0 * SIGMA)
+    gate = SpikeGate(SIGMA, max_change_per_s=0.0)
+    _fed(gate, stamps[:WARM_SAMPLES - 1], values[:WARM_SAMPLES - 1])
+    assert gate.white_sigma() is None
+    _fed(gate, stamps[WARM_SAMPLES - 1:], values[WARM_SAMPLES - 1:])
+    assert gate.white_sigma() == pytest.approx(3.0 * SIGMA, rel=0.15)
+
+
+def test_odometry_noisier_than_its_messages_say_is_taken_at_its_own_spread():
+    # The simulated odometry's messages state 0.01 m/s; 0.1 m/s more white noise while
+    # moving (a driver's constant covariance, a coarse encoder) left the pose
+    # overconfident. Its own sample-to-sample spread is taken as its noise instead.
+    trip = simulate_trip(SimulationConfig(duration_s=120.0), seed=0)
+    speed = trip.speed.speed_m_s
+    noisy = np.where(speed != 0.0, speed + np.random.default_rng(0).normal(
+        0.0, 0.1, speed.size), speed)
+    trip = dataclasses.replace(trip, speed=dataclasses.replace(trip.speed, speed_m_s=noisy))
+    not_learnt = dataclasses.replace(PipelineParams(), ekf=dataclasses.replace(
+        EkfConfig(), learn_speed_noise=False))
+    before = summarize(run_trip(trip, not_learnt))
+    assert before['speed_noise']['widened_samples'] == 0
+    assert before['ground_truth']['nees_share_in_band'] < 0.9
+    after = summarize(run_trip(trip))
+    noise = after['speed_noise']
+    # From the spread's warm-up on, while moving: most of the trip's 12 000 samples.
+    assert noise['widened_samples'] > 10_000
+    assert noise['measured_m_s'] == pytest.approx(0.1, rel=0.25)
+    assert noise['stated_m_s'] == pytest.approx(0.01)
+    truth = after['ground_truth']
+    assert truth['nees_share_in_band'] >= 0.9 and truth['position_rmse_m'] <= 0.02
+    # Said, as a gyro noisier than stated is: the driver's covariance is worth fixing.
+    assert after['health']['verdict'] == 'degraded'
+    assert [r for r in after['health']['reasons'] if r.startswith('the odometry was noisier')
+            ] == [r for r in after['health']['reasons']], after['health']['reasons']
+    assert 'times the 0.010 m/s stated' in after['health']['reasons'][0]
+    assert not [r for r in before['health']['reasons'] if 'odometry was noisier' in r]
 
 
 def test_nothing_is_judged_before_the_stream_has_shown_its_spread():
