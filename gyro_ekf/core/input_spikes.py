@@ -70,7 +70,7 @@ class SpikeGate:
 
     __slots__ = ('max_change_per_s', 'spikes', 'largest', 'steps', 'last_limit', '_floor',
                  '_value', '_stamp_s', '_started', '_suspect', '_mean_abs', '_abs_sum',
-                 '_seen', '_armed', '_quick', '_countdown')
+                 '_seen', '_armed', '_quick', '_countdown', 'white_variance')
 
     def __init__(self, sigma: float, max_change_per_s: float) -> None:
         """Judge a stream against its noise and the change its platform can make.
@@ -94,6 +94,9 @@ class SpikeGate:
         self._mean_abs = 0.0
         self._abs_sum = 0.0
         self._seen = 0
+        # The white noise's variance the spread shows (white_sigma squared), -1 before it is
+        # warm: the odometry's is compared at every sample (events.EventDriver.on_speed).
+        self.white_variance = -1.0
         # The limit less its time allowance (inf until WARM_SAMPLES); the quick test's, which
         # is -1 while no sample has come or a suspect waits, so that admit's one comparison
         # sends those to _judge; and the samples to take before the limit is worked out again.
@@ -127,6 +130,11 @@ class SpikeGate:
         self._abs_sum = 0.0
         self._armed = self._quick = self._spread() if warm else math.inf
         self._countdown = taken
+        self._set_white()
+
+    def _set_white(self) -> None:
+        sigma = self.white_sigma()
+        self.white_variance = -1.0 if sigma is None else sigma * sigma
 
     def _spread(self) -> float:
         return SPIKE_SIGMAS * max(self._floor, _ABS_TO_SIGMA * self._mean_abs)
@@ -188,6 +196,7 @@ class SpikeGate:
         (self.spikes, self.largest, self.steps, self.last_limit, self._value, self._stamp_s,
          self._started, self._suspect, self._mean_abs, self._abs_sum, self._seen,
          self._armed, self._quick, self._countdown) = saved
+        self._set_white()
 
     def report(self) -> dict[str, Any]:
         """JSON-ready figures (summary.json ``input_spikes``, /diagnostics, the verdict)."""
