@@ -52,8 +52,8 @@ class EkfConfig:
     # 0.83-0.88, one of three with the verdict ok; core/events.py, docs/stress.md).
     learn_speed_noise: bool = config_field(
         True, '', 'Take the odometry\'s white noise from the spread of its own samples '
-        '(sample to sample) where that is more than sqrt(2) times the noise its messages, '
-        'or speed_noise_m_s, state.')
+        '(their second differences) where that is more than sqrt(2) times the noise its '
+        'messages, or speed_noise_m_s, state.')
     # A lone sample farther from the value in use than its noise and these allow is held
     # back one sample and dropped if the next one returns (core/input_spikes.py).
     max_acceleration_m_s2: float = config_field(

@@ -505,7 +505,7 @@ class EventDriver:
         """Return the odometry's own spread as its variance, counted: beyond the stated one.
 
         The stated variance is the message's own or speed_noise_m_s squared. The spread is
-        the odometry's sample-to-sample scatter (SpikeGate.white_sigma), taken (on_speed)
+        the odometry's scatter from sample to sample (SpikeGate.white_sigma), taken (on_speed)
         once its square exceeds ``SPEED_NOISE_FACTOR`` times the stated variance: a
         platform's own changes add to it, so it is taken only well beyond.
         """

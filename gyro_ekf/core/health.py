@@ -1125,7 +1125,7 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
         # configuration) state (EkfConfig.learn_speed_noise): the stated figure is wrong.
         stated = figures.speed_noise_stated_m_s
         add(DEGRADED, f'the odometry was noisier than it states: its samples scatter up to '
-            f'{figures.speed_noise_m_s:.3f} m/s (sample to sample, over sqrt 2), '
+            f'{figures.speed_noise_m_s:.3f} m/s (from their second differences), '
             f'{figures.speed_noise_m_s / stated:.1f} times the {stated:.3f} m/s stated (its '
             f'twist covariance, else speed_noise_m_s); the filter took that scatter as its '
             f'noise')

@@ -51,8 +51,8 @@ WARM_SAMPLES = 50
 REFRESH_SAMPLES = 16
 """Samples taken between two refreshes of the quick limit (the spread moves slowly)."""
 
-_HALF_ROOT = math.sqrt(0.5)
-"""A difference of two samples of white noise has sqrt(2) times its standard deviation."""
+_SIXTH_ROOT = math.sqrt(1.0 / 6.0)
+"""A second difference of white noise has sqrt(6) times its standard deviation."""
 
 _ABS_TO_SIGMA = math.sqrt(math.pi / 2.0)
 """Mean absolute value of a zero-mean normal variable, over its standard deviation: 1 / this."""
@@ -70,7 +70,8 @@ class SpikeGate:
 
     __slots__ = ('max_change_per_s', 'spikes', 'largest', 'steps', 'last_limit', '_floor',
                  '_value', '_stamp_s', '_started', '_suspect', '_mean_abs', '_abs_sum',
-                 '_seen', '_armed', '_quick', '_countdown', 'white_variance')
+                 '_seen', '_armed', '_quick', '_countdown', 'white_variance', '_change',
+                 '_abs2_sum', '_mean_abs2')
 
     def __init__(self, sigma: float, max_change_per_s: float) -> None:
         """Judge a stream against its noise and the change its platform can make.
@@ -94,6 +95,11 @@ class SpikeGate:
         self._mean_abs = 0.0
         self._abs_sum = 0.0
         self._seen = 0
+        # The same of the change of the change (second differences: a steady acceleration
+        # leaves none, white noise 6 times its variance), and the last change, signed.
+        self._mean_abs2 = 0.0
+        self._abs2_sum = 0.0
+        self._change = 0.0
         # The white noise's variance the spread shows (white_sigma squared), -1 before it is
         # warm: the odometry's is compared at every sample (events.EventDriver.on_speed).
         self.white_variance = -1.0
@@ -106,10 +112,13 @@ class SpikeGate:
 
     def admit(self, stamp_s: float, value: float) -> float | None:
         """Judge a sample; return the value to use from now on, or None to keep the held one."""
-        change = abs(value - self._value)
+        delta = value - self._value
+        change = abs(delta)
         if change <= self._quick:
             # Within the limit whatever the time since the last sample: taken.
             self._abs_sum += change
+            self._abs2_sum += abs(delta - self._change)
+            self._change = delta
             self._value = value
             self._stamp_s = stamp_s
             self._countdown -= 1
@@ -127,7 +136,8 @@ class SpikeGate:
         # updated once per refresh with the mean of its samples.
         weight = taken / min(self._seen, SPREAD_SAMPLES)
         self._mean_abs += weight * (self._abs_sum / taken - self._mean_abs)
-        self._abs_sum = 0.0
+        self._mean_abs2 += weight * (self._abs2_sum / taken - self._mean_abs2)
+        self._abs_sum = self._abs2_sum = 0.0
         self._armed = self._quick = self._spread() if warm else math.inf
         self._countdown = taken
         self._set_white()
@@ -142,13 +152,13 @@ class SpikeGate:
     def white_sigma(self) -> float | None:
         """Return the white noise the stream shows, its own units (None before it is warm).
 
-        The standard deviation of a difference of two samples, over sqrt(2): what a sample
-        scatters about the signal where the signal changes little from one sample to the
-        next (a change the platform makes adds to it: an upper bound).
+        From second differences (x[k+1] - 2 x[k] + x[k-1]): their standard deviation over
+        sqrt(6) is a white noise's sigma, and a change the platform makes at a steady rate
+        (a robot accelerating) leaves none; only its changes of rate add to it.
         """
         if self._seen < WARM_SAMPLES:
             return None
-        return _ABS_TO_SIGMA * self._mean_abs * _HALF_ROOT
+        return _ABS_TO_SIGMA * self._mean_abs2 * _SIXTH_ROOT
 
     def _judge(self, stamp_s: float, value: float) -> float | None:
         if not self._started:
@@ -180,7 +190,10 @@ class SpikeGate:
         return self._take(stamp_s, value)
 
     def _take(self, stamp_s: float, value: float) -> float:
-        self._abs_sum += abs(value - self._value)
+        delta = value - self._value
+        self._abs_sum += abs(delta)
+        self._abs2_sum += abs(delta - self._change)
+        self._change = delta
         self._value, self._stamp_s = value, stamp_s
         self._countdown -= 1
         if not self._countdown:
@@ -190,12 +203,14 @@ class SpikeGate:
     def save(self) -> tuple:
         return (self.spikes, self.largest, self.steps, self.last_limit, self._value,
                 self._stamp_s, self._started, self._suspect, self._mean_abs, self._abs_sum,
-                self._seen, self._armed, self._quick, self._countdown)
+                self._seen, self._armed, self._quick, self._countdown, self._change,
+                self._abs2_sum, self._mean_abs2)
 
     def restore(self, saved: tuple) -> None:
         (self.spikes, self.largest, self.steps, self.last_limit, self._value, self._stamp_s,
          self._started, self._suspect, self._mean_abs, self._abs_sum, self._seen,
-         self._armed, self._quick, self._countdown) = saved
+         self._armed, self._quick, self._countdown, self._change, self._abs2_sum,
+         self._mean_abs2) = saved
         self._set_white()
 
     def report(self) -> dict[str, Any]:

@@ -92,6 +92,15 @@ def test_the_stream_shows_its_own_white_noise_once_warm():
     assert gate.white_sigma() == pytest.approx(3.0 * SIGMA, rel=0.15)
 
 
+def test_a_steady_acceleration_is_no_noise():
+    # 3 m/s^2 at 100 Hz changes the speed 0.03 m/s per sample, three times this noise: its
+    # first differences would read 2 times the noise, its second ones read the noise.
+    stamps, values = _stream(3_000, seed=3)
+    gate = SpikeGate(SIGMA, max_change_per_s=10.0)
+    _fed(gate, stamps, values + 3.0 * stamps)
+    assert gate.spikes == 0 and gate.white_sigma() == pytest.approx(SIGMA, rel=0.15)
+
+
 def test_odometry_noisier_than_its_messages_say_is_taken_at_its_own_spread():
     # The simulated odometry's messages state 0.01 m/s; 0.1 m/s more white noise while
     # moving (a driver's constant covariance, a coarse encoder) left the pose
