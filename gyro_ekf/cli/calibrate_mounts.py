@@ -22,6 +22,11 @@ reads it in its range innovations (their mean beyond the verdict's limits,
 core/health.py): it runs alone again with that offset added, until what is left is within
 them (the filter takes part of an offset into the pose, so a first run reads about nine
 tenths of it), and that run is the reference the others are fitted along.
+
+The first LiDAR's own mount is not fitted to the map (it is the reference), but its run
+alone holds it against the odometry (core/odometry_online.py) and moves it when the path
+it holds lies off the odometry's: the mount it ends on is written (`first_mount_moved`). So
+a bag with one LiDAR gets a file too.
 """
 
 from __future__ import annotations
@@ -34,8 +39,9 @@ from pathlib import Path
 
 from gyro_ekf.cli.convert import add_skip_bad_argument, warn_dropped
 
-HELP = ('estimate the mounts of every LiDAR but the first against the map, and every '
-        "LiDAR's time and range offsets, and write them as a params file")
+HELP = ('estimate the mounts of every LiDAR but the first against the map (the first\'s '
+        "against the odometry), and every LiDAR's time and range offsets, and write them as "
+        'a params file')
 
 log = logging.getLogger(__name__)
 
@@ -146,8 +152,8 @@ def run(args: argparse.Namespace) -> int:
     trip, report = validate_bag(bag, Path(args.bag).name, skip_bad=args.skip_bad)
     warn_dropped(report)
     # One run on the first LiDAR alone (again upside down, if its scans turn against the
-    # gyro's, and with its range offset, if it reads long or short): the mounts' reference
-    # path and its time offset.
+    # gyro's; on the mount the odometry moved it to, if it did; and with its range offset,
+    # if it reads long or short): the mounts' reference path and its time offset.
     stated = trip.scans[0].mount if trip.scans else None
     trip, first = first_upside_down(trip, reference_run(trip, source))
     trip, first = first_mount_moved(trip, first)
@@ -383,8 +389,9 @@ standard errors."""
 def reference_run(trip: object, source: str) -> object:
     """Return the offline pipeline's run on the first LiDAR alone: the reference path.
 
-    A bag with that LiDAR alone is run too: its mount is the reference and stays as
-    stated, but its time and range offsets, and which way up it is, are measured.
+    A bag with that LiDAR alone is run too: no other mount is fitted, but its own mount
+    against the odometry (first_mount_moved), its time and range offsets, and which way up
+    it is are measured.
 
     Raises:
         BagError: no map, or no scan topic.

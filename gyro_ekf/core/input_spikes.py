@@ -26,6 +26,10 @@ wheels at once) and the suspect is taken from the next sample on, one interval l
 step the limit calls impossible costs that interval's share of it. Two or more bad samples
 in a row are a change as far as this can tell: only a lone sample is a spike.
 
+The gate also keeps the stream's white noise (``white_sigma``, from its second differences,
+which a steady change such as an acceleration leaves untouched): the driver takes the
+odometry's as its noise where it is well beyond the stated one (EkfConfig.learn_speed_noise).
+
 The state is a few scalars: ``save`` and ``restore`` (on every event, core/lagged.py) are
 O(1). ``admit`` runs at every IMU and odometry sample (89 000 of them in the 2016 log's
 run, whose speed is a benchmark goal), so a sample within the limit less its time
