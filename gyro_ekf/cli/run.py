@@ -237,11 +237,37 @@ def _frozen_heap() -> Iterator[None]:
         gc.unfreeze()
 
 
+SEEN_MAP = 'landmarks_seen.yaml'
+"""The map with the poles found elsewhere where they were seen (core/map_poles.py)."""
+
+
+def _write_seen_map(path: Path, trip: object, elsewhere: list[dict[str, Any]]) -> None:
+    """Write the trip's map with each pole found elsewhere where its detections put it.
+
+    In the EKF node's `landmarks_file` layout: a params file's `landmarks_file` gives it to
+    `run` and the node alike. The other poles stay as the map has them.
+    """
+    import yaml
+
+    xy = [[float(x), float(y)] for x, y in trip.landmarks.xy_m]
+    for pole in elsewhere:
+        xy[pole['index']] = [round(float(v), 4) for v in pole['seen_xy_m']]
+    moved = ', '.join(str(pole['index']) for pole in elsewhere)
+    path.write_text(f'# {trip.name}: the map with pole(s) {moved} where gyro-ekf run saw them '
+                    '(map_poles_elsewhere in summary.json).\n# Give it as landmarks_file in a '
+                    'params file (run --params-file, or the EKF node).\n'
+                    + yaml.safe_dump({'landmarks': xy}, default_flow_style=None),
+                    encoding='utf-8')
+    log.warning('pole(s) %s stand elsewhere than the map has them: %s has the map with them '
+                'where they were seen (landmarks_file)', moved, SEEN_MAP)
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
     from gyro_ekf.io import output_dir, results
     from gyro_ekf.analysis.offline import event_count, run_trip
-    from gyro_ekf.io.params_file import PipelineParams, read_params_file, with_initial_pose
+    from gyro_ekf.io.params_file import (PipelineParams, read_params_file, with_initial_pose,
+                                         with_landmarks_file)
     from gyro_ekf.analysis.summary import summarize
     from gyro_ekf.io.bag_reader import read_bag, validate_bag
     from gyro_ekf.io.streamed_products import StreamedProducts
@@ -256,7 +282,8 @@ def run(args: argparse.Namespace) -> int:
     with _frozen_heap():
         began = time.perf_counter()
         bag = read_bag(args.bag, acceleration=False)  # the EKF does not use it
-        bag = replace(bag, trip=with_initial_pose(bag.trip, params, bag.pose_from_message))
+        bag = replace(bag, trip=with_landmarks_file(
+            with_initial_pose(bag.trip, params, bag.pose_from_message), params))
         # Checked before the output folder exists, so refused input leaves nothing behind.
         trip, report = validate_bag(bag, Path(args.bag).name, params.limits,
                                     skip_bad=args.skip_bad)
@@ -307,6 +334,8 @@ def run(args: argparse.Namespace) -> int:
                                  'real_time_factor': summary['trip']['duration_s'] / processed_s
                                  if processed_s > 0 else None}
             results.write_summary_json(staging / output_dir.SUMMARY_JSON, summary)
+            if summary['map_poles_elsewhere']:
+                _write_seen_map(staging / SEEN_MAP, trip, summary['map_poles_elsewhere'])
             if not args.no_plots:
                 from gyro_ekf.analysis.plots import write_plots
                 written = write_plots(result, staging)

@@ -34,6 +34,10 @@ three. `with_lidar_mounts` puts them on a trip's scans, overriding the mounts th
 states for those topics, taking each scan at its stamp less the offset and giving each
 its range offset and whether it is upside down.
 
+The map file is read as the EKF node declares it, `landmarks_file` (a path from the working
+folder): `with_landmarks_file` gives a trip that map instead of the bag's (`gyro-ekf run`
+writes `landmarks_seen.yaml` when a pole stands elsewhere than the map has it).
+
 The start pose is read as the EKF node declares it, `initial_pose.{x_m, y_m, yaw_rad}` (all
 three, in `map`). `with_initial_pose` starts a trip there unless the bag holds an
 `/initialpose` message: the node, given the same file, starts there too, and a replay of the
@@ -98,6 +102,8 @@ class PipelineParams:
             `lidar.<topic>.upside_down: true`).
         limits: the plausible input ranges (``limits.*``, as the nodes take them).
         initial_pose: (x m, y m, yaw rad) in `map` the file sets, or None.
+        landmarks_file: the map file the file sets (`landmarks_file`, the EKF node's
+            parameter), or None: the bag's map.
     """
 
     ekf: EkfConfig = field(default_factory=EkfConfig)
@@ -111,6 +117,7 @@ class PipelineParams:
     lidars_upside_down: frozenset[str] = frozenset()
     limits: InputLimits = field(default_factory=InputLimits)
     initial_pose: tuple[float, float, float] | None = None
+    landmarks_file: str | None = None
 
 
 def _flatten(tree: dict[str, Any], prefix: str = '') -> dict[str, Any]:
@@ -161,6 +168,7 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
     options: dict[str, Any] = {}
     lidar_values: dict[str, Any] = {}
     pose_values: dict[str, Any] = {}
+    landmarks_file: str | None = None
     limits: dict[str, Any] = {}
     read = 0
     for node, body in sections:
@@ -183,6 +191,12 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
                 continue
             if name.startswith('initial_pose.'):
                 pose_values[name] = value
+                continue
+            if name == 'landmarks_file':
+                if not isinstance(value, str):
+                    raise ParamsFileError(f"{source}: parameter 'landmarks_file' must be a "
+                                          f'file name (a string), got {value!r}')
+                landmarks_file = value or None
                 continue
             group, _, short = name.rpartition('.')
             if short in _OPTIONS and not group:
@@ -222,7 +236,8 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
                   'options': tuple(sorted(options))},
         options=run_options, lidars=mounts, lidar_time_offsets=time_offsets,
         lidar_range_offsets=range_offsets, lidars_upside_down=upside_down,
-        limits=input_limits, initial_pose=_initial_pose(pose_values, source, input_limits))
+        limits=input_limits, initial_pose=_initial_pose(pose_values, source, input_limits),
+        landmarks_file=landmarks_file)
 
 
 def _skipped(source: str, node: str, name: str) -> None:
@@ -412,6 +427,24 @@ def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
         log.warning("%s: the params file sets LiDAR '%s', which has no scans in this trip; "
                     'ignored', trip.name, topic)
     return dataclasses.replace(trip, scans=tuple(scans))
+
+
+def with_landmarks_file(trip: Trip, params: PipelineParams) -> Trip:
+    """Return the trip with the map of the params file's `landmarks_file`, if it sets one.
+
+    As the EKF node takes it (a path from the working folder). `gyro-ekf run` writes
+    `landmarks_seen.yaml` when poles stand elsewhere than the map has them (core/map_poles.py).
+
+    Raises:
+        LandmarksFileError: the file cannot be read, or a landmark is bad (named).
+    """
+    if params.landmarks_file is None:
+        return trip
+    from gyro_ekf.io.landmarks_file import read_landmarks_file
+    landmarks = read_landmarks_file(params.landmarks_file, params.limits)
+    log.info("%s: the map from the params file's landmarks_file %s (%d landmarks; the bag has "
+             '%d)', trip.name, params.landmarks_file, len(landmarks), len(trip.landmarks))
+    return dataclasses.replace(trip, landmarks=landmarks)
 
 
 def with_initial_pose(trip: Trip, params: PipelineParams, stated_by_message: bool) -> Trip:
