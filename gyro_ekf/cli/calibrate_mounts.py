@@ -426,11 +426,10 @@ def estimate_mounts(trip: object, source: str, settings: object = None,
     from gyro_ekf.core.mount_calibration import calibrate_mounts
     from gyro_ekf.io.errors import BagError
 
-    first = first or reference_run(trip, source)
     if len(trip.scans) < 2:
         return []  # the reference alone: no other mount to fit along its path
     # The reference path: the whole offline pipeline on the first LiDAR alone.
-    estimates = first.result.estimates
+    estimates = (first or reference_run(trip, source)).result.estimates
     try:
         return calibrate_mounts(trip, estimates.stamp_s, estimates.state[:, :3],
                                 settings=settings, source=source)

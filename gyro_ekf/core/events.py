@@ -72,11 +72,11 @@ from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, YAW, FloatArray, LandmarkM
 
 _NO_NIS = np.zeros(0)
 _NO_NIS.flags.writeable = False
+_OUTCOME_KEYS = {outcome: outcome.name.lower() for outcome in AssociationOutcome}
+
 SPEED_NOISE_FACTOR = 2.0
 """The odometry's own spread is taken as its noise once its variance is this many times the
 stated one (EkfConfig.learn_speed_noise)."""
-
-_OUTCOME_KEYS = {outcome: outcome.name.lower() for outcome in AssociationOutcome}
 
 MAX_PREDICTION_STEPS = 1000
 """Most prediction steps for one gap (100 s at the default 0.1 s step): a longer gap is split
