@@ -229,13 +229,19 @@ def sensor_to_map(state: FloatArray, points_sensor_m: FloatArray,
 def sensor_point_to_map(state: list[float] | FloatArray, x_m: float, y_m: float,
                         mount: LidarMount = _NO_MOUNT) -> tuple[float, float]:
     """One sensor-frame point to the map frame in plain floats (sensor_to_map for one)."""
-    # Plain floats (a numpy state gives numpy scalars), not through a generator: this
-    # runs at every update of a run (its update log).
+    return sensor_points_to_map(state, [(x_m, y_m)], mount)[0]
+
+
+def sensor_points_to_map(state: list[float] | FloatArray, points_m: list,
+                         mount: LidarMount = _NO_MOUNT) -> list[tuple[float, float]]:
+    """Sensor-frame points [(x, y), ...] to the map frame in plain floats (sensor_to_map)."""
+    # Plain floats (a numpy state gives numpy scalars), the sensor's place once per scan:
+    # this runs at every update of a run (its update log).
     xl, yl = sensor_position(state, mount)
     xl, yl = float(xl), float(yl)
     heading = float(state[YAW]) + mount.yaw_rad
     ch, sh = math.cos(heading), math.sin(heading)
-    return xl + ch * x_m - sh * y_m, yl + sh * x_m + ch * y_m
+    return [(xl + ch * x_m - sh * y_m, yl + sh * x_m + ch * y_m) for x_m, y_m in points_m]
 
 
 def points_less_range(points_sensor_m: FloatArray, offset_m: float) -> FloatArray:

@@ -28,7 +28,7 @@ from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.health import HealthMonitor
 from gyro_ekf.core.mount_online import OnlineMounts
 from gyro_ekf.core.odometry_online import OdometryTracker
-from gyro_ekf.core.models import points_less_range, points_upright, sensor_point_to_map
+from gyro_ekf.core.models import points_less_range, points_upright, sensor_points_to_map
 from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, WANDER, FloatArray, ScanSeries,
                                  SpeedSeries, Trip)
 
@@ -375,12 +375,11 @@ def drive_trip(trip: Trip, driver: EventDriver,
                 # pairs and a row of the points per update cost more than the maths.
                 matched = report.association.matched()
                 update_stamp.extend([stamp_s] * len(matched))
-                prior = report.prior_state.tolist()
                 points = report.points_sensor_m.tolist()
-                for match in matched:
+                for match, (px, py) in zip(matched, sensor_points_to_map(
+                        report.prior_state.tolist(),
+                        [points[match.detection_index] for match in matched], report.mount)):
                     update_landmark.append(match.landmark_index)
-                    px, py = sensor_point_to_map(prior, *points[match.detection_index],
-                                                 report.mount)
                     update_x.append(px)
                     update_y.append(py)
                 update_nis.extend(report.nis.tolist())
