@@ -134,61 +134,6 @@ def innovation_terms(s: list[float], p: list[float], landmark_x_m: float,
              hb_x * b_x + hb_y * b_y + hb_yaw * b_yaw + rb))
 
 
-def gate_predictions(s: list[float], p: list[float], landmarks: list[list[float]],
-                     mount: LidarMount, range_var: float, cross_var: float,
-                     bearing_var: float, landmark_var_m2: float) -> list[tuple]:
-    """Return innovation_terms' h and S^-1 of every landmark: what the gate needs of each.
-
-    The same expressions as ``innovation_terms`` (noise_scale 1), so the same floats to
-    the bit; but the sensor's place is worked out once per scan, not once per landmark,
-    and only the pose columns of P H^T that S needs are formed (association asks for all
-    landmarks at every scan: 70 000 on the 2016 log, half the time of one call each).
-
-    Returns:
-        (range, bearing (not wrapped), i00, i01, i11) per landmark, as
-        ``mahalanobis_table`` takes them; a landmark at the sensor (no bearing) gets
-        (0, 0, NaN, NaN, NaN).
-
-    Raises:
-        CoreError: an S is not positive definite (``inverse``).
-    """
-    x, y, yaw = s[0], s[1], s[2]
-    (p_x_x, p_x_y, p_x_yaw, _, _, p_y_y, p_y_yaw, _, _, p_yaw_yaw, _, _, _, _, _) = p
-    c, sn = math.cos(yaw), math.sin(yaw)
-    xl = x + mount.x_m * c - mount.y_m * sn
-    yl = y + mount.x_m * sn + mount.y_m * c
-    dxl = -mount.x_m * sn - mount.y_m * c
-    dyl = mount.x_m * c - mount.y_m * sn
-    mount_yaw = mount.yaw_rad
-    rr = range_var + landmark_var_m2  # (times a noise_scale of 1: the same floats)
-    out = []
-    for landmark_x_m, landmark_y_m in landmarks:
-        dx = landmark_x_m - xl
-        dy = landmark_y_m - yl
-        r2 = dx * dx + dy * dy
-        if r2 == 0.0:
-            out.append((0.0, 0.0, math.nan, math.nan, math.nan))
-            continue
-        r = math.sqrt(r2)
-        hr_x, hr_y, hr_yaw = -dx / r, -dy / r, -(dx * dxl + dy * dyl) / r
-        hb_x, hb_y, hb_yaw = dy / r2, -dx / r2, (dy * dxl - dx * dyl) / r2 - 1.0
-        a_x = p_x_x * hr_x + p_x_y * hr_y + p_x_yaw * hr_yaw
-        a_y = p_x_y * hr_x + p_y_y * hr_y + p_y_yaw * hr_yaw
-        a_yaw = p_x_yaw * hr_x + p_y_yaw * hr_y + p_yaw_yaw * hr_yaw
-        b_x = p_x_x * hb_x + p_x_y * hb_y + p_x_yaw * hb_yaw
-        b_y = p_x_y * hb_x + p_y_y * hb_y + p_y_yaw * hb_yaw
-        b_yaw = p_x_yaw * hb_x + p_y_yaw * hb_y + p_yaw_yaw * hb_yaw
-        s00 = hr_x * a_x + hr_y * a_y + hr_yaw * a_yaw + rr
-        s01 = hr_x * b_x + hr_y * b_y + hr_yaw * b_yaw + cross_var
-        s11 = hb_x * b_x + hb_y * b_y + hb_yaw * b_yaw + (bearing_var + landmark_var_m2 / r2)
-        det = s00 * s11 - s01 * s01
-        if not (det > 0.0 and s00 > 0.0):
-            inverse(s00, s01, s11)  # raises, with S in its message
-        # inverse's arithmetic in line: a call per landmark cost a fifth of this loop.
-        out.append((r, math.atan2(dy, dx) - yaw - mount_yaw, s11 / det, -s01 / det, s00 / det))
-    return out
-
-
 def inverse(s00: float, s01: float, s11: float) -> tuple[float, float, float]:
     """S^-1 of a symmetric 2x2 S: its entries 00, 01, 11.
 

@@ -284,15 +284,25 @@ def _mahalanobis_rows(z: list[list[float]], packed_row: list[float], R: FloatArr
 
     ``packed_row``: the state, then P's upper triangle (``GyroBiasEkf.packed_row``).
     """
+    pose = packed_row[:3]
+    p = packed_row[STATE_SIZE:]
     (r_range, r_cross), (_, r_bearing) = np.asarray(R, dtype=np.float64).tolist()
-    try:
-        per_landmark = kernel.gate_predictions(packed_row[:3], packed_row[STATE_SIZE:],
-                                               landmarks, mount, r_range, r_cross, r_bearing,
-                                               landmark_var_m2)
-    except CoreError as err:
-        raise CoreError(f'mahalanobis_sq: {err}; check P and R') from None
-    # A landmark at the sensor has no bearing: nothing can match it (NaN, then inf).
-    at_sensor = any(math.isnan(i00) for _, _, i00, _, _ in per_landmark)
+    per_landmark = []
+    at_sensor = False
+    for lx, ly in landmarks:
+        try:
+            (range_m, bearing), _, _, _, (s00, s01, s11) = kernel.innovation_terms(
+                pose, p, lx, ly, mount, r_range, r_cross, r_bearing, landmark_var_m2, 1.0)
+        except ZeroDivisionError:
+            # A landmark at the sensor has no bearing: nothing can match it (NaN, then inf).
+            at_sensor = True
+            per_landmark.append((0.0, 0.0, math.nan, math.nan, math.nan))
+            continue
+        try:
+            i00, i01, i11 = kernel.inverse(s00, s01, s11)
+        except CoreError as err:
+            raise CoreError(f'mahalanobis_sq: {err}; check P and R') from None
+        per_landmark.append((range_m, bearing, i00, i01, i11))
     rows = kernel.mahalanobis_table(z, per_landmark)
     if at_sensor:
         rows = [[math.inf if math.isnan(d2) else d2 for d2 in row] for row in rows]

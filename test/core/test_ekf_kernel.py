@@ -106,30 +106,6 @@ def test_h_H_R_and_S_equal_the_textbook(mount):
                normalised_innovation_sq(y, S))
 
 
-@pytest.mark.parametrize('mount', MOUNTS)
-def test_the_gate_predictions_are_innovation_terms_bit_for_bit(mount):
-    # The association gate's batch: the same floats as one innovation_terms and inverse
-    # per landmark (so association's outcomes cannot change), and no bearing at the sensor.
-    for _ in range(50):
-        s, P = _state(), _covariance()
-        landmarks = [_landmark(s) for _ in range(6)]
-        sensor = np.array([[RNG.uniform(1e-4, 1e-2), 1e-5], [1e-5, RNG.uniform(1e-6, 1e-4)]])
-        map_var = float(RNG.choice([0.0, 1e-4]))
-        args = (mount, sensor[0, 0], sensor[0, 1], sensor[1, 1], map_var)
-        one_by_one = []
-        for landmark in landmarks:
-            (r, bearing), _, _, _, S = kernel.innovation_terms(
-                s, _packed(P), *landmark, *args, 1.0)
-            one_by_one.append((r, bearing, *kernel.inverse(*S)))
-        assert kernel.gate_predictions(s, _packed(P), landmarks, *args) == one_by_one
-    at_sensor = list(models.sensor_position(np.array(s), mount))
-    first, second = kernel.gate_predictions(s, _packed(P), [at_sensor, landmarks[0]], *args)
-    assert first[:2] == (0.0, 0.0) and all(math.isnan(v) for v in first[2:])
-    assert second == one_by_one[0]
-    with pytest.raises(CoreError, match='not positive definite'):
-        kernel.gate_predictions(s, _packed(-P), landmarks, mount, 0.0, 0.0, 0.0, 0.0)
-
-
 def test_the_mahalanobis_table_is_the_distance_of_every_pair():
     from gyro_ekf.core.angles import wrap_scalar
     # Bearings on both sides of +-pi among them, where the difference wraps.
