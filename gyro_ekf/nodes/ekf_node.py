@@ -51,7 +51,8 @@ observations are kept out of the filter; each exclusion and readmission is logge
 LiDAR mounts in use (`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file from
 `gyro-ekf calibrate-mounts` given after the bag's overrides the bag's mounts, and every
 LiDAR but the one defining the body frame, `body_frame_lidar`, has its mount estimated
-online, core/mount_online.py: `mount_<topic>_online{,_yaw_sigma_deg,_converged_s}`, and
+online, core/mount_online.py: `mount_<topic>_online{,_yaw_sigma_deg,
+_yaw_sigma_with_heading_deg,_converged_s,_noise_scale}` (the factor on its R), and
 `mount_<topic>_online_right_share` while the two LiDARs disagree and the pose published lies
 between them, core/body_frame.py), and
 the odometry's speed scale and the first LiDAR's offset estimated online
@@ -1005,6 +1006,13 @@ class EkfNode(Node):
                    ('online', online['state']),
                    ('online_yaw_sigma_deg', '' if online['estimate'] is None
                     else f'{online["estimate"]["yaw_sigma_deg"]:.4f}'),
+                   # With the filter's heading sigma over the fit's window: what a change
+                   # of the mount is judged by.
+                   ('online_yaw_sigma_with_heading_deg', '' if online['estimate'] is None
+                    else f'{online["estimate"]["yaw_sigma_with_heading_deg"]:.4f}'),
+                   # What this LiDAR's R is multiplied by: 9 for a mount estimated online
+                   # or a stated one confirmed while its fit read it off, else 1.
+                   ('online_noise_scale', f'{online["noise_scale"]:g}'),
                    ('online_converged_s', '' if online['converged_s'] is None
                     else f'{online["converged_s"]:.3f}'),
                    # The weight of this LiDAR being right in the pose published between

@@ -47,6 +47,7 @@ def test_the_calibrated_mounts_override_the_bags_and_appear_in_diagnostics(
     # Every LiDAR but the first has its mount estimated online; no data yet: no estimate.
     assert values['mount_scan2_online'] == 'acquiring'
     assert values['mount_scan2_online_yaw_sigma_deg'] == ''
+    assert values['mount_scan2_online_noise_scale'] == '1'
     assert 'mount_scan_online' not in values
 
     probe.spin_until(lambda: len(latched) >= 1, 60, 'the latched ekf/mounts')
