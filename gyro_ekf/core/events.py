@@ -811,7 +811,8 @@ class EventDriver:
                 tracker.observe_start(points)
             # The pose does not depend on a LiDAR held out or excluded.
             if self.mounts.observe(key, stamp_s, prior.tolist(), points, self.landmarks.xy_m,
-                                   excluded or tracker.holds, prior_yaw_variance):
+                                   excluded or tracker.holds, prior_yaw_variance,
+                                   self.odometry.pose_offset()):
                 self.health.mount_changed(key, stamp_s)
             mount, held = tracker.used, tracker.holds
         noise = self.lidar_noise(key) if self.config.lidar_noise_window else None
@@ -923,7 +924,7 @@ class EventDriver:
             if tracker is None:
                 # The poses the first LiDAR holds (a second one's could carry its own
                 # mount error, which would be taken for the first's).
-                moved = self.odometry.observe(stamp_s, self.ekf.x_values)
+                moved = self.odometry.observe(stamp_s, self.ekf.x_values, self.ekf.yaw_var)
                 if moved is not None:
                     self._first_lidar_moved(key, moved)
         self.held_start.judge(stamp_s, 1 + len(self.mounts.trackers))

@@ -192,8 +192,9 @@ class OdometrySettings:
     gap_distance_m: float = 0.5
 
 
-_SAMPLE = 7
-"""Values per sample of the window: stamp, D x, D y, distance, pose x, y, yaw."""
+_SAMPLE = 8
+"""Values per sample of the window: stamp, D x, D y, distance, pose x, y, yaw, the
+heading's variance."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -209,7 +210,8 @@ class OdometryFit:
         offset_sigma_m: 1-sigma of d's x and y, m.
         yaw_rad: e, how far the first LiDAR's yaw sits off the direction the odometry
             moves in (the heading is off by as much), rad.
-        yaw_sigma_rad: 1-sigma of e, rad.
+        yaw_sigma_rad: 1-sigma of e, rad, taking the filter's headings as exact.
+        heading_sigma_rad: the filter's heading sigma, RMS over the window's poses, rad.
         rms_m: RMS residual of the positions, m.
         samples: positions in the window.
         distance_m: metres driven in the window (odometry as measured).
@@ -224,10 +226,21 @@ class OdometryFit:
     offset_sigma_m: tuple[float, float]
     yaw_rad: float
     yaw_sigma_rad: float
+    heading_sigma_rad: float
     rms_m: float
     samples: int
     distance_m: float
     spans_gap: bool = False
+
+    @property
+    def yaw_sigma_with_heading(self) -> float:
+        """Return how well e is known: the fit's sigma and the filter's heading sigma.
+
+        e is the filter's heading error over the window; what of it the heading's own
+        uncertainty allows holds for seconds and does not average out over the window
+        (as for the online mount fit, ``mount_online.MountFit.yaw_sigma``).
+        """
+        return math.hypot(self.yaw_sigma_rad, self.heading_sigma_rad)
 
 
 class OdometryTracker:
@@ -488,8 +501,10 @@ class OdometryTracker:
         self.yaw_rad += moved[3]
         self.offset_applied += 1
 
-    def observe(self, stamp_s: float, pose: Sequence[float]) -> Moved | None:
-        """Add the filter's pose after a scan's updates (moving); fit when due.
+    def observe(self, stamp_s: float, pose: Sequence[float],
+                heading_variance: float) -> Moved | None:
+        """Add the filter's pose after a scan's updates (moving), its heading's variance
+        (rad^2); fit when due.
 
         Returns the move (``Moved``) when a fit moved the first LiDAR's mount in use by x, y
         (body frame) and yaw: the pose, drawn along with the LiDAR, is to move back by as
@@ -504,7 +519,8 @@ class OdometryTracker:
             if (stamp_s - last_s > settings.gap_s
                     and self._distance - last_distance > settings.gap_distance_m):
                 self._gap_end_s = stamp_s
-        samples.extend((stamp_s, self._dx, self._dy, self._distance, pose[0], pose[1], pose[2]))
+        samples.extend((stamp_s, self._dx, self._dy, self._distance, pose[0], pose[1], pose[2],
+                        heading_variance))
         if self._last_fit_s is None:
             self._last_fit_s = stamp_s
         if stamp_s - self._last_fit_s < settings.fit_every_s:
@@ -576,7 +592,8 @@ class OdometryTracker:
         self.fits += 1
         self.fit = OdometryFit(stamp_s, scale, sigma, (float(theta[1]), float(theta[2])),
                                (math.sqrt(max(covariance[1, 1], 0.0)),
-                                math.sqrt(max(covariance[2, 2], 0.0))), yaw, yaw_sigma, rms,
+                                math.sqrt(max(covariance[2, 2], 0.0))), yaw, yaw_sigma,
+                               math.sqrt(max(float(np.mean(window[:, 7])), 0.0)), rms,
                                n, distance, self._gap_end_s > first)
         if self.fit.spans_gap:
             return None
@@ -619,6 +636,18 @@ class OdometryTracker:
             return None
         return fit
 
+    def pose_offset(self) -> tuple[float, float, float] | None:
+        """Return where the pose sits off the body frame the odometry moves, or None.
+
+        The last clean fit's offset d (body x, y, m) and its larger sigma (m), when its
+        window holds ``min_offset_distance_m`` driven (as a move of the mount needs): a
+        second LiDAR off its mount pulls the pose its way (``MountTracker._watch``).
+        """
+        fit = self.clean_fit()
+        if fit is None or fit.distance_m < self.settings.min_offset_distance_m:
+            return None
+        return fit.offset_m[0], fit.offset_m[1], max(fit.offset_sigma_m)
+
     def yaw_found(self) -> bool:
         """Whether the last fit turns the first LiDAR clearly off the odometry's direction."""
         fit, settings = self.clean_fit(), self.settings
@@ -657,6 +686,8 @@ class OdometryTracker:
                 'first_lidar_offset_y_sigma_m': fit.offset_sigma_m[1],
                 'first_lidar_yaw_deg': math.degrees(fit.yaw_rad),
                 'first_lidar_yaw_sigma_deg': math.degrees(fit.yaw_sigma_rad),
+                'first_lidar_yaw_sigma_with_heading_deg': math.degrees(
+                    fit.yaw_sigma_with_heading),
                 'rms_residual_m': fit.rms_m, 'samples': fit.samples,
                 'distance_m': fit.distance_m, 'spans_gap': fit.spans_gap},
             'first_lidar_offset_found': self.offset_found(),

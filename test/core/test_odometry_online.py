@@ -14,6 +14,9 @@ from gyro_ekf.analysis.summary import summarize
 from gyro_ekf.core.odometry_online import OdometryFit, OdometryTracker
 from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
 
+# The heading's variance given with each pose: 0.01 deg, a LiDAR-held heading's.
+HEADING_VAR = math.radians(0.01) ** 2
+
 
 def _summary(seed=3, **changes):
     return summarize(run_trip(simulate_trip(SimulationConfig(**changes),
@@ -205,7 +208,7 @@ def test_after_a_turn_a_path_fit_refines_the_yaw_below_the_first_limit():
     tracker.fit = OdometryFit(stamp_s=60.0, scale=1.0, scale_sigma=0.0005,
                               offset_m=(0.0, 0.0), offset_sigma_m=(0.001, 0.001),
                               yaw_rad=math.radians(0.05), yaw_sigma_rad=math.radians(0.01),
-                              rms_m=0.002, samples=300, distance_m=25.0)
+                              heading_sigma_rad=0.0, rms_m=0.002, samples=300, distance_m=25.0)
     assert not tracker.yaw_found()
     tracker.yaw_rad = math.radians(-1.5)
     assert tracker.yaw_found()
@@ -257,7 +260,7 @@ def test_save_and_restore_put_the_estimator_back_exactly():
         out = []
         for stamp, heading, pose in part:
             tracker.advance(0.1 * 1.03, heading)  # reads 3 % fast
-            out.append(tracker.observe(stamp, pose))
+            out.append(tracker.observe(stamp, pose, HEADING_VAR))
         return out
 
     feed(rows[:1200])
@@ -307,7 +310,7 @@ def test_the_scale_not_yet_known_is_a_position_random_walk():
             (0.5 * settings.prior_scale_sigma) ** 2 * settings.scale_time_s)
         for stamp, heading, pose in _driven_rows(60.0):
             tracker.advance(0.1 * (1.0 + error), heading)
-            tracker.observe(stamp, pose)
+            tracker.observe(stamp, pose, HEADING_VAR)
         assert tracker.fits > 5
     # 0.6 % off, below the 1 % that is applied: the walk carries the disagreement.
     small = trackers[0.006]
@@ -338,7 +341,7 @@ def test_a_fit_across_a_lidar_gap_leaves_the_walk_on_the_fit_before_and_moves_no
         if stamp < 40.0:
             before = tracker.scale_uncertainty()
         fit = tracker.fit
-        assert tracker.observe(stamp, pose) is None
+        assert tracker.observe(stamp, pose, HEADING_VAR) is None
         if 45.0 <= stamp < 40.0 + tracker.settings.window_s:
             assert tracker.scale_uncertainty() == before
             if tracker.fit is not fit:
