@@ -503,8 +503,9 @@ class OdometryTracker:
 
     def observe(self, stamp_s: float, pose: Sequence[float],
                 heading_variance: float) -> Moved | None:
-        """Add the filter's pose after a scan's updates (moving), its heading's variance
-        (rad^2); fit when due.
+        """Add the filter's pose after a scan's updates (moving); fit when due.
+
+        ``heading_variance`` is the variance of that pose's heading, rad^2.
 
         Returns the move (``Moved``) when a fit moved the first LiDAR's mount in use by x, y
         (body frame) and yaw: the pose, drawn along with the LiDAR, is to move back by as
