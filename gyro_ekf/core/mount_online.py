@@ -23,13 +23,15 @@ every ``fit_every`` new detections, by the same robust least squares as the offl
    window added (``MountFit.yaw_sigma``): the poses the detections are laid from carry
    the heading's error, which holds for seconds and does not average out. One that does
    not differ *confirms* the mount in use. A confirmed mount is then *watched*: the window
-   goes on filling and is fitted again every ``watch_every`` detections. Those fits change
-   nothing but the fit reported, on which the LiDAR's ``noise_scale`` (item 7) and the
-   verdict's disagreement rest (``verdict_reasons``): when fitting stopped at confirmation,
+   goes on filling and is fitted again every ``watch_every`` detections. Those fits leave
+   the mount in use as it is; they replace the fit reported, on which the LiDAR's
+   ``noise_scale`` and ``pulls`` (item 7) and the verdict's disagreement rest
+   (``verdict_reasons``): when fitting stopped at confirmation,
    the verdict judged a fit of the first seconds of driving, and a second LiDAR 4.8 mm off,
    read there as 2 mm the other way, made a run that missed the NEES share silently (stress
    seed 22, mount_offset 10: 0.878, verdict ok). Fitting starts afresh when the driver
-   restarts the estimator (the health monitor excluded the LiDAR again).
+   restarts the estimator (the health monitor excluded the LiDAR again, or the first
+   LiDAR's mount in use was moved).
    The stated mount is confirmed before the convergence limit is reached when two
    agreeing fits place it within ``min_yaw_change_rad`` and ``min_offset_change_m`` even
    at ``change_sigmas`` sigmas (and not beyond the correction limits).
@@ -61,9 +63,10 @@ every ``fit_every`` new detections, by the same robust least squares as the offl
    read beside a first LiDAR off comes with the pose pulled the other way). A mount
    estimated online is known to about 0.01-0.03 deg and a stated one read off no better:
    a fixed error the filter cannot average away, while its consistency needs the heading
-   well within 0.01 deg (and the position within a few millimetres). Beside an honest LiDAR
-   it then carries about a tenth of the weight, so its remaining error moves the heading
-   a tenth as much; alone (the first LiDAR dropped out) it still holds the pose.
+   well within 0.01 deg (and the position within a few millimetres). With its R times 9,
+   beside an honest LiDAR of the same R it carries a tenth of the two's weight, so its
+   remaining error moves the pose a tenth as much; alone (the first LiDAR dropped out) it
+   still holds the pose.
 
 **Hand-over.** The first LiDAR is trusted only while it agrees with the map: when the
 health monitor excludes it while another LiDAR, still taken with its stated mount, vouches
@@ -139,8 +142,9 @@ class OnlineMountSettings:
             the fit's noise.
         watch_every: once the mount in use is confirmed, new detections between two fits
             that watch it (0: fitting stops there); see the module docstring.
-        noise_scale: R of a LiDAR taken with a mount estimated online is multiplied by
-            this (see the module docstring).
+        noise_scale: R of a LiDAR taken with a mount estimated online, or whose stated
+            mount is read off (``MountTracker.noise_scale_reason``), is multiplied by this
+            (item 7 of the module docstring).
         hold_detections: a LiDAR whose mount is not confirmed after this many detections
             (while moving) since the estimator (re)started is no longer held out of the
             filter, and the health monitor may readmit it.
@@ -281,7 +285,9 @@ class MountTracker:
         stated: the mount the log or the parameters state.
         used: the mount its observations are taken with now.
         state: ACQUIRING, ESTIMATING or CONFIRMED.
-        fit: the last accepted fit, or None.
+        fit: the last accepted fit (a watch fit once confirmed), or None.
+        pulls: whether the watch reads this stated mount off with the pose pulled its way
+            (``_watch``): its R is then scaled.
         converged_s: stamp of the first converged (or clearly unchanged) fit, or None.
         applied: times a fit replaced the mount in use.
         refined: times a later fit refined it while the LiDAR was held out (see above).
@@ -333,20 +339,28 @@ class MountTracker:
 
     @property
     def noise_scale(self) -> float:
-        """Factor on R of this LiDAR's observations: above 1 once its mount was estimated.
+        """Factor on R of this LiDAR's observations (1 unless ``noise_scale_reason``)."""
+        return 1.0 if self.noise_scale_reason is None else self.settings.noise_scale
 
-        Also for a stated mount confirmed while its last fit reads it more than 2 of its
-        sigmas (``MountFit.yaw_sigma``) off in yaw, under the correction limits: that mount
-        is known no better than one estimated online (item 7 of the module docstring); and
-        for one whose watch found its offset off and the pose pulled its way (``pulls``).
+    @property
+    def noise_scale_reason(self) -> str | None:
+        """Why this LiDAR's R is scaled (item 7 of the module docstring), or None.
+
+        'estimated online': its mount in use was estimated online. 'yaw read off': a stated
+        mount confirmed while its last fit reads it more than 2 of its sigmas
+        (``MountFit.yaw_sigma``) off in yaw, under the correction limits, so it is known no
+        better than one estimated online. 'pulls': the watch reads its offset off and the
+        odometry finds the pose pulled its way (``pulls``).
         """
-        if self.applied or self.pulls:
-            return self.settings.noise_scale
+        if self.applied:
+            return 'estimated online'
+        if self.pulls:
+            return 'pulls'
         fit = self.fit
         if fit is not None and self.state == CONFIRMED and abs(wrap_scalar(
                 fit.mount.yaw_rad - self.used.yaw_rad)) > 2.0 * fit.yaw_sigma:
-            return self.settings.noise_scale
-        return 1.0
+            return 'yaw read off'
+        return None
 
     @property
     def holds(self) -> bool:
@@ -472,7 +486,7 @@ class MountTracker:
             return False
         self._since_fit = 0
         if self.state == CONFIRMED:
-            self._watch(stamp_s, poles, pose_offset)
+            self._watch(stamp_s, poles, None if excluded else pose_offset)
             return False
         return self._fit(stamp_s, poles, excluded)
 
@@ -506,24 +520,34 @@ class MountTracker:
                pose_offset: tuple[float, float, float] | None) -> None:
         """Fit the window of a confirmed mount again: the last fit is what it reads now.
 
-        Nothing is changed but the fit reported, and with it ``noise_scale`` and the
-        verdict's disagreement: the mount in use stays. A stated mount whose fit lies off
-        it (``disagrees``) while the odometry finds the pose pulled the same way
-        (``pose_offset`` along the fit's offset beyond ``change_sigmas`` of its sigma) is
-        the one off: it *pulls*, and weighs a ninth (item 7 of the module docstring).
+        The mount in use stays; the fit reported changes, and with it ``noise_scale`` and
+        the verdict's disagreement. A stated mount whose fit lies off it (``disagrees``)
+        while the odometry finds the pose pulled the same way (``pose_offset`` along the
+        fit's offset beyond ``change_sigmas`` of its sigma) is the one off: it *pulls*, and
+        its R is multiplied by ``noise_scale`` (item 7 of the module docstring). It keeps
+        pulling while its fits disagree and the odometry does not find the pose pulled the
+        other way: weighed less, it no longer pulls the pose (the odometry's evidence fades)
+        while its fits read more of its error. ``pose_offset`` None (no clean odometry fit,
+        or the LiDAR excluded, so the pose does not lean on it) leaves it as it is.
         """
         fit = self._window_fit(stamp_s, poles, self.used, search=False)
         if fit is None:
             return
         self.fit = fit
         dx, dy = fit.mount.x_m - self.used.x_m, fit.mount.y_m - self.used.y_m
-        self.pulls = False
-        if (self.applied or pose_offset is None or not fit.offset_observable
-                or not disagrees(dx, dy, fit.sigma[1], fit.sigma[2], fit.xy_correlation,
-                                 self.settings)):
+        if self.applied or not fit.offset_observable or not disagrees(
+                dx, dy, fit.sigma[1], fit.sigma[2], fit.xy_correlation, self.settings):
+            self.pulls = False
             return
+        if pose_offset is None:
+            return
+        # disagrees() holds, so (dx, dy) is not zero.
         along = (pose_offset[0] * dx + pose_offset[1] * dy) / math.hypot(dx, dy)
-        self.pulls = along > self.settings.change_sigmas * pose_offset[2]
+        limit = self.settings.change_sigmas * pose_offset[2]
+        if along > limit:
+            self.pulls = True
+        elif along < -limit:
+            self.pulls = False
 
     def _fit(self, stamp_s: float, poles: FloatArray, excluded: bool) -> bool:
         settings = self.settings
@@ -632,7 +656,7 @@ class MountTracker:
             'converged_s': self.converged_s, 'applied': self.applied,
             'refined': self.refined, 'fits': self.fits, 'handed_over_s': self.handed_over_s,
             'right_share': self.right_share, 'pulls': self.pulls,
-            'noise_scale': self.noise_scale}
+            'noise_scale': self.noise_scale, 'noise_scale_reason': self.noise_scale_reason}
 
 
 class OnlineMounts:
@@ -848,8 +872,12 @@ def _disagreement(report: dict[str, Any], first: str, settings: OnlineMountSetti
     if not disagrees(dx, dy, fit['x_sigma_m'], fit['y_sigma_m'], correlation, settings):
         return []
     sigmas = offset_sigmas(dx, dy, fit['x_sigma_m'], fit['y_sigma_m'], correlation)
-    return [f'LiDAR {report["name"]} and {first} disagree by {1000.0 * math.hypot(dx, dy):.1f} '
+    text = (f'LiDAR {report["name"]} and {first} disagree by {1000.0 * math.hypot(dx, dy):.1f} '
             f'mm ({sigmas:.1f} sigmas of the online fit, beyond {settings.disagree_sigmas:g} '
             f'and {1000.0 * settings.disagree_min_m:g} mm), under the '
             f'{100.0 * settings.min_offset_change_m:g} cm a mount is corrected by: one of '
-            f'them is off its stated mount, and the pose may be off by as much']
+            f'them is off its stated mount, and the pose may be off by as much')
+    if report.get('pulls'):
+        text += (f'; the odometry finds the pose pulled towards {report["name"]}, taken as '
+                 f'the one off: its noise is scaled by {report["noise_scale"]:g}')
+    return [text]

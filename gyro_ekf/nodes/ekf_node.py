@@ -52,8 +52,8 @@ LiDAR mounts in use (`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file f
 `gyro-ekf calibrate-mounts` given after the bag's overrides the bag's mounts, and every
 LiDAR but the one defining the body frame, `body_frame_lidar`, has its mount estimated
 online, core/mount_online.py: `mount_<topic>_online{,_yaw_sigma_deg,
-_yaw_sigma_with_heading_deg,_converged_s,_noise_scale,_pulls}` (the factor on its R; the
-stated mount read off with the pose pulled its way), and
+_yaw_sigma_with_heading_deg,_converged_s,_noise_scale,_noise_scale_reason,_pulls}` (the
+factor on its R and why; the stated mount read off with the pose pulled its way), and
 `mount_<topic>_online_right_share` while the two LiDARs disagree and the pose published lies
 between them, core/body_frame.py), and
 the odometry's speed scale and the first LiDAR's offset estimated online
@@ -1017,6 +1017,7 @@ class EkfNode(Node):
                    # Whether the watch reads the stated mount off with the pose pulled
                    # its way (this LiDAR is the one off: the factor above is 9).
                    ('online_pulls', 'true' if online['pulls'] else 'false'),
+                   ('online_noise_scale_reason', online['noise_scale_reason'] or ''),
                    ('online_converged_s', '' if online['converged_s'] is None
                     else f'{online["converged_s"]:.3f}'),
                    # The weight of this LiDAR being right in the pose published between

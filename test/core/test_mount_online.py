@@ -446,8 +446,11 @@ def test_a_confirmed_mount_is_watched_and_a_second_lidar_5_mm_off_is_said():
     assert mount['estimate']['stamp_s'] > 60.0
     assert mount['estimate']['y_m'] < -0.0018  # the true error: y -4.75 mm
     assert summary['health']['verdict'] == 'degraded'
-    assert len(_disagreements(summary)) == 1
+    (said,) = _disagreements(summary)
+    assert said.endswith('; the odometry finds the pose pulled towards scan2, taken as the '
+                         'one off: its noise is scaled by 9')
     assert (mount['pulls'], mount['noise_scale']) == (True, 9.0)
+    assert mount['noise_scale_reason'] == 'pulls'
     assert summary['ground_truth']['nees_share_in_band'] >= 0.9
 
 
@@ -472,4 +475,5 @@ def test_a_watched_exact_mount_is_not_said_to_disagree():
     assert 0.0005 < offset < 0.0018
     assert _disagreements(summary) == []
     assert summary['health']['verdict'] == 'ok'
-    assert (mount['pulls'], mount['noise_scale']) == (False, 1.0)
+    assert (mount['pulls'], mount['noise_scale'], mount['noise_scale_reason']) == (
+        False, 1.0, None)

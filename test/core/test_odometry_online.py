@@ -4,6 +4,7 @@ mount moved online is named in the verdict with the first LiDAR."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -203,15 +204,32 @@ def test_after_a_turn_a_path_fit_refines_the_yaw_below_the_first_limit():
     tracker.yaw_rad = 0.0
     settings = tracker.settings
     assert settings.yaw_refinement_rad < settings.yaw_limit_rad
-    # The same fit, 0.05 deg at a sigma of 0.01 deg: not enough to turn a LiDAR at its
-    # stated yaw, enough to refine one already turned.
+    # The same fit, 0.05 deg at a sigma of 0.01 deg with the heading's 0.015 deg: within 3
+    # sigmas of both, not enough to turn a LiDAR at its stated yaw; beyond 3 of the fit's
+    # own, enough to refine one already turned.
     tracker.fit = OdometryFit(stamp_s=60.0, scale=1.0, scale_sigma=0.0005,
                               offset_m=(0.0, 0.0), offset_sigma_m=(0.001, 0.001),
                               yaw_rad=math.radians(0.05), yaw_sigma_rad=math.radians(0.01),
-                              heading_sigma_rad=0.0, rms_m=0.002, samples=300, distance_m=25.0)
+                              heading_sigma_rad=math.radians(0.015), rms_m=0.002,
+                              samples=300, distance_m=25.0)
     assert not tracker.yaw_found()
     tracker.yaw_rad = math.radians(-1.5)
     assert tracker.yaw_found()
+
+
+def test_a_first_turn_is_judged_with_the_headings_sigma():
+    # Stress seed 20, mount_yaw 36: a first LiDAR 0.084 deg off read at -0.081 deg, sigma
+    # 0.005 deg, with the heading's 0.019 deg: 4.3 sigmas, beyond the 0.05 deg limit.
+    tracker = OdometryTracker()
+    fit = OdometryFit(stamp_s=60.0, scale=1.0, scale_sigma=0.0005, offset_m=(0.0, 0.0),
+                      offset_sigma_m=(0.001, 0.001), yaw_rad=math.radians(-0.081),
+                      yaw_sigma_rad=math.radians(0.005), heading_sigma_rad=math.radians(0.019),
+                      rms_m=0.002, samples=300, distance_m=25.0)
+    tracker.fit = fit
+    assert tracker.yaw_found()
+    # A heading known only to 0.03 deg: 2.6 sigmas, the same reading may be its error.
+    tracker.fit = dataclasses.replace(fit, heading_sigma_rad=math.radians(0.03))
+    assert not tracker.yaw_found()
 
 
 def test_the_start_check_needs_a_trusted_start_and_keeps_an_exact_mount():

@@ -65,6 +65,7 @@ def test_the_node_finds_the_mount_publishes_it_and_readmits_the_lidar(
     # A mount estimated online weighs a ninth, live as offline.
     assert offline['online_mounts']['scan2']['noise_scale'] == 9.0
     assert values['mount_scan2_online_noise_scale'] == '9'
+    assert values['mount_scan2_online_noise_scale_reason'] == 'estimated online'
     yaw_deg = float(values['mount_scan2_yaw_deg'])
     assert math.remainder(yaw_deg - 180.0, 360.0) == pytest.approx(0.0, abs=0.2)
     # The same estimate as the offline run (scans sharing a stamp may come in either order).
