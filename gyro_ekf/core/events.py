@@ -812,7 +812,7 @@ class EventDriver:
             # The pose does not depend on a LiDAR held out or excluded.
             if self.mounts.observe(key, stamp_s, prior.tolist(), points, self.landmarks.xy_m,
                                    excluded or tracker.holds, prior_yaw_variance,
-                                   self.odometry.pose_offset()):
+                                   self.odometry.pose_offset):
                 self.health.mount_changed(key, stamp_s)
             mount, held = tracker.used, tracker.holds
         noise = self.lidar_noise(key) if self.config.lidar_noise_window else None

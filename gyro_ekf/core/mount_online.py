@@ -92,7 +92,7 @@ The state is a handful of scalars and an append-only list, so ``save`` and ``res
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 import math
 from typing import Any
@@ -105,6 +105,9 @@ from gyro_ekf.core.body_frame import Offset, stop_offset
 from gyro_ekf.core.mount_calibration import (MIN_DETECTIONS, MountSettings, _coarse_yaw,
                                              _Detections, _gauss_newton, _nearest, _to_map)
 from gyro_ekf.core.types import FloatArray, LidarMount
+
+PoseOffset = Callable[[], 'tuple[float, float, float] | None']
+"""Where the pose sits off the body frame (``OdometryTracker.pose_offset``), asked lazily."""
 
 ACQUIRING, ESTIMATING, CONFIRMED = 'acquiring', 'estimating', 'confirmed'
 """Estimator states: no accepted fit yet; fits, mount not confirmed; mount in use confirmed."""
@@ -441,7 +444,7 @@ class MountTracker:
 
     def observe(self, stamp_s: float, pose: list[float], points_sensor_m: FloatArray,
                 poles: FloatArray, excluded: bool = False, yaw_variance: float = 0.0,
-                pose_offset: tuple[float, float, float] | None = None) -> bool:
+                pose_offset: PoseOffset | None = None) -> bool:
         """Add one scan's detections seen from the filter's pose.
 
         Returns True when a fit replaced the mount in use by one that differs clearly (its
@@ -456,9 +459,9 @@ class MountTracker:
                 (the pose does not depend on them).
             yaw_variance: the filter's heading variance at the scan (before its updates),
                 rad^2.
-            pose_offset: where the pose sits off the body frame the odometry moves, by
-                the odometry's last path fit (body x, y m and their sigma m;
-                ``OdometryTracker.pose_offset``), or None.
+            pose_offset: returns where the pose sits off the body frame the odometry
+                moves, by the odometry's last path fit (body x, y m and their sigma m), or
+                None (``OdometryTracker.pose_offset``); called only for a watch fit.
         """
         settings = self.settings
         if not len(points_sensor_m) or (self.state == CONFIRMED and not settings.watch_every):
@@ -487,7 +490,8 @@ class MountTracker:
             return False
         self._since_fit = 0
         if self.state == CONFIRMED:
-            self._watch(stamp_s, poles, None if excluded else pose_offset)
+            self._watch(stamp_s, poles,
+                        None if excluded or pose_offset is None else pose_offset())
             return False
         return self._fit(stamp_s, poles, excluded)
 
@@ -724,8 +728,7 @@ class OnlineMounts:
 
     def observe(self, mount: LidarMount, stamp_s: float, pose: list[float],
                 points_sensor_m: FloatArray, poles: FloatArray, excluded: bool = False,
-                yaw_variance: float = 0.0,
-                pose_offset: tuple[float, float, float] | None = None) -> bool:
+                yaw_variance: float = 0.0, pose_offset: PoseOffset | None = None) -> bool:
         """Feed a scan to its LiDAR's estimator (if tracked).
 
         Returns True when its mount in use changed so much that its health is judged on
