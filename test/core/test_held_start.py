@@ -194,3 +194,39 @@ def test_a_heading_error_shifting_every_bearing_alike_releases_before_the_nis_su
         scattered.look('a', landmark, 2.0 + 1.7 ** 2, 0.0, bearing_z=1.7 * (-1) ** landmark)
     scattered.judge(0.6, expected=1)
     assert scattered.held
+
+
+def test_one_lidar_is_named_off_its_mount_at_a_chance_the_hold_itself_is_not_released_at():
+    # A first LiDAR 0.15 deg off (stress seed 4, mount_yaw 10) read these looks at the
+    # held start: 7 poles, NIS sum 42.7, six bearings 1.61 sigmas the same way (one
+    # detection outside every gate gives none); the second LiDAR, exact, 5 poles at NIS
+    # sum 10.1.
+    held = HeldStart(True)
+    for landmark in range(7):
+        held.look('scan', landmark, 42.7 / 7, 0.0, bearing_z=1.61 if landmark else None)
+    for landmark in range(5):
+        held.look('scan2', landmark, 10.1 / 5, 0.0, bearing_z=0.65)
+    chance = held.looks['scan'].chance_if_exact()
+    assert held.significance < chance < held.alone_significance
+    held.judge(0.6, expected=2)
+    assert held.held      # the pose: the second LiDAR vouches for it
+    assert held.disagrees_alone('scan') and not held.disagrees_alone('scan2')
+
+
+def test_a_first_lidar_a_tenth_of_a_degree_off_is_named_at_the_start_and_the_trip_holds():
+    from gyro_ekf.analysis.offline import run_trip
+    from gyro_ekf.analysis.stress import CLASSES, trip_jobs
+    from gyro_ekf.analysis.summary import summarize
+
+    mount_yaw = tuple(c for c in CLASSES if c.name == 'mount_yaw')
+    job = trip_jobs(11, 4, classes=mount_yaw)[10]
+    error = job.changes['lidar_yaw_error_rad']   # the first LiDAR's: -0.15 deg
+    assert 0.1 < abs(math.degrees(error)) < 0.2
+    trip = job.simulate()
+    summary = summarize(run_trip(trip))
+    # Handed over at the start check (the pose held); its mount then found online.
+    first = summary['online_mounts'].get(trip.scans[0].topic)
+    assert first is not None and first['handed_over_s'] is not None
+    assert abs(math.radians(first['yaw_error_deg']) - error) < math.radians(0.02)
+    truth = summary['ground_truth']
+    assert truth['nees_share_in_band'] >= 0.9 and truth['position_rmse_m'] <= 0.02
