@@ -37,14 +37,20 @@ sigma of 0.03-0.05 deg for 8 s, NEES share 0.873, verdict ok, in every class tha
 drawn for. At 1e-3 that is one clean start in a thousand; the start poses that are wrong
 (the 2016 log's 0.45 deg) lie far beyond either limit.
 
-Why one LiDAR alone is judged at 1e-3 (``alone_significance``), not at 1e-4: naming one
-LiDAR off its mount while another agrees costs little when it is wrong (the agreeing
-LiDAR, exact too, defines the body frame and the first one's mount is estimated online),
-and much when it is missed. A first LiDAR 0.15 deg off reads a chance of 1.6e-4 at 7 poles
-(stress seed 4, mount_yaw 10); missed, the exact second LiDAR, held out until its mount is
-confirmed, is fitted against a pose that follows the first and moved to agree with it.
-While this judgement shared the release's 1e-4, that trip and seed 3 mount_yaw 24 (0.11
-deg) ended with NEES shares of 0.68; named, 0.968 and 0.949.
+Why one LiDAR alone is judged at 1e-2 (``alone_significance``), not at the release's 1e-4:
+naming one LiDAR off its mount while another agrees costs little when it is wrong (the
+agreeing LiDAR, exact too, defines the body frame, the first one's mount is estimated
+online and found where it is stated; the run is said degraded, a false alarm), and much
+when it is missed: the exact second LiDAR, held out until its mount is confirmed, is fitted
+against a pose that follows the first and moved to agree with it. A first LiDAR 0.15 deg
+off reads a chance of 1.6e-4 at 7 poles (stress seed 4, mount_yaw 10), one 3.3 cm off
+2.1e-3 at 5 poles (seed 8, mount_offset 10). Missed, their NEES shares were 0.68 and 0.88;
+named, 0.968 and 0.957. Over the two-LiDAR classes of stress seeds 0-4 and 6-8 (600 trips)
+1e-2 against 1e-3 named three more first LiDARs that were off (two trips more within the
+bounds) and one exact one (seed 0, second_lidar 21, chance 3.5e-3: degraded where it was
+ok, within the bounds either way); at seeds 20-22 (675 trips, 75 per class) one more that
+was off (RMSE 5.5 -> 2.3 mm) and two exact ones (degraded before too), the same trips within
+the bounds.
 
 The hold also ends at the first gyro sample beyond the rest rate plus four sample sigmas
 and three bias sigmas (a turn on the spot at zero speed), and after 1 s of gyro samples
@@ -116,7 +122,7 @@ class HeldStart:
 
     held: bool
     significance: float = 1e-4
-    alone_significance: float = 1e-3
+    alone_significance: float = 1e-2
     min_poles: int = 3
     decide_after_s: float = 0.5
     since_s: float | None = None
