@@ -372,11 +372,15 @@ class MountTracker:
             return None
         if abs(wrap_scalar(fit.mount.yaw_rad - self.used.yaw_rad)) > 2.0 * fit.yaw_sigma:
             return 'yaw read off'
-        if self.handed_over_s is not None and fit.offset_observable and disagrees(
-                fit.mount.x_m - self.used.x_m, fit.mount.y_m - self.used.y_m, fit.sigma[1],
-                fit.sigma[2], fit.xy_correlation, self.settings):
+        if self.handed_over_s is not None and self._offset_read_off(fit):
             return 'offset read off'
         return None
+
+    def _offset_read_off(self, fit: MountFit) -> bool:
+        """Whether the fit reads the offset off the mount in use as the verdict says it."""
+        return fit.offset_observable and disagrees(
+            fit.mount.x_m - self.used.x_m, fit.mount.y_m - self.used.y_m, fit.sigma[1],
+            fit.sigma[2], fit.xy_correlation, self.settings)
 
     @property
     def holds(self) -> bool:
@@ -551,14 +555,13 @@ class MountTracker:
         if fit is None:
             return
         self.fit = fit
-        dx, dy = fit.mount.x_m - self.used.x_m, fit.mount.y_m - self.used.y_m
-        if self.applied or not fit.offset_observable or not disagrees(
-                dx, dy, fit.sigma[1], fit.sigma[2], fit.xy_correlation, self.settings):
+        if self.applied or not self._offset_read_off(fit):
             self.pulls = False
             return
         if pose_offset is None:
             return
         # disagrees() holds, so (dx, dy) is not zero.
+        dx, dy = fit.mount.x_m - self.used.x_m, fit.mount.y_m - self.used.y_m
         along = (pose_offset[0] * dx + pose_offset[1] * dy) / math.hypot(dx, dy)
         limit = self.settings.change_sigmas * pose_offset[2]
         if along > limit:
