@@ -463,6 +463,21 @@ def _gauss_markov(count: int, period_s: float, sigma: float, tau_s: float,
     return out
 
 
+def gyro_wander(config: SimulationConfig, seed: int) -> FloatArray:
+    """Return the coloured yaw-rate noise ``simulate_trip`` adds at each IMU sample, rad/s.
+
+    The very samples the trip of this config and seed carries on its yaw axis (the noise
+    has a random stream of its own), one per IMU sample before any IMU gap removes some;
+    zeros when the config has none. A trip's truth for a stress analysis: what its wander
+    averaged to (``analysis/stress.py``).
+    """
+    count = _sample_times(config.duration_s, config.imu_rate_hz).size
+    if config.gyro_colored_noise_rad_s <= 0.0:
+        return np.zeros(count)
+    return _gauss_markov(count, 1.0 / config.imu_rate_hz, config.gyro_colored_noise_rad_s,
+                         config.gyro_colored_noise_tau_s, _stream(seed, _COLOURED_STREAM))
+
+
 def _spans(count: int, length_s: float, start_s: float, end_s: float,
            rng: np.random.Generator) -> FloatArray:
     """Non-overlapping spans (count, 2) of length_s in [start_s, end_s], one per equal slot."""
@@ -617,9 +632,7 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
         bias = bias.copy()
         bias[2] = float(config.gyro_bias_z_at(imu_t[-1]))
     if config.gyro_colored_noise_rad_s > 0.0:
-        gyro[:, 2] += _gauss_markov(imu_t.size, period, config.gyro_colored_noise_rad_s,
-                                    config.gyro_colored_noise_tau_s,
-                                    _stream(seed, _COLOURED_STREAM))
+        gyro[:, 2] += gyro_wander(config, seed)
     accel = None
     if config.with_accelerometer:
         speed_mean = np.diff(edge_s) / period

@@ -11,9 +11,10 @@ import shutil
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
-from gyro_ekf.analysis.stress import BOUNDS, CLASSES, trip_jobs
+from gyro_ekf.analysis.stress import BOUNDS, CLASSES, best_bias_error, trip_jobs
 from gyro_ekf.cli.main import main
 
 REPO = Path(__file__).resolve().parents[2]
@@ -46,6 +47,11 @@ def test_stress_runs_one_trip_per_class_and_writes_json(tmp_path, capsys):
         assert record['missed'] == expected
         assert record['passed'] == (not expected)
         assert record['silent'] == (bool(expected) and record['verdict'] == 'ok')
+        # Only a wander has a best estimate's error of its own to report.
+        best = record['best_bias_error_deg_s']
+        assert (best is None) == (record['class'] != 'coloured_gyro')
+        assert record['beyond_reach'] == (best is not None
+                                          and abs(best) > BOUNDS['bias_error_final_deg_s'])
         summary = results['classes'][record['class']]
         assert summary['passed'] == int(record['passed'])
         assert summary['silent_failures'] == int(record['silent'])
@@ -173,6 +179,43 @@ def test_a_read_only_folder_is_refused_before_any_trip(tmp_path):
     assert list(folder.iterdir()) == []
 
 
+def test_best_bias_error_is_the_generalised_least_squares_mean_of_the_wander():
+    rng = np.random.default_rng(5)
+    period, tau, n = 0.5, 1.7, 80
+    phi = math.exp(-period / tau)
+    wander = np.empty(n)
+    wander[0] = rng.standard_normal()
+    for k in range(1, n):
+        wander[k] = phi * wander[k - 1] + math.sqrt(1.0 - phi * phi) * rng.standard_normal()
+    # The readable definition: b's GLS estimate from b + c, c's covariance phi^|i-j| (b = 0).
+    covariance = phi ** np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    weights = np.linalg.solve(covariance, np.ones(n))
+    expected = weights @ wander / weights.sum()
+    assert best_bias_error(wander, period, tau) == pytest.approx(expected, rel=1e-12)
+    # Not the plain mean (the ends weigh more), but it tends to it as tau shrinks.
+    assert best_bias_error(wander, period, tau) != pytest.approx(wander.mean(), rel=1e-3)
+    assert best_bias_error(wander, period, 1e-6) == pytest.approx(wander.mean(), rel=1e-12)
+    assert best_bias_error(wander[:2], period, tau) == pytest.approx(wander[:2].mean())
+
+
+def test_a_coloured_trip_reports_its_wanders_best_estimate_error():
+    from gyro_ekf.analysis.stress import run_job
+    coloured = tuple(c for c in CLASSES if c.name == 'coloured_gyro')
+    job = trip_jobs(1, 4, 30.0, classes=coloured)[0]
+    wander = job.config.gyro_colored_noise_rad_s
+    assert wander > 0.0
+    record = run_job(job)
+    trip = job.simulate()
+    # The simulator's own wander on that trip, as the trip carries it.
+    clean = trip_jobs(1, 4, 30.0, classes=CLASSES[:1])[0].simulate()
+    added = trip.imu.angular_velocity_rad_s[:, 2] - clean.imu.angular_velocity_rad_s[:, 2]
+    expected = best_bias_error(added, 1.0 / job.config.imu_rate_hz,
+                               job.config.gyro_colored_noise_tau_s)
+    assert record['best_bias_error_deg_s'] == pytest.approx(math.degrees(expected), abs=1e-12)
+    assert record['beyond_reach'] == (abs(math.degrees(expected))
+                                      > BOUNDS['bias_error_final_deg_s'])
+
+
 def test_silent_misses_below_the_band_are_counted_apart():
     from gyro_ekf.analysis.stress import _class_summary, table
 
@@ -230,7 +273,25 @@ def test_the_table_prints_each_share_with_its_interval():
                           'silent_failures': 0, 'silent_rate_ci95': [0.0, 0.1332],
                           'errors': 0}}
     text = table(results)
+    assert 'the data, not the filter' not in text
     assert '96 % (80-99)' in text
     assert '0 % (0-13)' in text
     assert 'seed 0: 96 % (80-99) within the bounds' in text
     assert '0 silent failure(s) (share 0.0-13.3 %, 95 % CI)' in text
+
+
+def test_the_table_says_how_many_trips_the_data_put_beyond_reach():
+    from gyro_ekf.analysis.stress import _class_summary, table
+    records = [{'passed': k != 3, 'silent': False, 'verdict': 'degraded',
+                'missed': [] if k != 3 else ['bias_error_final_deg_s'],
+                'best_bias_error_deg_s': 0.025 if k == 3 else 0.001, 'beyond_reach': k == 3}
+               for k in range(25)]
+    coloured = next(c for c in CLASSES if c.name == 'coloured_gyro')
+    summary = _class_summary(coloured, records)
+    assert summary['beyond_reach'] == 1
+    results = {'classes': {'coloured_gyro': summary},
+               'suite': {'trips': 25, 'duration_s': 120.0, 'static_s': 8.0, 'seed': 0,
+                         'elapsed_s': 1.0, 'workers': 1},
+               'totals': {'pass_rate': 0.96, 'silent_failures': 0, 'errors': 0}}
+    assert ('coloured_gyro: 1 of 25 trip(s) end on a wander that leaves even the best '
+            'estimate of a constant bias beyond 0.02 deg/s') in table(results)

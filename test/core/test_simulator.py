@@ -16,7 +16,7 @@ from gyro_ekf.core.angles import wrap_angle
 from gyro_ekf.core.detection import detect_poles, detect_poles_in_scans
 from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.models import observe, points_to_range_bearing, predict_state, sensor_to_map
-from gyro_ekf.core.simulator import GRAVITY_M_S2, SimulationConfig, simulate_trip
+from gyro_ekf.core.simulator import GRAVITY_M_S2, SimulationConfig, gyro_wander, simulate_trip
 from gyro_ekf.core.types import LidarMount, Trip
 
 
@@ -351,6 +351,12 @@ def test_coloured_gyro_noise_has_its_sigma_and_correlation_time():
     trip = simulate_trip(dataclasses.replace(SHORT, gyro_colored_noise_rad_s=sigma,
                                              gyro_colored_noise_tau_s=tau, **config), 4)
     added = trip.imu.angular_velocity_rad_s[:, 2] - clean.imu.angular_velocity_rad_s[:, 2]
+    # gyro_wander gives the very samples added (the stress suite's truth of a wander).
+    wander = gyro_wander(dataclasses.replace(SHORT, gyro_colored_noise_rad_s=sigma,
+                                             gyro_colored_noise_tau_s=tau, **config), 4)
+    np.testing.assert_array_equal(trip.imu.angular_velocity_rad_s[:, 2],
+                                  clean.imu.angular_velocity_rad_s[:, 2] + wander)
+    np.testing.assert_array_equal(gyro_wander(dataclasses.replace(SHORT, **config), 4), 0.0)
     np.testing.assert_array_equal(trip.imu.angular_velocity_rad_s[:, :2],
                                   clean.imu.angular_velocity_rad_s[:, :2])
     # 240 correlation times: the sample sigma is within about 10 % of the stationary one.
