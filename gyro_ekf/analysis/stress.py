@@ -351,7 +351,7 @@ def _class_summary(stress_class: StressClass, records: list[dict[str, Any]]
         # warning where a sensor is off (an excluded LiDAR is a reason to be degraded).
         'flagged_within_bounds': sum(r['passed'] and r['verdict'] != 'ok' for r in records),
         # Trips whose wander leaves even the best estimate beyond the bias bound
-        # (best_bias_error): misses in the data, not the filter.
+        # (best_bias_error): a miss there is the data's, not the filter's.
         'beyond_reach': sum(bool(r.get('beyond_reach')) for r in records),
         'missed': dict(Counter(b for r in records for b in r.get('missed', ()))),
         'silent_missed': dict(Counter(b for r in silent for b in r['missed'])),
@@ -459,7 +459,7 @@ def table(results: dict[str, Any]) -> str:
             lines.append(f"{name}: {c['beyond_reach']} of {c['trips']} trip(s) end on a "
                          f"wander that leaves even the best estimate of a constant bias "
                          f"beyond {BIAS_ERROR_BOUND_DEG_S:g} deg/s (best_bias_error_deg_s in "
-                         f"the JSON): the data, not the filter, miss there")
+                         f"the JSON): a miss there is the data's, not the filter's")
     suite, totals = results['suite'], results['totals']
     below = (f" ({totals['silent_nees_below_band']} of them the NEES share alone missed below "
              f"the band: a covariance larger than the error)"
