@@ -43,8 +43,8 @@ from gyro_ekf.core.association import (AssociationOutcome, AssociationResult,
                                        associate_by_distance, associate_packed)
 from gyro_ekf.core.bias_rate import BiasRate
 from gyro_ekf.core.bias_watch import BiasWatch
-from gyro_ekf.core.body_frame import (Offset, Shift, mixture_shift, other_right_share,
-                                      shift_estimates)
+from gyro_ekf.core.body_frame import (Offset, Shift, disagreement_spread, mixture_shift,
+                                      other_right_share, shift_estimates)
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
@@ -678,17 +678,27 @@ class EventDriver:
         the LiDAR that defines the body frame. After a hand-over at the start check the two
         swap roles: it rests on the same stop's fits, which may not tell. One made on the
         health monitor's word (a map disagreement another LiDAR vouched against) stands.
+        While the other LiDAR's mount in use is its stated one and its last fit reads the
+        offset off under the change limits (the verdict's disagreement), the pose stays and
+        its covariance spans the disagreement (``body_frame.disagreement_spread``).
         """
         trackers = self.mounts.trackers
         for tracker in trackers.values():
-            tracker.right_share = None
+            tracker.right_share = tracker.widened_m = None
         if len(trackers) != 1 or self.odometry.offset_applied or self._body_key is None:
             return None
         (key, tracker), = trackers.items()
         used, stated = tracker.used, tracker.stated
         d = (used.x_m - stated.x_m, used.y_m - stated.y_m)
+        if d == (0.0, 0.0):
+            # Nothing moved, yet the fit may read the two apart under the change limits.
+            read_off = tracker.read_off_m
+            if read_off is None:
+                return None
+            tracker.widened_m = math.hypot(*read_off)
+            return disagreement_spread(read_off)
         # A yaw change too small to be made alone comes along with an offset's fit.
-        if d == (0.0, 0.0) or abs(wrap_scalar(used.yaw_rad - stated.yaw_rad)) >= (
+        if abs(wrap_scalar(used.yaw_rad - stated.yaw_rad)) >= (
                 tracker.settings.min_yaw_change_rad):
             return None
         offsets = self._start_offsets

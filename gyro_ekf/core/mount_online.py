@@ -319,6 +319,10 @@ class MountTracker:
         # The weight of this LiDAR being right and the first one off, in the pose the
         # driver reports between the two (core/body_frame.py); None: no such mixture.
         self.right_share: float | None = None
+        # How far apart its fit reads the two LiDARs, under the change limits, when the pose
+        # the driver reports has its covariance widened by as much (core/body_frame.py,
+        # disagreement_spread), m; None: not widened.
+        self.widened_m: float | None = None
         # Its detections while standing at a start pose the filter trusts (append-only),
         # and their scans: agrees_at_start.
         self._start_points: list[tuple[float, float]] = []
@@ -383,6 +387,18 @@ class MountTracker:
             fit.sigma[2], fit.xy_correlation, self.settings)
 
     @property
+    def read_off_m(self) -> tuple[float, float] | None:
+        """The last fit's offset (x, y) off the mount in use when it reads it off, or None.
+
+        Off as the verdict's disagreement says (``disagrees``): beyond the fit's noise,
+        under the change limits, so the mount in use stays.
+        """
+        fit = self.fit
+        if fit is None or not self._offset_read_off(fit):
+            return None
+        return fit.mount.x_m - self.used.x_m, fit.mount.y_m - self.used.y_m
+
+    @property
     def holds(self) -> bool:
         """Whether its observations are held out of the filter (mount not confirmed yet).
 
@@ -395,14 +411,15 @@ class MountTracker:
         return (self._start, self._dropped + len(self._entries), self._since_fit, self._seen,
                 self._last_pose, self.state, self.fit, self._previous, self.used,
                 self.applied, self.refined, self.fits, self.converged_s,
-                len(self._start_points), self._start_scans, self.right_share, self.pulls)
+                len(self._start_points), self._start_scans, self.right_share, self.pulls,
+                self.widened_m)
 
     def restore(self, saved: tuple) -> None:
         """Put back a state from ``save``."""
         (self._start, end, self._since_fit, self._seen, self._last_pose, self.state, self.fit,
          self._previous, self.used, self.applied, self.refined, self.fits,
          self.converged_s, start_points, self._start_scans, self.right_share,
-         self.pulls) = saved
+         self.pulls, self.widened_m) = saved
         del self._start_points[start_points:]
         if end < self._dropped:
             # Older than what was compacted away (never within a replay history): empty.
@@ -675,7 +692,8 @@ class MountTracker:
                 'detections_used': fit.used, 'detections': fit.detections},
             'converged_s': self.converged_s, 'applied': self.applied,
             'refined': self.refined, 'fits': self.fits, 'handed_over_s': self.handed_over_s,
-            'right_share': self.right_share, 'pulls': self.pulls,
+            'right_share': self.right_share, 'widened_m': self.widened_m,
+            'pulls': self.pulls,
             'noise_scale': self.noise_scale, 'noise_scale_reason': self.noise_scale_reason}
 
 
@@ -896,6 +914,9 @@ def _disagreement(report: dict[str, Any], first: str, settings: OnlineMountSetti
             f'and {1000.0 * settings.disagree_min_m:g} mm), under the '
             f'{100.0 * settings.min_offset_change_m:g} cm a mount is corrected by: one of '
             f'them is off its stated mount, and the pose may be off by as much')
+    if report.get('widened_m') is not None:
+        text += (f' (its covariance is widened by {1000.0 * report["widened_m"]:.1f} mm along '
+                 f'the disagreement)')
     if report.get('pulls'):
         text += (f'; the odometry finds the pose pulled towards {report["name"]}, taken as '
                  f'the one off: its noise is scaled by {report["noise_scale"]:g}')

@@ -55,7 +55,8 @@ online, core/mount_online.py: `mount_<topic>_online{,_yaw_sigma_deg,
 _yaw_sigma_with_heading_deg,_converged_s,_noise_scale,_noise_scale_reason,_pulls}` (the
 factor on its R and why; the stated mount read off with the pose pulled its way), and
 `mount_<topic>_online_right_share` while the two LiDARs disagree and the pose published lies
-between them, core/body_frame.py), and
+between them, core/body_frame.py; `mount_<topic>_online_widened_m` while they disagree under
+the change limits and the published covariance spans it), and
 the odometry's speed scale and the first LiDAR's offset estimated online
 (core/odometry_online.py: `odometry_scale` in use,
 `odometry_scale_{applied,estimate,sigma}`, `odometry_scale_uncertainty` (how far the scale in
@@ -1023,7 +1024,11 @@ class EkfNode(Node):
                    # The weight of this LiDAR being right in the pose published between
                    # it and the body frame's (core/body_frame.py); '' when none.
                    ('online_right_share', '' if online['right_share'] is None
-                    else f'{online["right_share"]:.4f}'))},
+                    else f'{online["right_share"]:.4f}'),
+                   # How far apart this LiDAR's fit reads the two, under the change
+                   # limits, when the published covariance spans it; '' when not.
+                   ('online_widened_m', '' if online['widened_m'] is None
+                    else f'{online["widened_m"]:.4f}'))},
             # The odometry's speed scale in use and its last online fit
             # (core/odometry_online.py).
             **{f'odometry_{key}': value for key, value in _odometry_values(

@@ -498,6 +498,28 @@ def test_a_lidar_handed_over_and_read_off_under_the_limits_weighs_a_ninth():
     assert (trackers[2.0].noise_scale_reason, trackers[2.0].noise_scale) == (
         'offset read off', 9.0)
     assert (trackers[None].noise_scale_reason, trackers[None].noise_scale) == (None, 1.0)
+
     # Read within the verdict's 1.8 mm, it weighs in full.
     trackers[2.0].fit = dataclasses.replace(fit, mount=LidarMount(0.4615, 0.0, 0.0))
     assert trackers[2.0].noise_scale_reason is None
+
+
+def test_the_offset_read_off_is_the_fit_s_beyond_its_noise_and_none_within_it():
+    # What the driver widens the pose's covariance by (core/body_frame.py,
+    # disagreement_spread): the last fit's offset off the mount in use, only where the
+    # verdict names it.
+    stated = LidarMount(0.46, 0.0, 0.0)
+    tracker = MountTracker(stated, 'scan2', OnlineMountSettings())
+    assert tracker.read_off_m is None  # no fit yet
+    sigma = (math.radians(0.002), 0.00018, 0.00022)
+    tracker.fit = MountFit(stamp_s=40.0, mount=LidarMount(0.4637, -0.0007, 0.0), sigma=sigma,
+                           offset_observable=True, rms_m=0.018, used=4000, detections=4000,
+                           xy_correlation=0.09)
+    assert tracker.read_off_m == pytest.approx((0.0037, -0.0007), abs=1e-12)
+    # 1.2 mm, under disagree_min_m however many sigmas; and a fit whose offset is not
+    # observable reads nothing.
+    tracker.fit = dataclasses.replace(tracker.fit, mount=LidarMount(0.4612, 0.0, 0.0))
+    assert tracker.read_off_m is None
+    tracker.fit = dataclasses.replace(tracker.fit, mount=LidarMount(0.4637, -0.0007, 0.0),
+                                      offset_observable=False)
+    assert tracker.read_off_m is None

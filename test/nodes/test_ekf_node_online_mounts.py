@@ -75,6 +75,7 @@ def test_the_node_finds_the_mount_publishes_it_and_readmits_the_lidar(
     assert values['mount_scan_yaw_deg'] == '0.000'
     # A yaw is not a shift of the body frame: the pose is not published between the two.
     assert values['mount_scan2_online_right_share'] == ''
+    assert values['mount_scan2_online_widened_m'] == ''
     # ekf/mounts was published again with the estimated mount; the first LiDAR's stays.
     front, rear = mounts[-1].poses
     assert len(mounts) >= 2
