@@ -516,6 +516,13 @@ def test_the_offset_read_off_is_the_fit_s_beyond_its_noise_and_none_within_it():
                            offset_observable=True, rms_m=0.018, used=4000, detections=4000,
                            xy_correlation=0.09)
     assert tracker.read_off_m == pytest.approx((0.0037, -0.0007), abs=1e-12)
+    assert tracker.watched_read_off_m == tracker.read_off_m  # a whole watch window
+    # The same read by a fit of the first seconds (2023 course log: exact mounts read
+    # 3.4-4.3 mm by fits of 103-306 detections) is said, not widened by.
+    short = dataclasses.replace(tracker.fit, used=306, detections=306)
+    tracker.fit = short
+    assert tracker.read_off_m is not None and tracker.watched_read_off_m is None
+    tracker.fit = dataclasses.replace(short, used=4000, detections=4000)
     # 1.2 mm, under disagree_min_m however many sigmas; and a fit whose offset is not
     # observable reads nothing.
     tracker.fit = dataclasses.replace(tracker.fit, mount=LidarMount(0.4612, 0.0, 0.0))
