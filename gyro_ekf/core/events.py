@@ -61,7 +61,7 @@ from gyro_ekf.core.health import HealthMonitor, Transition, chi_square_upper
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
 from gyro_ekf.core.held_start import HeldStart
 from gyro_ekf.core.models import observe_bias, points_to_range_bearing, sensor_point_to_map
-from gyro_ekf.core.mount_online import OnlineMounts, OnlineMountSettings
+from gyro_ekf.core.mount_online import CONFIRMED, OnlineMounts, OnlineMountSettings
 from gyro_ekf.core.noise_online import NoiseMatch
 from gyro_ekf.core.odometry_online import (Moved, OdometrySettings, OdometryTracker,
                                            midpoint_yaw)
@@ -938,7 +938,8 @@ class EventDriver:
             if tracker is None:
                 # The poses the first LiDAR holds (a second one's could carry its own
                 # mount error, which would be taken for the first's).
-                moved = self.odometry.observe(stamp_s, self.ekf.x_values, self.ekf.yaw_var)
+                moved = self.odometry.observe(stamp_s, self.ekf.x_values, self.ekf.yaw_var,
+                                              self._vouching_lidar())
                 if moved is not None:
                     self._first_lidar_moved(key, moved)
         self.held_start.judge(stamp_s, 1 + len(self.mounts.trackers))
@@ -977,6 +978,20 @@ class EventDriver:
         """Return each LiDAR's measured noise (``NoiseMatch.report``) with its name."""
         return [{'name': self.health.sensor(key).name, **noise.report()}
                 for key, noise in self.noise.items()]
+
+    def _vouching_lidar(self) -> str | None:
+        """Return another LiDAR that vouches for the first one's yaw, or None.
+
+        One in the filter (not held, not excluded) whose stated mount its estimator
+        confirmed and still reads right in yaw (no noise scaled, never moved, never handed
+        over): it agrees with the first LiDAR on the heading (core/odometry_online.py).
+        """
+        for key, tracker in self.mounts.trackers.items():
+            if (tracker.state == CONFIRMED and not tracker.applied and not tracker.holds
+                    and tracker.handed_over_s is None and tracker.noise_scale_reason is None
+                    and not self.health.excluded(key)):
+                return tracker.name
+        return None
 
     def _first_lidar_moved(self, key: LidarMount, moved: Moved) -> None:
         """Move the pose back: the first LiDAR's mount in use moved by `moved`.

@@ -62,9 +62,11 @@ the odometry's speed scale and the first LiDAR's offset estimated online
 `odometry_scale_{applied,estimate,sigma}`, `odometry_scale_uncertainty` (how far the scale in
 use may be off: the position random walk it adds), `odometry_first_lidar_offset_{x_m,y_m,found}`
 and `odometry_first_lidar_yaw_{deg,found}` of the last fit,
-`odometry_first_lidar_offset_{in_use_x_m,in_use_y_m,applied}` and
-`odometry_first_lidar_yaw_in_use_deg`), and each LiDAR's range and bearing noise in use,
-measured online (core/noise_online.py: `lidar_<topic>_{range_noise_m,bearing_noise_deg}` in use,
+`odometry_first_lidar_offset_{in_use_x_m,in_use_y_m,applied}`,
+`odometry_first_lidar_yaw_in_use_deg` and `odometry_first_lidar_turn_vouched_{deg,by}`: a
+first turn another LiDAR's confirmed stated mount vouched against), and each LiDAR's range
+and bearing noise in use, measured online (core/noise_online.py:
+`lidar_<topic>_{range_noise_m,bearing_noise_deg}` in use,
 `lidar_<topic>_measured_{range_noise_m,bearing_noise_deg}`, `_noise_measured` (in use),
 `_noise_updates`), and each LiDAR's stamps against the gyro's, measured from its headings
 (core/time_offset.py: `time_offset_<lidar>_{ms,sigma_ms,off}`, ms late, '' until enough
@@ -1176,6 +1178,7 @@ def _scale_values(report: dict) -> dict[str, str]:
 def _odometry_values(report: dict) -> dict[str, str]:
     """Return the online odometry estimate as /diagnostics values (empty before a fit)."""
     estimate = report['estimate'] or {}
+    vouched = report.get('first_lidar_turn_vouched')
 
     def figure(key: str, digits: int) -> str:
         value = estimate.get(key)
@@ -1192,7 +1195,11 @@ def _odometry_values(report: dict) -> dict[str, str]:
             'first_lidar_offset_applied': str(report['first_lidar_offset_applied']),
             'first_lidar_yaw_deg': figure('first_lidar_yaw_deg', 3),
             'first_lidar_yaw_found': str(report['first_lidar_yaw_found']).lower(),
-            'first_lidar_yaw_in_use_deg': f'{report["first_lidar_yaw_in_use_deg"]:.3f}'}
+            'first_lidar_yaw_in_use_deg': f'{report["first_lidar_yaw_in_use_deg"]:.3f}',
+            # The last first turn another LiDAR vouched against: its yaw and that LiDAR.
+            'first_lidar_turn_vouched_deg': '' if vouched is None
+            else f'{vouched["yaw_deg"]:.3f}',
+            'first_lidar_turn_vouched_by': '' if vouched is None else vouched['by']}
 
 
 def main(args: list[str] | None = None) -> int:

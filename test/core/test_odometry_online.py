@@ -232,6 +232,40 @@ def test_a_first_turn_is_judged_with_the_headings_sigma():
     assert not tracker.yaw_found()
 
 
+def test_an_exact_second_lidar_vouches_against_a_first_turn_by_chance():
+    # Stress seed 14, second_lidar 5: both mounts exact. The path fit read the first
+    # LiDAR's yaw -0.076 deg off at 43 s, 3.3 of its sigmas with the heading's, and turned
+    # it: the heading was held that far off for 30 s (NEES share 0.798). The second LiDAR,
+    # its stated mount confirmed and read right, agrees with the first on the heading; for
+    # the odometry to be right both would be off alike: no turn.
+    from gyro_ekf.analysis.stress import stress_trip
+    summary = summarize(run_trip(stress_trip('second_lidar', 14, 5)))
+    odometry = summary['online_odometry']
+    assert odometry['first_lidar_offset_applied'] == 0
+    vouched = odometry['first_lidar_turn_vouched']
+    assert vouched['by'] == 'scan2' and abs(vouched['yaw_deg']) > 0.05
+    assert abs(vouched['yaw_deg']) > 3.0 * vouched['yaw_sigma_deg']
+    assert summary['ground_truth']['nees_share_in_band'] >= 0.9
+
+
+def test_a_turn_vouched_against_that_the_last_fit_still_reads_is_said():
+    # Two LiDARs on one bracket turned on the body agree with each other and not with the
+    # odometry: not turned, and the verdict says where the heading may be.
+    from gyro_ekf.core.odometry_online import verdict_reasons
+    report = {'scale': 1.0, 'scale_sigma': 0.001, 'first_lidar_offset_applied': 0,
+              'first_lidar_offset_found': False, 'first_lidar_yaw_found': True,
+              'estimate': {'first_lidar_offset_x_m': 0.0, 'first_lidar_offset_y_m': 0.0,
+                           'first_lidar_yaw_deg': 0.3},
+              'first_lidar_turn_vouched': {'stamp_s': 40.0, 'yaw_deg': 0.3,
+                                           'yaw_sigma_deg': 0.02, 'by': 'scan2'}}
+    (said,) = verdict_reasons(report, ['scan'])
+    assert said.startswith('LiDAR scan sits off its stated mount against the odometry by')
+    assert said.endswith('(not turned: LiDAR scan2, its stated mount confirmed, agrees with '
+                         'it, so both would be off alike, as on one bracket turned on the '
+                         'body)')
+    assert verdict_reasons({**report, 'first_lidar_yaw_found': False}, ['scan']) == []
+
+
 def test_the_start_check_needs_a_trusted_start_and_keeps_an_exact_mount():
     from gyro_ekf.core.config import EkfConfig
     from gyro_ekf.core.events import EventDriver
