@@ -939,7 +939,7 @@ class EventDriver:
                 # The poses the first LiDAR holds (a second one's could carry its own
                 # mount error, which would be taken for the first's).
                 moved = self.odometry.observe(stamp_s, self.ekf.x_values, self.ekf.yaw_var,
-                                              self._vouching_lidar())
+                                              self._vouching_lidar)
                 if moved is not None:
                     self._first_lidar_moved(key, moved)
         self.held_start.judge(stamp_s, 1 + len(self.mounts.trackers))

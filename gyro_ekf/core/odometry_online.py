@@ -103,7 +103,7 @@ The state is a handful of scalars and append-only sequences, so ``save`` and ``r
 from __future__ import annotations
 
 from array import array
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 import math
 from typing import Any
@@ -115,6 +115,9 @@ from gyro_ekf.core.body_frame import Offset, stop_offset
 from gyro_ekf.core.mount_calibration import MIN_DETECTIONS, MountSettings
 from gyro_ekf.core.mount_online import fit_window
 from gyro_ekf.core.types import FloatArray, LidarMount
+
+Vouch = Callable[[], 'str | None']
+"""The name of another LiDAR that vouches for the first one's yaw, asked lazily, or None."""
 
 Moved = tuple[float, float, float, float, float]
 """A move of the first LiDAR's mount in use: x m, y m, their sigma m, yaw rad, its sigma rad."""
@@ -511,12 +514,12 @@ class OdometryTracker:
         self.offset_applied += 1
 
     def observe(self, stamp_s: float, pose: Sequence[float], heading_variance: float,
-                vouched_by: str | None = None) -> Moved | None:
+                vouched_by: Vouch | None = None) -> Moved | None:
         """Add the filter's pose after a scan's updates (moving); fit when due.
 
-        ``heading_variance`` is the variance of that pose's heading, rad^2. ``vouched_by``
-        names another LiDAR in the filter whose stated yaw is confirmed and read right
-        against the first one's: a first turn of the first LiDAR's yaw is then not made
+        ``heading_variance`` is the variance of that pose's heading, rad^2. ``vouched_by``,
+        asked only when a first turn is due, names another LiDAR in the filter whose stated
+        yaw is confirmed and read right against the first one's: the turn is then not made
         (``turn_vouched``; see ``_fit``).
 
         Returns the move (``Moved``) when a fit moved the first LiDAR's mount in use by x, y
@@ -548,7 +551,7 @@ class OdometryTracker:
             self._dropped += drop
         return self._fit(stamp_s, vouched_by)
 
-    def _fit(self, stamp_s: float, vouched_by: str | None = None) -> Moved | None:
+    def _fit(self, stamp_s: float, vouched_by: Vouch | None = None) -> Moved | None:
         settings = self.settings
         first = max(stamp_s - settings.window_s, self._window_start_s)
         # A copy (a view would pin the samples' buffer); in stamp order: the window is
@@ -624,13 +627,14 @@ class OdometryTracker:
         if distance < settings.min_offset_distance_m:
             return None
         offset, turned = self.offset_found(), self.yaw_found()
-        if turned and not self.yaw_rad and vouched_by is not None:
+        voucher = vouched_by() if turned and not self.yaw_rad and vouched_by else None
+        if voucher is not None:
             # Two LiDARs on mounts of their own agree on the heading: for the odometry's
             # reading to be right both would be off by the same yaw. A first turn at 3
             # sigmas turned an exact first LiDAR beside an exact second one by chance
             # (stress seed 14, scene 5: 0.076 deg, the heading off for 30 s).
             self.turn_vouched = (stamp_s, self.fit.yaw_rad, self.fit.yaw_sigma_with_heading,
-                                 vouched_by)
+                                 voucher)
             turned = False
         if not (offset or turned):
             return None
