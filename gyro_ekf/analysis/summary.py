@@ -127,6 +127,7 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'stops': int(run.result.stats.stops),
         'reopened': int(run.result.stats.bias_openings),
         'largest_reopening_deg_s': _deg(float(run.result.stats.bias_largest_opening_rad_s)),
+        'reopened_wander_held': int(run.result.stats.bias_wander_held),
         'gyro_noise_scale': float(run.result.stats.gyro_noise_scale),
         'gyro_noise_scale_max': float(run.result.stats.gyro_noise_scale_max),
         # The gyro's spread standing still, where it lay beyond chance above the stated
@@ -247,6 +248,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         input_gap_limit_s=run.config.max_prediction_step_s,
         bias_openings=int(stats.bias_openings),
         bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s),
+        bias_wander_held=int(stats.bias_wander_held),
         bias_largest_rate_rad_s2=float(stats.bias_largest_rate_rad_s2),
         gyro_noise_scale_max=float(stats.gyro_noise_scale_max),
         gyro_rest_noise_scale=float(stats.gyro_rest_noise_scale),

@@ -300,6 +300,19 @@ class BiasWatch:
         self.walk = sum(d[1] for d in drifts) / WALK_WINDOW_S if recurring else 0.0
         return error * error if drifted else None
 
+    def found(self, stamp_s: float, error_rad_s: float) -> float:
+        """Take a drift another test found at this block (``GyroWander.held``); return db^2.
+
+        It counts as one of the watch's own: the window starts again, and the walk and the
+        drift's sign (which a ramp's line asks for, core/bias_rate.py) include it.
+        """
+        self.last_error_rad_s = error_rad_s
+        self._blocks.clear()
+        self.openings += 1
+        self._drifts.append((stamp_s, error_rad_s * error_rad_s))
+        self.walk = sum(d[1] for d in self._drifts) / WALK_WINDOW_S
+        return error_rad_s * error_rad_s
+
     def _window(self, block: _Block, bias_variance: float, yaw_variance: float) -> bool:
         """Judge the last blocks together; return True on a drift of a run or a slow drift.
 

@@ -105,6 +105,9 @@ class DriverStats:
         bias_openings: blocks of landmark updates whose heading drift re-opened the bias
             (core/bias_watch.py).
         bias_largest_opening_rad_s: the largest bias error such a drift implied, rad/s.
+        bias_wander_held: of those, the openings where the modelled wander's block means
+            held one sign for 20 s (a bias that moved taken in by the wander;
+            core/gyro_wander.py).
         gyro_noise_scale: the factor on the gyro's noise variance the innovations asked for
             (1: as stated).
         gyro_noise_scale_max: the largest such factor of the run so far.
@@ -153,6 +156,7 @@ class DriverStats:
     stops: int = 0
     bias_openings: int = 0
     bias_largest_opening_rad_s: float = 0.0
+    bias_wander_held: int = 0
     gyro_noise_scale: float = 1.0
     gyro_noise_scale_max: float = 1.0
     gyro_rest_noise_scale: float = 1.0
@@ -197,6 +201,7 @@ class DriverStats:
                 'zero_rate_updates': self.zero_rate_updates,
                 'stops': self.stops, 'bias_openings': self.bias_openings,
                 'bias_largest_opening_rad_s': self.bias_largest_opening_rad_s,
+                'bias_wander_held': self.bias_wander_held,
                 'gyro_noise_scale': self.gyro_noise_scale,
                 'gyro_noise_scale_max': self.gyro_noise_scale_max,
                 'gyro_rest_noise_scale': self.gyro_rest_noise_scale,

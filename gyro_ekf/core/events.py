@@ -1118,6 +1118,17 @@ class EventDriver:
                 self.gyro_wander.rule_out(stamp_s, self.config.wander_prior_rad_s)
                 self._model_wander()
         if variance is not None:
+            self.gyro_wander.clear_held()
+        elif watch.block is not None and self.ekf.wander_sigma_rad_s > 0.0:
+            # The modelled wander holding one sign for 20 s is a bias that moved
+            # (core/gyro_wander.py).
+            held = self.gyro_wander.held(watch.block[1], wander_dt / watch.block[1],
+                                         bias_variance)
+            if held is not None:
+                # A drift as the watch's own: its walk and a ramp's line count it.
+                variance = watch.found(stamp_s, held)
+                self.stats.bias_wander_held += 1
+        if variance is not None:
             self.ekf.open_bias(variance)
             self.stats.bias_openings += 1
             self.stats.bias_largest_opening_rad_s = max(

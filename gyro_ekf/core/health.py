@@ -658,6 +658,8 @@ class RunFigures:
         bias_openings: times the LiDARs saw the heading drift and the bias was re-opened
             (DriverStats.bias_openings, core/bias_watch.py).
         bias_largest_opening_rad_s: the largest bias change such a drift implied, rad/s.
+        bias_wander_held: of the openings, those where the modelled wander held one sign
+            (DriverStats.bias_wander_held).
         bias_largest_rate_rad_s2: the largest bias rate followed (signed; core/bias_rate.py),
             rad/s^2 (0: none).
         gyro_noise_scale_max: the largest factor on the gyro's noise variance the LiDARs'
@@ -717,6 +719,7 @@ class RunFigures:
     input_gap_limit_s: float = math.inf
     bias_openings: int = 0
     bias_largest_opening_rad_s: float = 0.0
+    bias_wander_held: int = 0
     bias_largest_rate_rad_s2: float = 0.0
     gyro_noise_scale_max: float = 1.0
     gyro_rest_noise_scale: float = 1.0
@@ -1096,9 +1099,12 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
         # gyro whose bias moves is worth knowing about, and the final figure is less sure.
         ramp = (f'; it ramped at up to {per_minute:+.3f} deg/s per minute, followed'
                 if per_minute else '')
+        held = (f' ({figures.bias_wander_held} of them where the wander the filter '
+                f'modelled held one sign for 20 s: a bias that moved, not a wander)'
+                if figures.bias_wander_held else '')
         add(DEGRADED, f'the gyro bias changed during the run: the LiDARs saw the heading '
             f'drift and the bias was re-opened {figures.bias_openings} time(s), by up to '
-            f'{math.degrees(figures.bias_largest_opening_rad_s):.3f} deg/s{ramp}')
+            f'{math.degrees(figures.bias_largest_opening_rad_s):.3f} deg/s{held}{ramp}')
     elif not per_minute and (moved := _moved_from_start(figures)) is not None:
         end_s, start_bias, sigmas = moved
         add(DEGRADED, f'the gyro bias changed during the run: it ends '

@@ -906,6 +906,7 @@ class EkfNode(Node):
             final_bias_rad_s=self.driver.ekf.bias_rad_s, unmapped=stats.unmapped,
             scans=stats.scans, bias_openings=stats.bias_openings,
             bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s,
+            bias_wander_held=stats.bias_wander_held,
             bias_largest_rate_rad_s2=stats.bias_largest_rate_rad_s2,
             gyro_noise_scale_max=stats.gyro_noise_scale_max,
             gyro_rest_noise_scale=float(stats.gyro_rest_noise_scale),
@@ -1038,6 +1039,8 @@ class EkfNode(Node):
             'excluded_detections': str(stats.excluded),
             'zero_rate_updates': str(stats.zero_rate_updates),
             'bias_reopened': str(stats.bias_openings),
+            # Of those, where the modelled wander held one sign (core/gyro_wander.py).
+            'bias_reopened_wander_held': str(stats.bias_wander_held),
             'gyro_noise_scale': f'{stats.gyro_noise_scale:.3f}',
             # The gyro's spread at a stop, where beyond chance above the stated noise.
             'gyro_rest_noise_deg_s': f'{math.degrees(stats.gyro_rest_noise_rad_s):.4f}',

@@ -120,6 +120,17 @@ def test_a_block_across_a_dropout_is_not_judged():
     assert watch.openings == 0
 
 
+def test_a_drift_found_elsewhere_counts_as_the_watchs_own():
+    # core/gyro_wander.py's held(): a wander that held one sign is a bias that moved; the
+    # walk and a ramp's line (which asks for the last drift's sign) take it as a drift.
+    watch = BiasWatch()
+    assert watch.drift_sign() == 0.0 and watch.walk == 0.0
+    assert watch.found(30.0, -2e-4) == pytest.approx(4e-8)
+    assert watch.openings == 1 and watch.last_error_rad_s == -2e-4
+    assert watch.drift_sign() == -1.0
+    assert watch.walk == pytest.approx(4e-8 / bias_watch.WALK_WINDOW_S)
+
+
 def test_a_bias_step_is_followed_and_said():
     _, trip, run, summary = simulated_run(90.0, gyro_bias_step_rad_s=math.radians(0.4),
                                           gyro_bias_step_at_s=30.0)
