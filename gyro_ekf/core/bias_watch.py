@@ -93,7 +93,7 @@ _RUN_Z_LIMIT = NormalDist().inv_cdf(1.0 - SIGNIFICANCE / (2.0 * (NOISE_BLOCKS - 
 _EARLY_Z_LIMIT = NormalDist().inv_cdf(1.0 - SIGNIFICANCE / (2.0 * EARLY_LOOKS))
 _NOISE_HIGH = chi_square_upper(NOISE_SIGNIFICANCE, NOISE_BLOCKS) / NOISE_BLOCKS
 _NOISE_LOW = chi_square_upper(1.0 - NOISE_SIGNIFICANCE, NOISE_BLOCKS) / NOISE_BLOCKS
-_T_LIMIT = 4.781
+T_LIMIT = 4.781
 """Student's t, 9 dof (NOISE_BLOCKS - 1), two-sided NOISE_SIGNIFICANCE."""
 
 
@@ -361,7 +361,7 @@ class BiasWatch:
         span = sum(b.length for b in blocks)
         allowed = bias_variance + (blocks[0].start_yaw_variance + yaw_variance
                                    + sum(b.heading_noise for b in blocks)) / (span * span)
-        if (abs(mean_error) > _T_LIMIT * spread / math.sqrt(n)
+        if (abs(mean_error) > T_LIMIT * spread / math.sqrt(n)
                 and mean_error * mean_error > 9.0 * allowed):
             self.last_error_rad_s = mean_error
             blocks.clear()

@@ -72,7 +72,7 @@ wander reverts over tau; what the filter's c takes out of the predictions, avera
 each block (the driver's integral of c over the block, over its length), then changes sign
 from block to block. Over ``HELD_BLOCKS`` blocks (20 s: ten taus at the default tau of
 2 s) those means are judged as the bias watch judges a slow drift: their mean, against
-their own scatter, beyond Student's t (``HELD_T_LIMIT``) widened for the correlation a
+their own scatter, beyond the watch's Student's t (``T_LIMIT``) widened for the correlation a
 wander of the modelled tau leaves from one block to the next (AR(1), rho = exp(-L /
 tau): times sqrt((1 + rho) / (1 - rho))), and beyond three sigmas of the bias's own. Then
 the mean is a bias error, taken as a drift of the bias watch's own (``BiasWatch.found``):
@@ -89,6 +89,7 @@ from __future__ import annotations
 
 import math
 
+from gyro_ekf.core.bias_watch import NOISE_BLOCKS, T_LIMIT
 from gyro_ekf.core.health import chi_square_upper
 
 MIN_BLOCKS = 10
@@ -103,12 +104,9 @@ SIGNIFICANCE = 1e-4
 PRIOR_CONFIDENCE = 0.9
 """Confidence of the upper bound below which a prior wander is ruled out."""
 
-HELD_BLOCKS = 10
-"""Blocks (20 s of driving) over which the modelled wander's block means are judged."""
-
-HELD_T_LIMIT = 4.781
-"""Student's t with 9 dof (HELD_BLOCKS - 1), two-sided 1e-3, before the correlation's
-widening."""
+HELD_BLOCKS = NOISE_BLOCKS
+"""Blocks (20 s of driving) over which the modelled wander's block means are judged: the
+bias watch's slow-drift window, judged with its Student's t (``bias_watch.T_LIMIT``)."""
 
 
 def block_allowed(length_s: float, bias_variance_rad2_s2: float, heading_noise_rad2: float,
@@ -202,7 +200,7 @@ class GyroWander:
 
     def held(self, length_s: float, wander_mean_rad_s: float, bias_variance_rad2_s2: float
              ) -> float | None:
-        """Take one block's mean of the modelled wander; return a variance on a held sign.
+        """Take one block's mean of the modelled wander; return the bias error on a held sign.
 
         Args:
             length_s: the block's length L, s.
@@ -223,7 +221,7 @@ class GyroWander:
         mean = sum(m for _, m in held) / n
         spread = math.sqrt(sum((m - mean) ** 2 for _, m in held) / (n - 1))
         rho = math.exp(-sum(length for length, _ in held) / n / self.tau_s)
-        limit = HELD_T_LIMIT * math.sqrt((1.0 + rho) / (1.0 - rho))
+        limit = T_LIMIT * math.sqrt((1.0 + rho) / (1.0 - rho))
         if (abs(mean) > limit * spread / math.sqrt(n)
                 and mean * mean > 9.0 * bias_variance_rad2_s2):
             held.clear()
