@@ -864,7 +864,7 @@ class EventDriver:
             self._block_bias = self.ekf.bias_rad_s
             self._block_bias_variance = self.ekf.bias_var
         # A mount estimated online weighs less (core/mount_online.py, its item 6).
-        base = 1.0 if tracker is None else tracker.noise_scale
+        base = self.mounts.body_noise_scale if tracker is None else tracker.noise_scale
         jitter = (None if at_rest or self.held_start.held else
                   self._jitter_frame(key, prior, mount, len(result.associations), variances))
         if jitter is not None:

@@ -52,8 +52,9 @@ LiDAR mounts in use (`mount_<topic>_{frame_id,x_m,y_m,yaw_deg}`: a params file f
 `gyro-ekf calibrate-mounts` given after the bag's overrides the bag's mounts, and every
 LiDAR but the one defining the body frame, `body_frame_lidar`, has its mount estimated
 online, core/mount_online.py: `mount_<topic>_online{,_yaw_sigma_deg,
-_yaw_sigma_with_heading_deg,_converged_s,_noise_scale,_noise_scale_reason,_pulls}` (the
-factor on its R and why; the stated mount read off with the pose pulled its way), and
+_yaw_sigma_with_heading_deg,_converged_s,_noise_scale,_noise_scale_reason,_pulls,
+_first_pulls}` (the factor on its R and why; the stated mount read off with the pose pulled
+its way, or the other way: then the body-frame LiDAR's R is scaled instead), and
 `mount_<topic>_online_right_share` while the two LiDARs disagree and the pose published lies
 between them, core/body_frame.py; `mount_<topic>_online_widened_m` while they disagree under
 the change limits and the published covariance spans it), and
@@ -1021,6 +1022,9 @@ class EkfNode(Node):
                    # Whether the watch reads the stated mount off with the pose pulled
                    # its way (this LiDAR is the one off: the factor above is 9).
                    ('online_pulls', 'true' if online['pulls'] else 'false'),
+                   # Whether it reads the two LiDARs apart with the pose pulled the other
+                   # way: the body-frame LiDAR is the one off, and its R is multiplied by 9.
+                   ('online_first_pulls', 'true' if online['first_pulls'] else 'false'),
                    ('online_noise_scale_reason', online['noise_scale_reason'] or ''),
                    ('online_converged_s', '' if online['converged_s'] is None
                     else f'{online["converged_s"]:.3f}'),

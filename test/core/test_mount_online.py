@@ -10,6 +10,7 @@ import pytest
 
 from health_trips import two_lidar_trip
 
+from gyro_ekf.analysis import metrics
 from gyro_ekf.analysis.offline import run_trip
 from gyro_ekf.analysis.stress import stress_trip
 from gyro_ekf.analysis.summary import summarize
@@ -464,6 +465,41 @@ def test_a_watched_second_lidar_beside_a_first_one_off_is_said_but_not_down_weig
     assert mount['applied'] == 0 and mount['estimate']['stamp_s'] > 60.0
     assert len(_disagreements(summary)) == 1
     assert (mount['pulls'], mount['noise_scale']) == (False, 1.0)
+
+
+def test_a_first_lidar_pulling_the_pose_is_named_and_weighs_a_ninth():
+    # make stress seed 28, mount_offset 24: the *first* LiDAR 7.9 mm off, the second exact.
+    # Beside it the second LiDAR's watch reads the two 4.3 mm apart (under the 5 mm a mount
+    # is corrected by), and the odometry finds the pose pulled 4.1 mm the other way, towards
+    # the first: that one is off. It weighs a ninth from then on and the pose follows the
+    # exact LiDAR: the pose's NEES is back in the band (0.68 over the whole trip before,
+    # as the pose leant on the first LiDAR throughout).
+    run = run_trip(stress_trip('mount_offset', 28, 24))
+    summary = summarize(run)
+    mount = summary['online_mounts']['scan2']
+    assert (mount['first_pulls'], mount['pulls'], mount['noise_scale']) == (True, False, 1.0)
+    since = mount['first_pulls_since_s']
+    assert 30.0 < since < 60.0 and mount['first_pulls_read_m'] > 0.0018
+    (reason,) = [r for r in summary['health']['reasons']
+                 if r.startswith('LiDAR scan is taken as off its stated mount from')]
+    assert 'the pose follows scan2' in reason and 'scaled by 9' in reason
+    assert summary['health']['verdict'] == 'degraded'
+    estimates, truth = run.result.estimates, run.trip.ground_truth
+    compared = metrics.compare_with_truth(estimates.stamp_s, estimates.state,
+                                          estimates.covariance, truth.stamp_s, truth.pose)
+    inside = metrics.nees_band_outcome(compared.nees, compared.dof)[0]
+    after = compared.stamp_s > since + 10.0
+    assert inside[after].mean() >= 0.9
+
+
+def test_a_pull_under_the_path_fits_resolution_names_no_first_lidar():
+    # make stress seed 20, mount_offset 10: the *second* LiDAR 2.7 mm off. The odometry's
+    # path fit read the pose 0.93 mm the other way at 3.1 of its sigmas: beyond its sigma,
+    # under the 1-2 mm it is good to. The first LiDAR, which is right, keeps its weight.
+    summary = summarize(run_trip(stress_trip('mount_offset', 20, 10)))
+    mount = summary['online_mounts']['scan2']
+    assert len(_disagreements(summary)) == 1
+    assert (mount['first_pulls'], mount['first_pulls_since_s']) == (False, None)
 
 
 def test_a_watched_exact_mount_is_not_said_to_disagree():

@@ -49,6 +49,7 @@ def test_the_calibrated_mounts_override_the_bags_and_appear_in_diagnostics(
     assert values['mount_scan2_online_yaw_sigma_deg'] == ''
     assert values['mount_scan2_online_noise_scale'] == '1'
     assert values['mount_scan2_online_pulls'] == 'false'
+    assert values['mount_scan2_online_first_pulls'] == 'false'
     assert values['mount_scan2_online_noise_scale_reason'] == ''
     assert 'mount_scan_online' not in values
 
