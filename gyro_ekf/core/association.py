@@ -119,7 +119,8 @@ class AssociationResult:
 
     def matched(self) -> list[Association]:
         """Return the MATCHED associations, in detection order."""
-        return [a for a in self.associations if a.outcome is AssociationOutcome.MATCHED]
+        matched = AssociationOutcome.MATCHED  # once, not per association
+        return [a for a in self.associations if a.outcome is matched]
 
     def matched_pairs(self) -> NDArray[np.int64]:
         """Return (detection index, landmark index) of every MATCHED detection, shape (m, 2)."""
@@ -237,6 +238,10 @@ def associate(z: FloatArray, state: FloatArray, P: FloatArray, R: FloatArray,
 
 
 _OUTCOMES = tuple(AssociationOutcome)
+# The members as module globals: in Python 3.11 a class attribute (AssociationOutcome.X) is
+# looked up in full every time, a module global is cached. The scalar path runs per detection.
+_MATCHED, _UNMATCHED = AssociationOutcome.MATCHED, AssociationOutcome.UNMATCHED
+_AMBIGUOUS, _DUPLICATE = AssociationOutcome.AMBIGUOUS, AssociationOutcome.DUPLICATE
 
 
 _UPPER_TRIANGLE = np.triu_indices(STATE_SIZE)
@@ -314,24 +319,29 @@ def _associate_scalar(z: list[list[float]], packed_row: list[float], R: FloatArr
                       landmark_var_m2: float = 0.0) -> AssociationResult:
     """associate() for small scans, in plain floats (same outcomes, see SCALAR_PAIRS_MAX)."""
     d2 = _mahalanobis_rows(z, packed_row, R, landmarks, mount, landmark_var_m2)
-    gated = [[j for j, distance in enumerate(row) if distance <= threshold] for row in d2]
+    # Per detection, how many landmarks lie inside its gate; per landmark, how many
+    # detections gate it (one pass, plain loops: a scan has a handful of each).
+    gated = []
     gating_detections = [0] * len(landmarks)
-    for inside in gated:
-        for j in inside:
-            gating_detections[j] += 1
+    for row in d2:
+        inside = 0
+        for j, distance in enumerate(row):
+            if distance <= threshold:
+                inside += 1
+                gating_detections[j] += 1
+        gated.append(inside)
     associations = []
     for i, (row, inside) in enumerate(zip(d2, gated)):
         # The first of the smallest, as argmin in associate (min with a key costs more).
         nearest = row.index(min(row))
-        # (One enum lookup per detection: each costs more than the comparisons here.)
-        if len(inside) > 1:
-            outcome, landmark = AssociationOutcome.AMBIGUOUS, -1
+        if inside > 1:
+            outcome, landmark = _AMBIGUOUS, -1
         elif not inside:
-            outcome, landmark = AssociationOutcome.UNMATCHED, -1
+            outcome, landmark = _UNMATCHED, -1
         elif gating_detections[nearest] > 1:
-            outcome, landmark = AssociationOutcome.DUPLICATE, -1
+            outcome, landmark = _DUPLICATE, -1
         else:
-            outcome, landmark = AssociationOutcome.MATCHED, nearest
+            outcome, landmark = _MATCHED, nearest
         associations.append(Association(i, landmark, outcome, row[nearest]))
     return AssociationResult(associations=tuple(associations), gate_threshold=threshold,
                              mahalanobis_sq=np.array(d2, dtype=np.float64))

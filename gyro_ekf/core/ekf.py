@@ -81,6 +81,8 @@ def _packed_positions() -> np.ndarray:
 
 
 _PACKED = _packed_positions()
+# The positions the hot paths read, as plain ints: indexing _PACKED is a numpy call.
+_YAW_YAW, _BIAS_BIAS = int(_PACKED[YAW, YAW]), int(_PACKED[BIAS, BIAS])
 
 PACKED_ROW_SIZE = STATE_SIZE + len(_UPPER)
 """Length of ``GyroBiasEkf.packed_row``: the state, then P's upper triangle."""
@@ -308,12 +310,12 @@ class GyroBiasEkf:
     @property
     def yaw_var(self) -> float:
         """Variance of the heading estimate, rad^2."""
-        return self._p[_PACKED[YAW, YAW]]
+        return self._p[_YAW_YAW]
 
     @property
     def bias_var(self) -> float:
         """Variance of the bias estimate, (rad/s)^2."""
-        return self._p[_PACKED[BIAS, BIAS]]
+        return self._p[_BIAS_BIAS]
 
     @property
     def x_prior(self) -> FloatArray:
@@ -424,7 +426,7 @@ class GyroBiasEkf:
 
     def add_heading_variance(self, variance: float) -> None:
         """Add ``variance`` (rad^2) to the heading's: an error the prediction did not model."""
-        self._p[_PACKED[YAW, YAW]] += float(variance)
+        self._p[_YAW_YAW] += float(variance)
 
     def assume_wander(self, sigma_rad_s: float) -> None:
         """Model a wander of stationary sigma ``sigma_rad_s`` from now, as if it had run.
@@ -441,7 +443,7 @@ class GyroBiasEkf:
 
         Only P_bb grows (P stays positive definite); the next updates move the bias again.
         """
-        self._p[_PACKED[BIAS, BIAS]] += float(variance)
+        self._p[_BIAS_BIAS] += float(variance)
 
     def hold_still(self, dt_s: float) -> None:
         """Propagate over dt_s seconds standing still at a pose known exactly: only b, c move.
@@ -458,7 +460,7 @@ class GyroBiasEkf:
         if self.bias_walk_found:
             bias_walk += self.bias_walk_found / dt_s
         # As predict's Q for b (T^2 times the walk density), with J = I.
-        self._p[_PACKED[BIAS, BIAS]] += dt_s * dt_s * bias_walk
+        self._p[_BIAS_BIAS] += dt_s * dt_s * bias_walk
         if self.bias_rate_found:
             self._s[BIAS] += dt_s * self.bias_rate_found
         # J = I but J[WANDER, WANDER] = phi (as predict's), Q adds s^2 (1 - phi^2) to c.

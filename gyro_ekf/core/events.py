@@ -71,6 +71,7 @@ from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, YAW, FloatArray, LandmarkM
 
 
 _NO_NIS = np.zeros(0)
+_MATCHED, _UNMATCHED = AssociationOutcome.MATCHED, AssociationOutcome.UNMATCHED
 _NO_NIS.flags.writeable = False
 _OUTCOME_KEYS = {outcome: outcome.name.lower() for outcome in AssociationOutcome}
 
@@ -125,6 +126,10 @@ class EventDriver:
                  detector_config: DetectorConfig | None = None):
         """Create a filter at a pose with the configured priors."""
         self.config = config or EkfConfig()
+        # Settings read at every sample, looked up once (the config is frozen).
+        self._max_step_s = self.config.max_prediction_step_s
+        self._recovery_after_s = self.config.recovery_after_s
+        self._rest_speed_m_s = self.config.rest_speed_m_s
         self._gyro_scale = 1.0 + self.config.gyro_scale_error
         # The gyro's scale, measured against the heading the LiDARs hold (core/gyro_scale.py)
         # from the integral of its raw readings.
@@ -380,60 +385,66 @@ class EventDriver:
         self.stats = dataclasses.replace(stats, outcomes=dict(stats.outcomes))
 
     def _advance(self, stamp_s: float, what: str) -> None:
+        # Runs twice per sample pair (89 000 times over the 2016 log): the filter and the
+        # held inputs are read into locals once.
+        before_s = self.stamp_s
         if not math.isfinite(stamp_s):
             raise CoreError(f'{what} stamp {stamp_s} is not finite')
-        if self.stamp_s is None:
+        if before_s is None:
             self.stamp_s = stamp_s
             return
-        dt_s = stamp_s - self.stamp_s
+        dt_s = stamp_s - before_s
         if dt_s < 0.0:
             raise TimeWentBackwardsError(
                 f'{what} stamp {stamp_s:.4f} s went back {-dt_s:.4f} s behind the filter')
         if dt_s == 0.0:
             return  # nothing to predict (the 2016 log's gyro and odometry share stamps)
-        if self.rate_rad_s is not None:
-            self._turned += self.rate_rad_s * dt_s  # the gyro's raw integral, bias included
-        # Before the first gyro sample the heading is held: the yaw rate is taken as the bias.
-        rate = self.ekf.bias_rad_s if self.rate_rad_s is None else self.rate_rad_s
+        ekf = self.ekf
+        rate = self.rate_rad_s
+        if rate is not None:
+            self._turned += rate * dt_s  # the gyro's raw integral, bias included
+        else:
+            # Before the first gyro sample the heading is held: the yaw rate is the bias.
+            rate = ekf.bias_rad_s
         if self._gyro_scale != 1.0:
             # A gyro that reads (1 + e) times the turn (gyro_scale_error): the filter turns
             # by (w - b) / (1 + e), and its bias stays the gyro's own.
-            bias = self.ekf.bias_rad_s
+            bias = ekf.bias_rad_s
             rate = bias + (rate - bias) / self._gyro_scale
-        step = self.config.max_prediction_step_s
+        step = self._max_step_s
         if dt_s > step * MAX_PREDICTION_STEPS:
             # Over a gap this long the held inputs are a guess anyway; fine steps would
             # only cost time in proportion to the gap (hours for a stamp 4e8 s ahead).
             step = dt_s / MAX_PREDICTION_STEPS
             self.stats.long_gaps += 1
-        speed_variance, rate_variance = self.speed_variance, self.rate_variance
         if self.held_start.held:
-            self.ekf.hold_still(dt_s)
+            ekf.hold_still(dt_s)
             self.stamp_s = stamp_s
             return
+        speed, speed_variance, rate_variance = (self.speed_m_s, self.speed_variance,
+                                                self.rate_variance)
         hold = self.zero_rate
         # The position walk covers the detection errors' change between landmark updates;
         # in a gap (no update for recovery_after_s, or none yet) the pose's uncertainty
         # grows by the odometry and the gyro alone. Kept, it tripled the position sigma
         # over a 5-s LiDAR dropout while the error stayed at 3 mm (NEES below its band).
         last = self.stats.last_association_s
-        self.ekf.position_walk_paused = (
-            last is None or self.stamp_s - last > self.config.recovery_after_s)
+        ekf.position_walk_paused = last is None or before_s - last > self._recovery_after_s
         while dt_s > step:
-            self._wander_dt += step * self.ekf.wander_rad_s
-            self.ekf.predict(self.speed_m_s, rate, step, speed_variance, rate_variance, hold)
+            self._wander_dt += step * ekf.wander_rad_s
+            ekf.predict(speed, rate, step, speed_variance, rate_variance, hold)
             # Sum of T^2 over the predictions: times sigma_w^2, the heading noise they added
             # (the bias watch weighs a slow drift against it).
             self._heading_dt2 += step * step
             dt_s -= step
-        self._wander_dt += dt_s * self.ekf.wander_rad_s
-        self.ekf.predict(self.speed_m_s, rate, dt_s, speed_variance, rate_variance, hold)
+        self._wander_dt += dt_s * ekf.wander_rad_s
+        ekf.predict(speed, rate, dt_s, speed_variance, rate_variance, hold)
         self._heading_dt2 += dt_s * dt_s
         rate_stamp = self._rate_stamp_s
         if rate_stamp is not None and stamp_s - rate_stamp > MIN_AGE_S:
             # The held rate grows stale: what the platform may have turned meanwhile.
-            self.ekf.add_heading_variance(self.held_rate.heading_variance(
-                self.stamp_s - rate_stamp, stamp_s - rate_stamp))
+            ekf.add_heading_variance(self.held_rate.heading_variance(
+                before_s - rate_stamp, stamp_s - rate_stamp))
             self._rate_held_s = stamp_s
         self.stamp_s = stamp_s
 
@@ -464,29 +475,32 @@ class EventDriver:
         """
         self._advance(stamp_s, 'speed')
         self._speed_loss.add(stamp_s)
-        self._integrate_path(scan=False)
-        taken = self._speed_spikes.admit(stamp_s, speed_m_s)
+        self._integrate_path(False)
+        spikes = self._speed_spikes
+        taken = spikes.admit(stamp_s, speed_m_s)
         if taken is None:
             self.stats.speed += 1
             return  # held back: a lone spike is dropped at the next sample
         speed_m_s = taken
         # One comparison per sample in the common case (the 2016 log's speed is a goal).
         stated = self._speed_var if variance is None else variance
-        if self._speed_spikes.white_variance > SPEED_NOISE_FACTOR * stated and \
+        if spikes.white_variance > SPEED_NOISE_FACTOR * stated and \
                 self.config.learn_speed_noise:
             variance = self._speed_noise(stated)
         # Divided by the speed scale estimated online (1 until one is applied).
         self._measured_speed_m_s = speed_m_s
-        self.speed_m_s, self.speed_variance = self.odometry.correct(
-            speed_m_s, variance, self.config.speed_noise_m_s ** 2)
+        odometry = self.odometry
+        self.speed_m_s, self.speed_variance = odometry.correct(speed_m_s, variance,
+                                                               self._speed_var)
         # The scale not yet known, as a position random walk (core/odometry_online.py).
-        self.ekf.odometry_walk = self.odometry.walk_density(self.speed_m_s)
+        self.ekf.odometry_walk = odometry.walk_density(self.speed_m_s)
         self.stats.speed += 1
         if self._rest_updates and not self._still():
             self._rest_updates.clear()
-        if self.held_start.held and abs(speed_m_s) > self.config.rest_speed_m_s:
+        speed_abs, rest = abs(speed_m_s), self._rest_speed_m_s
+        if self.held_start.held and speed_abs > rest:
             self.held_start.release(stamp_s, 'the odometry read a speed')
-        if abs(speed_m_s) <= self.config.rest_speed_m_s:
+        if speed_abs <= rest:
             if self._stop_since_s is None and self.config.zero_rate_max_spread_rad_s > 0.0:
                 self._stop_since_s = stamp_s
         elif self._stop_since_s is not None:
@@ -529,7 +543,10 @@ class EventDriver:
     def step_imu(self, stamp_s: float, yaw_rate_rad_s: float, variance: float | None = None
                  ) -> None:
         """Do what on_imu does without building the Estimate (for callers that batch)."""
-        self._advance(stamp_s, 'imu')
+        if stamp_s != self.stamp_s:
+            # (At the filter's stamp _advance has nothing to do: a call saved per sample
+            # where the odometry shares the gyro's stamps, as in the 2016 log.)
+            self._advance(stamp_s, 'imu')
         self._gyro_loss.add(stamp_s)
         if self.gyro_frozen.left_out(stamp_s, yaw_rate_rad_s):
             self.stats.imu += 1
@@ -745,9 +762,13 @@ class EventDriver:
         if self._first_scan_s is None:
             self._first_scan_s = stamp_s
         points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)
-        self.stats.detections += points.shape[0]
-        prior = self.ekf.x
-        prior_yaw_variance = self.ekf.yaw_var
+        detected = points.shape[0]
+        self.stats.detections += detected
+        ekf = self.ekf
+        prior = ekf.x
+        # The same prior as plain floats, for the scalar maths of this scan.
+        prior_values = ekf.x_values
+        prior_yaw_variance = ekf.yaw_var
         self._integrate_path(scan=True)
         key = mount  # the LiDAR (its stated mount): the key of its health and rest counts
         tracker = self.mounts.trackers.get(key)
@@ -757,11 +778,11 @@ class EventDriver:
             # Where the odometry places the LiDARs that define the body frame.
             mount = self.odometry.first_mount(mount)
             self._body_key = key
-            if self.landmarks is not None and len(points):
+            if self._landmarks is not None and detected:
                 # Moving by the odometry (the bias is not known yet to judge the gyro).
                 checking = self.odometry.checked_at is None
                 moved = self.odometry.observe_start(
-                    stamp_s, points, mount, self.landmarks.xy_m,
+                    stamp_s, points, mount, self._landmarks.xy_m,
                     abs(self._measured_speed_m_s) > self.config.rest_speed_m_s)
                 if checking and self.odometry.checked_at is not None:
                     # Where each LiDAR's scans at the start pose place it: this one's
@@ -770,7 +791,7 @@ class EventDriver:
                         self._start_offsets[key] = self.odometry.start_offset
                     for other, other_tracker in self.mounts.trackers.items():
                         offset = other_tracker.start_offset(self.odometry.checked_at,
-                                                            self.landmarks.xy_m)
+                                                            self._landmarks.xy_m)
                         if offset is not None:
                             self._start_offsets[other] = offset
                 # The start check's fit takes the scans of a stop as one (their errors
@@ -812,7 +833,7 @@ class EventDriver:
             self.turn_signs.scan(key, sensor, stamp_s, points, mount, self._turned,
                                  self.stats.first_stop_bias_rad_s or 0.0,
                                  self._measured_speed_m_s)
-        if self.landmarks is None or len(self.landmarks) == 0 or points.shape[0] == 0:
+        if not self._landmark_xy or not detected:  # no map, an empty one, or no poles
             return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
         # Plain floats from here: a scan has a handful of poles, and numpy's per-call cost
         # would outweigh the arithmetic (this runs ~40 times a second on the real trip).
@@ -824,7 +845,8 @@ class EventDriver:
                                       > self.config.rest_speed_m_s) is not None:
                 tracker.observe_start(points)
             # The pose does not depend on a LiDAR held out or excluded.
-            if self.mounts.observe(key, stamp_s, prior.tolist(), points, self.landmarks.xy_m,
+            if self.mounts.observe(key, stamp_s, list(prior_values), points,
+                                   self._landmarks.xy_m,
                                    excluded or tracker.holds, prior_yaw_variance,
                                    self.odometry.pose_offset):
                 self.health.mount_changed(key, stamp_s)
@@ -835,7 +857,7 @@ class EventDriver:
         if self._recovering(stamp_s):
             self.stats.recoveries += 1
             result = associate_by_distance(
-                z, prior, self.ekf.P, R, self.landmarks.xy_m, mount,
+                z, prior, self.ekf.P, R, self._landmarks.xy_m, mount,
                 self.config.recovery_max_distance_m, self.config.recovery_ratio,
                 self.ekf.landmark_var_m2)
         else:
@@ -866,58 +888,60 @@ class EventDriver:
         # A mount estimated online weighs less (core/mount_online.py, its item 6).
         base = self.mounts.body_noise_scale if tracker is None else tracker.noise_scale
         jitter = (None if at_rest or self.held_start.held else
-                  self._jitter_frame(key, prior, mount, len(result.associations), variances))
+                  self._jitter_frame(key, prior_values, mount, len(result.associations),
+                                     variances))
         if jitter is not None:
             points_list = points.tolist()
         near_poles = None
         pole_matches = self.map_poles.matched
+        held_start, health, bias_watch = self.held_start, self.health, self.bias_watch
+        landmark_var = ekf.landmark_var_m2
         for match in result.associations:
-            outcomes[_OUTCOME_KEYS[match.outcome]] += 1
-            if match.outcome is AssociationOutcome.UNMATCHED:
+            outcome = match.outcome
+            outcomes[_OUTCOME_KEYS[outcome]] += 1
+            if outcome is _UNMATCHED:
                 near = self._count_unmapped(prior, points[match.detection_index], mount)
                 if near is not None:
                     if near_poles is None:
                         near_poles = []
                     near_poles.append(near)
-                    if self.held_start.held:
+                    if held_start.held:
                         # Outside the gate of the pole it lies near: the strongest
                         # disagreement.
-                        self.held_start.look(key, near[0], match.mahalanobis_sq, stamp_s)
-            if match.outcome is AssociationOutcome.MATCHED:
-                pole_matches[match.landmark_index] += 1
+                        held_start.look(key, near[0], match.mahalanobis_sq, stamp_s)
+            elif outcome is _MATCHED:
+                detection, landmark = match.detection_index, match.landmark_index
+                pole_matches[landmark] += 1
                 scale = base
                 if at_rest:
-                    look = (match.landmark_index, key)
+                    look = (landmark, key)
                     n = self._rest_updates.get(look, 0) + 1
                     self._rest_updates[look] = n
                     scale = base * n
-                nis.append(self.ekf.update(z[match.detection_index],
-                                           landmark_xy[match.landmark_index], mount,
-                                           float(scale), variances))
+                zi = z[detection]
+                nis.append(ekf.update(zi, landmark_xy[landmark], mount, float(scale),
+                                      variances))
                 # Plain floats: this runs at every update.
-                y, S = self.ekf.y_values, self.ekf.S_packed
+                y, S = ekf.y_values, ekf.S_packed
                 bearing_sum += y[1]
                 if noise is not None and scale == 1.0:
                     # At the LiDAR's plain R: not a repeated look at rest, nor a mount on
                     # probation (their R is scaled; the first's error repeats).
                     noise.add(y, S, variances)
-                if self.held_start.held:
+                if held_start.held:
                     # Judging the held start pose (and, with P of the pose 0, moving
                     # nothing): no test of the innovations' whiteness, as for repeated looks.
                     if scale == base:
-                        self.held_start.look(key, match.landmark_index, nis[-1], stamp_s,
-                                             y[1] / math.sqrt(S[2]))
+                        held_start.look(key, landmark, nis[-1], stamp_s,
+                                        y[1] / math.sqrt(S[2]))
                 elif scale == base:  # not a repeated look at rest
-                    self.health.innovation(key, stamp_s, y, S,
-                                           z[match.detection_index])
+                    health.innovation(key, stamp_s, y, S, zi)
                     if jitter is not None:
-                        _stamp_look(jitter, points_list[match.detection_index],
-                                    landmark_xy[match.landmark_index])
+                        _stamp_look(jitter, points_list[detection], landmark_xy[landmark])
                     if not at_rest:
-                        r = z[match.detection_index][0]
-                        self.bias_watch.add(stamp_s, y[1], S[2],
-                                            match.landmark_index,
-                                            self.ekf.landmark_var_m2 / (r * r) * scale)
+                        r = zi[0]
+                        bias_watch.add(stamp_s, y[1], S[2], landmark,
+                                       landmark_var / (r * r) * scale)
         if jitter is not None:
             jitter[0].close_scan(jitter[12])
         if near_poles is not None:
@@ -929,9 +953,9 @@ class EventDriver:
                 if pole not in matched:
                     self.map_poles.look(pole, dx, dy)
         if nis and not at_rest:
-            self.bias_watch.corrected(wrap_scalar(self.ekf.yaw_rad - float(prior[YAW])))
+            self.bias_watch.corrected(wrap_scalar(ekf.yaw_rad - prior_values[YAW]))
             if len(nis) >= OFFSET_MIN_UPDATES:
-                self._look_in_time(key, stamp_s, float(prior[YAW]) - bearing_sum / len(nis),
+                self._look_in_time(key, stamp_s, prior_values[YAW] - bearing_sum / len(nis),
                                    prior_yaw_variance)
             if self.gyro_scale.add(stamp_s, self.ekf.yaw_rad, self._turned):
                 self._gyro_scale_applied()
@@ -943,9 +967,9 @@ class EventDriver:
                 if moved is not None:
                     self._first_lidar_moved(key, moved)
         self.held_start.judge(stamp_s, 1 + len(self.mounts.trackers))
-        self.turn_signs.associated(key, points.shape[0], len(nis))
+        self.turn_signs.associated(key, detected, len(nis))
         nis_sum = float(sum(nis))
-        self._judged(key, self.health.record(key, stamp_s, points.shape[0], len(nis),
+        self._judged(key, self.health.record(key, stamp_s, detected, len(nis),
                                              nis_sum, float(bearing_sum), sensor))
         if nis:
             self.stats.updates += len(nis)
@@ -1039,7 +1063,7 @@ class EventDriver:
         return [{'name': self.health.sensor(key).name, **watch.report()}
                 for key, watch in self.stamp_jitter.items()]
 
-    def _jitter_frame(self, key: LidarMount, prior: FloatArray, mount: LidarMount,
+    def _jitter_frame(self, key: LidarMount, prior: tuple[float, ...], mount: LidarMount,
                       updates: int, variances: tuple[float, float] | None) -> tuple | None:
         """Return what each update of a moving scan gives its stamp estimate, or None.
 
@@ -1059,7 +1083,7 @@ class EventDriver:
         watch = self.stamp_jitter.get(key)
         if watch is None:
             watch = self.stamp_jitter[key] = StampJitterWatch()
-        x, y, yaw = prior.tolist()[:3]
+        x, y, yaw = prior[:3]  # the state before the scan, plain floats
         c, s = math.cos(yaw), math.sin(yaw)
         sensor_x = x + mount.x_m * c - mount.y_m * s
         sensor_y = y + mount.x_m * s + mount.y_m * c
@@ -1328,7 +1352,7 @@ class EventDriver:
         """Whether the platform is known to stand still (speed and turn rate near zero)."""
         # Without a speed or gyro message yet, it is not known to.
         return (self.stats.speed > 0 and self.rate_rad_s is not None
-                and abs(self.speed_m_s) <= self.config.rest_speed_m_s
+                and abs(self.speed_m_s) <= self._rest_speed_m_s
                 and abs(self.rate_rad_s - self.ekf.bias_rad_s)
                 <= self.config.rest_yaw_rate_rad_s)
 
