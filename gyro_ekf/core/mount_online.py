@@ -797,6 +797,9 @@ class OnlineMounts:
         mount is confirmed.
         """
         del self.trackers[other]
+        for kept in self.trackers.values():
+            # A pull read towards the LiDAR that defined the body frame names it no more.
+            kept.first_pulls = False
         tracker = MountTracker(first, name, self.settings)
         tracker.handed_over_s = stamp_s
         self.trackers[first] = tracker

@@ -324,6 +324,22 @@ def test_the_mount_in_use_follows_the_hand_over():
     assert driver.mount_in_use(first).yaw_rad == pytest.approx(0.05)
 
 
+def test_a_first_lidar_named_off_weighs_in_full_again_once_another_defines_the_body_frame():
+    # Three LiDARs: the side one's watch named the first LiDAR the one off (first_pulls),
+    # then the rear one took over the body frame. The pull was read towards the first
+    # LiDAR, which no longer defines the body frame: the new one weighs in full.
+    first, rear = LidarMount(x_m=0.46), LidarMount(x_m=-0.3, yaw_rad=math.pi)
+    side = LidarMount(y_m=0.2, yaw_rad=math.pi / 2)
+    mounts = OnlineMounts()
+    mounts.track([(rear, 'scan2'), (side, 'scan3')])
+    assert mounts.body_noise_scale == 1.0
+    mounts.trackers[side].first_pulls = True
+    assert mounts.body_noise_scale == mounts.settings.noise_scale == 9.0
+    mounts.hand_over(first, 'scan', rear, 3.0)
+    assert mounts.body_noise_scale == 1.0
+    assert not mounts.trackers[side].first_pulls
+
+
 def _report(off_m, sigma_m, observable=True):
     used = {'x_m': 0.46, 'y_m': 0.0, 'yaw_deg': 180.0}
     return {'name': 'scan2', 'stated': used, 'used': used, 'handed_over_s': None,
