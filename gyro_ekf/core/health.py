@@ -470,9 +470,7 @@ class HealthMonitor:
             readmit: whether an excluded LiDAR may be readmitted now (not while the mount
                 it is re-checked with is still being verified).
         """
-        health = self.sensors.get(key)  # (every scan: the method call only on first use)
-        if health is None:
-            health = self.sensor(key, name)
+        health = self.sensor(key, name)
         self.last_s = stamp_s
         health.scans += 1
         health.detections += detected

@@ -625,11 +625,10 @@ class MountTracker:
             # watch's own floor too: the path fit's offset is good to 1-2 mm, not to its
             # stated sigma (stress seed 20, mount_offset 10: a second LiDAR 2.7 mm off, the
             # pose read 0.93 mm the other way at 3.1 sigmas).
-            if (-along > self.settings.disagree_min_m and self.handed_over_s is None
-                    and self.state == CONFIRMED):
+            if -along > self.settings.disagree_min_m and self.handed_over_s is None:
                 self.first_pulls = True
-            if self.first_pulls and self.first_pulls_since is None:
-                self.first_pulls_since = (stamp_s, math.hypot(dx, dy))
+                if self.first_pulls_since is None:
+                    self.first_pulls_since = (stamp_s, math.hypot(dx, dy))
 
     def _fit(self, stamp_s: float, poles: FloatArray, excluded: bool) -> bool:
         settings = self.settings
