@@ -16,6 +16,12 @@ the bias the filter used during the block plus the bias error that block's yaw c
 imply (``BiasWatch.block``), an estimate of the true bias m = b + db that does not lag
 (scatter about 0.03 deg/s on the simulator). A line fitted to the last ``window_s`` of
 those is the rate, with the standard error of its slope from the line's own residuals.
+Where that line shows no rate, one through the last ``LONG_WINDOWS`` windows is tried: a
+slow ramp's slope lies within the short line's scatter (over 40 s, 20 blocks of 0.03 deg/s
+bound a slope to 0.035 deg/s per minute, so 4 of its standard errors miss ramps under 0.14
+deg/s per minute, which end a 2-minute trip up to 0.03 deg/s behind), while the long line's
+standard error is LONG_WINDOWS^1.5 times smaller. The short line comes first because it
+follows a ramp that changes (a gyro warming up slows down).
 
 The rate is used, and only then, when:
 
@@ -65,6 +71,10 @@ beyond them about once in 16 000 fits, and also needs the watch's drift)."""
 T_OFF = 2.0
 """Standard errors of the slope below which a rate in use is dropped."""
 
+LONG_WINDOWS = 3.0
+"""The long line's window, in windows (120 s by default), tried where the short line shows
+no rate: its slope's standard error is 3^1.5 = 5.2 times smaller on the same scatter."""
+
 MIN_BLOCKS = 10
 """Fewest blocks in the window before a line is fitted (20 s of driving)."""
 
@@ -85,7 +95,8 @@ class BiasRate:
     """A line through the last blocks' true-bias estimates; its slope, when it is a ramp.
 
     Attributes:
-        window_s: length of the fit window, s (0: off, never a rate).
+        window_s: length of the fit window, s (0: off, never a rate); the long line's is
+            LONG_WINDOWS times it.
         rate_rad_s2: the rate in use, rad/s^2 (0 when none).
         sigma_rad_s2: its standard error, rad/s^2 (0 when none).
         found: times a rate came into use.
@@ -93,7 +104,7 @@ class BiasRate:
     """
 
     __slots__ = ('window_s', '_blocks', 'rate_rad_s2', 'sigma_rad_s2', 'found',
-                 'largest_rad_s2', '_in_use', '_rest', '_rest_open', '_from_rest')
+                 'largest_rad_s2', '_in_use', '_rest', '_rest_open', '_from_rest', '_window_used')
 
     def __init__(self, window_s: float) -> None:
         """Start with no blocks and no rate."""
@@ -112,6 +123,7 @@ class BiasRate:
         self._rest: list[tuple[float, float]] = []
         self._rest_open: list[float] | None = None
         self._from_rest = False
+        self._window_used = self.window_s
 
     def copy(self) -> 'BiasRate':
         """Return an independent duplicate, for the driver's save and restore."""
@@ -123,12 +135,13 @@ class BiasRate:
         clone._rest = list(self._rest)
         clone._rest_open = None if self._rest_open is None else list(self._rest_open)
         clone._from_rest = self._from_rest
+        clone._window_used = self._window_used
         return clone
 
     @property
     def walk(self) -> float:
         """Variance per second the rate's uncertainty adds to the bias, (rad/s)^2 / s."""
-        return self.sigma_rad_s2 * self.sigma_rad_s2 * self.window_s
+        return self.sigma_rad_s2 * self.sigma_rad_s2 * self._window_used
 
     def add(self, stamp_s: float, bias_rad_s: float, error_rad_s: float, drift_sign: float,
             bias_now_rad_s: float) -> float | None:
@@ -149,31 +162,51 @@ class BiasRate:
             return None
         blocks = self._blocks
         blocks.append((stamp_s, bias_rad_s + error_rad_s))
-        while blocks[0][0] < stamp_s - self.window_s:
+        long_s = LONG_WINDOWS * self.window_s
+        while blocks[0][0] < stamp_s - long_s:
             blocks.pop(0)
+        short = [b for b in blocks if b[0] >= stamp_s - self.window_s]
         was = self.rate_rad_s2 != 0.0
-        if (was and self._from_rest and len(blocks) < MIN_BLOCKS
+        if (was and self._from_rest and len(short) < MIN_BLOCKS
                 and stamp_s - self._in_use[1] <= self.window_s):
             # Found at a stop: too few blocks of driving yet to judge it.
             return None
-        fit = _fit(blocks) if len(blocks) >= MIN_BLOCKS else None
-        keep = False
-        if fit is not None:
-            slope, sigma, level_now = fit
-            t = abs(slope) / sigma if sigma > 0.0 else math.inf
-            if was:
-                keep = t > T_OFF and math.copysign(1.0, slope) == math.copysign(
-                    1.0, self.rate_rad_s2)
-            else:
-                sign, last_s = self._in_use
-                if stamp_s - last_s > self.window_s:
-                    sign = 0.0
-                keep = t > T_ON and (drift_sign * slope > 0.0 or sign * slope > 0.0)
         self._from_rest = False
-        if not keep:
+        # The window's line first (it follows a ramp that changes); the long one where it
+        # shows none (a slow ramp's slope lies within the short line's scatter).
+        fit = self._judge(short, stamp_s, drift_sign, was) if len(short) >= MIN_BLOCKS else None
+        window_s = self.window_s
+        if fit is None and len(blocks) > len(short) >= MIN_BLOCKS:
+            fit, window_s = self._judge(blocks, stamp_s, drift_sign, was), long_s
+            # Not where the window's own line departs from it by as much as a new rate
+            # must lie from zero: a ramp that paused or changed (the long line would go
+            # on at the old rate).
+            line = _fit(short, step=False)
+            if fit is not None and abs(line[0] - fit[0]) > T_ON * line[1]:
+                fit = None
+        if fit is None:
             self.rate_rad_s2 = self.sigma_rad_s2 = 0.0
             return None
-        return self._use(stamp_s, slope, sigma, level_now, bias_now_rad_s, was)
+        self._window_used = window_s
+        return self._use(stamp_s, *fit, bias_now_rad_s, was)
+
+    def _judge(self, blocks: list[tuple[float, float]], stamp_s: float, drift_sign: float,
+               was: bool) -> tuple[float, float, float] | None:
+        """Return the line through ``blocks`` when its rate is to be used (module), else None."""
+        fit = _fit(blocks)
+        if fit is None:
+            return None
+        slope, sigma = fit[0], fit[1]
+        t = abs(slope) / sigma if sigma > 0.0 else math.inf
+        if was:
+            keep = t > T_OFF and math.copysign(1.0, slope) == math.copysign(
+                1.0, self.rate_rad_s2)
+        else:
+            sign, last_s = self._in_use
+            if stamp_s - last_s > self.window_s:
+                sign = 0.0
+            keep = t > T_ON and (drift_sign * slope > 0.0 or sign * slope > 0.0)
+        return fit if keep else None
 
     def add_rest(self, stamp_s: float, rate_rad_s: float, bias_now_rad_s: float
                  ) -> float | None:
@@ -220,6 +253,7 @@ class BiasRate:
         if not abs(slope) > REST_T_ON * sigma:
             return None
         self._from_rest = True
+        self._window_used = self.window_s
         return self._use(stamp_s, slope, sigma, level_now, bias_now_rad_s, was)
 
     def end_rest(self) -> None:
@@ -241,11 +275,12 @@ class BiasRate:
         return (level_now - bias_now_rad_s) ** 2
 
 
-def _fit(blocks: list[tuple[float, float]]) -> tuple[float, float, float] | None:
+def _fit(blocks: list[tuple[float, float]], step: bool = True
+         ) -> tuple[float, float, float] | None:
     """Least-squares line through (t, m): slope, its standard error and the last level.
 
     None when two constant levels (the best split of the blocks in time) leave smaller
-    residuals than the line: a step, not a ramp.
+    residuals than the line: a step, not a ramp (tested unless ``step`` is False).
     """
     n = len(blocks)
     t0 = blocks[0][0]
@@ -259,6 +294,10 @@ def _fit(blocks: list[tuple[float, float]]) -> tuple[float, float, float] | None
     slope = sum((t - t_mean) * (m - m_mean) for t, m in zip(ts, ms)) / sxx
     residuals = [m - m_mean - slope * (t - t_mean) for t, m in zip(ts, ms)]
     rss_line = sum(r * r for r in residuals)
+    sigma = math.sqrt(rss_line / (n - 2) / sxx)
+    level_now = m_mean + slope * (ts[-1] - t_mean)
+    if not step:
+        return slope, sigma, level_now
     # Two levels split at every place (running sums: n splits cost O(n)).
     total_sq = sum(m * m for m in ms)
     total = m_mean * n
@@ -274,5 +313,4 @@ def _fit(blocks: list[tuple[float, float]]) -> tuple[float, float, float] | None
         rss_step = min(rss_step, rss)
     if rss_step <= rss_line:
         return None
-    sigma = math.sqrt(rss_line / (n - 2) / sxx)
-    return slope, sigma, m_mean + slope * (ts[-1] - t_mean)
+    return slope, sigma, level_now

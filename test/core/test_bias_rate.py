@@ -81,6 +81,24 @@ def test_a_rate_dropped_comes_back_within_a_window_without_a_new_drift(seed):
     assert estimator.found == 1 and estimator.rate_rad_s2 == 0.0
 
 
+SLOW_RATE = math.radians(0.06) / 60.0
+"""A ramp of 0.06 deg/s per minute: within the 40-s line's scatter, 0.12 deg/s in 2 min."""
+
+
+@pytest.mark.parametrize('seed', range(5))
+def test_a_slow_ramp_is_found_by_the_long_line(seed):
+    # Over 40 s, 20 blocks bound the slope to 0.035 deg/s per minute: the short line alone
+    # does not find this ramp; the line over three windows does, and its rate's
+    # uncertainty walks the bias over the long window.
+    estimator, openings = _blocks(SLOW_RATE, drift_sign=1.0, seconds=120.0, seed=seed)
+    assert estimator.found >= 1 and openings
+    assert estimator.rate_rad_s2 == pytest.approx(SLOW_RATE, rel=0.3)
+    assert estimator.walk == pytest.approx(
+        estimator.sigma_rad_s2 ** 2 * bias_rate.LONG_WINDOWS * 40.0)
+    short = BiasRate(40.0)
+    assert short._judge(estimator._blocks[-20:], 119.0, 1.0, False) is None
+
+
 def test_a_step_is_no_ramp():
     estimator, _ = _blocks(0.0, drift_sign=1.0, step=math.radians(0.3))
     assert estimator.found == 0
