@@ -1152,6 +1152,11 @@ class EventDriver:
                 # A drift as the watch's own: its walk and a ramp's line count it.
                 variance = watch.found(stamp_s, held)
                 self.stats.bias_wander_held += 1
+                # The blocks that found the wander were that move too: taken back, as a
+                # ramp's line takes them back. Kept, a step's wander stayed modelled and
+                # took the step in again (stress bias_step seed 27 #5).
+                self.gyro_wander.retract(stamp_s)
+                self._model_wander()
         if variance is not None:
             self.ekf.open_bias(variance)
             self.stats.bias_openings += 1

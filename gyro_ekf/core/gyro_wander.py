@@ -30,7 +30,8 @@ learnt), are left out: theirs is a bias that moved, not a wander; so are blocks 
 IMU gap and the block after one (the driver's choice, ``core/events.py``: the held rate's
 heading error, not the gyro's). When the rate fit finds a ramp, the last
 ``RETRACTED_BLOCKS`` blocks are taken back (``retract``): a ramp's first blocks lean its
-way by less than the watch's limits until it is found.
+way by less than the watch's limits until it is found. So they are when the modelled
+wander holds one sign (``held``, the driver's re-opening): a step taken for a wander.
 
 What a block's corrections take back includes the heading error it started with
 (``block_allowed``). Over a block the corrections sum to C = e_start + d - e_end (d the
@@ -96,7 +97,8 @@ MIN_BLOCKS = 10
 """Fewest blocks (20 s of driving) before a wander may be found."""
 
 RETRACTED_BLOCKS = 10
-"""Blocks taken back when a ramp is found: the bias watch's window (bias_watch.NOISE_BLOCKS)."""
+"""Blocks taken back when a ramp is found or the wander holds one sign: the bias watch's
+window (bias_watch.NOISE_BLOCKS)."""
 
 SIGNIFICANCE = 1e-4
 """Chance that the blocks of a consistent filter are taken for a wander, at each look."""
