@@ -142,6 +142,11 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         # learn_gyro_wander) and when the blocks ruled it out (null: never).
         'gyro_wander_prior_deg_s': _deg(run.config.wander_prior_rad_s),
         'gyro_wander_prior_ruled_out_s': run.result.stats.gyro_wander_prior_ruled_out_s,
+        # The largest wander a still stop's gyro samples showed (core/stop_wander.py),
+        # modelled as a prior from that stop's end (s) until the blocks ruled it out.
+        'gyro_wander_stop_deg_s': _deg(float(run.result.stats.gyro_wander_stop_rad_s)),
+        'gyro_wander_stop_s': run.result.stats.gyro_wander_stop_s,
+        'gyro_wander_stop_ruled_out_s': run.result.stats.gyro_wander_stop_ruled_out_s,
         # A ramping bias followed (core/bias_rate.py): the rate in use at the end, the
         # largest used, and how often one came into use.
         'rate_deg_s_per_min': _deg(float(run.result.stats.bias_rate_rad_s2)) * 60.0,

@@ -82,16 +82,25 @@ def _progress_bar(total: int, enabled: bool) -> Any:
 
 
 def _wander(online: dict[str, Any]) -> str:
-    """Return the gyro wander row: found, or the prior assumed and whether it was ruled out."""
+    """Return the gyro wander row: found, or the priors assumed and whether ruled out."""
     if online['gyro_wander_found_s'] is not None:
-        return (f"{online['gyro_wander_deg_s']:.4f} "
-                f"(found at {online['gyro_wander_found_s']:.0f} s)")
-    prior = online['gyro_wander_prior_deg_s']
-    if not prior > 0.0:
-        return 'none found'
-    ruled_out = online['gyro_wander_prior_ruled_out_s']
-    return (f'none found (the {prior:.3f} assumed '
-            + ('kept)' if ruled_out is None else f'ruled out at {ruled_out:.0f} s)'))
+        row = (f"{online['gyro_wander_deg_s']:.4f} "
+               f"(found at {online['gyro_wander_found_s']:.0f} s)")
+    else:
+        prior = online['gyro_wander_prior_deg_s']
+        row = 'none found'
+        if prior > 0.0:
+            row += f" (the {prior:.3f} assumed {_kept(online['gyro_wander_prior_ruled_out_s'])})"
+    stop = online['gyro_wander_stop_s']
+    if stop is not None:
+        row += (f"; {online['gyro_wander_stop_deg_s']:.3f} shown at the stop ending at "
+                f"{stop:.0f} s, {_kept(online['gyro_wander_stop_ruled_out_s'])}")
+    return row
+
+
+def _kept(ruled_out_s: float | None) -> str:
+    """Return whether a prior wander was kept or when it was ruled out."""
+    return 'kept' if ruled_out_s is None else f'ruled out at {ruled_out_s:.0f} s'
 
 
 def _scale(scale: dict[str, Any]) -> str:

@@ -122,6 +122,10 @@ class DriverStats:
         gyro_wander_found_s: when it was first found, s (None: not found).
         gyro_wander_prior_ruled_out_s: when the blocks ruled the prior wander out
             (``gyro_wander_prior_rad_s``), s (None: not, or no prior).
+        gyro_wander_stop_rad_s: the largest wander a still stop's gyro samples showed
+            (core/stop_wander.py), modelled as a prior, rad/s (0: none).
+        gyro_wander_stop_s: when that stop ended, s (None: none showed one).
+        gyro_wander_stop_ruled_out_s: when the blocks ruled it out, s (None: not, or none).
         bias_rate_rad_s2: the rate of the bias in use now (core/bias_rate.py), rad/s^2
             (0: none).
         bias_rate_found: times a bias rate came into use.
@@ -165,6 +169,9 @@ class DriverStats:
     gyro_wander_rad_s: float = 0.0
     gyro_wander_found_s: float | None = None
     gyro_wander_prior_ruled_out_s: float | None = None
+    gyro_wander_stop_rad_s: float = 0.0
+    gyro_wander_stop_s: float | None = None
+    gyro_wander_stop_ruled_out_s: float | None = None
     bias_rate_rad_s2: float = 0.0
     bias_rate_found: int = 0
     bias_largest_rate_rad_s2: float = 0.0
@@ -210,6 +217,9 @@ class DriverStats:
                 'gyro_wander_rad_s': self.gyro_wander_rad_s,
                 'gyro_wander_found_s': self.gyro_wander_found_s,
                 'gyro_wander_prior_ruled_out_s': self.gyro_wander_prior_ruled_out_s,
+                'gyro_wander_stop_rad_s': self.gyro_wander_stop_rad_s,
+                'gyro_wander_stop_s': self.gyro_wander_stop_s,
+                'gyro_wander_stop_ruled_out_s': self.gyro_wander_stop_ruled_out_s,
                 'speed_noise_widened': self.speed_noise_widened,
                 'speed_noise_m_s': self.speed_noise_m_s,
                 'speed_noise_stated_m_s': self.speed_noise_stated_m_s,

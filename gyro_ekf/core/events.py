@@ -65,6 +65,7 @@ from gyro_ekf.core.mount_online import CONFIRMED, OnlineMounts, OnlineMountSetti
 from gyro_ekf.core.noise_online import NoiseMatch
 from gyro_ekf.core.odometry_online import (Moved, OdometrySettings, OdometryTracker,
                                            midpoint_yaw)
+from gyro_ekf.core.stop_wander import StopBlocks
 from gyro_ekf.core.time_offset import MIN_UPDATES as OFFSET_MIN_UPDATES, TimeOffsetWatch
 from gyro_ekf.core.types import (BIAS, ESTIMATE_SIZE, YAW, FloatArray, LandmarkMap,
                                  LidarMount)
@@ -206,6 +207,7 @@ class EventDriver:
         # squared deviations (Welford) of the stop's gyro samples.
         self._stop_since_s: float | None = None
         self._stop_n, self._stop_mean, self._stop_m2 = 0, 0.0, 0.0
+        self._stop_blocks = StopBlocks()
         self.zero_rate = False
         self.bias_rate.end_rest()
 
@@ -317,7 +319,8 @@ class EventDriver:
                 self.speed_variance, self.rate_variance, self._first_scan_s,
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
-                 self.zero_rate, self.held_start.copy()), self.mounts.save(),
+                 self._stop_blocks.copy(), self.zero_rate, self.held_start.copy()),
+                self.mounts.save(),
                 (self.bias_watch.copy(), self.bias_rate.copy(),
                  (self._block_bias, self._block_bias_variance),
                  self.gyro_wander.copy(), self._wander_dt, self._rate_held_s),
@@ -376,8 +379,9 @@ class EventDriver:
         self.ekf.rate_noise_scale = self.bias_watch.noise_scale
         self.ekf.odometry_walk = self.odometry.walk_density(self.speed_m_s)
         self.mounts.restore(mounts)
-        (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
+        (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2, stop_blocks,
          self.zero_rate, held_start) = stop
+        self._stop_blocks = stop_blocks.copy()
         self.held_start = held_start.copy()
         self._rest_updates = dict(rest_updates)
         self.health.restore(health)
@@ -507,6 +511,7 @@ class EventDriver:
             stats = self.stats
             if self.zero_rate:
                 self._judge_stop_noise()
+                self._judge_stop_wander(stamp_s)
             if self.zero_rate and stats.first_stop_end_s is None:
                 # The bias the first stop's zero-rate updates learnt: a bias that stays put
                 # ends the run where this places it, within their sigmas (health.verdict).
@@ -624,6 +629,20 @@ class EventDriver:
         self.bias_watch.set_noise_floor(stats.gyro_rest_noise_scale)
         self.ekf.rate_noise_scale = stats.gyro_noise_scale = self.bias_watch.noise_scale
 
+    def _judge_stop_wander(self, stamp_s: float) -> None:
+        """At a still stop's end: a wander its gyro samples show is modelled as a prior.
+
+        See core/stop_wander.py. Not while a bias rate is in use: a ramp's blocks scatter
+        as a wander's do.
+        """
+        n = self._stop_n
+        if not self.config.learn_gyro_wander or n < 2 or self.bias_rate.rate_rad_s2 != 0.0:
+            return
+        sigma = self._stop_blocks.wander(self._stop_m2 / (n - 1))
+        if sigma is not None:
+            self.gyro_wander.seen_at_stop(stamp_s, sigma)
+            self._model_wander()
+
     def _zero_rate_update(self, stamp_s: float, rate_rad_s: float) -> None:
         """Add a gyro sample to the stop; apply it as a zero-rate update once still."""
         n = self._stop_n + 1
@@ -631,6 +650,7 @@ class EventDriver:
         self._stop_mean += delta / n
         self._stop_m2 += delta * (rate_rad_s - self._stop_mean)
         self._stop_n = n
+        self._stop_blocks.add(stamp_s, rate_rad_s)
         config = self.config
         if n < 2 or stamp_s - self._stop_since_s < config.zero_rate_min_still_s:
             return
@@ -1179,12 +1199,15 @@ class EventDriver:
         The prior wander is modelled as well until the blocks rule it out
         (core/gyro_wander.py).
         """
-        found, config = self.gyro_wander, self.config
-        prior = config.initial_wander_rad_s if found.prior_ruled_out_s is None else 0.0
-        self.ekf.wander_sigma_rad_s = max(config.gyro_wander_rad_s, prior, found.sigma_rad_s)
-        self.stats.gyro_wander_rad_s = found.sigma_rad_s
-        self.stats.gyro_wander_found_s = found.found_at_s
-        self.stats.gyro_wander_prior_ruled_out_s = found.prior_ruled_out_s
+        found, config, stats = self.gyro_wander, self.config, self.stats
+        self.ekf.wander_sigma_rad_s = max(config.gyro_wander_rad_s, found.sigma_rad_s,
+                                          found.prior_rad_s(config.initial_wander_rad_s))
+        stats.gyro_wander_rad_s = found.sigma_rad_s
+        stats.gyro_wander_found_s = found.found_at_s
+        stats.gyro_wander_prior_ruled_out_s = found.prior_ruled_out_s
+        stats.gyro_wander_stop_rad_s = found.stop_sigma_rad_s
+        stats.gyro_wander_stop_s = found.stop_seen_s
+        stats.gyro_wander_stop_ruled_out_s = found.stop_ruled_out_s
 
     def _restart_bias_evidence(self) -> None:
         """Start the bias watch, the ramp's line and the wander's blocks again, walks none."""
@@ -1193,6 +1216,12 @@ class EventDriver:
         self.bias_watch.set_noise_floor(self.stats.gyro_rest_noise_scale)
         self.bias_rate = BiasRate(self.config.bias_rate_window_s)
         self.gyro_wander = GyroWander(self.config.gyro_wander_tau_s)
+        # So does a wander a stop showed, and whether it was ruled out: at rest the gyro's
+        # scale draws on nothing.
+        stats, wander = self.stats, self.gyro_wander
+        wander.stop_sigma_rad_s, wander.stop_seen_s, wander.stop_ruled_out_s = (
+            stats.gyro_wander_stop_rad_s, stats.gyro_wander_stop_s,
+            stats.gyro_wander_stop_ruled_out_s)
         self.ekf.bias_walk_found = self.ekf.bias_rate_found = 0.0
         self._heading_dt2 = self._wander_dt = 0.0
 

@@ -57,7 +57,9 @@ the wander below it: with the sums above, the wander's upper bound at ``PRIOR_CO
 is ``s_up^2 = (nu sum db_b^2 / q - sum allowed) / sum g``, q the chi-square quantile with
 nu dof and lower tail 1 - ``PRIOR_CONFIDENCE`` (``upper_sigma``). A wander found beyond
 chance is modelled as before, whatever became of the prior. The blocks' evidence is the
-same with and without the prior modelled: db_b is taken against the bias alone.
+same with and without the prior modelled: db_b is taken against the bias alone. A stop's
+gyro samples may show a wander themselves (``core/stop_wander.py``): the largest so far is a
+second prior (``seen_at_stop``), ruled out by the same bound.
 
 On the simulator's trips (docs/stress.md): clean trips never reach the limit (their
 db_b^2 / allowed over a trip: 0.6-1.2); trips with a wander of 0.01-0.04 deg/s and 0.5-5 s
@@ -144,6 +146,7 @@ class GyroWander:
     """
 
     __slots__ = ('tau_s', 'sigma_rad_s', 'found_at_s', 'prior_ruled_out_s', 'blocks',
+                 'stop_sigma_rad_s', 'stop_seen_s', 'stop_ruled_out_s',
                  '_error_sq', '_allowed', '_allowed_sq', '_share', '_recent', '_held')
 
     def __init__(self, tau_s: float) -> None:
@@ -152,6 +155,11 @@ class GyroWander:
         self.sigma_rad_s = 0.0
         self.found_at_s: float | None = None
         self.prior_ruled_out_s: float | None = None
+        # The largest wander a stop showed (core/stop_wander.py), when, and when the
+        # blocks ruled it out.
+        self.stop_sigma_rad_s = 0.0
+        self.stop_seen_s: float | None = None
+        self.stop_ruled_out_s: float | None = None
         self.blocks = 0
         self._error_sq = self._allowed = self._allowed_sq = self._share = 0.0
         # The last blocks' terms (error^2, allowed, share), for retract().
@@ -164,6 +172,8 @@ class GyroWander:
         clone = GyroWander(self.tau_s)
         clone.sigma_rad_s, clone.found_at_s, clone.prior_ruled_out_s, clone.blocks = (
             self.sigma_rad_s, self.found_at_s, self.prior_ruled_out_s, self.blocks)
+        clone.stop_sigma_rad_s, clone.stop_seen_s, clone.stop_ruled_out_s = (
+            self.stop_sigma_rad_s, self.stop_seen_s, self.stop_ruled_out_s)
         clone._error_sq, clone._allowed, clone._allowed_sq, clone._share = (
             self._error_sq, self._allowed, self._allowed_sq, self._share)
         clone._recent = list(self._recent)
@@ -248,12 +258,35 @@ class GyroWander:
         return math.sqrt(max(variance, 0.0))
 
     def rule_out(self, stamp_s: float, prior_rad_s: float) -> bool:
-        """Whether a prior wander of ``prior_rad_s`` is ruled out (for good, once it is)."""
-        if self.prior_ruled_out_s is None and prior_rad_s > 0.0:
-            upper = self.upper_sigma()
-            if upper is not None and upper < prior_rad_s:
+        """Whether a prior wander of ``prior_rad_s`` is ruled out (for good, once it is).
+
+        A wander a stop showed (``seen_at_stop``) is ruled out by the same bound.
+        """
+        checks = ((self.prior_ruled_out_s is None and prior_rad_s > 0.0)
+                  or (self.stop_ruled_out_s is None and self.stop_sigma_rad_s > 0.0))
+        upper = self.upper_sigma() if checks else None
+        if upper is not None:
+            if self.prior_ruled_out_s is None and upper < prior_rad_s:
                 self.prior_ruled_out_s = stamp_s
+            if self.stop_ruled_out_s is None and upper < self.stop_sigma_rad_s:
+                self.stop_ruled_out_s = stamp_s
         return self.prior_ruled_out_s is not None
+
+    def seen_at_stop(self, stamp_s: float, sigma_rad_s: float) -> None:
+        """Take the wander a stop's samples showed (core/stop_wander.py), rad/s, as a prior.
+
+        The largest so far counts; a larger one is judged again by the blocks of driving.
+        """
+        if sigma_rad_s > self.stop_sigma_rad_s:
+            self.stop_sigma_rad_s = sigma_rad_s
+            self.stop_seen_s = stamp_s
+            self.stop_ruled_out_s = None
+
+    def prior_rad_s(self, configured_rad_s: float) -> float:
+        """Return the prior wander in force: the configured one and a stop's, not ruled out."""
+        configured = configured_rad_s if self.prior_ruled_out_s is None else 0.0
+        stop = self.stop_sigma_rad_s if self.stop_ruled_out_s is None else 0.0
+        return max(configured, stop)
 
     def _add(self, error_sq: float, allowed: float, share: float, count: int) -> None:
         self.blocks += count

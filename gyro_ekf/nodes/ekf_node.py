@@ -1050,6 +1050,11 @@ class EkfNode(Node):
             'gyro_rest_noise_deg_s': f'{math.degrees(stats.gyro_rest_noise_rad_s):.4f}',
             # The gyro's wander found and modelled (core/gyro_wander.py), 0 when none.
             'gyro_wander_deg_s': f'{math.degrees(stats.gyro_wander_rad_s):.4f}',
+            # The largest wander a still stop's samples showed (core/stop_wander.py), 0
+            # when none, and whether the blocks of driving ruled it out.
+            'gyro_wander_stop_deg_s': f'{math.degrees(stats.gyro_wander_stop_rad_s):.4f}',
+            'gyro_wander_stop_ruled_out':
+                str(stats.gyro_wander_stop_ruled_out_s is not None).lower(),
             # The wander the filter models now: the prior until the blocks rule it out, the
             # one stated or found.
             'gyro_wander_modelled_deg_s':

@@ -106,6 +106,22 @@ def test_a_wandering_gyro_is_said_in_the_verdict(tmp_path):
           f"deg/s; NEES {truth['nees_share_in_band']:.3f}")
 
 
+def test_the_wander_row_says_a_wander_a_stop_showed():
+    from gyro_ekf.cli.run import _wander
+    online = {'gyro_wander_found_s': None, 'gyro_wander_deg_s': 0.0,
+              'gyro_wander_prior_deg_s': 0.01, 'gyro_wander_prior_ruled_out_s': 42.3,
+              'gyro_wander_stop_deg_s': 0.0, 'gyro_wander_stop_s': None,
+              'gyro_wander_stop_ruled_out_s': None}
+    assert _wander(online) == 'none found (the 0.010 assumed ruled out at 42 s)'
+    online.update(gyro_wander_stop_deg_s=0.0293, gyro_wander_stop_s=8.0)
+    assert _wander(online) == ('none found (the 0.010 assumed ruled out at 42 s); 0.029 '
+                               'shown at the stop ending at 8 s, kept')
+    online.update(gyro_wander_found_s=28.2, gyro_wander_deg_s=0.045,
+                  gyro_wander_stop_ruled_out_s=61.0)
+    assert _wander(online) == ('0.0450 (found at 28 s); 0.029 shown at the stop ending at '
+                               '8 s, ruled out at 61 s')
+
+
 def test_run_refuses_to_overwrite_without_force(tmp_path, simulated_bag, capsys):
     bag, _ = simulated_bag
     out = tmp_path / 'out'

@@ -47,6 +47,11 @@ def test_node_says_the_wander_it_found_as_the_offline_run_does(coloured_run):
     # Re-openings where the modelled wander held one sign, as the offline run counts them.
     assert values['bias_reopened_wander_held'] == str(
         offline['online_bias']['reopened_wander_held'])
+    # A wander a still stop showed (core/stop_wander.py), as the offline run has it.
+    online = offline['online_bias']
+    assert values['gyro_wander_stop_deg_s'] == f"{online['gyro_wander_stop_deg_s']:.4f}"
+    assert values['gyro_wander_stop_ruled_out'] == str(
+        online['gyro_wander_stop_ruled_out_s'] is not None).lower()
     assert values['verdict'] == 'degraded'
     assert level == DiagnosticStatus.WARN
     reasons = values['verdict_reasons'].split(' | ')
