@@ -26,10 +26,10 @@ def _files(root):
 def test_make_bags_rebuilds_the_committed_bags(tmp_path):
     """Rebuilt, every file is the committed one: bit for bit, or its messages to 1e-12.
 
-    The simulator's float64 sin, cos and arctan2 go through numpy's kernels for the CPU at
-    hand, and those may differ in the last bit from machine to machine: the bags committed
-    in 087439a, rebuilt on an AMD EPYC without AVX-512, differ in 492 of 9001 yaw rates, by
-    at most 3.6e-13 rad/s (numpy 2.2-2.4 alike). So each bag's messages are compared
+    The simulator's float64 sin, cos and arctan2 are not bit-reproducible from machine to
+    machine (the kernels numpy and the C library pick for the CPU): the bags committed in
+    087439a, rebuilt on an AMD EPYC without AVX-512, differ in 492 of 9001 yaw rates, by at
+    most 3.6e-13 rad/s (numpy 2.2-2.4 alike). So each bag's messages are compared
     decoded: stamps, counts and every other value exactly, floats to 1e-12. Where they
     are the same to the bit, the writer must give the same bytes.
     """
