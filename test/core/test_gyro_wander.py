@@ -12,17 +12,9 @@ from gyro_ekf.core.gyro_wander import (
     HELD_BLOCKS, MIN_BLOCKS, PRIOR_CONFIDENCE, GyroWander, block_allowed, block_mean_share)
 from gyro_ekf.core.simulator import simulate_trip
 
+from gauss_markov import gauss_markov
+
 DEG = math.pi / 180.0
-
-
-def _gauss_markov(rng, n, dt_s, sigma, tau_s):
-    phi = math.exp(-dt_s / tau_s)
-    c = np.empty(n)
-    c[0] = rng.normal(0.0, sigma)
-    steps = rng.normal(0.0, sigma * math.sqrt(1.0 - phi * phi), n)
-    for k in range(1, n):
-        c[k] = phi * c[k - 1] + steps[k]
-    return c
 
 
 @pytest.mark.parametrize('tau_s', [0.5, 2.0, 5.0])
@@ -30,7 +22,7 @@ def test_block_mean_share_is_the_variance_of_a_gauss_markov_mean(tau_s):
     rng = np.random.default_rng(1)
     dt, length = 0.01, 2.0
     per_block = int(length / dt)
-    c = _gauss_markov(rng, 2000 * per_block, dt, 1.0, tau_s)
+    c = gauss_markov(rng, 2000 * per_block, dt, 1.0, tau_s)
     means = c.reshape(-1, per_block).mean(axis=1)
     # 2000 block means, correlated from block to block: their variance to about 10 %.
     assert np.var(means) == pytest.approx(block_mean_share(length, tau_s), rel=0.15)
@@ -307,7 +299,7 @@ def test_a_wander_that_reverts_seldom_holds_one_sign(tau_s, most):
     per_block = int(length / dt)
     held = 0
     for trial in range(100):
-        c = _gauss_markov(rng, 56 * per_block, dt, 0.03 * DEG, tau_s)
+        c = gauss_markov(rng, 56 * per_block, dt, 0.03 * DEG, tau_s)
         wander = GyroWander(2.0)
         for mean in c.reshape(-1, per_block).mean(axis=1):
             held += wander.held(length, float(mean), (0.004 * DEG) ** 2) is not None

@@ -13,19 +13,11 @@ from gyro_ekf.core.gyro_wander import MIN_BLOCKS, GyroWander
 from gyro_ekf.core.simulator import simulate_trip
 from gyro_ekf.core.stop_wander import BLOCK_S, StopBlocks
 
+from gauss_markov import gauss_markov
+
 DEG = math.pi / 180.0
 RATE_HZ = 200.0
 WHITE = 0.25 * DEG  # the simulator's gyro noise per sample
-
-
-def _gauss_markov(rng, n, dt_s, sigma, tau_s):
-    phi = math.exp(-dt_s / tau_s)
-    c = np.empty(n)
-    c[0] = rng.normal(0.0, sigma)
-    steps = rng.normal(0.0, sigma * math.sqrt(1.0 - phi * phi), n)
-    for k in range(1, n):
-        c[k] = phi * c[k - 1] + steps[k]
-    return c
 
 
 def _stop(rates, start_s=0.0):
@@ -52,7 +44,7 @@ def test_a_wandering_gyro_shows_its_wander():
     sigma, n = 0.06 * DEG, int(16 * RATE_HZ)
     seen = []
     for _ in range(40):
-        rates = rng.normal(0.0, WHITE, n) + _gauss_markov(rng, n, 1.0 / RATE_HZ, sigma, 2.0)
+        rates = rng.normal(0.0, WHITE, n) + gauss_markov(rng, n, 1.0 / RATE_HZ, sigma, 2.0)
         found = _stop(rates).wander(float(np.var(rates, ddof=1)))
         if found is not None:
             seen.append(found / sigma)
