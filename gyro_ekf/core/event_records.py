@@ -94,6 +94,8 @@ class DriverStats:
         first_association_s: stamp of the first applied update, or None.
         last_association_s: stamp of the last applied update, or None.
         longest_gap_s: longest time between applied updates (from the first one).
+        dead_reckoned_s: the time in gaps between applied updates longer than
+            ``health.DEAD_RECKONED_GAP_S`` (the gaps closed so far), s.
         long_gaps: gaps longer than events.MAX_PREDICTION_STEPS steps (predicted in
             coarser steps).
         excluded: detections of excluded LiDARs (re-checked, not applied; in no outcome).
@@ -153,6 +155,7 @@ class DriverStats:
     first_association_s: float | None = None
     last_association_s: float | None = None
     longest_gap_s: float = 0.0
+    dead_reckoned_s: float = 0.0
     long_gaps: int = 0
     excluded: int = 0
     unmapped: int = 0
@@ -203,7 +206,8 @@ class DriverStats:
                 'mean_nis': self.mean_nis,
                 'first_association_s': self.first_association_s,
                 'last_association_s': self.last_association_s,
-                'longest_gap_s': self.longest_gap_s, 'long_gaps': self.long_gaps,
+                'longest_gap_s': self.longest_gap_s,
+                'dead_reckoned_s': self.dead_reckoned_s, 'long_gaps': self.long_gaps,
                 'excluded': self.excluded, 'unmapped': self.unmapped,
                 'zero_rate_updates': self.zero_rate_updates,
                 'stops': self.stops, 'bias_openings': self.bias_openings,

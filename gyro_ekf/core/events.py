@@ -57,7 +57,7 @@ from gyro_ekf.core.map_poles import MapPoleWatch
 from gyro_ekf.core.turn_sign import TurnSignCheck
 from gyro_ekf.core.stamp_jitter import StampJitterWatch
 from gyro_ekf.core.event_records import DriverStats, Estimate, ObservationReport
-from gyro_ekf.core.health import HealthMonitor, Transition, chi_square_upper
+from gyro_ekf.core.health import HealthMonitor, Transition, chi_square_upper, dead_reckoned
 from gyro_ekf.core.held_rate import MIN_AGE_S, HeldRate
 from gyro_ekf.core.held_start import HeldStart
 from gyro_ekf.core.models import observe_bias, points_to_range_bearing, sensor_point_to_map
@@ -995,8 +995,9 @@ class EventDriver:
             self.stats.updates += len(nis)
             self.stats.nis_sum += nis_sum
             if self.stats.last_association_s is not None:
-                self.stats.longest_gap_s = max(self.stats.longest_gap_s,
-                                               stamp_s - self.stats.last_association_s)
+                gap = stamp_s - self.stats.last_association_s
+                self.stats.longest_gap_s = max(self.stats.longest_gap_s, gap)
+                self.stats.dead_reckoned_s += dead_reckoned(gap)
             else:
                 self.stats.first_association_s = stamp_s
             self.stats.last_association_s = stamp_s

@@ -899,6 +899,8 @@ class EkfNode(Node):
             matched=stats.outcomes.get('matched', 0), updates=stats.updates,
             nis_mean=stats.mean_nis,
             longest_gap_s=max(stats.longest_gap_s, since or 0.0), start_gap_s=start_gap,
+            dead_reckoned_s=stats.dead_reckoned_s + health.dead_reckoned(since or 0.0),
+            tracked_s=(0.0 if first is None or now is None else now - first),
             sensors=self.driver.health.report(), resets=self.resets,
             dropped={k: self.dropped[k] for k in VERDICT_DROP_REASONS},
             dropped_when_converted=health.samples_dropped_figures(
@@ -976,6 +978,8 @@ class EkfNode(Node):
             'mean_nis': f'{stats.mean_nis:.4f}',
             **{f'rate_{k}_hz': f'{v:.2f}' for k, v in self._rates_hz.items()},
             'time_since_association_s': '' if since is None else f'{since:.3f}',
+            # The time since the first update spent in gaps of over a second (the verdict's).
+            'dead_reckoned_s': f'{stats.dead_reckoned_s + health.dead_reckoned(since or 0.0):.3f}',
             'estimates': str(self._estimates), 'published': str(self.published),
             # Matched readers: ekf/odometry and ekf/bias are not published without one.
             'odometry_readers': str(self._odometry_readers()),

@@ -391,6 +391,27 @@ def test_a_lidar_dropout_leaves_the_pose_covariance_consistent():
     assert summarize(run)['ground_truth']['nees_share_in_band'] >= 0.9
 
 
+def test_a_lidar_dropout_under_the_gap_limit_is_said_when_it_is_a_share_of_the_run():
+    # Stress seed 34 at 90 s, lidar_dropout 16: 4.8 s without scans, under the 5-s gap
+    # limit, and the NEES share 0.891 (its misses below the band) with the verdict ok.
+    from gyro_ekf.analysis.offline import run_trip
+    from gyro_ekf.analysis.stress import CLASSES, trip_jobs
+    from gyro_ekf.analysis.summary import summarize
+    from gyro_ekf.core import health
+    dropout = tuple(c for c in CLASSES if c.name == 'lidar_dropout')
+    run = run_trip(trip_jobs(17, 34, 90.0, dropout)[16].simulate())
+    summary = summarize(run)
+    association = summary['association']
+    assert association['longest_gap_s'] < health.VERDICT_MAX_GAP_S
+    share = association['dead_reckoned_s'] / association['tracked_s']
+    assert share > health.VERDICT_MAX_DEAD_RECKONED_SHARE
+    assert summary['health']['verdict'] == 'degraded'
+    assert any('dead-reckoned' in reason for reason in summary['health']['reasons'])
+    # The driver counts the gaps it closed, as the EKF node's verdict reads them: here the
+    # dropout, closed long before the end.
+    assert run.result.stats.dead_reckoned_s == pytest.approx(association['dead_reckoned_s'])
+
+
 def test_before_the_first_landmark_update_there_is_no_position_walk():
     # The 2023 course log drives 10 s before its first pole is in view: no detection
     # error has entered yet for the walk to cover (its NEES share 0.912 -> 0.918).

@@ -147,6 +147,26 @@ def test_verdict_names_each_reason_with_its_figure_and_threshold():
     assert health.verdict(good) == {'verdict': 'ok', 'reasons': []}
 
 
+def test_verdict_says_a_run_dead_reckoned_for_more_than_its_share():
+    plain = dict(detections=100, matched=99, updates=99, nis_mean=2.0, start_gap_s=1.0,
+                 sensors=[], tracked_s=90.0)
+    # 4.8 s of 90 (5.3 %) in gaps of over a second, none of them over 5 s.
+    result = health.verdict(health.RunFigures(**plain, longest_gap_s=4.8,
+                                              dead_reckoned_s=4.8))
+    assert result['verdict'] == 'degraded'
+    assert result['reasons'] == [
+        '4.8 s of the 90.0 s since the first landmark update dead-reckoned (gaps over 1 s), '
+        '5.3 %, more than 5 %: there the pose is a prediction no LiDAR checked']
+    assert health.verdict(health.RunFigures(**plain, longest_gap_s=4.4,
+                                            dead_reckoned_s=4.4))['verdict'] == 'ok'
+    # A gap over the limit is said once, as such.
+    result = health.verdict(health.RunFigures(**plain, longest_gap_s=7.0,
+                                              dead_reckoned_s=7.0))
+    assert result['reasons'] == ['7.0 s without a landmark update, longer than 5 s']
+    # Gaps of a second or less are not dead reckoning: scans without a pole in view.
+    assert health.dead_reckoned(1.0) == 0.0 and health.dead_reckoned(1.2) == 1.2
+
+
 def test_a_run_with_no_landmark_update_fails_when_over_or_after_the_start_limit():
     # A bag without its scans ran 45 s on dead reckoning, 1.7 m off, with the verdict ok.
     none = dict(detections=0, matched=0, updates=0, nis_mean=math.nan, longest_gap_s=0.0,
