@@ -168,17 +168,17 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     stats = run.result.stats
     detections = int(stats.detections)
     matched = int(stats.outcomes.get('matched', 0))
-    stamps = association_stamps(run)
-    gap, gap_start = metrics.longest_gap(stamps, start, end)
+    updated = association_stamps(run)
+    gap, gap_start = metrics.longest_gap(updated, start, end)
     # From the first update to the end: the time in gaps the verdict calls dead-reckoned.
-    tracked = float(end - stamps[0]) if stamps.size else 0.0
-    dead = sum(health.dead_reckoned(float(g)) for g in np.diff(np.append(stamps, end)))
+    tracked = float(end - updated[0]) if updated.size else 0.0
+    dead = sum(health.dead_reckoned(float(g)) for g in np.diff(np.append(updated, end)))
     summary['association'] = {
         'detections': detections, 'outcomes': dict(stats.outcomes),
         'unmapped': int(stats.unmapped),
         'share_associated': matched / detections if detections else math.nan,
         'longest_gap_s': gap, 'longest_gap_start_s': gap_start,
-        'dead_reckoned_s': float(dead), 'tracked_s': tracked}
+        'dead_reckoned_s': float(dead), 'since_first_update_s': tracked}
 
     nis = nis_values(run)
     nis_band = metrics.chi_square_band(2)
@@ -249,7 +249,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         updates=int(stats.updates), nis_mean=summary['nis']['mean'],
         longest_gap_s=longest, start_gap_s=start_gap, sensors=sensors, dropped=dropped,
         dead_reckoned_s=summary['association']['dead_reckoned_s'],
-        tracked_s=summary['association']['tracked_s'],
+        since_first_update_s=summary['association']['since_first_update_s'],
         dropped_when_converted=dropped_when_converted,
         converted_from='' if converted is None else converted['source'],
         final_bias_rad_s=summary['online_bias']['final_rad_s'],

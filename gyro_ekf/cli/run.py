@@ -117,11 +117,11 @@ def _scale(scale: dict[str, Any]) -> str:
 
 def _dead_reckoned(association: dict) -> str:
     """Return the time in gaps of over a second since the first update, and its share."""
-    tracked = association['tracked_s']
+    tracked = association['since_first_update_s']
     if not tracked:
         return 'n/a'
     dead = association['dead_reckoned_s']
-    return f'{dead:.1f} s of {tracked:.1f} s ({dead / tracked:.1%})'
+    return f'{dead:.1f} s of the {tracked:.1f} s since the first ({100.0 * dead / tracked:.1f} %)'
 
 
 def _offsets(offsets: dict[str, dict[str, Any]]) -> str:
@@ -219,8 +219,7 @@ def _table(summary: dict[str, Any]) -> str:
              ('poles associated', number(summary['association']['share_associated'], '.2%')),
              ('longest gap without a landmark (s)',
               number(summary['association']['longest_gap_s'], '.2f')),
-             ('dead-reckoned since the first landmark (gaps > 1 s)', _dead_reckoned(
-                 summary['association'])),
+             ('dead-reckoned (gaps over 1 s)', _dead_reckoned(summary['association'])),
              ('NIS mean / share in 95 % band', number(summary['nis']['mean'], '.2f') + ' / '
               + number(summary['nis']['share_in_band'], '.1%'))]
     truth = summary['ground_truth']

@@ -29,7 +29,9 @@ to their landmark and its other detections, 2 Hz), latched `landmark_markers` (t
 and with `publish_tf` TF `map -> base_link` (or `map -> odom_frame`, robot_localization's
 rule) where the install has tf2_msgs. `/diagnostics`
 reports the bias and its sigma in deg/s, associated/rejected observations, mean NIS, input
-rates, time since the last associated landmark, the drop counts (with what `gyro-ekf
+rates, time since the last associated landmark, the time since the first one spent in gaps
+of over a second and its share (`dead_reckoned_s`, `dead_reckoned_share`: the verdict's,
+core/health.py), the drop counts (with what `gyro-ekf
 convert --skip-bad` dropped from the bag's log, as its sidecar records it:
 `dropped_when_converted`, `dropped_when_converted_<stream>`, `converted_from`; the verdict
 counts it as `gyro-ekf run` does), the matched readers of
@@ -879,6 +881,17 @@ class EkfNode(Node):
             self.get_logger().warn(f'LiDAR {change.sensor} {change.change} at '
                                    f'{change.stamp_s:.3f} s: {change.reason}')
 
+    def _dead_reckoned(self, since: float | None) -> tuple[float, float]:
+        """Return the time since the first update in gaps of over a second, and that time, s.
+
+        The gaps the driver closed and the open one (``since``, the time since the last
+        update), as summary.json's ``association`` counts them to the end of a run.
+        """
+        stats, now = self.driver.stats, self.driver.stamp_s
+        first = stats.first_association_s
+        since_first = 0.0 if first is None or now is None else now - first
+        return stats.dead_reckoned_s + health.dead_reckoned(since or 0.0), since_first
+
     def _verdict(self, since: float | None) -> dict:
         """Return the health verdict since the start or the last reset, as summary.json has it.
 
@@ -888,6 +901,7 @@ class EkfNode(Node):
         stats = self.driver.stats
         start, now = self._first_imu_s, self.driver.stamp_s
         first = stats.first_association_s
+        dead_reckoned, since_first = self._dead_reckoned(since)
         if start is None or now is None:
             start_gap = 0.0
         else:
@@ -899,8 +913,7 @@ class EkfNode(Node):
             matched=stats.outcomes.get('matched', 0), updates=stats.updates,
             nis_mean=stats.mean_nis,
             longest_gap_s=max(stats.longest_gap_s, since or 0.0), start_gap_s=start_gap,
-            dead_reckoned_s=stats.dead_reckoned_s + health.dead_reckoned(since or 0.0),
-            tracked_s=(0.0 if first is None or now is None else now - first),
+            dead_reckoned_s=dead_reckoned, since_first_update_s=since_first,
             sensors=self.driver.health.report(), resets=self.resets,
             dropped={k: self.dropped[k] for k in VERDICT_DROP_REASONS},
             dropped_when_converted=health.samples_dropped_figures(
@@ -967,6 +980,7 @@ class EkfNode(Node):
         rejected = sum(v for k, v in outcomes.items() if k != 'matched')
         since = (None if stats.last_association_s is None or self.driver.stamp_s is None
                  else self.driver.stamp_s - stats.last_association_s)
+        dead_reckoned, since_first = self._dead_reckoned(since)
         map_poles = self.driver.map_poles_report()
         values = {
             'bias_deg_s': f'{math.degrees(x[3]):.5f}',
@@ -979,7 +993,8 @@ class EkfNode(Node):
             **{f'rate_{k}_hz': f'{v:.2f}' for k, v in self._rates_hz.items()},
             'time_since_association_s': '' if since is None else f'{since:.3f}',
             # The time since the first update spent in gaps of over a second (the verdict's).
-            'dead_reckoned_s': f'{stats.dead_reckoned_s + health.dead_reckoned(since or 0.0):.3f}',
+            'dead_reckoned_s': f'{dead_reckoned:.3f}',
+            'dead_reckoned_share': '' if not since_first else f'{dead_reckoned / since_first:.4f}',
             'estimates': str(self._estimates), 'published': str(self.published),
             # Matched readers: ekf/odometry and ekf/bias are not published without one.
             'odometry_readers': str(self._odometry_readers()),

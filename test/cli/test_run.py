@@ -48,9 +48,10 @@ def test_run_on_a_simulated_bag_meets_the_accuracy_bounds(tmp_path, simulated_ba
     # The time without a landmark update for over a second: none on a clean trip.
     association = summary['association']
     assert association['dead_reckoned_s'] == 0.0
-    assert association['tracked_s'] == pytest.approx(trip.end_s - trip.start_s, abs=0.2)
+    assert association['since_first_update_s'] == pytest.approx(trip.end_s - trip.start_s, abs=0.2)
     row = next(line for line in printed.splitlines() if line.startswith('dead-reckoned'))
-    assert row.split('  ')[-1].strip() == f"0.0 s of {association['tracked_s']:.1f} s (0.0%)"
+    assert row.split('  ')[-1].strip() == (
+        f"0.0 s of the {association['since_first_update_s']:.1f} s since the first (0.0 %)")
     _assert_ok(summary)
     truth = summary['ground_truth']
     assert truth['position_rmse_m'] <= 0.02

@@ -382,7 +382,8 @@ def test_the_position_walk_pauses_in_a_lidar_gap():
 def test_a_lidar_dropout_leaves_the_pose_covariance_consistent():
     # Stress seed 81 at 60 s, lidar_dropout 2 (4.9 s without scans): with the walk the
     # position sigma went 2.6 -> 8.2 mm over the dropout, its error 3 mm; NEES share 0.887
-    # with the verdict ok (a silent failure of the suite).
+    # with the verdict ok (a silent failure of the suite). Its verdict is degraded now
+    # besides (8 % of the run dead-reckoned: the next test).
     from gyro_ekf.analysis.offline import run_trip
     from gyro_ekf.analysis.stress import CLASSES, trip_jobs
     from gyro_ekf.analysis.summary import summarize
@@ -403,7 +404,7 @@ def test_a_lidar_dropout_under_the_gap_limit_is_said_when_it_is_a_share_of_the_r
     summary = summarize(run)
     association = summary['association']
     assert association['longest_gap_s'] < health.VERDICT_MAX_GAP_S
-    share = association['dead_reckoned_s'] / association['tracked_s']
+    share = association['dead_reckoned_s'] / association['since_first_update_s']
     assert share > health.VERDICT_MAX_DEAD_RECKONED_SHARE
     assert summary['health']['verdict'] == 'degraded'
     assert any('dead-reckoned' in reason for reason in summary['health']['reasons'])

@@ -149,16 +149,23 @@ def test_verdict_names_each_reason_with_its_figure_and_threshold():
 
 def test_verdict_says_a_run_dead_reckoned_for_more_than_its_share():
     plain = dict(detections=100, matched=99, updates=99, nis_mean=2.0, start_gap_s=1.0,
-                 sensors=[], tracked_s=90.0)
+                 sensors=[], since_first_update_s=90.0)
     # 4.8 s of 90 (5.3 %) in gaps of over a second, none of them over 5 s.
     result = health.verdict(health.RunFigures(**plain, longest_gap_s=4.8,
                                               dead_reckoned_s=4.8))
     assert result['verdict'] == 'degraded'
     assert result['reasons'] == [
         '4.8 s of the 90.0 s since the first landmark update dead-reckoned (gaps over 1 s), '
-        '5.3 %, more than 5 %: there the pose is a prediction no LiDAR checked']
+        '5.3 %, more than 5 %: there the pose was predicted from the odometry and the gyro '
+        'alone, unchecked by any LiDAR']
     assert health.verdict(health.RunFigures(**plain, longest_gap_s=4.4,
                                             dead_reckoned_s=4.4))['verdict'] == 'ok'
+    # Exactly 5 % is not more than 5 %; no time since the first update says nothing.
+    assert health.verdict(health.RunFigures(**plain, longest_gap_s=4.5,
+                                            dead_reckoned_s=4.5))['verdict'] == 'ok'
+    assert health.verdict(health.RunFigures(**{**plain, 'since_first_update_s': 0.0},
+                                            longest_gap_s=0.0, dead_reckoned_s=1.5)
+                          )['verdict'] == 'ok'
     # A gap over the limit is said once, as such.
     result = health.verdict(health.RunFigures(**plain, longest_gap_s=7.0,
                                               dead_reckoned_s=7.0))

@@ -32,9 +32,11 @@ def test_node_says_the_dead_reckoned_share_as_the_offline_run_does(dropout_run):
     assert 'all acknowledged: True' in replay
     association = offline['association']
     assert association['longest_gap_s'] < 5.0
-    assert association['dead_reckoned_s'] > 0.05 * association['tracked_s']
+    assert association['dead_reckoned_s'] > 0.05 * association['since_first_update_s']
     said = [r for r in offline['health']['reasons'] if 'dead-reckoned' in r]
     assert len(said) == 1, offline['health']['reasons']
     assert values['dead_reckoned_s'] == f"{association['dead_reckoned_s']:.3f}"
+    assert float(values['dead_reckoned_share']) == pytest.approx(
+        association['dead_reckoned_s'] / association['since_first_update_s'], abs=1e-3)
     assert values['verdict'] == 'degraded'
     assert values['verdict_reasons'].split(' | ') == offline['health']['reasons']
