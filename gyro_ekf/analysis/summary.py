@@ -178,7 +178,10 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
         'unmapped': int(stats.unmapped),
         'share_associated': matched / detections if detections else math.nan,
         'longest_gap_s': gap, 'longest_gap_start_s': gap_start,
-        'dead_reckoned_s': float(dead), 'since_first_update_s': tracked}
+        'dead_reckoned_s': float(dead), 'since_first_update_s': tracked,
+        # Scans associated by map distance: after a gap, or with the gate starving the
+        # filter (core/gate_starved.py; the verdict says the latter).
+        'recoveries': int(stats.recoveries), 'gate_starved': int(stats.gate_starved)}
 
     nis = nis_values(run)
     nis_band = metrics.chi_square_band(2)
@@ -258,7 +261,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         # them to its newest one (core/input_loss.py).
         input_gaps_s=silences(run.result.input_loss or {}, run.trip.end_s),
         input_gap_limit_s=run.config.max_prediction_step_s,
-        bias_openings=int(stats.bias_openings),
+        bias_openings=int(stats.bias_openings), gate_starved=int(stats.gate_starved),
         bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s),
         bias_wander_held=int(stats.bias_wander_held),
         bias_largest_rate_rad_s2=float(stats.bias_largest_rate_rad_s2),

@@ -89,7 +89,9 @@ class DriverStats:
         detections: poles detected.
         outcomes: detections per association outcome name.
         updates: landmark updates applied.
-        recoveries: scans associated by map distance after a gap (see EkfConfig).
+        recoveries: scans associated by map distance after a gap (see EkfConfig), or
+            with the filter starved by its own gate (core/gate_starved.py).
+        gate_starved: those of the recoveries for a starved filter.
         nis_sum: sum of the NIS of all updates.
         first_association_s: stamp of the first applied update, or None.
         last_association_s: stamp of the last applied update, or None.
@@ -151,6 +153,7 @@ class DriverStats:
         default_factory=lambda: {o.name.lower(): 0 for o in AssociationOutcome})
     updates: int = 0
     recoveries: int = 0
+    gate_starved: int = 0
     nis_sum: float = 0.0
     first_association_s: float | None = None
     last_association_s: float | None = None
@@ -203,6 +206,7 @@ class DriverStats:
         return {'imu': self.imu, 'speed': self.speed, 'scans': self.scans,
                 'detections': self.detections, 'outcomes': dict(self.outcomes),
                 'updates': self.updates, 'recoveries': self.recoveries,
+                'gate_starved': self.gate_starved,
                 'mean_nis': self.mean_nis,
                 'first_association_s': self.first_association_s,
                 'last_association_s': self.last_association_s,

@@ -48,6 +48,7 @@ from gyro_ekf.core.body_frame import (Offset, Shift, disagreement_spread, mixtur
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
+from gyro_ekf.core.gate_starved import GateStarvation
 from gyro_ekf.core.gyro_scale import GyroScaleWatch
 from gyro_ekf.core.gyro_wander import GyroWander, block_allowed
 from gyro_ekf.core.input_loss import InputLoss
@@ -199,6 +200,9 @@ class EventDriver:
         self._wander_dt = 0.0
         self._rate_held_s = -math.inf
         self._first_scan_s: float | None = None
+        # Detections matched and left beside their poles, over the recovery delay: a
+        # filter its own gate starves is re-associated by distance (core/gate_starved.py).
+        self._gate = GateStarvation(self.config.recovery_after_s)
         self._end_stop()
 
     def _end_stop(self) -> None:
@@ -263,6 +267,7 @@ class EventDriver:
         self.rate_rad_s = None
         self.speed_variance = self.rate_variance = None
         self._first_scan_s = None
+        self._gate.clear()
         self._rest_updates = {}
         self._end_stop()
 
@@ -334,7 +339,8 @@ class EventDriver:
                  {name: gate.save() for name, gate in self.input_spikes.items()},
                  {key: watch.save() for key, watch in self.stamp_jitter.items()},
                  self.map_poles.save(), self.turn_signs.save(), self.gyro_frozen.save()),
-                (dict(self._start_offsets), self._body_key, self.frame_shift))
+                (dict(self._start_offsets), self._body_key, self.frame_shift),
+                self._gate.copy())
 
     def restore(self, saved: tuple) -> None:
         """Put the driver back into a state returned by ``save`` (the map is kept)."""
@@ -344,7 +350,8 @@ class EventDriver:
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
           self._path_yaw), noise, (gyro_scale, self._turned, offsets),
          (input_loss, spikes, jitter, map_poles, turn_signs, frozen),
-         (start_offsets, self._body_key, self.frame_shift)) = saved
+         (start_offsets, self._body_key, self.frame_shift), gate) = saved
+        self._gate = gate.copy()
         self.map_poles.restore(map_poles)
         self.gyro_frozen.restore(frozen)
         self.turn_signs.restore(turn_signs)
@@ -874,8 +881,12 @@ class EventDriver:
         noise = self.lidar_noise(key) if self.config.lidar_noise_window else None
         variances = None if noise is None else noise.variances
         R = self.ekf.R if noise is None else noise.R
-        if self._recovering(stamp_s):
+        starved = (not self._recovering(stamp_s) and not self.held_start.held
+                   and self._gate.starved(stamp_s))
+        if starved or self._recovering(stamp_s):
             self.stats.recoveries += 1
+            self.stats.gate_starved += starved
+            self._gate.clear()
             result = associate_by_distance(
                 z, prior, self.ekf.P, R, self._landmarks.xy_m, mount,
                 self.config.recovery_max_distance_m, self.config.recovery_ratio,
@@ -986,6 +997,7 @@ class EventDriver:
                                               self._vouching_lidar)
                 if moved is not None:
                     self._first_lidar_moved(key, moved)
+        self._gate.add(stamp_s, len(nis), 0 if near_poles is None else len(near_poles))
         self.held_start.judge(stamp_s, 1 + len(self.mounts.trackers))
         self.turn_signs.associated(key, detected, len(nis))
         nis_sum = float(sum(nis))

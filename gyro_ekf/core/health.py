@@ -674,6 +674,8 @@ class RunFigures:
             stream silent for longer had its last value held over a gap.
         bias_openings: times the LiDARs saw the heading drift and the bias was re-opened
             (DriverStats.bias_openings, core/bias_watch.py).
+        gate_starved: scans associated by map distance because the gate had kept out most
+            detections near poles (DriverStats.gate_starved, core/gate_starved.py).
         bias_largest_opening_rad_s: the largest bias change such a drift implied, rad/s.
         bias_wander_held: of the openings, those where the modelled wander held one sign
             (DriverStats.bias_wander_held).
@@ -737,6 +739,7 @@ class RunFigures:
     input_gaps_s: dict[str, float] = field(default_factory=dict)
     input_gap_limit_s: float = math.inf
     bias_openings: int = 0
+    gate_starved: int = 0
     bias_largest_opening_rad_s: float = 0.0
     bias_wander_held: int = 0
     bias_largest_rate_rad_s2: float = 0.0
@@ -1128,6 +1131,13 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
                 f'neighbours (the largest {spikes["largest"]:+.3g} {unit} off the value in '
                 f'use, beyond its noise and {_MAX_CHANGE[stream]}) and were left out: a '
                 f'glitch in the sensor or its link')
+    if figures.gate_starved:
+        # Recovered, but for up to a second before it the pose had run off its covariance
+        # (the detections lay beside their poles, outside the gate).
+        add(DEGRADED, f'the pose ran off its covariance {figures.gate_starved} time(s): '
+            f'most detections near poles fell outside the association gate, and scans '
+            f'were associated by map distance to recover (a sudden bias change, slip or '
+            f'knock)')
     per_minute = math.degrees(figures.bias_largest_rate_rad_s2) * 60.0
     if figures.bias_openings:
         # The filter followed it, but its bias is then only as old as the last change: a

@@ -921,6 +921,7 @@ class EkfNode(Node):
             converted_from=self._converted_from,
             final_bias_rad_s=self.driver.ekf.bias_rad_s, unmapped=stats.unmapped,
             scans=stats.scans, bias_openings=stats.bias_openings,
+            gate_starved=stats.gate_starved,
             bias_largest_opening_rad_s=stats.bias_largest_opening_rad_s,
             bias_wander_held=stats.bias_wander_held,
             bias_largest_rate_rad_s2=stats.bias_largest_rate_rad_s2,
@@ -1062,6 +1063,8 @@ class EkfNode(Node):
             'excluded_detections': str(stats.excluded),
             'zero_rate_updates': str(stats.zero_rate_updates),
             'bias_reopened': str(stats.bias_openings),
+            # Scans associated by map distance with the gate starving the filter.
+            'gate_starved': str(stats.gate_starved),
             # Of those, where the modelled wander held one sign (core/gyro_wander.py).
             'bias_reopened_wander_held': str(stats.bias_wander_held),
             'gyro_noise_scale': f'{stats.gyro_noise_scale:.3f}',

@@ -154,27 +154,45 @@ def test_time_going_backwards_raises_and_reset_recovers():
     assert driver.stats.imu == 1
 
 
-def test_driver_recovers_landmarks_after_a_gap_by_map_distance():
+def _recovery_run(scan_period_s: float) -> tuple[EventDriver, list[float]]:
+    """A filter 0.4 m off the truth with a tiny covariance, its three poles seen every
+    scan_period_s for 4 s: return it and the stamps of the scans it matched."""
     from gyro_ekf.core.models import observe
     from gyro_ekf.core.types import LandmarkMap, LidarMount
     landmarks = LandmarkMap(np.array([[4.0, 1.0], [4.0, -2.0], [-3.0, 3.0]]))
     config = EkfConfig(recovery_after_s=1.0)
-    # The filter believes it is 0.4 m off the truth, with a tiny covariance.
     driver = EventDriver(config, landmarks, pose=[0.4, 0.0, 0.0], bias_rad_s=0.0)
     truth = np.array([0.0, 0.0, 0.0, 0.0])
     mount = LidarMount()
     matched_at = []
-    for k in range(40):
-        stamp = 0.1 * k
+    for k in range(int(round(4.0 / scan_period_s))):
+        stamp = scan_period_s * k
         driver.on_imu(stamp, 0.0)
         z = observe(truth, landmarks.xy_m, mount)
         points = np.column_stack([z[:, 0] * np.cos(z[:, 1]), z[:, 0] * np.sin(z[:, 1])])
         report = driver.on_detections(stamp, points, mount)
         if report.nis.size:
             matched_at.append(stamp)
+    return driver, matched_at
+
+
+def test_driver_recovers_landmarks_after_a_gap_by_map_distance():
+    # Scans every 0.5 s: six detections beside their poles in a second, too few to call
+    # the filter starved; after a second without an update, the gap recovery.
+    driver, matched_at = _recovery_run(0.5)
     assert matched_at and matched_at[0] > 1.0  # the gate refused them until the recovery
     assert driver.stats.recoveries > 0
+    assert driver.stats.gate_starved == 0
     assert np.hypot(*driver.ekf.x[:2]) < 0.05  # pulled back onto the truth
+
+
+def test_driver_starved_by_its_gate_recovers_before_a_gap():
+    # Scans every 0.1 s: by the third, nine detections lay beside their poles and none
+    # was matched (core/gate_starved.py), so the recovery does not wait out the second.
+    driver, matched_at = _recovery_run(0.1)
+    assert matched_at and matched_at[0] < 0.5
+    assert driver.stats.gate_starved > 0
+    assert np.hypot(*driver.ekf.x[:2]) < 0.05
 
 
 def test_a_report_places_the_detections_at_the_prior_pose(simulated_runs):
