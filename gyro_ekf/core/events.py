@@ -881,9 +881,10 @@ class EventDriver:
         noise = self.lidar_noise(key) if self.config.lidar_noise_window else None
         variances = None if noise is None else noise.variances
         R = self.ekf.R if noise is None else noise.R
-        starved = (not self._recovering(stamp_s) and not self.held_start.held
+        after_gap = self._recovering(stamp_s)
+        starved = (not after_gap and not self.held_start.held
                    and self._gate.starved(stamp_s))
-        if starved or self._recovering(stamp_s):
+        if after_gap or starved:
             self.stats.recoveries += 1
             self.stats.gate_starved += starved
             self._gate.clear()

@@ -668,14 +668,14 @@ class RunFigures:
         final_bias_rad_s: the bias estimate now / at the end (nan when unknown).
         unmapped: of ``detections``, those unmatched and far from every mapped pole
             (DriverStats.unmapped): objects the map does not list, left out of the share.
+        gate_starved: scans associated by map distance because the gate had kept out most
+            detections near poles (DriverStats.gate_starved, core/gate_starved.py).
         input_gaps_s: longest time without a sample, per input stream ('gyro',
             'odometry'), s.
         input_gap_limit_s: the longest prediction step (``max_prediction_step_s``): a
             stream silent for longer had its last value held over a gap.
         bias_openings: times the LiDARs saw the heading drift and the bias was re-opened
             (DriverStats.bias_openings, core/bias_watch.py).
-        gate_starved: scans associated by map distance because the gate had kept out most
-            detections near poles (DriverStats.gate_starved, core/gate_starved.py).
         bias_largest_opening_rad_s: the largest bias change such a drift implied, rad/s.
         bias_wander_held: of the openings, those where the modelled wander held one sign
             (DriverStats.bias_wander_held).
@@ -736,10 +736,10 @@ class RunFigures:
     converted_from: str = ''
     final_bias_rad_s: float = math.nan
     unmapped: int = 0
+    gate_starved: int = 0
     input_gaps_s: dict[str, float] = field(default_factory=dict)
     input_gap_limit_s: float = math.inf
     bias_openings: int = 0
-    gate_starved: int = 0
     bias_largest_opening_rad_s: float = 0.0
     bias_wander_held: int = 0
     bias_largest_rate_rad_s2: float = 0.0
