@@ -998,7 +998,8 @@ class EventDriver:
                                               self._vouching_lidar)
                 if moved is not None:
                     self._first_lidar_moved(key, moved)
-        self._gate.add(stamp_s, len(nis), 0 if near_poles is None else len(near_poles))
+        self._gate.add(stamp_s, key, len(nis),
+                       0 if near_poles is None else len(near_poles))
         self.held_start.judge(stamp_s, 1 + len(self.mounts.trackers))
         self.turn_signs.associated(key, detected, len(nis))
         nis_sum = float(sum(nis))
