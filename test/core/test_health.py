@@ -72,7 +72,7 @@ def test_a_lidar_six_degrees_off_is_excluded_and_the_pose_stays_right(broken):
 
 def test_without_exclusion_the_same_trip_is_dragged_away_and_said():
     # Without the monitor the LiDAR 6 deg off drags the pose away (3.0 m RMSE and failed
-    # before the filter was re-associated when its gate starved it; 6.8 cm since, each
+    # before the filter was re-associated when its gate starved it; 6.1 cm since, each
     # recovery pulling it back for a while): never an ok verdict.
     trip = two_lidar_trip(seed=1, rear_yaw_error_deg=6.0)
     config = dataclasses.replace(EkfConfig(), **NO_EXCLUSION)
