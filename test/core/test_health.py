@@ -178,6 +178,35 @@ def test_verdict_says_a_run_dead_reckoned_for_more_than_its_share():
     assert health.dead_reckoned(1.0) == 0.0 and health.dead_reckoned(1.2) == 1.2
 
 
+def test_verdict_says_a_bias_the_run_did_not_learn():
+    plain = dict(detections=100, matched=99, updates=99, nis_mean=2.0, start_gap_s=1.0,
+                 sensors=[], longest_gap_s=0.5, since_first_update_s=20.0)
+    result = health.verdict(health.RunFigures(**plain,
+                                              final_bias_sigma_rad_s=math.radians(0.0151)))
+    assert result['verdict'] == 'degraded'
+    assert result['reasons'][0].startswith(
+        'the gyro bias is not learnt: its sigma is 0.0151 deg/s, more than 0.01 deg/s')
+    # 0.01 deg/s itself is learnt (the static start's figure); no sigma says nothing.
+    for sigma in (math.radians(0.01), math.radians(0.004), None):
+        assert health.verdict(health.RunFigures(**plain, final_bias_sigma_rad_s=sigma)
+                              )['verdict'] == 'ok'
+
+
+@pytest.mark.parametrize('seed, duration_s', [(5, 1.0), (65, 3.0)])
+def test_a_trip_too_short_to_learn_the_bias_is_degraded(seed, duration_s):
+    # A new user's short trips with no stop: seed 5 ended 0.036 deg/s off, seed 65 with a
+    # NEES share of 0.76, both with the verdict ok. Nothing but the bias's own sigma tells.
+    trip = simulate_trip(SimulationConfig(duration_s=duration_s, static_s=0.0), seed=seed)
+    summary = summarize(run_trip(trip))
+    sigma = summary['online_bias']['final_sigma_deg_s']
+    assert sigma > 0.01
+    assert summary['health']['verdict'] == 'degraded'
+    assert summary['health']['reasons'] == [
+        f'the gyro bias is not learnt: its sigma is {sigma:.4f} deg/s, more than 0.01 deg/s '
+        '(too short a run, no stop and too few landmark updates to learn it, or a gyro '
+        'configured to wander that much); the heading drifts by the bias error it leaves']
+
+
 def test_a_run_with_no_landmark_update_fails_when_over_or_after_the_start_limit():
     # A bag without its scans ran 45 s on dead reckoning, 1.7 m off, with the verdict ok.
     none = dict(detections=0, matched=0, updates=0, nis_mean=math.nan, longest_gap_s=0.0,
