@@ -37,6 +37,13 @@ BIAS_LIMIT_DEG_S = 0.02
 """Largest accepted distance of the online bias from the true bias, deg/s."""
 POSITION_LIMIT_M = 0.05
 """Largest accepted final position error, m."""
+END_LIMIT_S = 0.5
+"""Largest accepted time between the last pose recorded and the bag's last gyro sample, s.
+
+The recorder stops after a few seconds with no message; a node stalled that long after the
+replay (a busy machine) would leave the recording short, and its last pose compared with the
+truth at that earlier stamp. Published every ``publish_every_n`` samples, the last pose lies
+within a few of them of the end."""
 EKF_STATUS = 'ekf_node: gyro bias EKF'
 
 
@@ -51,7 +58,7 @@ def verdict(summary: dict, bias_limit_deg_s: float = BIAS_LIMIT_DEG_S,
 
     Args:
         summary: the demo summary (`_summary`): online_bias_deg_s, true_bias_deg_s,
-            final_position_error_m, ekf_resets, has_ground_truth.
+            final_position_error_m, ekf_resets, has_ground_truth, last_pose_s, bag_end_s.
         bias_limit_deg_s: largest accepted |online - true bias|, deg/s.
         position_limit_m: largest accepted final position error, m.
 
@@ -72,6 +79,13 @@ def verdict(summary: dict, bias_limit_deg_s: float = BIAS_LIMIT_DEG_S,
                             '(/ekf/pose not recorded)')
     elif not error <= position_limit_m:
         problems.append(f'final position error {error:.3f} m is above {position_limit_m:g} m')
+    last, end = summary.get('last_pose_s'), summary.get('bag_end_s')
+    if last is not None and end is not None and not end - last <= END_LIMIT_S:
+        # Every figure above is then of an earlier moment, not of the run's end.
+        problems.append(f'the recording ends early: the last pose ekf_node published that '
+                        f'was recorded is at {last:.3f} s, the bag\'s last gyro sample at '
+                        f'{end:.3f} s ({end - last:.1f} s later, limit {END_LIMIT_S:g} s): a '
+                        f'node stalled after the replay, or its output was lost')
     if summary.get('ekf_verdict') == 'failed':
         # The node's own health verdict: without ground truth the only judge of the pose.
         problems.append('ekf_node judged its run failed: '
@@ -97,8 +111,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--publish-every-n', type=int, default=4,
                         help='EKF publishes every n-th estimate (one per IMU sample)')
     parser.add_argument('--force', action='store_true',
-                        help='write into a non-empty output folder, overwriting the products '
-                        'of an earlier demo (never other files)')
+                        help='write into a non-empty output folder, replacing the products '
+                        'of an earlier demo (never other files; its summary.json and '
+                        'trajectory.png are removed at the start, so a demo that fails '
+                        'leaves none behind)')
 
 
 def check_options(args: argparse.Namespace) -> None:
@@ -172,6 +188,10 @@ def run(args: argparse.Namespace) -> int:
         raise BagError(f'{bag}: no such bag (make it with `make bags` or `gyro-ekf simulate`)')
     params = read_sidecar(bag)
     output = prepare_demo_dir(args.output, force=args.force)
+    for product in ('summary.json', 'trajectory.png'):
+        # An earlier demo's verdict must not outlive this one: a demo that fails before
+        # writing its own would leave that one's "ok" beside its new logs.
+        (output / product).unlink(missing_ok=True)
     env = _environment(output)
     log.info('discovery: %s, ROS_DOMAIN_ID %s', env['ROS_AUTOMATIC_DISCOVERY_RANGE'],
              env['ROS_DOMAIN_ID'])
@@ -317,6 +337,8 @@ def _summary(bag: Path, recorded: Path, params) -> dict:
                 pose_xy.append((position.x, position.y))
     summary['ekf_resets'] = resets
     summary['has_ground_truth'] = trip.ground_truth is not None
+    if len(trip.imu.stamp_s):
+        summary['bag_end_s'] = float(trip.imu.stamp_s[-1])
     summary['pose_xy_m'] = np.array(pose_xy, dtype=np.float64).reshape(-1, 2)
     summary['trip'] = trip
     if '/gyro_bias' in last:
@@ -330,8 +352,11 @@ def _summary(bag: Path, recorded: Path, params) -> dict:
     if params is not None and params.true_gyro_bias_rad_s is not None:
         summary['true_bias_deg_s'] = math.degrees(params.true_gyro_bias_rad_s[2])
     pose = last.get('/ekf/pose')
+    if pose is not None:
+        summary['last_pose_s'] = seconds_since(from_time(pose.header.stamp),
+                                               bag_trip.start_time_ns)
     if pose is not None and trip.ground_truth is not None:
-        stamp_s = seconds_since(from_time(pose.header.stamp), bag_trip.start_time_ns)
+        stamp_s = summary['last_pose_s']
         truth = trip.ground_truth
         x = np.interp(stamp_s, truth.stamp_s, truth.pose[:, 0])
         y = np.interp(stamp_s, truth.stamp_s, truth.pose[:, 1])

@@ -79,3 +79,9 @@ def test_the_demo_on_the_bundled_bag_says_ok_and_writes_its_products(tmp_path, r
     assert refused.stderr.strip().splitlines()[-1].startswith('gyro-ekf demo: error: ')
     assert 'Traceback' not in refused.stderr
     assert (output / 'summary.json').read_bytes() == before
+    # One that fails (its replay given a second) leaves no summary: not the first one's OK.
+    failed = _demo(output, ros_env, '--force', '--timeout-s', '1')
+    assert failed.returncode == 1, failed.stderr
+    assert 'did not finish within 1' in failed.stderr, failed.stderr
+    assert not (output / 'summary.json').exists()
+    assert not (output / 'trajectory.png').exists()

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import pytest
 
-from gyro_ekf.cli.demo import (BIAS_LIMIT_DEG_S, POSITION_LIMIT_M, DemoFailed, ok_clauses,
-                               verdict)
+from gyro_ekf.cli.demo import (BIAS_LIMIT_DEG_S, END_LIMIT_S, POSITION_LIMIT_M, DemoFailed,
+                               ok_clauses, verdict)
 from gyro_ekf.errors import GyroEkfError
 
 GOOD = {'online_bias_deg_s': -0.9012, 'true_bias_deg_s': -0.9000,
-        'final_position_error_m': 0.004, 'ekf_resets': 0, 'has_ground_truth': True}
+        'final_position_error_m': 0.004, 'ekf_resets': 0, 'has_ground_truth': True,
+        'last_pose_s': 89.995, 'bag_end_s': 89.995}
 
 
 def test_a_good_result_has_no_problem():
@@ -30,6 +31,21 @@ def test_a_large_final_position_error_is_named():
     """The failure issue 13 saw: +16.142 m and exit 0."""
     problems = verdict(dict(GOOD, final_position_error_m=16.142))
     assert problems == ['final position error 16.142 m is above 0.05 m']
+
+
+def test_a_recording_that_ends_early_is_a_failure():
+    """A helper's find: ekf_node stalled 5 s after the replay, the recorder stopped idle, and
+    the demo said OK of a pose at 75.5 s of a 90-s bag (compared with the truth there)."""
+    problems = verdict(dict(GOOD, last_pose_s=75.495))
+    assert problems == [
+        "the recording ends early: the last pose ekf_node published that was recorded is at "
+        "75.495 s, the bag's last gyro sample at 89.995 s (14.5 s later, limit 0.5 s): a node "
+        "stalled after the replay, or its output was lost"]
+    # At the limit still good; a bag without gyro samples or a run without a pose is judged
+    # by the other checks.
+    assert verdict(dict(GOOD, last_pose_s=89.995 - END_LIMIT_S)) == []
+    assert verdict(dict(GOOD, bag_end_s=None)) == []
+    assert verdict(dict(GOOD, last_pose_s=float('nan'))) != []
 
 
 def test_a_filter_reset_is_a_failure():
