@@ -94,10 +94,12 @@ bias change (stress seeds 0, 31 and 32, 60-120 s) the largest was 1.84; a slow r
 the bias watch's blocks never saw (seed 31 at 90 s, bias_ramp #12, 0.045 deg/s per minute,
 ending 0.028 deg/s off with the verdict ok) reads 3.1."""
 VERDICT_MAX_BIAS_SIGMA_RAD_S = math.radians(0.01)
-"""A final bias sigma above 0.01 deg/s: the run did not learn the bias (degraded). The figure
-the static start must reach (issue 12: the real 2016 trip ends at 0.004 deg/s); a trip of a
-few seconds without a stop ends at 0.013-0.032 deg/s, where its bias error was up to 0.036
-deg/s and its NEES share 0.76 with nothing else said."""
+"""A final bias sigma above 0.01 deg/s: the run did not pin the bias down (degraded); at twice
+its sigma it may be beyond the 0.02 deg/s the project holds itself to. The figure the
+static start must reach (issue 12; the real 2016 trip ends at 0.004 deg/s). A trip of a few
+seconds without a stop ends at 0.013-0.032 deg/s, where its bias error was up to 0.036 deg/s
+and its NEES share 0.76 with nothing else said; the course's 2022 log, with no stop, at
+0.011 deg/s (0.008 off)."""
 VERDICT_MAX_BIAS_RAD_S = math.radians(10.0)
 """A gyro bias estimate beyond 10 deg/s is implausible for a MEMS gyro (the logs: < 1 deg/s):
 the gyro or the filter is broken."""
@@ -1239,11 +1241,10 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
     if sigma is not None and sigma > VERDICT_MAX_BIAS_SIGMA_RAD_S:
         # The filter's own figure, so a short trip or one the gyro's configured wander
         # keeps uncertain says it, where the checks above have had too little to judge.
-        add(DEGRADED, f'the gyro bias is not learnt: its sigma is '
-            f'{math.degrees(sigma):.4f} deg/s, more than '
-            f'{math.degrees(VERDICT_MAX_BIAS_SIGMA_RAD_S):g} deg/s (too short a run, no '
-            f'stop and too few landmark updates to learn it, or a gyro configured to wander '
-            f'that much); the heading drifts by the bias error it leaves')
+        add(DEGRADED, f'the gyro bias is known only to +-{math.degrees(sigma):.4f} deg/s '
+            f'(1 sigma), more than {math.degrees(VERDICT_MAX_BIAS_SIGMA_RAD_S):g} deg/s: too '
+            f'short a run, or no stop and too few landmark updates to pin it down, or a gyro '
+            f'configured to wander that much; the heading drifts by whatever error it leaves')
     if abs(figures.final_bias_rad_s) > VERDICT_MAX_BIAS_RAD_S:
         add(FAILED, f'gyro bias estimate {math.degrees(figures.final_bias_rad_s):+.2f} deg/s '
             f'beyond +-{math.degrees(VERDICT_MAX_BIAS_RAD_S):g} deg/s')

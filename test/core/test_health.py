@@ -185,7 +185,7 @@ def test_verdict_says_a_bias_the_run_did_not_learn():
                                               final_bias_sigma_rad_s=math.radians(0.0151)))
     assert result['verdict'] == 'degraded'
     assert result['reasons'][0].startswith(
-        'the gyro bias is not learnt: its sigma is 0.0151 deg/s, more than 0.01 deg/s')
+        'the gyro bias is known only to +-0.0151 deg/s (1 sigma), more than 0.01 deg/s')
     # 0.01 deg/s itself is learnt (the static start's figure); no sigma says nothing.
     for sigma in (math.radians(0.01), math.radians(0.004), None):
         assert health.verdict(health.RunFigures(**plain, final_bias_sigma_rad_s=sigma)
@@ -202,9 +202,9 @@ def test_a_trip_too_short_to_learn_the_bias_is_degraded(seed, duration_s):
     assert sigma > 0.01
     assert summary['health']['verdict'] == 'degraded'
     assert summary['health']['reasons'] == [
-        f'the gyro bias is not learnt: its sigma is {sigma:.4f} deg/s, more than 0.01 deg/s '
-        '(too short a run, no stop and too few landmark updates to learn it, or a gyro '
-        'configured to wander that much); the heading drifts by the bias error it leaves']
+        f'the gyro bias is known only to +-{sigma:.4f} deg/s (1 sigma), more than 0.01 deg/s: '
+        'too short a run, or no stop and too few landmark updates to pin it down, or a gyro '
+        'configured to wander that much; the heading drifts by whatever error it leaves']
 
 
 def test_a_run_with_no_landmark_update_fails_when_over_or_after_the_start_limit():
