@@ -50,6 +50,14 @@ from gyro_ekf.core.types import FloatArray, LidarMount, ScanSeries, Trip
 
 MIN_DETECTIONS = 20
 """Fewest matched detections a mount is estimated from."""
+MIN_FIT_SHARE = 0.5
+"""Least share of a LiDAR's detections the fitted mount must lay on map poles.
+
+A LiDAR beyond the yaw search (30 deg off with a search of +-15) has no mount in reach that
+lays its poles on the map: the best candidate lays a few per cent of them there, by
+chance, with a sigma of a tenth of a degree, and was written as if it were right (185.2 deg
+for a LiDAR at 210, 'upside down', 102 of 2958 detections). Right mounts lay most of them
+(the course logs and simulated trips: the ones left out are reflectors the map lacks)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -352,6 +360,16 @@ def calibrate_mount(scans: ScanSeries, landmarks_xy_m: FloatArray, ref_stamp_s: 
                         f'{settings.gate_m:g} m of a map pole under any mount within '
                         f'+-{math.degrees(settings.search_rad):g} deg; at least '
                         f'{MIN_DETECTIONS} are needed (is the map or the reference right?)')
+    if count < MIN_FIT_SHARE * len(found.points):
+        way = ', upside down' if upside_down else ''
+        raise CoreError(f'{where}: no mount within +-{math.degrees(settings.search_rad):g} '
+                        f'deg of the stated yaw lays its poles on the map: the best '
+                        f'({math.degrees(float(theta[0])):.1f} deg{way}) lays only {count} of '
+                        f'{len(found.points)} detections ({count / len(found.points):.0%}) '
+                        f'within {settings.gate_m:g} m of a map pole, under '
+                        f'{MIN_FIT_SHARE:.0%}; nothing is written for it (state its yaw '
+                        f'to within {math.degrees(settings.search_rad):g} deg, or check the '
+                        f'map and the first LiDAR)')
     # A range offset within its noise is no offset: the fit of an exact LiDAR lands a few
     # millimetres off 0, and moving its poles by that costs more than it gains.
     range_sigma = float(np.sqrt(abs(covariance[3, 3])))

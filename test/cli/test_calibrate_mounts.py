@@ -212,8 +212,33 @@ def test_a_bag_without_scans_or_with_a_map_that_explains_nothing_gets_one_line(
     assert main(['-q', 'calibrate-mounts', str(elsewhere), '-o', str(tmp_path / 'p.yaml')]) == 1
     error = capsys.readouterr().err.strip()
     assert error.count('\n') == 0
-    assert "elsewhere: topic 'scan2': only 0 of" in error and 'of a map pole' in error
+    # The first LiDAR's own run, the reference path, is lost there already: said as such.
+    assert "elsewhere: the run on LiDAR 'scan' alone, the reference every mount is fitted " \
+        'along, failed: ' in error and 'no mount is estimated' in error
     assert not (tmp_path / 'p.yaml').exists()
+
+
+def test_a_lidar_beyond_the_yaw_search_is_refused_not_written(tmp_path, capsys):
+    """A helper's find: 30 deg off, the best candidate within +-15 deg (185.2 deg, 'upside
+    down', a sigma of 0.12 deg) laid 3 % of the detections on poles and was written."""
+    bag = _simulate(tmp_path, 6, '--second-lidar', '--lidar2-yaw-error-deg', '30')
+    assert main(['-q', 'calibrate-mounts', str(bag), '-o', str(tmp_path / 'p.yaml')]) == 1
+    error = capsys.readouterr().err.strip()
+    assert error.count('\n') == 0
+    assert "topic 'scan2': no mount within +-15 deg of the stated yaw lays its poles on the " \
+        'map' in error and 'under 50%; nothing is written for it' in error
+    assert not (tmp_path / 'p.yaml').exists()
+
+
+def test_a_first_lidar_whose_own_run_is_degraded_is_said(tmp_path, caplog):
+    """A helper's find: a first LiDAR 10 deg off its stated yaw was printed as 'stated' with
+    nothing said; its run alone (75 % associated) is degraded, and that is said now."""
+    bag = _simulate(tmp_path, 5, '--lidar-yaw-error-deg', '10')
+    assert main(['-q', 'calibrate-mounts', str(bag), '-o', str(tmp_path / 'p.yaml')]) == 0
+    error = caplog.text
+    assert "the run on LiDAR 'scan' alone, the reference every mount is fitted along, is " \
+        'degraded: ' in error and 'of detections' in error and 'associated, below 90%' in error
+    assert 'the mounts below are only as good as it' in error
 
 
 def test_an_existing_output_is_kept_without_force(tmp_path, capsys):
