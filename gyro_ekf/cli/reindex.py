@@ -1,7 +1,8 @@
 """`gyro-ekf reindex`: make a bag whose recorder was killed readable again (to stdout).
 
 Rebuilds the MCAP summary of a .mcap cut short and the bag's metadata.yaml, keeping every
-complete chunk; a bag that needs nothing is left untouched, and one with no message to
+complete chunk (a damaged one, whose CRC fails, is left out and named by its offset, the
+chunks after it kept); a bag that needs nothing is left untouched, and one with no message to
 recover (an empty .mcap) is refused with nothing written (see `gyro_ekf.io.reindex`).
 The messages it keeps are the bag's own, so the fingerprint its params file records
 (`trip.bag`) still holds; when it had to leave an incomplete tail out, the bag is no longer
@@ -34,8 +35,12 @@ def run(args: argparse.Namespace) -> int:
         print(f'{args.bag}: nothing to do (metadata.yaml and the .mcap footer are in place)')
         return 0
     written = 'a new .mcap and metadata.yaml' if result.rewrote_mcap else 'metadata.yaml'
+    left = [f'the damaged chunk at offset {chunk.offset} ({chunk.size} bytes: '
+            f'{chunk.reason})' for chunk in result.damaged]
+    if result.dropped_bytes or not left:
+        left.append(f'{result.dropped_bytes} bytes of an incomplete tail')
     print(f'{args.bag}: wrote {written}: {result.messages} messages on {result.topics} '
-          f'topics; {result.dropped_bytes} bytes of an incomplete tail left out')
+          f'topics; left out: ' + '; '.join(left))
     note = sidecar_note(args.bag)
     if note:
         log.warning('%s', note)

@@ -3,10 +3,14 @@
 A recorder killed with `kill -9` leaves a .mcap file without its summary, Footer and
 trailing magic, and no metadata.yaml; neither rosbags nor `gyro-ekf info` read that. As
 `ros2 bag reindex` does for rosbag2, `reindex` reads the records of the file up to the last
-complete one (a chunk cut in the middle, or one whose CRC or decompression fails, is
-dropped with everything after it), writes every message it found into a new bag with
-rosbags' Writer (metadata version 9, chunk CRCs on) in a hidden folder inside the bag, and
-moves its files into place with `os.replace`, so a failure leaves the bag as it was. A .mcap
+complete one (a chunk cut in the middle is dropped with everything after it; one whose CRC
+or decompression fails is left out alone when its record frame is whole, and the chunks
+after it are kept; a record whose frame is broken ends the records read), writes every
+message it found into a new bag with rosbags' Writer (metadata version 9, chunk CRCs on) in
+a hidden folder inside the bag, and moves its files into place with `os.replace`, so a
+failure leaves the bag as it was. The left-out bytes are gone from the bag afterwards: a
+damaged chunk is unreadable to every reader (its CRC fails), and the command names each by
+its offset and size, and the tail by its size. A .mcap
 that is complete is never rewritten: when only metadata.yaml is missing, only that is
 written. A file that holds no complete message (empty, or cut before its first) is refused
 and nothing is written: a bag of no message would only replace the metadata.yaml that
@@ -33,10 +37,10 @@ from gyro_ekf.io import mcap_chunks, messages as msgs
 from gyro_ekf.io.batch_write import enable_chunk_crcs
 from gyro_ekf.io.errors import BagError
 
-__all__ = ['ReindexResult', 'needs_reindex', 'reindex']
+__all__ = ['Damaged', 'ReindexResult', 'needs_reindex', 'reindex']
 
 _RECORD = struct.Struct('<BQ')
-_FOOTER, _DATA_END = 0x02, 0x0F
+_FOOTER, _CHUNK, _DATA_END = 0x02, 0x06, 0x0F
 _FOOTER_TAIL = 9 + 20 + len(mcap_chunks.MAGIC)
 _BAG_VERSION = 9
 
@@ -48,9 +52,12 @@ class ReindexResult(NamedTuple):
         mcap: the bag's .mcap file.
         messages: messages in the bag afterwards.
         topics: topics in the bag afterwards.
-        dropped_bytes: bytes of the old file left out (a partial or damaged tail).
+        dropped_bytes: bytes of the old file left out at its end (a partial or damaged
+            tail).
         rewrote_mcap: the .mcap file was replaced.
         wrote_metadata: metadata.yaml was (re)written.
+        damaged: the chunks before that tail left out, each alone (their CRC or
+            decompression failed), with the chunks after them kept.
     """
 
     mcap: Path
@@ -59,6 +66,7 @@ class ReindexResult(NamedTuple):
     dropped_bytes: int
     rewrote_mcap: bool
     wrote_metadata: bool
+    damaged: tuple[Damaged, ...] = ()
 
 
 def _has_footer(mcap: Path) -> bool:
@@ -116,23 +124,51 @@ def _complete_end(mcap: Path, data: bytes) -> tuple[int, bool]:
     return pos, False
 
 
+class Damaged(NamedTuple):
+    """A chunk left out of a reindexed bag: its file offset, its size and why."""
+
+    offset: int
+    size: int
+    reason: str
+
+
 def _recover(mcap: Path, data: bytes, end: int, whole: bool
              ) -> tuple[dict[str, mcap_chunks.TopicMessages],
-                        dict[str, mcap_chunks.ChannelInfo], int]:
-    """Read the messages of data[:end], dropping a damaged record and all after it.
+                        dict[str, mcap_chunks.ChannelInfo], int, list[Damaged]]:
+    """Read the messages of data[:end], leaving out damaged chunks.
+
+    A chunk whose CRC or decompression fails but whose record frame is whole (its length
+    leads to the next record) is left out alone, and the chunks after it are kept: a flipped
+    bit costs its own chunk, not the rest of the recording. Any other damage ends the
+    records read there, as a cut does.
 
     Returns:
-        messages and channels by topic, and where the records read end.
+        messages and channels by topic, where the records read end (file offset), and the
+        chunks left out (file offsets, in file order).
     """
+    damaged: list[Damaged] = []
+    removed = 0  # bytes spliced out before the records still to read
     while True:
         try:
             found, channels = mcap_chunks.read_records(mcap, data, end)
-            return found, channels, end
+            return found, channels, end + removed, damaged
         except mcap_chunks.McapError as err:
             # In a whole file damage is not a cut: refuse rather than drop data.
-            if whole or err.offset is None or not len(mcap_chunks.MAGIC) <= err.offset < end:
+            at = err.offset
+            if whole or at is None or not len(mcap_chunks.MAGIC) <= at < end:
                 raise BagError(f'cannot reindex: {err}') from None
-            end = err.offset
+            opcode, length = _RECORD.unpack_from(data, at)
+            following = at + _RECORD.size + length
+            if (isinstance(err, mcap_chunks.CorruptMcap) and opcode == _CHUNK
+                    and following <= end):
+                # Read in file order, every record before it was whole: its file offset is
+                # its offset here plus what was spliced out before it.
+                damaged.append(Damaged(at + removed, following - at, err.reason))
+                data = data[:at] + data[following:]
+                end -= following - at
+                removed += following - at
+            else:
+                end = at
 
 
 def reindex(path: Path | str) -> ReindexResult:
@@ -172,7 +208,7 @@ def reindex(path: Path | str) -> ReindexResult:
         raise _nothing_to_recover(mcap, 'the file is empty' if not data else
                                   f'its {len(data)} bytes stop inside the MCAP magic')
     end, whole = _complete_end(mcap, data)
-    found, channels, end = _recover(mcap, data, end, whole and complete)
+    found, channels, end, damaged = _recover(mcap, data, end, whole and complete)
     # A bag of no message would replace a metadata.yaml that still lists the topics.
     if not any(len(messages.log_time_ns) for messages in found.values()):
         raise _nothing_to_recover(mcap, f'no complete message in its {len(data)} bytes')
@@ -188,7 +224,7 @@ def reindex(path: Path | str) -> ReindexResult:
     finally:
         shutil.rmtree(aside, ignore_errors=True)
     return ReindexResult(mcap, count, len(found), 0 if complete else len(data) - end,
-                         not complete, True)
+                         not complete, True, tuple(damaged))
 
 
 def _nothing_to_recover(mcap: Path, why: str) -> BagError:

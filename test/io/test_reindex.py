@@ -7,7 +7,7 @@ import shutil
 
 from mcap.reader import make_reader
 from mcap.stream_reader import breakup_chunk, StreamReader
-from mcap_layout import chunks, crc_writer, mcap_of
+from mcap_layout import chunks, crc_writer, mcap_of, messages_in_chunk
 import pytest
 from rosbags.rosbag2 import Reader
 from synthetic_logs import make_trip
@@ -145,6 +145,43 @@ def test_reindexed_bags_carry_crcs_and_a_damaged_chunk_is_dropped(original, tmp_
     with open(mcap_of(bag), 'rb') as stream:
         assert all(c.uncompressed_crc for c in StreamReader(stream, emit_chunks=True).records
                    if type(c).__name__ == 'Chunk')
+
+
+def messages_of_chunks(mcap, keep: set[int]) -> list[tuple[str, int, bytes]]:
+    """(topic, log time, data) of the chunks numbered in keep (file order), by mcap."""
+    with open(mcap, 'rb') as stream:
+        topics = {i: c.topic for i, c in make_reader(stream).get_summary().channels.items()}
+    found = []
+    with open(mcap, 'rb') as stream:
+        chunk_records = (r for r in StreamReader(stream, emit_chunks=True).records
+                         if type(r).__name__ == 'Chunk')
+        for number, chunk in enumerate(chunk_records):
+            if number in keep:
+                found += [(topics[r.channel_id], r.log_time, r.data)
+                          for r in breakup_chunk(chunk) if type(r).__name__ == 'Message']
+    return sorted(found)
+
+
+def test_a_chunk_whose_crc_fails_is_left_out_alone_and_the_later_ones_kept(
+        original, tmp_path, capsys):
+    """A helper's find: a bit flipped in one chunk of a bag cut short dropped every chunk
+    after it, intact ones included, and was reported as an incomplete tail."""
+    bag = copy_of(original, tmp_path)
+    mcap = mcap_of(bag)
+    data = bytearray(mcap.read_bytes())
+    spans = chunks(bytes(data))
+    assert len(spans) >= 4
+    # One bit of a message's data in chunk 1 (its frame intact, its CRC no longer), and the
+    # file cut inside chunk 3: chunks 0 and 2 are whole.
+    data[messages_in_chunk(bytes(data), spans[1])[3][0] + 40] ^= 0x10
+    mcap.write_bytes(bytes(data[:spans[3].end - 5]))
+    (bag / 'metadata.yaml').unlink()
+    assert main(['-q', 'reindex', str(bag)]) == 0
+    said = capsys.readouterr().out
+    assert (f'left out: the damaged chunk at offset {spans[1].offset} '
+            f'({spans[1].end - spans[1].offset} bytes: CRC mismatch') in said, said
+    assert f'; {spans[3].end - 5 - spans[3].offset} bytes of an incomplete tail' in said, said
+    assert by_rosbags(bag) == messages_of_chunks(original / 'rec.mcap', {0, 2})
 
 
 def test_a_fine_bag_is_never_modified(original, tmp_path):
