@@ -43,7 +43,8 @@ class OfflineRun:
     Attributes:
         trip: the inputs.
         config: the EKF configuration used.
-        config_sources: EKF field -> 'default', 'log' (stated by the log) or 'params-file'.
+        config_sources: EKF field -> 'default', 'log' (stated by the log), 'params-file' or
+            'messages' (each message's own variance, ``message_sources``).
         calibration: the accepted static-window estimate, or None.
         calibration_error: why no window was accepted, or None.
         result: estimates (one row per IMU sample), per-scan reports and counts.
@@ -119,6 +120,39 @@ def effective_config(noise: NoiseFigures, params: PipelineParams | None = None,
     return config, sources
 
 
+_MESSAGE_NOISE = (('gyro_noise_rad_s', 'IMU', 'angular_velocity_covariance[8]'),
+                  ('speed_noise_m_s', 'odometry', 'twist.covariance[0]'))
+"""The configured sigmas a message's own variance replaces, with the field it comes in."""
+
+
+def message_sources(trip: Trip, params: PipelineParams, sources: dict[str, str]) -> None:
+    """Mark in sources the noise figures the messages' own variances replace; say a lost one.
+
+    Each IMU and odometry message that states its variance is filtered with it, whatever the
+    configuration or the log states (``use_message_covariance``): summary.json once named
+    the params file as the source of a gyro noise no message was filtered with. The source
+    becomes 'messages' (or 'messages (N of M)' where only some state one); a figure the
+    params file sets that they replace is said, with the switch that keeps it.
+    """
+    explicit = set(params.explicit.get('ekf', ()))
+    for name, stream, field_name, variances in (
+            (*_MESSAGE_NOISE[0], trip.imu.yaw_rate_variance),
+            (*_MESSAGE_NOISE[1], trip.speed.speed_variance)):
+        if variances is None:
+            continue
+        stated = int(np.isfinite(variances).sum())
+        if not stated:
+            continue
+        total = len(variances)
+        sources[name] = 'messages' if stated == total else f'messages ({stated} of {total})'
+        if name in explicit:
+            log.warning('the params file sets %s = %g, but %d of %d %s messages state their '
+                        'own variance (%s), used in its place while use_message_covariance '
+                        'is true; to use the file\'s, set use_message_covariance: false in '
+                        'it (or run --ignore-message-covariance)', name,
+                        getattr(params.ekf, name), stated, total, stream, field_name)
+
+
 def calibrate(trip: Trip, config: CalibrationConfig | None = None
               ) -> tuple[BiasEstimate | None, str | None]:
     """Calibrate the trip's gyro on its static window, or say why there is none."""
@@ -192,6 +226,7 @@ def run_trip(trip: Trip, params: PipelineParams | None = None,
     # LiDAR mounts of a params file (e.g. from calibrate-mounts) replace the bag's.
     trip = with_lidar_mounts(trip, params)
     config, sources = effective_config(trip.noise, params, use_stated_noise)
+    message_sources(trip, params, sources)
     calibration, reason = calibrate(trip, params.calibration)
     driver = EventDriver(config, trip.landmarks, trip.initial_pose,
                          detector_config=params.detector)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -138,7 +139,7 @@ def test_run_refuses_to_overwrite_without_force(tmp_path, simulated_bag, capsys)
     assert _run(bag, out, '--no-plots', '--force')[0] == 0
 
 
-def test_params_file_values_reach_the_filter(tmp_path, simulated_bag):
+def test_params_file_values_reach_the_filter(tmp_path, simulated_bag, caplog):
     bag, _ = simulated_bag
     params = tmp_path / 'p.yaml'
     params.write_text('ekf_node:\n  ros__parameters:\n    speed_noise_m_s: 0.5\n'
@@ -151,12 +152,31 @@ def test_params_file_values_reach_the_filter(tmp_path, simulated_bag):
     assert sources['position_random_walk_m_sqrt_s'] == 'params-file'
     # The simulator states no pole range noise, so the file's value is used ...
     assert sources['range_noise_m'] == 'params-file' and config['range_noise_m'] == 0.03
-    # ... but it states its speed noise; as on the EKF node, a stated figure wins ...
-    assert sources['speed_noise_m_s'] == 'log' and config['speed_noise_m_s'] != 0.5
-    # ... unless the params file turns use_stated_noise off.
+    # ... but it states its speed noise; as on the EKF node, a stated figure wins (here the
+    # one every odometry message states, its own variance) ...
+    assert sources['speed_noise_m_s'] == 'messages' and config['speed_noise_m_s'] != 0.5
+    # ... and each odometry message states its own variance, which the filter takes in its
+    # place: summary.json says so, and the run says that the file's figure is not used
+    # (a helper found 0.5 and 0.0005 give the same bytes while the source read params-file).
     params.write_text('ekf_node:\n  ros__parameters:\n    speed_noise_m_s: 0.5\n'
                       '    use_stated_noise: false\n')
-    _, summary = _run(bag, tmp_path / 'out2', '--no-plots', '--no-bag', '--params-file',
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        _, summary = _run(bag, tmp_path / 'out2', '--no-plots', '--no-bag', '--params-file',
+                          str(params))
+    assert summary['config']['ekf']['speed_noise_m_s'] == 0.5
+    assert summary['config']['sources']['speed_noise_m_s'] == 'messages'
+    assert summary['config']['sources']['gyro_noise_rad_s'] == 'messages'
+    said = [r.getMessage() for r in caplog.records if 'use_message_covariance' in r.getMessage()]
+    assert said == [
+        'the params file sets speed_noise_m_s = 0.5, but 6001 of 6001 odometry messages state '
+        'their own variance (twist.covariance[0]), used in its place while '
+        "use_message_covariance is true; to use the file's, set use_message_covariance: false "
+        'in it (or run --ignore-message-covariance)'], said
+    # Both switches off, the file's figure is the one filtered with.
+    params.write_text('ekf_node:\n  ros__parameters:\n    speed_noise_m_s: 0.5\n'
+                      '    use_stated_noise: false\n    use_message_covariance: false\n')
+    _, summary = _run(bag, tmp_path / 'out3', '--no-plots', '--no-bag', '--params-file',
                       str(params))
     assert summary['config']['ekf']['speed_noise_m_s'] == 0.5
     assert summary['config']['sources']['speed_noise_m_s'] == 'params-file'

@@ -226,13 +226,22 @@ def test_a_sigma_the_stated_noise_replaces_is_named(tmp_path, caplog):
                                  if 'use_stated_noise' in r.getMessage()])
     summary, said = runs[()]
     used = summary['config']['ekf']['gyro_noise_rad_s']
-    assert used != 1.0 and summary['config']['sources']['gyro_noise_rad_s'] == 'log'
+    # The log's figure replaces the file's, and each IMU message's own variance both: the
+    # messages' is the one filtered with, and the source says so.
+    assert used != 1.0 and summary['config']['sources']['gyro_noise_rad_s'] == 'messages'
     assert said == [f'the params file sets gyro_noise_rad_s = 1, but the log states '
                     f'gyro_noise_rad_s = {used:g}, used while use_stated_noise is true; to '
                     "use the file's, set use_stated_noise: false in it (or run "
                     '--ignore-stated-noise)']
     summary, said = runs[('--ignore-stated-noise',)]
     assert summary['config']['ekf']['gyro_noise_rad_s'] == 1.0 and said == []
+    # Still not the file's: the messages' own variances are (a helper found 0.5 and 1e-4
+    # give the same bytes); said, with the switch that makes the file's count.
+    assert summary['config']['sources']['gyro_noise_rad_s'] == 'messages'
+    assert any('set use_message_covariance: false in it (or run --ignore-message-covariance)'
+               in r.getMessage() and r.getMessage().startswith(
+                   'the params file sets gyro_noise_rad_s = 1, but ')
+               for r in caplog.records)
 
 
 def test_a_lidar_time_offset_is_read_alone_or_with_the_mount_and_checked():
