@@ -201,6 +201,9 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     summary['gyro_scale'] = run.result.gyro_scale
     # Samples each input's stamps say were sent and did not arrive (core/input_loss.py).
     summary['input_loss'] = run.result.input_loss
+    # Likewise each LiDAR's scans (offline every scan of the bag arrives; live, the
+    # landmarks a node behind lost).
+    summary['scan_loss'] = run.result.scan_loss or {}
     # Lone samples far from both neighbours, left out (core/input_spikes.py).
     summary['input_spikes'] = run.result.input_spikes
     # A gyro repeating one value, its repeats left out (core/input_frozen.py).
@@ -277,6 +280,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         mounts=[] if run.result.mounts is None else run.result.mounts.report(),
         odometry=None if run.result.odometry is None else run.result.odometry.report(),
         gyro_scale=run.result.gyro_scale, input_loss=run.result.input_loss or {},
+        scan_loss=run.result.scan_loss or {},
         input_spikes=run.result.input_spikes or {},
         gyro_frozen=run.result.gyro_frozen,
         time_offsets=run.result.time_offsets or [],

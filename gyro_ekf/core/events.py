@@ -151,6 +151,9 @@ class EventDriver:
         # Samples each input lost, by its own stamps (core/input_loss.py).
         self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
         self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
+        # Scans each LiDAR's detections lost on the way, by its name (the node's landmarks
+        # topic is reliable but keeps 10: a node behind loses the oldest).
+        self.scan_loss: dict[str, InputLoss] = {}
         self._new_spike_gates()
         self.detector_config = detector_config or DetectorConfig()
         self.ekf = GyroBiasEkf(self.config, pose, bias_rad_s)
@@ -245,6 +248,9 @@ class EventDriver:
         self.turn_signs = TurnSignCheck()
         self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
         self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
+        # Scans each LiDAR's detections lost on the way, by its name (the node's landmarks
+        # topic is reliable but keeps 10: a node behind loses the oldest).
+        self.scan_loss: dict[str, InputLoss] = {}
         self._new_spike_gates()
         # A wander found before the reset is forgotten with it; the prior holds again.
         self.ekf.assume_wander(self.config.initial_wander_rad_s)
@@ -338,7 +344,8 @@ class EventDriver:
                 ({name: loss.save() for name, loss in self.input_loss.items()},
                  {name: gate.save() for name, gate in self.input_spikes.items()},
                  {key: watch.save() for key, watch in self.stamp_jitter.items()},
-                 self.map_poles.save(), self.turn_signs.save(), self.gyro_frozen.save()),
+                 self.map_poles.save(), self.turn_signs.save(), self.gyro_frozen.save(),
+                 {name: loss.save() for name, loss in self.scan_loss.items()}),
                 (dict(self._start_offsets), self._body_key, self.frame_shift),
                 self._gate.copy())
 
@@ -349,7 +356,7 @@ class EventDriver:
          watch, held, self._rate_stamp_s, self._heading_dt2,
          (odometry, self._measured_speed_m_s, self._path_s, self._path_m,
           self._path_yaw), noise, (gyro_scale, self._turned, offsets),
-         (input_loss, spikes, jitter, map_poles, turn_signs, frozen),
+         (input_loss, spikes, jitter, map_poles, turn_signs, frozen, scan_loss),
          (start_offsets, self._body_key, self.frame_shift), gate) = saved
         self._gate = gate.copy()
         self.map_poles.restore(map_poles)
@@ -358,6 +365,11 @@ class EventDriver:
         self._start_offsets = dict(start_offsets)
         for name, saved_loss in input_loss.items():
             self.input_loss[name].restore(saved_loss)
+        # The same counts, less those of LiDARs first seen since.
+        self.scan_loss = {name: loss for name, loss in self.scan_loss.items()
+                          if name in scan_loss}
+        for name, loss in self.scan_loss.items():
+            loss.restore(scan_loss[name])
         for name, saved_gate in spikes.items():
             self.input_spikes[name].restore(saved_gate)
         self.stamp_jitter = {key: stamps for key, stamps in self.stamp_jitter.items()
@@ -786,6 +798,10 @@ class EventDriver:
                 f'{math.degrees(mount.yaw_rad):g} deg)')
         self._advance(stamp_s, 'observation')
         self.stats.scans += 1
+        lost = self.scan_loss.get(sensor)
+        if lost is None:
+            lost = self.scan_loss[sensor] = InputLoss()
+        lost.add(stamp_s)
         if self._first_scan_s is None:
             self._first_scan_s = stamp_s
         points = np.asarray(points_sensor_m, dtype=np.float64).reshape(-1, 2)

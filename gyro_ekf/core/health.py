@@ -707,6 +707,8 @@ class RunFigures:
             (GyroScaleWatch.report(), core/gyro_scale.py), or None.
         input_loss: per input stream ('gyro', 'odometry'), the samples received and lost
             by its own stamps (InputLoss.report(), core/input_loss.py).
+        scan_loss: per LiDAR (its name), the scans received and lost by its own stamps
+            (InputLoss.report()).
         input_spikes: per input stream, the lone samples far from both neighbours that
             were left out (SpikeGate.report(), core/input_spikes.py).
         gyro_frozen: the gyro's runs of one repeated value, their repeats left out
@@ -765,6 +767,7 @@ class RunFigures:
     finished: bool = False
     gyro_scale: dict[str, Any] | None = None
     input_loss: dict[str, dict[str, Any]] = field(default_factory=dict)
+    scan_loss: dict[str, dict[str, Any]] = field(default_factory=dict)
     input_spikes: dict[str, dict[str, Any]] = field(default_factory=dict)
     gyro_frozen: dict[str, Any] | None = None
     final_bias_sigma_rad_s: float | None = None
@@ -1117,6 +1120,17 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
                 f'{100.0 * VERDICT_MIN_RECEIVED_SHARE:g} %: the last value was held across '
                 f'each lost one (inputs lost on the way or dropped by a node that could not '
                 f'keep up)')
+    for lidar, loss in figures.scan_loss.items():
+        if loss['share'] < VERDICT_MIN_RECEIVED_SHARE:
+            # Their poles never reached the filter: fewer landmark updates than the LiDAR
+            # gave, and the association share and gaps count only what arrived. (Their
+            # stamps' scatter is judged by core/stamp_jitter.py, not here.)
+            add(DEGRADED, f'LiDAR {lidar}: {100.0 * loss["share"]:.1f} % of the scans its '
+                f'stamps imply arrived ({loss["received"]} received, {loss["lost"]} lost at '
+                f'a {1000.0 * (loss["period_s"] or 0.0):.1f} ms period), fewer than '
+                f'{100.0 * VERDICT_MIN_RECEIVED_SHARE:g} %: the LiDAR stopped for a while, '
+                f'or its scans were lost on the way or dropped by a node that could not keep '
+                f'up; their poles never reached the filter')
     for stream, loss in figures.input_loss.items():
         if loss.get('scatters'):
             # A driver that stamps samples on arrival: the estimates hold up (the hold

@@ -235,6 +235,8 @@ class TripRun:
             .turn_sign_report, core/turn_sign.py).
         gyro_frozen: the gyro's runs of one repeated value, their repeats left out
             (FrozenWatch.report, core/input_frozen.py).
+        scan_loss: per LiDAR (its name), the scans received and those its stamps imply
+            were lost (InputLoss.report).
     """
 
     estimates: Estimates
@@ -253,6 +255,7 @@ class TripRun:
     map_poles: list[dict] | None = None
     turn_signs: list[dict] | None = None
     gyro_frozen: dict | None = None
+    scan_loss: dict | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -409,4 +412,5 @@ def drive_trip(trip: Trip, driver: EventDriver,
                    driver.time_offset_report(),
                    {name: gate.report() for name, gate in driver.input_spikes.items()},
                    driver.stamp_jitter_report(), driver.map_poles_report(),
-                   driver.turn_sign_report(), driver.gyro_frozen.report())
+                   driver.turn_sign_report(), driver.gyro_frozen.report(),
+                   {name: loss.report() for name, loss in driver.scan_loss.items()})

@@ -40,7 +40,9 @@ one, to save the CPU), the zero-rate updates
 (`standing_still`: they are being applied now, core/events.py), the start pose held
 (`start_pose_held`, and why the hold ended, `start_pose_released`: core/held_start.py),
 the samples each input's own stamps say were sent and never reached the filter
-(`gyro_lost`, `gyro_received_share`, `odometry_*`: core/input_loss.py), the lone samples
+(`gyro_lost`, `gyro_received_share`, `odometry_*`: core/input_loss.py) and the scans each
+LiDAR's detections lost on the way (`lidar_<name>_scans_lost`,
+`lidar_<name>_scans_received_share`), the lone samples
 far from both neighbours left out of it (`gyro_spikes`, `odometry_spikes`:
 core/input_spikes.py), a gyro's repeats of one value left out (`gyro_frozen_runs`,
 `gyro_frozen_samples`: core/input_frozen.py), the odometry samples taken with their own
@@ -941,6 +943,7 @@ class EkfNode(Node):
             map_poles=self.driver.map_poles_report(),
             turn_signs=self.driver.turn_sign_report(),
             input_loss=inputs,
+            scan_loss={name: loss.report() for name, loss in self.driver.scan_loss.items()},
             input_spikes={name: gate.report()
                           for name, gate in self.driver.input_spikes.items()},
             gyro_frozen=self.driver.gyro_frozen.report(),
@@ -1123,6 +1126,12 @@ class EkfNode(Node):
             # sample can no longer be told from a late one.
             **{f'{name}_stamps_scatter': str(loss.scatters).lower()
                for name, loss in self.driver.input_loss.items()},
+            # Each LiDAR's scans whose detections never arrived, by their stamps: the
+            # landmarks topic keeps 10 and a node behind loses the oldest.
+            **{f'lidar_{name}_scans_received_share': f'{loss.share:.4f}'
+               for name, loss in self.driver.scan_loss.items()},
+            **{f'lidar_{name}_scans_lost': str(loss.lost)
+               for name, loss in self.driver.scan_loss.items()},
             # Lone samples far from both neighbours, left out (core/input_spikes.py).
             **{f'{name}_spikes': str(gate.spikes)
                for name, gate in self.driver.input_spikes.items()},
