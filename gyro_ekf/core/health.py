@@ -814,19 +814,40 @@ def _gross_scale_reasons(figures: RunFigures) -> list[tuple[str, str]]:
                             f'{lidar["name"]}\'s scans turn (in {lidar["scale_votes"]} of '
                             f'{lidar["votes"]} turns between its scans): {cause}'))
             break
-    for lidar in figures.turn_signs:
+    low, high = VERDICT_SPEED_RATIO
+    judged = [lidar for lidar in figures.turn_signs
+              if not lidar['opposite_found'] and lidar['speed_ratio'] is not None]
+    agreeing = [lidar for lidar in judged if low <= lidar['speed_ratio'] <= high]
+    for lidar in judged:
         ratio = lidar['speed_ratio']
-        if lidar['opposite_found'] or ratio is None:
+        if low <= ratio <= high:
             continue
-        low, high = VERDICT_SPEED_RATIO
-        if not low <= ratio <= high:
-            cause = ('its speed\'s sign is reversed (REP-103: x forward)' if ratio < 0.0
-                     else 'its speed\'s units or scale are wrong (REP-103 has m/s; a wheel '
-                     'radius or gear ratio?)')
-            reasons.append((FAILED, f'the odometry reads {ratio:.3g} m per metre LiDAR '
-                            f'{lidar["name"]}\'s scans show the platform went (over '
-                            f'{lidar["speed_pairs"]} pairs of scans): {cause}'))
-            break
+        if agreeing:
+            # Another LiDAR's scans agree with the odometry: the odometry is right and this
+            # LiDAR is not where it is stated (a rear LiDAR stated forward once had the
+            # odometry's sign blamed, the other LiDAR agreeing with it to 1.5 %).
+            other = agreeing[0]
+            cause = ('turned half a turn: its stated yaw is about 180 deg off' if ratio < 0.0
+                     else 'its ranges\' units or scale are wrong')
+            reasons.append((DEGRADED, f'LiDAR {lidar["name"]}\'s scans show the platform '
+                            f'going {ratio:.3g} m per metre the odometry reads (over '
+                            f'{lidar["speed_pairs"]} pairs of scans), where LiDAR '
+                            f'{other["name"]}\'s show {other["speed_ratio"]:.3g}: the '
+                            f'odometry is right and LiDAR {lidar["name"]} is not as stated '
+                            f'({cause}); check its mount'))
+            continue
+        cause = ('its speed\'s sign is reversed (REP-103: x forward)' if ratio < 0.0
+                 else 'its speed\'s units or scale are wrong (REP-103 has m/s; a wheel '
+                 'radius or gear ratio?)')
+        if ratio < 0.0 and len(judged) == 1:
+            # One LiDAR facing the other way from its stated yaw reads the same: its turns
+            # agree with the gyro, its path runs against the odometry.
+            cause += (f', or LiDAR {lidar["name"]} faces the other way from its stated yaw '
+                      f'(about 180 deg off; a second LiDAR would tell which)')
+        reasons.append((FAILED, f'the odometry reads {ratio:.3g} m per metre LiDAR '
+                        f'{lidar["name"]}\'s scans show the platform went (over '
+                        f'{lidar["speed_pairs"]} pairs of scans): {cause}'))
+        break
     return reasons
 
 

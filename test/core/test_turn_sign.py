@@ -163,6 +163,30 @@ def test_inputs_in_the_wrong_units_or_sign_are_named(stream, factor, said):
     assert first.startswith(f'the {stream} reads ') and said in first, first
 
 
+def test_a_second_lidar_turned_half_a_turn_is_named_not_the_odometry():
+    """A helper's find: a rear LiDAR stated forward (180 deg off) made the odometry's sign
+    the first reason of a failed run, while the other LiDAR agreed with the odometry and
+    the pose held to 2.4 mm. Reversed odometry, both LiDARs disagreeing, is still that."""
+    config = SimulationConfig(duration_s=40.0, second_lidar=True,
+                              lidar2_yaw_error_rad=math.pi)
+    summary = summarize(run_trip(simulate_trip(config, 2)))
+    said = [r for r in summary['health']['reasons'] if 'm per metre' in r]
+    assert len(said) == 1 and said[0].startswith(
+        "LiDAR scan2's scans show the platform going -0.9"), said
+    assert "where LiDAR scan's show 0.99:" in said[0] and 'about 180 deg off' in said[0]
+    assert not [r for r in summary['health']['reasons'] if r.startswith('the odometry')]
+    assert summary['ground_truth']['position_rmse_m'] < 0.02
+    trip = simulate_trip(SimulationConfig(duration_s=40.0, second_lidar=True), 2)
+    reversed_odometry = dataclasses.replace(trip, speed=dataclasses.replace(
+        trip.speed, speed_m_s=-trip.speed.speed_m_s))
+    summary = summarize(run_trip(reversed_odometry))
+    first = summary['health']['reasons'][0]
+    assert summary['health']['verdict'] == 'failed'
+    assert first.startswith('the odometry reads -') and "speed's sign is reversed" in first
+    # Two LiDARs agree with each other: no hint that one of them faces the other way.
+    assert 'faces the other way' not in first
+
+
 def test_an_upside_down_second_lidar_is_named_and_the_run_holds():
     trip = simulate_trip(SimulationConfig(duration_s=40.0, second_lidar=True), 2)
     mirrored = dataclasses.replace(trip, scans=trip.scans[:-1] + (_mirrored(trip.scans[-1]),))
