@@ -165,3 +165,17 @@ def test_2023_scan_words_of_another_width_are_a_format_error(tmp_path, dtype):
             f"DataUsr_006k.mat: field 'data.scans' has type {np.dtype(dtype)}, expected uint16 "
             'words')):
         load_course_log([tmp_path])
+
+
+def test_a_map_whose_count_is_not_its_poles_is_a_format_error(tmp_path):
+    """A helper's find: Map.n 7 beside 5 poles converted without a word."""
+    from gyro_ekf.io.matlab.aas2021 import read_map
+
+    path = write_map(tmp_path / 'MapMTRN4010.mat')
+    assert len(read_map(path).xy_m) == 3
+    scipy.io.savemat(path, {'Map': {'x': np.array([1.0, 2.0, 3.0], dtype=np.float32),
+                                    'y': np.array([4.0, 5.0, 6.5], dtype=np.float32),
+                                    'n': 7}})
+    with pytest.raises(LogFormatError, match=r"MapMTRN4010\.mat: field 'Map\.n' says 7 poles "
+                       r"but 'Map\.x' and 'Map\.y' hold 3"):
+        read_map(path)

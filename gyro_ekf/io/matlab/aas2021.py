@@ -30,15 +30,22 @@ RATE_UNIT_RAD_S = 0.01 * math.pi / 180.0
 
 
 def read_map(path: Path) -> LandmarkMap:
-    """Read MapMTRN4010.mat (`Map.x`, `Map.y`, m).
+    """Read MapMTRN4010.mat (`Map.x`, `Map.y`, m; `Map.n`, their count, where present).
 
     Raises:
-        LogFormatError: missing fields or lengths that disagree.
+        LogFormatError: missing fields, lengths that disagree, or a count `Map.n` that is
+            not theirs (a map cut short or padded: some of its poles were lost).
     """
     variables = mat.load_mat(path)
     x = mat.array(variables, 'Map.x', path, (None,), 'iuf')
     y = mat.array(variables, 'Map.y', path, (None,), 'iuf')
     mat.check_length(path, 'Map.y', y.size, 'Map.x', x.size)
+    if mat.has_field(variables, 'Map.n'):
+        count = mat.scalar(variables, 'Map.n', path)
+        if count != x.size:
+            raise LogFormatError(f"{path.name}: field 'Map.n' says {count:g} poles but "
+                                 f"'Map.x' and 'Map.y' hold {x.size}: the map was cut short "
+                                 'or padded; fix it before it is used')
     return LandmarkMap(xy_m=np.column_stack([x, y]).astype(np.float64))
 
 
