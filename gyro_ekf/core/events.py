@@ -248,9 +248,7 @@ class EventDriver:
         self.turn_signs = TurnSignCheck()
         self._gyro_loss, self._speed_loss = InputLoss(), InputLoss()
         self.input_loss = {'gyro': self._gyro_loss, 'odometry': self._speed_loss}
-        # Scans each LiDAR's detections lost on the way, by its name (the node's landmarks
-        # topic is reliable but keeps 10: a node behind loses the oldest).
-        self.scan_loss: dict[str, InputLoss] = {}
+        self.scan_loss = {}
         self._new_spike_gates()
         # A wander found before the reset is forgotten with it; the prior holds again.
         self.ekf.assume_wander(self.config.initial_wander_rad_s)
