@@ -990,6 +990,14 @@ def _moved_from_start(figures: RunFigures) -> tuple[float, float, float] | None:
     return (end_s, start_bias, sigmas) if sigmas > VERDICT_START_BIAS_SIGMAS else None
 
 
+def _arrived(loss: dict[str, Any], what: str) -> str:
+    """Say what share of a stream's messages arrived, against the verdict's limit."""
+    return (f'{100.0 * loss["share"]:.1f} % of the {what} its stamps imply arrived '
+            f'({loss["received"]} received, {loss["lost"]} lost at a '
+            f'{1000.0 * (loss["period_s"] or 0.0):.1f} ms period), fewer than '
+            f'{100.0 * VERDICT_MIN_RECEIVED_SHARE:g} %')
+
+
 def verdict(figures: RunFigures) -> dict[str, Any]:
     """Return {verdict: ok|degraded|failed, reasons: [sentence with figure and threshold]}."""
     reasons: list[tuple[str, str]] = []
@@ -1135,23 +1143,17 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
             # The filter held the last value across each lost sample: estimates go on,
             # worse, and nothing else would say it (a node too slow for its inputs, a
             # best-effort link that overflowed, a bag recorded from one).
-            add(DEGRADED, f'{stream}: {100.0 * loss["share"]:.1f} % of the samples its '
-                f'stamps imply arrived ({loss["received"]} received, {loss["lost"]} lost '
-                f'at a {1000.0 * loss["period_s"]:.1f} ms period), fewer than '
-                f'{100.0 * VERDICT_MIN_RECEIVED_SHARE:g} %: the last value was held across '
-                f'each lost one (inputs lost on the way or dropped by a node that could not '
-                f'keep up)')
+            add(DEGRADED, f'{stream}: {_arrived(loss, "samples")}: the last value was held '
+                f'across each lost one (inputs lost on the way or dropped by a node that '
+                f'could not keep up)')
     for lidar, loss in figures.scan_loss.items():
         if loss['share'] < VERDICT_MIN_RECEIVED_SHARE:
             # Their poles never reached the filter: fewer landmark updates than the LiDAR
             # gave, and the association share and gaps count only what arrived. (Their
             # stamps' scatter is judged by core/stamp_jitter.py, not here.)
-            add(DEGRADED, f'LiDAR {lidar}: {100.0 * loss["share"]:.1f} % of the scans its '
-                f'stamps imply arrived ({loss["received"]} received, {loss["lost"]} lost at '
-                f'a {1000.0 * (loss["period_s"] or 0.0):.1f} ms period), fewer than '
-                f'{100.0 * VERDICT_MIN_RECEIVED_SHARE:g} %: the LiDAR stopped for a while, '
-                f'or its scans were lost on the way or dropped by a node that could not keep '
-                f'up; their poles never reached the filter')
+            add(DEGRADED, f'LiDAR {lidar}: {_arrived(loss, "scans")}: the LiDAR stopped '
+                f'for a while, or its scans were lost on the way or dropped by a node that '
+                f'could not keep up; their poles never reached the filter')
     for stream, loss in figures.input_loss.items():
         if loss.get('scatters'):
             # A driver that stamps samples on arrival: the estimates hold up (the hold

@@ -209,25 +209,28 @@ def test_a_bag_without_scans_or_with_a_map_that_explains_nothing_gets_one_line(
     # Every pole 100 m away from where the LiDARs see them: no mount lays them on the map.
     elsewhere = write_trip_bag(dataclasses.replace(trip, landmarks=LandmarkMap(
         trip.landmarks.xy_m + 100.0)), tmp_path / 'elsewhere')
-    assert main(['-q', 'calibrate-mounts', str(elsewhere), '-o', str(tmp_path / 'p.yaml')]) == 1
-    error = capsys.readouterr().err.strip()
-    assert error.count('\n') == 0
+    error = _refused(elsewhere, tmp_path / 'p.yaml', capsys)
     # The first LiDAR's own run, the reference path, is lost there already: said as such.
     assert "elsewhere: the run on LiDAR 'scan' alone, the reference every mount is fitted " \
         'along, failed: ' in error and 'no mount is estimated' in error
-    assert not (tmp_path / 'p.yaml').exists()
+
+
+def _refused(bag, output, capsys):
+    """Run calibrate-mounts expecting a refusal: its one line, with no params file left."""
+    assert main(['-q', 'calibrate-mounts', str(bag), '-o', str(output)]) == 1
+    error = capsys.readouterr().err.strip()
+    assert error.count('\n') == 0
+    assert not output.exists()
+    return error
 
 
 def test_a_lidar_beyond_the_yaw_search_is_refused_not_written(tmp_path, capsys):
     """A helper's find: 30 deg off, the best candidate within +-15 deg (185.2 deg, 'upside
     down', a sigma of 0.12 deg) laid 3 % of the detections on poles and was written."""
     bag = _simulate(tmp_path, 6, '--second-lidar', '--lidar2-yaw-error-deg', '30')
-    assert main(['-q', 'calibrate-mounts', str(bag), '-o', str(tmp_path / 'p.yaml')]) == 1
-    error = capsys.readouterr().err.strip()
-    assert error.count('\n') == 0
+    error = _refused(bag, tmp_path / 'p.yaml', capsys)
     assert "topic 'scan2': no mount within +-15 deg of the stated yaw lays its poles on the " \
         'map' in error and 'under 50%; nothing is written for it' in error
-    assert not (tmp_path / 'p.yaml').exists()
 
 
 def test_a_first_lidar_whose_own_run_is_degraded_is_said(tmp_path, caplog):
