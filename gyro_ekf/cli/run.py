@@ -57,7 +57,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'written)')
     parser.add_argument('--path-length', type=_path_length, default=None, metavar='POSES',
                         help='most poses per ekf/path message of the estimates bag (>= 1; '
-                        'default 600, a pose every 0.2 s)')
+                        'default: the params file\'s path_length, as the EKF node\'s, else '
+                        '600, a pose every 0.2 s)')
     add_skip_bad_argument(parser)
 
 
@@ -326,7 +327,8 @@ def run(args: argparse.Namespace) -> int:
             with StreamedProducts(staging / output_dir.ESTIMATES_CSV,
                                   None if args.no_bag else staging / output_dir.ESTIMATES_BAG,
                                   bag.start_time_ns, trip, storage=args.storage,
-                                  path_length=args.path_length) as products:
+                                  path_length=(params.path_length if args.path_length is None
+                                               else args.path_length)) as products:
                 with _progress_bar(event_count(trip), show) as bar:
                     result = run_trip(trip, params, use_stated_noise=use_stated,
                                       progress=None if bar is None else bar.update,

@@ -5,21 +5,22 @@ The file has the layout `ros2 run ... --ros-args --params-file` takes::
     /**:                       # every node
       ros__parameters:
         gyro_noise_rad_s: 0.02
-    ekf_node:                  # one node (a namespace may precede it: /robot/ekf_node)
+    landmark_detector_node:    # one node (a namespace may precede it: /robot/...)
       ros__parameters:
-        detector:              # nesting is the same as dotted names: detector.max_width_m
-          max_width_m: 0.2
+        max_width_m: 0.2
 
 Sections of the pipeline's nodes (`/**`, `ekf_node`, `calibration_node`,
 `landmark_detector_node`) are read; sections of other nodes are skipped. Inside a read
-section, a name (after an optional `ekf.`, `calibration.` or `detector.` group prefix) that
-is a field of EkfConfig, CalibrationConfig or DetectorConfig sets that field, and a bare
-name that is a field of RunOptions (`use_stated_noise`, `use_calibration`, ...) sets that
-option; other names (the nodes' own frames, topics and QoS) belong to someone else and
-are skipped. A value set in a node section overrides
-the same value under `/**`. Values are checked by `core.config.make_config` (a switch
-takes true or false only), and every error names the file and parameter. Defaults are
-the dataclasses' own, as for the nodes.
+section, a name that is a field of EkfConfig, CalibrationConfig or DetectorConfig sets that
+field, and a name that is a field of RunOptions (`use_stated_noise`, `use_calibration`,
+...) sets that option: bare, as the nodes declare them (`detector: {max_width_m: 0.2}`
+nests to `detector.max_width_m`, which no node declares, so it is warned of and ignored, as
+the nodes ignore it). The nodes' own live-side names (frames, topics, QoS, periods:
+`NODE_ONLY_PARAMETERS`) are skipped quietly; a name no gyro_ekf node declares is warned
+of, so a parameter that does nothing is never taken in silence. A value set in a node
+section overrides the same value under `/**`. Values are checked by
+`core.config.make_config` (a switch takes true or false only), and every error names the
+file and parameter. Defaults are the dataclasses' own, as for the nodes.
 
 LiDAR mounts are read in the EKF node's (and the bag sidecar's) layout, `lidar.topics` and
 `lidar.<topic>.{frame_id, x_m, y_m, yaw_rad}` (x, y and yaw required, frame_id optional);
@@ -78,8 +79,44 @@ _FIELD_OWNER = {f.name: group for group, kind in _CONFIG_TYPES.items()
                 for f in dataclasses.fields(kind)}
 _OPTIONS = frozenset(f.name for f in dataclasses.fields(RunOptions))
 _LIMITS = frozenset(f.name for f in dataclasses.fields(InputLimits))
-_KNOWN = sorted(set(_FIELD_OWNER) | _OPTIONS | {f'limits.{name}' for name in _LIMITS})
-"""Every name `run` reads: a name in a pipeline section close to one of them is a typo."""
+_KNOWN = sorted(set(_FIELD_OWNER) | _OPTIONS | {f'limits.{name}' for name in _LIMITS}
+                | {'path_length'})
+"""Every name `run` reads (besides lidar.*, initial_pose.* and landmarks_file): a name in a
+pipeline section close to one of them is a typo."""
+
+NODE_ONLY_PARAMETERS: dict[str, tuple[str, ...]] = {
+    'ekf_node': ('base_frame', 'diagnostics_period_s', 'landmark_topics',
+                 'late_observation_history_s', 'map_frame', 'max_association_gap_s',
+                 'odom_frame', 'publish_every_n', 'publish_tf', 'reliable_inputs'),
+    'calibration_node': ('diagnostics_period_s', 'event_batch_s', 'reliable_inputs',
+                         'use_odom'),
+    'landmark_detector_node': ('diagnostics_period_s', 'reliable_inputs'),
+}
+"""What each pipeline node declares that `run` has no use for: the live side (frames, topics,
+QoS, periods, when to publish). Kept here, without ROS, so that `run` can tell a node's name
+from one no node has; test_launch_and_params starts each node and checks this list against
+what it declares."""
+
+ROS_PARAMETERS = ('use_sim_time', 'start_type_description_service')
+"""What rclpy declares on every node."""
+
+SIDECAR_PREFIXES = ('noise.', 'trip.', 'true_gyro_bias_rad_s')
+"""A bag sidecar's own entries (io/sidecar.py; its start pose and LiDARs are parameters too):
+`run` takes them from the bag's own sidecar."""
+
+
+def is_gyro_ekf_parameter(name: str) -> bool:
+    """Whether a pipeline node declares `name` or `run` reads it (a /** section serves all).
+
+    Besides the lists above: the LiDARs' `lidar.topics` and `lidar.<topic>.*`, the start
+    pose and the map file. A name that passes is not checked further here: `run` and each
+    node judge their own.
+    """
+    if name in _KNOWN or name in ROS_PARAMETERS or name.startswith(SIDECAR_PREFIXES):
+        return True
+    if name.startswith(('lidar.', 'initial_pose.')) or name == 'landmarks_file':
+        return True
+    return any(name in names for names in NODE_ONLY_PARAMETERS.values())
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,6 +141,8 @@ class PipelineParams:
         initial_pose: (x m, y m, yaw rad) in `map` the file sets, or None.
         landmarks_file: the map file the file sets (`landmarks_file`, the EKF node's
             parameter), or None: the bag's map.
+        path_length: most poses per ekf/path message (`path_length`, the EKF node's
+            parameter), or None: the default.
     """
 
     ekf: EkfConfig = field(default_factory=EkfConfig)
@@ -118,6 +157,7 @@ class PipelineParams:
     limits: InputLimits = field(default_factory=InputLimits)
     initial_pose: tuple[float, float, float] | None = None
     landmarks_file: str | None = None
+    path_length: int | None = None
 
 
 def _flatten(tree: dict[str, Any], prefix: str = '') -> dict[str, Any]:
@@ -169,7 +209,9 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
     lidar_values: dict[str, Any] = {}
     pose_values: dict[str, Any] = {}
     landmarks_file: str | None = None
+    path_length: int | None = None
     limits: dict[str, Any] = {}
+    sidecar_names: list[str] = []
     read = 0
     for node, body in sections:
         if not _is_pipeline_section(str(node)):
@@ -198,6 +240,9 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
                                           f'file name (a string), got {value!r}')
                 landmarks_file = value or None
                 continue
+            if name == 'path_length':
+                path_length = _path_length(source, value)
+                continue
             group, _, short = name.rpartition('.')
             if short in _OPTIONS and not group:
                 options[short] = value
@@ -206,17 +251,29 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
                 limits[short] = value
                 continue
             owner = _FIELD_OWNER.get(short)
-            if owner is None or (group and group != owner):
-                _skipped(source, str(node), name)
+            if owner is None or group:
+                if name.startswith(SIDECAR_PREFIXES):
+                    sidecar_names.append(name)
+                else:
+                    _skipped(source, str(node), name)
                 continue
             values[owner][short] = value
+    if sidecar_names:
+        # A bag's sidecar given as the params file too, or a stated figure written by hand:
+        # either way the run states what the bag's own sidecar states.
+        shown = sorted({name.split('.')[0] + ('.*' if '.' in name else '')
+                        for name in sidecar_names})
+        log.warning("%s: %s: a bag sidecar's own entries; run takes them from the bag's "
+                    'sidecar (BAG.params.yaml), not from --params-file (to set a sigma, '
+                    'write e.g. gyro_noise_rad_s with use_stated_noise: false); ignored',
+                    source, ', '.join(shown))
     if not read:
         # A bag's metadata.yaml or another tool's file: nothing in it reaches the filter.
         log.warning('%s: no section for /**, %s: nothing read', source,
                     ', '.join(PIPELINE_NODES))
-    for group, named in values.items():
+    for named in values.values():
         for short, value in named.items():
-            _require_finite(source, f'{group}.{short}', value)
+            _require_finite(source, short, value)
     for name, value in options.items():
         _require_finite(source, name, value)
     for name, value in limits.items():
@@ -237,37 +294,49 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
         options=run_options, lidars=mounts, lidar_time_offsets=time_offsets,
         lidar_range_offsets=range_offsets, lidars_upside_down=upside_down,
         limits=input_limits, initial_pose=_initial_pose(pose_values, source, input_limits),
-        landmarks_file=landmarks_file)
+        landmarks_file=landmarks_file, path_length=path_length)
+
+
+def _path_length(source: str, value: Any) -> int:
+    """Return the EKF node's `path_length` (a whole number >= 1), or raise naming it."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ParamsFileError(f"{source}: parameter 'path_length' must be a whole number of "
+                              f'poses >= 1, got {value!r}')
+    return value
 
 
 def _skipped(source: str, node: str, name: str) -> None:
-    """Say a name `run` does not read: a warning when it looks like a misspelt one.
+    """Say a name `run` does not read: quietly a node's own, else a warning.
 
-    The nodes' own names (frames, topics, QoS) belong in these sections too, so an unknown
-    name alone is no error; but one a letter or two off a filter parameter would leave
-    that parameter at its default without a word (``gyro_noize_rad_s``).
+    The nodes' own names (frames, topics, QoS) belong in these sections too, so they are no
+    error; but a name one or two letters off a parameter (``gyro_noize_rad_s``), one behind a
+    group prefix (``ekf.gyro_noise_rad_s``: the nodes declare it bare) or one no gyro_ekf
+    node has would leave a parameter at its default without a word, in `run` and the nodes.
     """
     group, _, short = name.rpartition('.')
-    by_short = group in _CONFIG_TYPES
-    owner = _FIELD_OWNER.get(short)
-    if by_short and owner is not None:
-        # A parameter of another group behind this group's prefix (detector.gyro_noise_rad_s):
-        # the name is right, the prefix is not.
-        log.warning('%s: %s: %r is not a parameter (%r is one of %s.*: write it bare or as '
-                    '%r); ignored', source, node, name, short, owner, f'{owner}.{short}')
+    if group and short in _FIELD_OWNER:
+        # The name is right, the prefix is not: every node declares its parameters bare.
+        log.warning('%s: %s: %r is not a parameter (the nodes declare %r bare, with no '
+                    '%s. before it); ignored', source, node, name, short, group)
         return
-    wanted = short if by_short else name
-    close = difflib.get_close_matches(wanted, _KNOWN, n=1, cutoff=0.85)
+    if is_gyro_ekf_parameter(name):
+        log.debug('%s: %s: %r is a node\'s own, not the filter\'s; skipped', source, node,
+                  name)
+        return
+    # Behind a group prefix (detector.max_widht_m), the name after it is the one meant.
+    wanted = short if group in _CONFIG_TYPES else name
+    candidates = sorted(set(_KNOWN).union(*NODE_ONLY_PARAMETERS.values()))
+    close = difflib.get_close_matches(wanted, candidates, n=1, cutoff=0.85)
     if not close:
         # A unit suffix left out (gyro_noise for gyro_noise_rad_s) is too short a name for
         # the closeness cut-off, and as wrong: the value would be taken in no unit at all.
         close = [known for known in _KNOWN if known.startswith(wanted + '_')][:1]
     if close:
-        meant = f'{group}.{close[0]}' if by_short else close[0]
         log.warning('%s: %s: %r is not a parameter (did you mean %r?); ignored', source,
-                    node, name, meant)
+                    node, name, close[0])
     else:
-        log.debug('%s: %s: %r is not a filter parameter; skipped', source, node, name)
+        log.warning('%s: %s: %r is not a parameter of any gyro_ekf node; ignored', source,
+                    node, name)
 
 
 _POSE_NAMES = ('initial_pose.x_m', 'initial_pose.y_m', 'initial_pose.yaw_rad')

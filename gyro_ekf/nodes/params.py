@@ -34,6 +34,7 @@ from gyro_ekf.core.config import STATED_NOISE_FIELDS as NOISE_FIELDS
 from gyro_ekf.core.time_offset import MAX_TIME_OFFSET_S
 from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures
 from gyro_ekf.core.validation import InputReport, MAX_RANGE_OFFSET_M
+from gyro_ekf.io.params_file import is_gyro_ekf_parameter
 from gyro_ekf.io.sidecar import CONVERTED_KEYS, CONVERTED_PARAMETER, converted_report
 
 
@@ -122,7 +123,9 @@ def report_ignored(node: Node, removed: Mapping[str, str]) -> list[str]:
     rclpy drops a parameter nobody declares without a word, so a user who still sets one
     (an old params file, a script) would never learn that it does nothing now, nor one who
     wrote ``gyro_noize_rad_s`` that the gyro noise stayed at its default. A name one or two
-    letters off a declared one is taken as misspelt; other undeclared names are left alone
+    letters off a declared one, or a declared one behind a prefix (``ekf.gyro_noise_rad_s``),
+    is taken as misspelt; a name no gyro_ekf node declares (``io.params_file``'s list, held
+    to the nodes by a test) is warned of too. Another pipeline node's names are left alone
     (a ``/**`` section is meant for every node, each declaring only its own).
 
     Args:
@@ -130,7 +133,8 @@ def report_ignored(node: Node, removed: Mapping[str, str]) -> list[str]:
         removed: former parameter name -> what became of it (shown in the warning).
 
     Returns:
-        The former parameters given, in the order of ``removed``, then the misspelt ones.
+        The former parameters given, in the order of ``removed``, then the others warned
+        of.
     """
     # rclpy keeps the -p and --params-file values for this node here and has no public
     # getter for them (undeclared ones never become parameters).
@@ -143,10 +147,20 @@ def report_ignored(node: Node, removed: Mapping[str, str]) -> list[str]:
     for name in overrides:
         if name in node._parameters or name in removed:
             continue
-        close = difflib.get_close_matches(name, declared, n=1, cutoff=0.85)
+        group, _, short = name.rpartition('.')
+        if group and short in node._parameters:
+            # `ekf.gyro_noise_rad_s`, or `gyro_noise_rad_s` nested under `ekf:` in a file.
+            close = [short]
+        else:
+            close = difflib.get_close_matches(name, declared, n=1, cutoff=0.85)
         if close:
             node.get_logger().warn(f'parameter {name!r} is not a parameter of this node '
                                    f'(did you mean {close[0]!r}?); ignored')
+            given.append(name)
+        elif not is_gyro_ekf_parameter(name):
+            # Not another pipeline node's either (a /** section serves them all).
+            node.get_logger().warn(f'parameter {name!r} is not a parameter of any gyro_ekf '
+                                   'node; ignored')
             given.append(name)
     return given
 

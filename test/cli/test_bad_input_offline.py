@@ -270,7 +270,7 @@ def test_run_refuses_a_nan_in_the_params_file(tmp_path, capsys, sim_trip):
     params = tmp_path / 'filter.yaml'
     params.write_text('/**:\n  ros__parameters:\n    gyro_noise_rad_s: .nan\n')
     _fails(capsys, ['run', str(bag), '-o', str(tmp_path / 'out'), '--params-file', str(params)],
-           'filter.yaml', "'ekf.gyro_noise_rad_s' = nan is not finite")
+           'filter.yaml', "'gyro_noise_rad_s' = nan is not finite")
     assert not (tmp_path / 'out').exists()
 
 

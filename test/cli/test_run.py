@@ -184,6 +184,30 @@ def test_params_file_values_reach_the_filter(tmp_path, simulated_bag, caplog):
     assert summary['config']['ekf']['landmark_sigma_m'] == 0.01
 
 
+def _longest_path(bag) -> int:
+    """The most poses in one ekf/path message of an estimates bag."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(bag) as reader:
+        paths = [c for c in reader.connections if c.topic == '/ekf/path']
+        return max(len(store.deserialize_cdr(data, c.msgtype).poses)
+                   for c, _, data in reader.messages(connections=paths))
+
+
+def test_the_params_files_path_length_reaches_the_estimates_bag(tmp_path, simulated_bag):
+    # The EKF node's path_length: `run` skipped it with a debug line, and wrote 600 poses.
+    bag, _ = simulated_bag
+    params = tmp_path / 'p.yaml'
+    params.write_text('ekf_node:\n  ros__parameters:\n    path_length: 7\n')
+    _run(bag, tmp_path / 'out', '--no-plots', '--params-file', str(params))
+    assert _longest_path(tmp_path / 'out' / 'estimates') == 7
+    # The command line's wins, as everywhere.
+    _run(bag, tmp_path / 'out2', '--no-plots', '--params-file', str(params), '--path-length',
+         '11')
+    assert _longest_path(tmp_path / 'out2' / 'estimates') == 11
+
+
 def _course_bag(shared_data, tmp_path, *parts):
     from gyro_ekf.io.matlab import load_course_log
     trip = load_course_log([shared_data(p) for p in parts])

@@ -32,8 +32,7 @@ TEXT = """
     use_stated_noise: false
 landmark_detector_node:
   ros__parameters:
-    detector:
-      max_width_m: 0.3
+    max_width_m: 0.3
 calibration_node:
   ros__parameters:
     window_length_s: 4
@@ -82,11 +81,23 @@ def test_a_bag_sidecar_is_a_valid_params_file_with_no_filter_values():
     assert math.isclose(params.calibration.window_length_s, 5.0)
 
 
+def test_a_bag_sidecars_own_entries_are_said_to_come_from_the_bag(caplog):
+    # A stated figure written into the params file: the node takes it, `run` takes the
+    # bag's (its sidecar's). Said in one line, with the parameter that sets the sigma.
+    sidecar = ('/**:\n  ros__parameters:\n    trip: {name: x, log_time_zero_ns: 1}\n'
+               '    noise: {gyro_rad_s: 0.01}\n    true_gyro_bias_rad_s: [0.0, 0.0, 0.1]\n')
+    read_params_text(sidecar, 's.yaml')
+    assert [r.getMessage() for r in caplog.records if r.levelname == 'WARNING'] == [
+        "s.yaml: noise.*, trip.*, true_gyro_bias_rad_s: a bag sidecar's own entries; run "
+        "takes them from the bag's sidecar (BAG.params.yaml), not from --params-file (to set "
+        "a sigma, write e.g. gyro_noise_rad_s with use_stated_noise: false); ignored"]
+
+
 @pytest.mark.parametrize('line, message', [
     # NaN passes every bounds comparison, so it is refused by name before them.
-    ('gyro_noise_rad_s: .nan', "'ekf.gyro_noise_rad_s' = nan is not finite"),
-    ('ekf: {speed_noise_m_s: .inf}', "'ekf.speed_noise_m_s' = inf is not finite"),
-    ('detector: {max_width_m: -.inf}', "'detector.max_width_m' = -inf is not finite"),
+    ('gyro_noise_rad_s: .nan', "'gyro_noise_rad_s' = nan is not finite"),
+    ('speed_noise_m_s: .inf', "'speed_noise_m_s' = inf is not finite"),
+    ('max_width_m: -.inf', "'max_width_m' = -inf is not finite"),
     ('calibration_bias_sigma_rad_s: .nan', "'calibration_bias_sigma_rad_s' = nan is not"),
     ('calibration_bias_sigma_rad_s: -0.1', "'calibration_bias_sigma_rad_s' = -0.1 is outside"),
 ])
@@ -125,7 +136,7 @@ def test_a_misspelt_name_is_warned_about_and_limits_are_read(caplog):
         "typo.yaml: section 'ekf_nod' is not one of the pipeline's nodes (did you mean "
         "'ekf_node'?); skipped",
         "typo.yaml: landmark_detector_node: 'detector.max_widht_m' is not a parameter (did "
-        "you mean 'detector.max_width_m'?); ignored"]
+        "you mean 'max_width_m'?); ignored"]
     assert params.ekf.gyro_noise_rad_s == EkfConfig().gyro_noise_rad_s
     assert params.limits.max_speed_m_s == 10.0
 
@@ -159,14 +170,38 @@ def test_an_initial_pose_is_read_whole_and_checked_as_the_node_declares_it():
                          '      scan2: {x_m: -0.4, y_m: 0.0, yaw_rad: 183.0}\n', 'p.yaml')
 
 
-def test_a_unit_left_out_or_a_parameter_behind_another_group_is_warned_about(caplog):
-    read_params_text('/**:\n  ros__parameters:\n    gyro_noise: 0.5\n'
-                     '    detector.gyro_noise_rad_s: 0.5\n    frame_prefix: robot\n', 'p.yaml')
+def test_a_unit_left_out_a_group_prefix_or_a_name_of_no_node_is_warned_about(caplog):
+    # A group prefix was read by `run` (ekf.gyro_noise_rad_s, or nested under ekf:) while
+    # the nodes, which declare every parameter bare, ignored it: one file, two filters. A
+    # name no gyro_ekf node has was skipped with a debug line.
+    params = read_params_text(
+        '/**:\n  ros__parameters:\n    gyro_noise: 0.5\n    detector.gyro_noise_rad_s: 0.5\n'
+        '    ekf:\n      speed_noise_m_s: 0.5\n    frame_prefix: robot\n', 'p.yaml')
     assert [r.getMessage() for r in caplog.records if r.levelname == 'WARNING'] == [
         "p.yaml: /**: 'gyro_noise' is not a parameter (did you mean 'gyro_noise_rad_s'?); "
         "ignored",
-        "p.yaml: /**: 'detector.gyro_noise_rad_s' is not a parameter ('gyro_noise_rad_s' is "
-        "one of ekf.*: write it bare or as 'ekf.gyro_noise_rad_s'); ignored"]
+        "p.yaml: /**: 'detector.gyro_noise_rad_s' is not a parameter (the nodes declare "
+        "'gyro_noise_rad_s' bare, with no detector. before it); ignored",
+        "p.yaml: /**: 'ekf.speed_noise_m_s' is not a parameter (the nodes declare "
+        "'speed_noise_m_s' bare, with no ekf. before it); ignored",
+        "p.yaml: /**: 'frame_prefix' is not a parameter of any gyro_ekf node; ignored"]
+    assert params.ekf == EkfConfig()
+
+
+def test_the_nodes_live_side_names_are_skipped_quietly_and_path_length_is_read(caplog):
+    params = read_params_text(
+        '/**:\n  ros__parameters:\n    use_sim_time: true\n    reliable_inputs: true\n'
+        'ekf_node:\n  ros__parameters:\n    map_frame: world\n    publish_every_n: 2\n'
+        '    path_length: 50\ncalibration_node:\n  ros__parameters:\n    use_odom: false\n',
+        'p.yaml')
+    assert [r.getMessage() for r in caplog.records if r.levelname == 'WARNING'] == []
+    assert params.path_length == 50
+    assert read_params_text(TEXT).path_length is None
+    for value in ('0', '2.5', 'true', 'long'):
+        with pytest.raises(ParamsFileError, match="p.yaml: parameter 'path_length' must be a "
+                           'whole number of poses >= 1, got'):
+            read_params_text(f'ekf_node:\n  ros__parameters:\n    path_length: {value}\n',
+                             'p.yaml')
 
 
 def _first_pose(out):

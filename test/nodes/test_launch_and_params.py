@@ -155,7 +155,8 @@ def test_bag_sidecar_reaches_the_ekf_node(ros_env, sim_bag):
     import rclpy
 
     from gyro_ekf.io import read_sidecar
-    from gyro_ekf.nodes.ekf_node import EkfNode
+    from gyro_ekf.nodes.ekf_node import EkfNode, REMOVED_PARAMETERS
+    from gyro_ekf.nodes.params import report_ignored
 
     params = read_sidecar(sim_bag)
     context = rclpy.Context()
@@ -172,10 +173,50 @@ def test_bag_sidecar_reaches_the_ekf_node(ros_env, sim_bag):
             assert params.noise.landmark_m == 0.0
             assert node.config.landmark_sigma_m == 0.0
             assert node._origin.zero_ns == params.log_time_zero_ns
+            # No entry of it passes for a parameter no node has (true_gyro_bias_rad_s, the
+            # fingerprint trip.bag.*: no node declares them).
+            assert params.true_gyro_bias_rad_s is not None and params.bag is not None
+            assert report_ignored(node, REMOVED_PARAMETERS) == []
         finally:
             node.destroy_node()
     finally:
         context.try_shutdown()
+
+
+@pytest.mark.ros
+def test_the_params_file_readers_list_of_node_parameters_is_what_the_nodes_declare(ros_env):
+    # `run` and the nodes tell a name some pipeline node declares from one none has by
+    # io.params_file's list (ROS-free): held here to what each node really declares.
+    import rclpy
+
+    from gyro_ekf.io import params_file
+    from gyro_ekf.nodes.calibration_node import CalibrationNode
+    from gyro_ekf.nodes.ekf_node import EkfNode
+    from gyro_ekf.nodes.landmark_detector_node import LandmarkDetectorNode
+
+    context = rclpy.Context()
+    rclpy.init(context=context, args=['--ros-args', '-p', 'lidar.topics:=[scan]'])
+    declared = {}
+    try:
+        for node_class in (CalibrationNode, LandmarkDetectorNode, EkfNode):
+            node = node_class(context=context)
+            try:
+                declared[node.get_name()] = set(node._parameters)
+            finally:
+                node.destroy_node()
+    finally:
+        context.try_shutdown()
+    assert set(declared) == set(params_file.PIPELINE_NODES)
+    run_reads = set(params_file._KNOWN)
+    for name, names in declared.items():
+        assert all(params_file.is_gyro_ekf_parameter(n) for n in names), name
+        own = {n for n in names - run_reads - set(params_file.ROS_PARAMETERS)
+               if not n.startswith(('lidar.', 'initial_pose.', *params_file.SIDECAR_PREFIXES))
+               and n != 'landmarks_file'}
+        assert own == set(params_file.NODE_ONLY_PARAMETERS[name]), name
+    # What `run` reads, a node declares: but for the bag's longest duration, run's alone.
+    assert run_reads - set().union(*declared.values()) == {'limits.max_duration_s'}
+    assert not params_file.is_gyro_ekf_parameter('frame_prefix')
 
 
 @pytest.mark.ros
@@ -299,15 +340,23 @@ def test_a_misspelt_parameter_is_warned_about_naming_the_one_meant(ros_env, tmp_
     typo = tmp_path / 'typo.yaml'
     typo.write_text('/**:\n  ros__parameters:\n    gyro_noize_rad_s: 0.02\n'
                     '    window_length_s: 2.0\nekf_node:\n  ros__parameters:\n'
-                    '    gate_probabilty: 0.9\n    publish_every_n: 2\n')
+                    '    gate_probabilty: 0.9\n    publish_every_n: 2\n'
+                    '    ekf:\n      speed_noise_m_s: 0.5\n    frame_prefix: robot\n')
     stderr = _run_until_logged(ros_env, tmp_path, 'ekf_node', ['--params-file', str(typo)],
                                'EKF ready')
     assert stderr.count("parameter 'gyro_noize_rad_s' is not a parameter of this node "
                         "(did you mean 'gyro_noise_rad_s'?); ignored") == 1, stderr
     assert stderr.count("'gate_probabilty' is not a parameter of this node (did you "
                         "mean 'gate_probability'?)") == 1, stderr
-    # A name another node declares (the calibration node's window) is no typo here.
-    assert stderr.count('is not a parameter of this node') == 2, stderr
+    # Nested under a group, as `run` once read it: the node declares it bare.
+    assert stderr.count("'ekf.speed_noise_m_s' is not a parameter of this node (did you "
+                        "mean 'speed_noise_m_s'?)") == 1, stderr
+    # A name another node declares (the calibration node's window) is no typo here; one
+    # no gyro_ekf node has is said.
+    assert stderr.count('is not a parameter of this node') == 3, stderr
+    assert stderr.count("parameter 'frame_prefix' is not a parameter of any gyro_ekf node; "
+                        'ignored') == 1, stderr
+    assert 'window_length_s' not in stderr
     assert 'Traceback' not in stderr
 
 
