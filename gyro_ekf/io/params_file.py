@@ -391,6 +391,11 @@ def _initial_pose(values: dict[str, Any], source: str, limits: InputLimits
     return pose[0], pose[1], pose[2]
 
 
+_LIDAR_KEYS = ('frame_id', 'x_m', 'y_m', 'yaw_rad', 'time_offset_s', 'range_offset_m',
+               'upside_down')
+"""What `lidar.<topic>.*` holds, as the EKF node declares it (nodes/params.py)."""
+
+
 def _lidar_mounts(values: dict[str, Any], source: str
                   ) -> tuple[dict[str, tuple[str | None, LidarMount]], dict[str, float],
                              dict[str, float], frozenset[str]]:
@@ -401,6 +406,23 @@ def _lidar_mounts(values: dict[str, Any], source: str
     if not isinstance(topics, list) or not all(isinstance(t, str) and t for t in topics):
         raise ParamsFileError(f"{source}: parameter 'lidar.topics' must be a list of scan "
                               f'topics, got {topics!r}')
+    # The node warns of these too (a name close to one it declares); without a word the
+    # bag's mount would stay (yaw_deg for yaw_rad, a LiDAR left out of lidar.topics).
+    unlisted: dict[str, list[str]] = {}
+    for name in sorted(values):
+        topic, _, key = name.rpartition('.')
+        if name == 'topics' or (topic in topics and key in _LIDAR_KEYS):
+            continue
+        if topic in topics:
+            close = difflib.get_close_matches(key, _LIDAR_KEYS, n=1, cutoff=0.6)
+            log.warning("%s: 'lidar.%s' is not a parameter (a LiDAR's are %s%s); ignored",
+                        source, name, ', '.join(_LIDAR_KEYS),
+                        f': did you mean {close[0]!r}?' if close else '')
+        else:
+            unlisted.setdefault(topic or name, []).append(f'lidar.{name}')
+    for topic, names in unlisted.items():
+        log.warning('%s: %s: %r is not one of lidar.topics %s; ignored', source,
+                    ', '.join(names), topic, topics)
     mounts: dict[str, tuple[str | None, LidarMount]] = {}
     offsets: dict[str, float] = {}
     ranges: dict[str, float] = {}

@@ -188,6 +188,22 @@ def test_a_unit_left_out_a_group_prefix_or_a_name_of_no_node_is_warned_about(cap
     assert params.ekf == EkfConfig()
 
 
+def test_a_lidar_name_run_does_not_read_is_warned_about(caplog):
+    # A mount in degrees, or a second LiDAR left out of lidar.topics: the bag's mount
+    # stayed without a word (the node warns of both, by a name close to one it declares).
+    params = read_params_text(
+        '/**:\n  ros__parameters:\n    lidar:\n      topics: [scan]\n'
+        '      scan: {x_m: 0.4, y_m: 0.0, yaw_rad: 0.0, yaw_deg: 180.0}\n'
+        '      scan2: {x_m: -0.4, y_m: 0.0, yaw_rad: 3.1}\n', 'p.yaml')
+    assert [r.getMessage() for r in caplog.records if r.levelname == 'WARNING'] == [
+        "p.yaml: 'lidar.scan.yaw_deg' is not a parameter (a LiDAR's are frame_id, x_m, y_m, "
+        "yaw_rad, time_offset_s, range_offset_m, upside_down: did you mean 'yaw_rad'?); "
+        "ignored",
+        "p.yaml: lidar.scan2.x_m, lidar.scan2.y_m, lidar.scan2.yaw_rad: 'scan2' is not one of "
+        "lidar.topics ['scan']; ignored"]
+    assert list(params.lidars) == ['scan']
+
+
 def test_the_nodes_live_side_names_are_skipped_quietly_and_path_length_is_read(caplog):
     params = read_params_text(
         '/**:\n  ros__parameters:\n    use_sim_time: true\n    reliable_inputs: true\n'
