@@ -48,6 +48,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         parser.add_argument(f'--{flag}-offset-m', type=float, nargs=2, default=(0.0, 0.0),
                             metavar=('X', 'Y'),
                             help=f'true minus stated x and y of the {name} LiDAR, m')
+    parser.add_argument('--static-turn-deg-s', type=float, default=0.0,
+                        help='turn in place through the static window, deg/s: the odometry '
+                        'reads no speed, the gyro and the LiDARs see the turn (a static '
+                        'calibration takes it for bias unless the scans refuse the window)')
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                         help='bag storage plugin (ignored for .npz output)')
     parser.add_argument('--force', action='store_true', help='replace an existing output')
@@ -73,6 +77,9 @@ def check_options(args: argparse.Namespace) -> None:
     if args.static_s > args.duration_s:
         raise GyroEkfError(f'--static-s: {args.static_s:g} s is longer than the trip '
                            f'(--duration-s {args.duration_s:g} s)')
+    check_number('--static-turn-deg-s', args.static_turn_deg_s,
+                 *field_bounds(SimulationConfig, 'static_turn_rad_s', math.radians(1.0)),
+                 unit='deg/s')
     for which in ('lidar', 'lidar2'):
         check_number(f'--{which}-yaw-error-deg', getattr(args, f'{which}_yaw_error_deg'),
                      *field_bounds(SimulationConfig, f'{which}_yaw_error_rad',
@@ -94,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
         lidar_yaw_error_rad=math.radians(args.lidar_yaw_error_deg),
         lidar_x_error_m=args.lidar_offset_m[0], lidar_y_error_m=args.lidar_offset_m[1],
         lidar2_yaw_error_rad=math.radians(args.lidar2_yaw_error_deg),
-        lidar2_x_error_m=args.lidar2_offset_m[0], lidar2_y_error_m=args.lidar2_offset_m[1])
+        lidar2_x_error_m=args.lidar2_offset_m[0], lidar2_y_error_m=args.lidar2_offset_m[1],
+        static_turn_rad_s=math.radians(args.static_turn_deg_s))
     trip = simulate_trip(config, seed=args.seed)
     output: Path = args.output
     # io pulls in rosbags; import it only once there is something to write.

@@ -186,6 +186,10 @@ class SimulationConfig:
     gyro_scale_error: float = _param(
         0.0, '1', 'Gyro scale error e: the yaw axis reads (1 + e) times the true yaw rate.',
         -0.5, 0.5)
+    static_turn_rad_s: float = _param(
+        0.0, 'rad/s', 'Turn in place through the static window (speed 0, the gyro and '
+        'LiDARs see it): the platform starts it turned back by this times static_s.',
+        -0.5, 0.5)
     gyro_bias_step_rad_s: float = _param(
         0.0, 'rad/s', 'Step added to the yaw-axis bias at gyro_bias_step_at_s.', -1.0, 1.0)
     gyro_bias_step_at_s: float = _param(0.0, 's', 'When the yaw-axis bias step happens.',
@@ -575,6 +579,20 @@ def _scan_series(config: SimulationConfig, stated: LidarMount, true: LidarMount,
         range_max_m=config.lidar_max_range_m, mount=stated, topic=topic, frame_id=frame_id)
 
 
+def _static_turn(config: SimulationConfig, t_s: FloatArray) -> FloatArray:
+    """Yaw the platform is still to turn in place at t_s (n,) (static_turn_rad_s), rad."""
+    if config.static_turn_rad_s == 0.0:
+        return np.zeros(np.shape(t_s))
+    return config.static_turn_rad_s * np.minimum(np.asarray(t_s) - config.static_s, 0.0)
+
+
+def _turned(poses: FloatArray, config: SimulationConfig, t_s: FloatArray) -> FloatArray:
+    """Poses (n, 3) turned by what the platform is still to turn in place at t_s."""
+    if config.static_turn_rad_s != 0.0:
+        poses[:, 2] = wrap_angle(poses[:, 2] + _static_turn(config, t_s))
+    return poses
+
+
 def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip:
     """Simulate one trip; the same config and seed give the same trip, bit for bit.
 
@@ -617,7 +635,7 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
     period = 1.0 / config.imu_rate_hz
     edges = np.append(imu_t, imu_t[-1] + period)
     edge_s = arc(edges)
-    yaw_edges = path.pose(edge_s)[:, 2]
+    yaw_edges = path.pose(edge_s)[:, 2] + _static_turn(config, edges)
     rate_true = wrap_angle(np.diff(yaw_edges)) / period
     bias = np.array([config.gyro_bias_x_rad_s, config.gyro_bias_y_rad_s,
                      config.gyro_bias_z_rad_s])
@@ -651,10 +669,10 @@ def simulate_trip(config: SimulationConfig | None = None, seed: int = 0) -> Trip
     speed = np.where(speed_true > 0.0, measured + noise, 0.0)
 
     truth_t = _sample_times(config.duration_s, config.truth_rate_hz)
-    truth_pose = path.pose(arc(truth_t))
+    truth_pose = _turned(path.pose(arc(truth_t)), config, truth_t)
 
     scan_t = _sample_times(config.duration_s, config.lidar_rate_hz)
-    scan_pose = path.pose(arc(scan_t))
+    scan_pose = _turned(path.pose(arc(scan_t)), config, scan_t)
     seg_start, seg_vec = _segments(walls)
     # What the LiDARs see: the map's poles but the missing ones, and the extra reflectors.
     world = landmarks

@@ -319,6 +319,26 @@ def test_speed_scale_error_scales_the_encoder():
         _assert_same_except(trip, clean, speed=False)
 
 
+def test_a_turn_in_place_through_the_static_window_ends_on_the_clean_trips_heading(clean):
+    turn = math.radians(0.4)
+    trip = _short(static_turn_rad_s=turn)
+    static = SHORT.static_s
+    # The same path from the end of the window on; before, turned back by what remains.
+    truth, clean_truth = trip.ground_truth, clean.ground_truth
+    behind = wrap_angle(truth.pose[:, 2] - clean_truth.pose[:, 2])
+    np.testing.assert_allclose(behind, turn * np.minimum(truth.stamp_s - static, 0.0),
+                               atol=1e-12)
+    np.testing.assert_array_equal(truth.pose[:, :2], clean_truth.pose[:, :2])
+    assert trip.initial_pose[2] == pytest.approx(clean.initial_pose[2] - turn * static)
+    # The gyro reads the turn, the encoder nothing; the bias is the clean trip's.
+    rest = trip.imu.stamp_s < static - 0.01
+    change = trip.imu.angular_velocity_rad_s - clean.imu.angular_velocity_rad_s
+    np.testing.assert_allclose(change[rest, 2], turn, atol=1e-9)
+    np.testing.assert_allclose(change[trip.imu.stamp_s > static, 2], 0.0, atol=1e-9)
+    np.testing.assert_array_equal(trip.speed.speed_m_s, clean.speed.speed_m_s)
+    np.testing.assert_array_equal(trip.true_gyro_bias_rad_s, clean.true_gyro_bias_rad_s)
+
+
 def test_bias_step_changes_the_yaw_bias_once(clean):
     step, at = math.radians(0.5), 12.0
     trip = _short(gyro_bias_step_rad_s=step, gyro_bias_step_at_s=at)
