@@ -22,9 +22,9 @@ import logging
 
 import numpy as np
 
-from gyro_ekf.core.calibration import estimate_gyro_bias
-from gyro_ekf.core.config import (STATED_NOISE_FIELDS, CalibrationConfig, EkfConfig,
-                                  with_stated_noise)
+from gyro_ekf.core.calibration import calibrate_trip
+from gyro_ekf.core.config import (STATED_NOISE_FIELDS, CalibrationConfig, DetectorConfig,
+                                  EkfConfig, with_stated_noise)
 from gyro_ekf.core.errors import CalibrationError
 from gyro_ekf.core.events import EventDriver
 from gyro_ekf.analysis.detect_ahead import DetectionsAhead
@@ -153,13 +153,12 @@ def message_sources(trip: Trip, params: PipelineParams, sources: dict[str, str])
                         getattr(params.ekf, name), stated, total, stream, field_name)
 
 
-def calibrate(trip: Trip, config: CalibrationConfig | None = None
+def calibrate(trip: Trip, config: CalibrationConfig | None = None,
+              detector: DetectorConfig | None = None
               ) -> tuple[BiasEstimate | None, str | None]:
     """Calibrate the trip's gyro on its static window, or say why there is none."""
     try:
-        estimate = estimate_gyro_bias(
-            trip.imu.stamp_s, trip.imu.angular_velocity_rad_s, config,
-            trip.speed.stamp_s, trip.speed.speed_m_s, trip.imu.axes_known)
+        estimate = calibrate_trip(trip, config, detector)
     except CalibrationError as err:
         log.info('%s: no offline bias: %s', trip.name, err)
         return None, str(err)
@@ -227,7 +226,7 @@ def run_trip(trip: Trip, params: PipelineParams | None = None,
     trip = with_lidar_mounts(trip, params)
     config, sources = effective_config(trip.noise, params, use_stated_noise)
     message_sources(trip, params, sources)
-    calibration, reason = calibrate(trip, params.calibration)
+    calibration, reason = calibrate(trip, params.calibration, params.detector)
     driver = EventDriver(config, trip.landmarks, trip.initial_pose,
                          detector_config=params.detector)
     if use_calibration is None:

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 
 from gyro_ekf.cli.convert import add_skip_bad_argument, warn_dropped
-from gyro_ekf.core.calibration import estimate_gyro_bias, measured_axes
+from gyro_ekf.core.calibration import calibrate_trip, measured_axes
 from gyro_ekf.core.config import CalibrationConfig, field_bounds
 from gyro_ekf.core.errors import CalibrationError
 from gyro_ekf.core.types import BiasEstimate, Trip
@@ -29,6 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='length of the static window, s')
     parser.add_argument('--ignore-speed', action='store_true',
                         help='do not use the speed stream to confirm the platform is still')
+    parser.add_argument('--ignore-scans', action='store_true',
+                        help='do not use the LiDAR scans to confirm the platform does not turn')
     parser.add_argument('--json', action='store_true', help='print JSON instead of a table')
     add_skip_bad_argument(parser)
 
@@ -89,17 +92,6 @@ def load_trip(sources: list[Path], skip_bad: bool = False) -> Trip:
     return trip
 
 
-def calibrate_trip(trip: Trip, config: CalibrationConfig,
-                   use_speed: bool = True) -> BiasEstimate:
-    """Run the static-window calibration on a trip's gyro (and speed) streams."""
-    speed = trip.speed if use_speed and len(trip.speed.stamp_s) else None
-    return estimate_gyro_bias(
-        trip.imu.stamp_s, trip.imu.angular_velocity_rad_s, config,
-        speed_stamp_s=None if speed is None else speed.stamp_s,
-        speed_m_s=None if speed is None else speed.speed_m_s,
-        axes_known=trip.imu.axes_known)
-
-
 def estimate_to_dict(estimate: BiasEstimate, axes_known: tuple[bool, bool, bool]) -> dict:
     """JSON-ready view: SI values plus degrees for people.
 
@@ -120,6 +112,10 @@ def estimate_to_dict(estimate: BiasEstimate, axes_known: tuple[bool, bool, bool]
         'standard_error_deg_s': measured(np.rad2deg(estimate.bias_standard_error_rad_s)),
         'n_samples': estimate.n_samples,
         'window_s': [estimate.window_start_s, estimate.window_end_s],
+        # What each LiDAR that followed poles through the window saw the platform turn.
+        'scan_turns': [{'topic': turn.topic, 'rate_deg_s': math.degrees(turn.rate_rad_s),
+                        'sigma_deg_s': math.degrees(turn.sigma_rad_s), 'poles': turn.poles,
+                        'scans': turn.scans} for turn in estimate.scan_turns],
     }
 
 
@@ -148,7 +144,8 @@ def run(args: argparse.Namespace) -> int:
     config = CalibrationConfig(window_start_s=args.window_start_s,
                                window_length_s=args.window_length_s)
     try:
-        estimate = calibrate_trip(trip, config, use_speed=not args.ignore_speed)
+        estimate = calibrate_trip(trip, config, use_speed=not args.ignore_speed,
+                                  use_scans=not args.ignore_scans)
     except CalibrationError as err:
         raise CalibrationError(f'{stream_names(args.source)[err.stream]}: {err}',
                                err.stream) from None
@@ -166,4 +163,10 @@ def run(args: argparse.Namespace) -> int:
             continue
         print(f'{axis:<5}{report["bias_deg_s"][i]:>14.4f}{report["sigma_deg_s"][i]:>15.4f}'
               f'{report["standard_error_deg_s"][i]:>17.4f}')
+    for turn in report['scan_turns']:
+        print(f"LiDAR '{turn['topic']}': the platform turned {turn['rate_deg_s']:+.4f} "
+              f"+- {turn['sigma_deg_s']:.4f} deg/s ({turn['poles']} poles through "
+              f"{turn['scans']} scans): still")
+    if trip.scans and not report['scan_turns'] and not args.ignore_scans:
+        print('LiDAR: no pole followed through the window; a turn in place is not checked')
     return 0

@@ -302,7 +302,7 @@ def _wait_replay(replay: subprocess.Popen, bag: Path, args: argparse.Namespace,
 def _summary(bag: Path, recorded: Path, params) -> dict:
     import numpy as np
 
-    from gyro_ekf.core.calibration import estimate_gyro_bias
+    from gyro_ekf.core.calibration import calibrate_trip
     from gyro_ekf.core.errors import CalibrationError
     from gyro_ekf.core.stamps import seconds_since
     from gyro_ekf.io import iter_bag_messages, read_bag
@@ -312,10 +312,7 @@ def _summary(bag: Path, recorded: Path, params) -> dict:
     trip = bag_trip.trip
     summary: dict = {'bag': str(bag), 'recorded': str(recorded)}
     try:
-        offline = estimate_gyro_bias(trip.imu.stamp_s, trip.imu.angular_velocity_rad_s,
-                                     speed_stamp_s=trip.speed.stamp_s,
-                                     speed_m_s=trip.speed.speed_m_s,
-                                     axes_known=trip.imu.axes_known)
+        offline = calibrate_trip(trip)
         summary['offline_bias_deg_s'] = math.degrees(offline.bias_rad_s[2])
     except CalibrationError as err:
         summary['offline_bias_deg_s'] = None

@@ -8,19 +8,158 @@ bias ``B``, and ``w_improved = w_measured - B`` afterwards.
 The window is only trusted after checking that it really was static: enough samples, no
 gap, no speed where a speed stream exists, and no per-axis spread or trend beyond the
 configured thresholds. A refused window raises CalibrationError saying why.
+
+None of those sees a platform turning in place slowly and steadily: the odometry reads no
+speed, the gyro a constant rate with its usual spread, and the mean takes the turn for
+bias (a simulated 0.1 deg/s turn gave a bias 0.098 deg/s off, accepted). The LiDARs do see
+it: every pole they follow through the window turns about the platform at minus its rate
+(``scan_turn``), so where scans exist a turn beyond ``MAX_SCAN_TURN_RAD_S`` refuses the
+window too.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator, Sequence
 import dataclasses
+from dataclasses import dataclass
+import math
 
 import numpy as np
 
-from gyro_ekf.core.config import CalibrationConfig
+from gyro_ekf.core.config import CalibrationConfig, DEG, DetectorConfig
+from gyro_ekf.core.detection import detect_poles_in_scans
 from gyro_ekf.core.errors import CalibrationError
-from gyro_ekf.core.types import BiasEstimate, FloatArray
+from gyro_ekf.core.models import points_upright, sensor_to_map
+from gyro_ekf.core.types import BiasEstimate, FloatArray, ScanSeries, Trip
 
 _AXES = 'xyz'
+
+MAX_SCAN_TURN_RAD_S = 0.02 * DEG
+"""The largest turn a LiDAR may see in a static window (beyond it, and beyond 3 sigmas of
+the fit, the window is refused): the project's bound on a final bias error, all of which a
+turn the gyro's mean takes for bias would use up. The real 2016 log's static start reads
+0.0001 deg/s."""
+
+POLE_LAG_S = 0.25
+"""Live: a LiDAR whose last scan is older than this at the window's end lags the gyro."""
+
+POLE_WAIT_S = 1.0
+"""Live: how long (gyro time) a full window waits for a lagging LiDAR's last scans."""
+
+TRACK_GATE_M = 0.3
+"""Farthest a pole may move between two scans and still be the same pole (body frame): a
+turn of 17 deg/s at 10 m between scans 0.1 s apart."""
+
+_BODY = np.zeros(3)
+"""The platform's own pose: sensor_to_map at it places points in the body frame."""
+
+
+@dataclass(frozen=True, slots=True)
+class ScanTurn:
+    """How fast a LiDAR saw the platform turn in a window in which it stood still.
+
+    Attributes:
+        rate_rad_s: the platform's yaw rate (counter-clockwise positive), rad/s.
+        sigma_rad_s: its standard error from the bearings' scatter about the fit, rad/s.
+        poles: poles followed through at least half the window's scans.
+        scans: scans in the window.
+        topic: the LiDAR's scan topic.
+    """
+
+    rate_rad_s: float
+    sigma_rad_s: float
+    poles: int
+    scans: int
+    topic: str = ''
+
+    @property
+    def turning(self) -> bool:
+        """Beyond MAX_SCAN_TURN_RAD_S and beyond 3 sigmas: the platform turned."""
+        return abs(self.rate_rad_s) > max(MAX_SCAN_TURN_RAD_S, 3.0 * self.sigma_rad_s)
+
+
+def pole_turn(stamp_s: Sequence[float], points_body_m: Sequence[FloatArray]
+              ) -> ScanTurn | None:
+    """Return the platform's mean turn rate from poles followed through scans at a stop.
+
+    Seen from a platform turning in place, every pole's bearing in the body frame (about
+    the platform's reference point, wherever the LiDAR sits) turns back by as much. Each
+    pole is followed scan to scan (the nearest detection within TRACK_GATE_M of where it
+    was last); of every pole followed through at least half the scans, the bearings of its
+    first and last fifth are averaged, and the rate is the turn between those ends over
+    the time between them (one rate for all poles, least squares). The net turn, not a
+    line's slope: what the gyro's mean takes for bias is the window's net turn over its
+    length, and a turn that stops part way through the window counts for what it turned.
+
+    Args:
+        stamp_s: the scans' stamps, s.
+        points_body_m: each scan's pole centres in the body frame, shape (k, 2), m.
+
+    Returns:
+        The turn, or None when no pole was followed through half the scans (nothing seen).
+    """
+    tracks: list[tuple[list[float], list[float], list[float]]] = []  # last xy, stamps, bearings
+    for stamp, points in zip(stamp_s, points_body_m):
+        taken: set[int] = set()
+        for x, y in np.asarray(points, dtype=np.float64).reshape(-1, 2).tolist():
+            nearest, distance = None, TRACK_GATE_M
+            for k, (last, _, _) in enumerate(tracks):
+                gap = math.hypot(x - last[0], y - last[1])
+                if k not in taken and gap < distance:
+                    nearest, distance = k, gap
+            if nearest is None:
+                tracks.append(([x, y], [], []))
+                nearest = len(tracks) - 1
+            last, stamps, bearings = tracks[nearest]
+            last[:] = (x, y)
+            stamps.append(float(stamp))
+            bearings.append(math.atan2(y, x))
+            taken.add(nearest)
+    enough = max(5, len(stamp_s) // 2)
+    spans, turns, weights, scatter, free = [], [], [], 0.0, 0
+    for _, stamps, bearings in tracks:
+        if len(stamps) < enough:
+            continue
+        t, b = np.asarray(stamps), np.unwrap(np.asarray(bearings))
+        k = max(1, len(t) // 5)
+        ends = (slice(None, k), slice(-k, None))
+        spans.append(t[ends[1]].mean() - t[ends[0]].mean())
+        turns.append(b[ends[1]].mean() - b[ends[0]].mean())
+        weights.append(2.0 / k)
+        for end in ends:
+            scatter += float(np.sum((b[end] - b[end].mean()) ** 2))
+            free += k - 1
+    span, turn, weight = np.asarray(spans), np.asarray(turns), np.asarray(weights)
+    sxx = float(span @ span)
+    if not spans or sxx <= 0.0:
+        return None
+    rate = -float(span @ turn) / sxx
+    # Each end's mean is as scattered as its bearings over k (the beams' quantisation at
+    # rest); a pole's turn has twice that over k.
+    variance = scatter / max(free, 1)
+    sigma = math.sqrt(variance * float(weight @ (span * span))) / sxx
+    return ScanTurn(rate, sigma, len(spans), len(stamp_s))
+
+
+def scan_turn(scan: ScanSeries, start_s: float, end_s: float,
+              detector: DetectorConfig | None = None) -> ScanTurn | None:
+    """Return pole_turn of a LiDAR's scans stamped in [start_s, end_s].
+
+    The poles are found as the run finds them and placed in the body frame by the LiDAR's
+    mount (the turn does not depend on it: a mount a few degrees off turns every bearing
+    alike).
+    """
+    inside = np.flatnonzero((scan.stamp_s >= start_s) & (scan.stamp_s <= end_s))
+    if inside.size < 3:
+        return None
+    found = detect_poles_in_scans(
+        scan.ranges_m[inside], scan.angles_rad,
+        None if scan.intensities is None else scan.intensities[inside], detector)
+    points = [points_upright(p.points_sensor_m) if scan.upside_down else p.points_sensor_m
+              for p in found]
+    turn = pole_turn(scan.stamp_s[inside].tolist(),
+                     [sensor_to_map(_BODY, p, scan.mount) for p in points])
+    return None if turn is None else dataclasses.replace(turn, topic=scan.topic)
 
 
 def estimate_gyro_bias(stamp_s: FloatArray, angular_velocity_rad_s: FloatArray,
@@ -117,6 +256,53 @@ def estimate_gyro_bias(stamp_s: FloatArray, angular_velocity_rad_s: FloatArray,
         max_abs_rate_rad_s=np.where(known, np.abs(window_rates).max(axis=0), 0.0))
 
 
+def confirm_still(estimate: BiasEstimate, turns: Iterable[ScanTurn | None]) -> BiasEstimate:
+    """Refuse a window in which a LiDAR saw the platform turn; else record what they saw.
+
+    Args:
+        estimate: the window the gyro and speed checks accepted.
+        turns: each LiDAR's scan_turn (or pole_turn) over that window; None where it
+            followed no pole.
+
+    Returns:
+        The estimate with ``scan_turns`` (the LiDARs that followed poles).
+
+    Raises:
+        CalibrationError: a LiDAR saw a turn (ScanTurn.turning), naming it and the rate.
+    """
+    seen = tuple(turn for turn in turns if turn is not None)
+    for turn in seen:
+        if turn.turning:
+            raise CalibrationError(
+                f"platform not static: its LiDAR '{turn.topic}' saw it turn "
+                f'{math.degrees(turn.rate_rad_s):+.3f} deg/s (+-'
+                f'{math.degrees(turn.sigma_rad_s):.3f}, {turn.poles} poles through '
+                f'{turn.scans} scans), which the gyro\'s mean would take for bias (at most '
+                f'{math.degrees(MAX_SCAN_TURN_RAD_S):.3f} deg/s)')
+    return dataclasses.replace(estimate, scan_turns=seen)
+
+
+def calibrate_trip(trip: Trip, config: CalibrationConfig | None = None,
+                   detector: DetectorConfig | None = None, use_speed: bool = True,
+                   use_scans: bool = True) -> BiasEstimate:
+    """Calibrate a trip's gyro on its static window, checked by its speed and its scans.
+
+    Raises:
+        CalibrationError: the window refused (estimate_gyro_bias, confirm_still).
+    """
+    speed = trip.speed if use_speed and len(trip.speed.stamp_s) else None
+    estimate = estimate_gyro_bias(
+        trip.imu.stamp_s, trip.imu.angular_velocity_rad_s, config,
+        speed_stamp_s=None if speed is None else speed.stamp_s,
+        speed_m_s=None if speed is None else speed.speed_m_s,
+        axes_known=trip.imu.axes_known)
+    if not use_scans:
+        return estimate
+    return confirm_still(estimate, (
+        scan_turn(scan, estimate.window_start_s, estimate.window_end_s, detector)
+        for scan in trip.scans))
+
+
 def measured_axes(values: FloatArray, axes_known: tuple[bool, bool, bool]
                   ) -> list[float | None]:
     """Return per-axis values as a JSON-ready list, None (null) for an axis not measured.
@@ -145,7 +331,8 @@ def _check_speed(speed_stamps: FloatArray, speeds: FloatArray, start: float, end
 class StaticWindowCalibrator:
     """Collects samples as they arrive and calibrates once a window is complete.
 
-    Live use (the calibration node): feed ``add_imu`` and ``add_speed``; ``add_imu``
+    Live use (the calibration node): feed ``add_imu``, ``add_speed`` and ``add_poles`` (the
+    LiDARs' poles, which refuse a window they saw turn, ``confirm_still``); ``add_imu``
     returns a BiasEstimate once the window is full and passes the checks. A refused window
     raises CalibrationError and the calibrator starts a new window at the next sample.
     ``restart`` starts a new window on demand.
@@ -160,6 +347,9 @@ class StaticWindowCalibrator:
         self.config = config or CalibrationConfig()
         self.result: BiasEstimate | None = None
         self.refusals = 0
+        # Per LiDAR: its scans' stamps and poles. Kept over a restart (a refused window's
+        # successor may already have scans), dropped once older than a window's start.
+        self._poles: dict[str, tuple[list[float], list[FloatArray]]] = {}
         self.restart()
 
     def restart(self) -> None:
@@ -181,6 +371,30 @@ class StaticWindowCalibrator:
             self._speed_stamps.append(stamp_s)
             self._speeds.append(speed_m_s)
 
+    def add_poles(self, sensor: str, stamp_s: float, points_m: FloatArray) -> None:
+        """Record the poles one LiDAR saw in a scan (used to confirm the platform does not turn).
+
+        points_m: pole centres, shape (k, 2), m, in the body frame or the LiDAR's own (a
+        LiDAR d from the platform's reference point reads a turn in place to within d / r
+        for poles at range r: enough to tell a turn from none).
+        """
+        if self.collecting:
+            stamps, points = self._poles.setdefault(sensor, ([], []))
+            stamps.append(stamp_s)
+            points.append(np.asarray(points_m, dtype=np.float64).reshape(-1, 2))
+
+    def _drop_poles_before(self, stamp_s: float) -> None:
+        for stamps, points in self._poles.values():
+            first = next((k for k, stamp in enumerate(stamps) if stamp >= stamp_s), len(stamps))
+            del stamps[:first], points[:first]
+
+    def _pole_turns(self, start_s: float, end_s: float) -> Iterator[ScanTurn | None]:
+        """pole_turn of each LiDAR's scans stamped in [start_s, end_s]."""
+        for sensor, (stamps, points) in self._poles.items():
+            chosen = [k for k, stamp in enumerate(stamps) if start_s <= stamp <= end_s]
+            turn = pole_turn([stamps[k] for k in chosen], [points[k] for k in chosen])
+            yield None if turn is None else dataclasses.replace(turn, topic=sensor)
+
     def add_imu(self, stamp_s: float, rate_xyz_rad_s: tuple[float, float, float],
                 axes_known: tuple[bool, bool, bool] = (True, True, True),
                 ) -> BiasEstimate | None:
@@ -198,13 +412,24 @@ class StaticWindowCalibrator:
                 f'gyro stamp went back {step_back_s:.3f} s; starting a new window')
         self._stamps.append(stamp_s)
         self._rates.append(tuple(rate_xyz_rad_s))
-        if stamp_s - self._stamps[0] < self.config.window_length_s:
+        if len(self._stamps) == 1:
+            self._drop_poles_before(stamp_s)
+        end_s = self._stamps[0] + self.config.window_length_s
+        if stamp_s < end_s:
+            return None
+        if stamp_s < end_s + POLE_WAIT_S and any(
+                stamps and stamps[-1] < end_s - POLE_LAG_S
+                for stamps, _ in self._poles.values()):
+            # A LiDAR's scans lag the gyro (detection, transport): its last ones decide
+            # whether the window ended turning. Waited for up to POLE_WAIT_S.
             return None
         window_config = dataclasses.replace(self.config, window_start_s=0.0)
         try:
             result = estimate_gyro_bias(
                 np.array(self._stamps), np.array(self._rates), window_config,
                 np.array(self._speed_stamps), np.array(self._speeds), axes_known)
+            result = confirm_still(result, self._pole_turns(result.window_start_s,
+                                                            result.window_end_s))
         except CalibrationError:
             self.refusals += 1
             self.restart()

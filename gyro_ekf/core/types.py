@@ -249,6 +249,9 @@ class BiasEstimate:
         window_start_s: first stamp of the window, s.
         window_end_s: last stamp of the window, s.
         max_abs_rate_rad_s: largest |rate| seen per axis, shape (3,), rad/s.
+        scan_turns: how fast each LiDAR that followed poles through the window saw the
+            platform turn (calibration.ScanTurn; calibration.confirm_still), none when
+            no scan was looked at.
     """
 
     bias_rad_s: FloatArray
@@ -257,6 +260,7 @@ class BiasEstimate:
     window_start_s: float
     window_end_s: float
     max_abs_rate_rad_s: FloatArray
+    scan_turns: tuple = ()
 
     @property
     def bias_standard_error_rad_s(self) -> FloatArray:

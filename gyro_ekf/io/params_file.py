@@ -88,8 +88,8 @@ NODE_ONLY_PARAMETERS: dict[str, tuple[str, ...]] = {
     'ekf_node': ('base_frame', 'diagnostics_period_s', 'landmark_topics',
                  'late_observation_history_s', 'map_frame', 'max_association_gap_s',
                  'odom_frame', 'publish_every_n', 'publish_tf', 'reliable_inputs'),
-    'calibration_node': ('diagnostics_period_s', 'event_batch_s', 'reliable_inputs',
-                         'use_odom'),
+    'calibration_node': ('diagnostics_period_s', 'event_batch_s', 'landmark_topics',
+                         'reliable_inputs', 'use_odom'),
     'landmark_detector_node': ('diagnostics_period_s', 'reliable_inputs'),
 }
 """What each pipeline node declares that `run` has no use for: the live side (frames, topics,

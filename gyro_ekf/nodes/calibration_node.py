@@ -1,7 +1,11 @@
 """calibration_node: gyro bias from a static window, then bias-corrected IMU messages.
 
-Subscribes `imu` (sensor_msgs/Imu) and `odom` (nav_msgs/Odometry, optional: any speed above
-max_speed_m_s in the window refuses it). Collects the static window (by default the first
+Subscribes `imu` (sensor_msgs/Imu), `odom` (nav_msgs/Odometry, optional: any speed above
+max_speed_m_s in the window refuses it) and the pole topics `landmark_topics` (default
+[`landmarks`], geometry_msgs/PoseArray from landmark_detector_node: poles that turn about
+the platform through the window refuse it, core.calibration.confirm_still; a turn in place
+shows no speed and a steady gyro rate, which the mean would take for bias). Collects the
+static window (by default the first
 5 s of IMU messages) in the core's StaticWindowCalibrator. On success it publishes
 `gyro_bias` (geometry_msgs/Vector3Stamped, rad/s; reliable, transient local, so a late
 subscriber still gets it), logs the bias in deg/s with the noise sigma per axis, and from
@@ -32,7 +36,7 @@ from __future__ import annotations
 import math
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Vector3Stamped
+from geometry_msgs.msg import PoseArray, Vector3Stamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
@@ -50,8 +54,8 @@ from gyro_ekf.core.types import BiasEstimate
 from gyro_ekf.core.validation import rate_problem, speed_problem
 from gyro_ekf.nodes import qos, wire
 from gyro_ekf.nodes.conversions import (axes_known, bias_message, corrected_imu, drop_reason,
-                                        imu_rates, odometry_speed, stamp_ns, TimeOrigin,
-                                        to_stamp)
+                                        finite, imu_rates, odometry_speed, stamp_ns,
+                                        TimeOrigin, to_stamp)
 from gyro_ekf.nodes.params import declare, declare_config, report_ignored
 from gyro_ekf.nodes.runtime import log_repeat, run_node
 
@@ -99,8 +103,14 @@ class CalibrationNode(Node):
             'Serve incoming messages in batches gathered for up to this long (fewer wake-ups '
             'per message, up to this much latency of imu/corrected); 0: each as it comes',
             's', 0.0, 0.1)
+        pole_topics = declare(self, 'landmark_topics', [topics.LANDMARKS],
+                              'Pole topics (PoseArray in a LiDAR frame, landmark_detector_node) '
+                              'whose poles must not turn about the platform through the '
+                              'window: a turn in place shows no speed and a steady gyro rate; '
+                              '[] = the gyro and odom alone')
         report_ignored(self, REMOVED_PARAMETERS)
         self.calibrator = StaticWindowCalibrator(self.config)
+        self._pole_messages = 0
         self.result: BiasEstimate | None = None
         self.dropped = {'non_finite': 0, 'out_of_range': 0, 'zero_stamp': 0,
                         'stamp_jump': 0, 'malformed': 0, SAME_STAMP: 0, DUPLICATE: 0}
@@ -132,6 +142,10 @@ class CalibrationNode(Node):
                                      qos.sensor_input(lossless), raw=True)
         else:
             self.create_subscription(Imu, topics.IMU, self._on_imu, qos.sensor_input(lossless))
+        for name in pole_topics:
+            self.create_subscription(PoseArray, name,
+                                     lambda message, name=name: self._on_poles(message, name),
+                                     qos.sensor_input(lossless))
         self._use_odom = use_odom
         self._odom_qos = qos.sensor_input(lossless)
         self._odom_sub = None
@@ -162,6 +176,19 @@ class CalibrationNode(Node):
         self.dropped[reason] += 1
         self.get_logger().warn(f'dropped: {why} (counts {self.dropped})',
                                throttle_duration_sec=5.0)
+
+    def _on_poles(self, message: PoseArray, topic: str) -> None:
+        """Give a scan's poles to the window (in the LiDAR's frame: see add_poles)."""
+        if not self.calibrator.collecting:
+            return
+        ns = stamp_ns(message.header.stamp)
+        points = [(pose.position.x, pose.position.y) for pose in message.poses
+                  if finite(pose.position.x, pose.position.y)]
+        if ns == 0:
+            return  # no time to place it at (a detector always stamps its scans)
+        self._pole_messages += 1
+        self.calibrator.add_poles(message.header.frame_id or topic, self._origin.seconds(ns),
+                                  points)
 
     def _on_odom(self, message: Odometry) -> None:
         self._take_speed(stamp_ns(message.header.stamp), odometry_speed(message))
@@ -301,9 +328,12 @@ class CalibrationNode(Node):
         text = ', '.join(
             f'{axis} {math.degrees(b):+.4f} deg/s (sigma {math.degrees(s):.4f})'
             for axis, b, s, k in zip(_AXES, result.bias_rad_s, result.sigma_rad_s, known) if k)
+        seen = ''.join(f"; LiDAR '{turn.topic}' saw a turn of "
+                       f'{math.degrees(turn.rate_rad_s):+.4f} deg/s ({turn.poles} poles): still'
+                       for turn in result.scan_turns)
         self.get_logger().info(
             f'gyro bias from {result.n_samples} samples over '
-            f'{result.window_end_s - result.window_start_s:.2f} s: {text}')
+            f'{result.window_end_s - result.window_start_s:.2f} s: {text}{seen}')
 
     def _on_recalibrate(self, request: Trigger.Request, response: Trigger.Response
                         ) -> Trigger.Response:
@@ -330,7 +360,9 @@ class CalibrationNode(Node):
                   'imu_messages': str(self._imu_count),
                   'corrected_messages': str(self._corrected_count),
                   'refused_windows': str(self.calibrator.refusals),
-                  'last_refusal': self._last_refusal}
+                  'last_refusal': self._last_refusal,
+                  # Scans of poles taken while collecting (the turn-in-place check's).
+                  'pole_messages': str(self._pole_messages)}
         values.update({f'dropped_{k}': str(v) for k, v in self.dropped.items()})
         if self.result is not None:
             status.level = DiagnosticStatus.OK
@@ -338,6 +370,8 @@ class CalibrationNode(Node):
             for axis, b, s in zip(_AXES, self.result.bias_rad_s, self.result.sigma_rad_s):
                 values[f'bias_{axis}_deg_s'] = f'{math.degrees(b):.5f}'
                 values[f'sigma_{axis}_deg_s'] = f'{math.degrees(s):.5f}'
+            for turn in self.result.scan_turns:
+                values[f'lidar_{turn.topic}_turn_deg_s'] = f'{math.degrees(turn.rate_rad_s):.5f}'
         elif self._imu_count == 0:
             status.level = DiagnosticStatus.WARN
             status.message = 'no IMU messages yet'

@@ -5,6 +5,7 @@ Every refusal is one line naming the input: the bag (and its topic) or the log's
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 import shutil
 import sys
@@ -102,6 +103,29 @@ def test_a_refused_window_names_the_bag_and_its_topic(bags, capsys):
     assert _refused(capsys, str(static), '--window-length-s', '100') == (
         f"{static}: topic '/imu': the static window 0.00-100.00 s needs data until 100.00 s, "
         'but the gyro stream ends at 20.00 s')
+
+
+def test_a_platform_turning_in_place_is_refused_by_its_scans(bags, tmp_path, capsys):
+    # The odometry reads no speed and the gyro a steady rate: the window's mean took a
+    # 0.2 deg/s turn for bias, and calibrate printed it with exit 0.
+    turning = write_trip_bag(simulate_trip(SimulationConfig(
+        duration_s=20.0, static_s=8.0, static_turn_rad_s=math.radians(0.2)), seed=4),
+        tmp_path / 'turning')
+    error = _refused(capsys, str(turning))
+    assert error.startswith(f"{turning}: topic '/imu': platform not static: its LiDAR 'scan' "
+                            'saw it turn +0.19'), error
+    # --ignore-scans: the gyro's word alone, as before (the bias then holds the turn).
+    assert main(['-q', 'calibrate', str(turning), '--ignore-scans', '--json']) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report['bias_deg_s'][2] == pytest.approx(-0.9 + 0.2, abs=0.02)
+    assert report['scan_turns'] == []
+    # A still one: what the LiDAR saw is printed with the bias.
+    assert main(['-q', 'calibrate', str(bags['static'])]) == 0
+    out = capsys.readouterr().out
+    assert "LiDAR 'scan': the platform turned " in out and 'poles through 51 scans): still' in out
+    assert main(['-q', 'calibrate', str(bags['static']), '--json']) == 0
+    (turn,) = json.loads(capsys.readouterr().out)['scan_turns']
+    assert turn['topic'] == 'scan' and turn['scans'] == 51 and abs(turn['rate_deg_s']) < 0.002
 
 
 def test_a_refused_window_names_the_file_of_the_log_or_trip_file(tmp_path, capsys):

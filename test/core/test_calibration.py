@@ -116,3 +116,74 @@ def test_real_2016_log_window_with_start_of_motion_is_refused(shared_data):
     with pytest.raises(CalibrationError, match='moved'):
         estimate_gyro_bias(stamps, rates, CalibrationConfig(window_start_s=15.0),
                            speed_stamp_s=stamps, speed_m_s=speeds)
+
+
+# A turn in place: the odometry reads no speed, the gyro a steady rate with its usual
+# spread, and the window's mean took the turn for bias (0.1 deg/s: 0.098 deg/s off,
+# accepted). The LiDAR sees the poles turn about the platform.
+
+def _turning(turn_deg_s: float, seed: int = 3):
+    from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+    return simulate_trip(SimulationConfig(duration_s=12.0, static_turn_rad_s=math.radians(
+        turn_deg_s)), seed=seed)
+
+
+@pytest.mark.parametrize('turn_deg_s', [0.1, -0.3, 1.0])
+def test_a_platform_turning_in_place_is_refused_by_what_its_lidar_saw(turn_deg_s):
+    from gyro_ekf.core.calibration import calibrate_trip, scan_turn
+    trip = _turning(turn_deg_s)
+    sign = '\\+' if turn_deg_s > 0 else '-'
+    with pytest.raises(CalibrationError, match=f"platform not static: its LiDAR 'scan' saw "
+                       f'it turn {sign}[0-9.]+ deg/s .* which the gyro\'s mean would take for '
+                       'bias') as refused:
+        calibrate_trip(trip)
+    seen = scan_turn(trip.scans[0], 0.0, 5.0)
+    assert math.degrees(seen.rate_rad_s) == pytest.approx(turn_deg_s, rel=0.15), str(refused)
+    assert seen.poles >= 3 and seen.turning
+    # `run` says why its summary has no offline bias (and --use-calibration seeds none).
+    from gyro_ekf.analysis.offline import calibrate
+    assert calibrate(trip) == (None, str(refused.value))
+    # What the check stops: the gyro alone accepts the window, the turn taken for bias.
+    blind = calibrate_trip(trip, use_scans=False)
+    assert math.degrees(blind.bias_rad_s[2] - trip.true_gyro_bias_rad_s[2]) == pytest.approx(
+        turn_deg_s, abs=0.01)
+
+
+@pytest.mark.parametrize('seed', [1, 3, 7])
+def test_a_still_platform_is_confirmed_by_its_lidar(seed):
+    from gyro_ekf.core.calibration import calibrate_trip
+    trip = _turning(0.0, seed)
+    estimate = calibrate_trip(trip)
+    (turn,) = estimate.scan_turns
+    assert turn.topic == 'scan' and turn.scans == 51 and turn.poles >= 3
+    assert abs(math.degrees(turn.rate_rad_s)) < 0.002 and not turn.turning
+    assert math.degrees(estimate.bias_rad_s[2] - trip.true_gyro_bias_rad_s[2]) == pytest.approx(
+        0.0, abs=0.01)
+
+
+def test_pole_turn_follows_each_pole_and_needs_one_through_half_the_scans():
+    from gyro_ekf.core.calibration import pole_turn
+    # Two poles in the body frame, turning about the platform at -0.5 deg/s (it turns +0.5).
+    rate = math.radians(0.5)
+    stamps = np.arange(40) * 0.1
+    scans = [np.array([[5.0 * math.cos(b - rate * t), 5.0 * math.sin(b - rate * t)]
+                       for b in (0.3, -1.2)]) for t in stamps]
+    turn = pole_turn(stamps.tolist(), scans)
+    assert turn.poles == 2 and turn.scans == 40
+    assert turn.rate_rad_s == pytest.approx(rate, rel=1e-9) and turn.turning
+    # A pole seen in a third of the scans only: nothing followed, nothing said.
+    assert pole_turn(stamps.tolist(), [s if k % 3 == 0 else s[:0] for k, s in
+                                       enumerate(scans)]) is None
+
+
+def test_real_2016_log_static_start_is_still_by_its_lidar(shared_data, tmp_path):
+    from gyro_ekf.core.calibration import scan_turn
+    from gyro_ekf.io.sources import load_checked_log
+    trip, _ = load_checked_log([shared_data('2016_project1')], landmarks=False)
+    t0 = trip.imu.stamp_s[0]
+    for start, end in ((0.0, 5.0), (0.0, 17.0)):
+        turn = scan_turn(trip.scans[0], t0 + start, t0 + end)
+        print(f'2016 log {start}-{end} s: LiDAR turn {math.degrees(turn.rate_rad_s):+.5f} '
+              f'+- {math.degrees(turn.sigma_rad_s):.5f} deg/s, {turn.poles} poles')
+        assert turn.poles == 5 and not turn.turning
+        assert abs(math.degrees(turn.rate_rad_s)) < 0.001

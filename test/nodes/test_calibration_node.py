@@ -131,3 +131,76 @@ def test_a_window_with_motion_is_refused_then_a_still_one_accepted(ros_processes
         imu.publish(_imu(start + i * step, 0.01))
     probe.spin_until(lambda: bias, 120, 'gyro_bias after a still window')
     assert bias[0].vector.z == pytest.approx(0.01, abs=1e-9)
+
+
+def _poles(stamp_ns: int, turned_rad: float):
+    """Three poles in the LiDAR's frame, seen from a platform turned by turned_rad."""
+    from geometry_msgs.msg import Pose, PoseArray
+
+    message = PoseArray()
+    message.header.stamp = _imu(stamp_ns, 0.0).header.stamp
+    message.header.frame_id = 'laser'
+    for bearing, range_m in ((0.4, 5.0), (-0.9, 7.0), (2.0, 9.0)):
+        pose = Pose()
+        pose.position.x = range_m * math.cos(bearing - turned_rad)
+        pose.position.y = range_m * math.sin(bearing - turned_rad)
+        message.poses.append(pose)
+    return message
+
+
+def test_a_turn_in_place_the_poles_show_is_refused_then_a_still_window_accepted(
+        ros_processes, diagnostics_of):
+    # Turning on the spot: no speed and a steady gyro rate, which the window's mean took
+    # for bias. The detector's poles turn about the platform.
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseArray, Vector3Stamped
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import Imu
+
+    from gyro_ekf.nodes import qos
+
+    processes, probe = ros_processes
+    name = 'calibration_turn'
+    processes.node('calibration_node', '-r', f'__ns:=/{name}', '-p', 'reliable_inputs:=true',
+                   '-p', 'window_length_s:=1.0', '-p', 'diagnostics_period_s:=0.1', name=name)
+    imu = probe.node.create_publisher(Imu, f'/{name}/imu', qos.LOSSLESS)
+    odom = probe.node.create_publisher(Odometry, f'/{name}/odom', qos.LOSSLESS)
+    poles = probe.node.create_publisher(PoseArray, f'/{name}/landmarks', qos.LOSSLESS)
+    bias = probe.subscribe(Vector3Stamped, f'/{name}/gyro_bias', qos.LATCHED)
+    diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.OUTPUT)
+    probe.spin_until(lambda: (imu.get_subscription_count() and odom.get_subscription_count()
+                              and poles.get_subscription_count()),
+                     60, 'the node on imu, odom and landmarks')
+    start = 1_800_000_000 * 10 ** 9
+    step = 5_000_000  # IMU at 200 Hz, scans every 20th sample (10 Hz)
+    turn = math.radians(0.5)
+
+    def counted(n):
+        values = diagnostics_of(diagnostics, f'/{name}/calibration_node: gyro')
+        return values is not None and int(values['pole_messages']) >= n
+    # The scans of the first 1.3 s first: two topics' messages may be served in any order.
+    for i in range(0, 260, 20):
+        poles.publish(_poles(start + i * step, turn * i * step * 1e-9))
+    probe.spin_until(lambda: counted(13), 120, 'the node to take the scans')
+    for i in range(260):
+        still = Odometry()
+        still.header.stamp = _imu(start + i * step, 0.0).header.stamp
+        odom.publish(still)
+        imu.publish(_imu(start + i * step, 0.01 + turn))
+
+    def refused():
+        values = diagnostics_of(diagnostics, f'/{name}/calibration_node: gyro')
+        return values is not None and int(values['refused_windows']) >= 1
+    probe.spin_until(refused, 120, 'a refused window')
+    assert not bias
+    log = processes.log(name)
+    assert "static window refused: platform not static: its LiDAR 'laser' saw it turn +0.5" \
+        in log, log
+    # Still from here: a later window (once the turning samples are out) passes.
+    for i in range(260, 900, 20):
+        poles.publish(_poles(start + i * step, turn * 260 * step * 1e-9))
+    probe.spin_until(lambda: counted(13 + 32), 120, 'the node to take the scans')
+    for i in range(260, 900):
+        imu.publish(_imu(start + i * step, 0.01))
+    probe.spin_until(lambda: bias, 120, 'gyro_bias after a still window')
+    assert bias[0].vector.z == pytest.approx(0.01, abs=1e-9)
