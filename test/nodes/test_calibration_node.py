@@ -91,25 +91,42 @@ def _imu(stamp_ns: int, rate_rad_s: float):
     return message
 
 
+class _Calibrating:
+    """A calibration_node in namespace `name` with a 1-s window, the probe's ends of its topics."""
+
+    def __init__(self, ros_processes, diagnostics_of, name: str):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PoseArray, Vector3Stamped
+        from nav_msgs.msg import Odometry
+        from sensor_msgs.msg import Imu
+
+        from gyro_ekf.nodes import qos
+
+        self.processes, probe = ros_processes
+        self.name, self._diagnostics_of = name, diagnostics_of
+        self.processes.node('calibration_node', '-r', f'__ns:=/{name}',
+                            '-p', 'reliable_inputs:=true', '-p', 'window_length_s:=1.0',
+                            '-p', 'diagnostics_period_s:=0.1', name=name)
+        self.imu = probe.node.create_publisher(Imu, f'/{name}/imu', qos.LOSSLESS)
+        self.odom = probe.node.create_publisher(Odometry, f'/{name}/odom', qos.LOSSLESS)
+        self.poles = probe.node.create_publisher(PoseArray, f'/{name}/landmarks', qos.LOSSLESS)
+        self.bias = probe.subscribe(Vector3Stamped, f'/{name}/gyro_bias', qos.LATCHED)
+        self._diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.OUTPUT)
+        probe.spin_until(lambda: all(p.get_subscription_count() for p in (
+            self.imu, self.odom, self.poles)), 60, 'the node on imu, odom and landmarks')
+
+    def diagnosed(self, key: str, at_least: int) -> bool:
+        """Whether the node's last /diagnostics counts at least at_least under key."""
+        values = self._diagnostics_of(self._diagnostics, f'/{self.name}/calibration_node: gyro')
+        return values is not None and int(values[key]) >= at_least
+
+
 def test_a_window_with_motion_is_refused_then_a_still_one_accepted(ros_processes,
                                                                    diagnostics_of):
-    from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import Vector3Stamped
     from nav_msgs.msg import Odometry
-    from sensor_msgs.msg import Imu
 
-    from gyro_ekf.nodes import qos
-
-    processes, probe = ros_processes
-    name = 'calibration_motion'
-    processes.node('calibration_node', '-r', f'__ns:=/{name}', '-p', 'reliable_inputs:=true',
-                   '-p', 'window_length_s:=1.0', '-p', 'diagnostics_period_s:=0.1', name=name)
-    imu = probe.node.create_publisher(Imu, f'/{name}/imu', qos.LOSSLESS)
-    odom = probe.node.create_publisher(Odometry, f'/{name}/odom', qos.LOSSLESS)
-    bias = probe.subscribe(Vector3Stamped, f'/{name}/gyro_bias', qos.LATCHED)
-    diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.OUTPUT)
-    probe.spin_until(lambda: imu.get_subscription_count() and odom.get_subscription_count(),
-                     60, 'the node on imu and odom')
+    node = _Calibrating(ros_processes, diagnostics_of, 'calibration_motion')
+    imu, odom, bias, probe = node.imu, node.odom, node.bias, ros_processes[1]
     start = 1_800_000_000 * 10 ** 9
     step = 5_000_000  # 200 Hz
     for i in range(260):  # 1.3 s, driving at 0.5 m/s and turning
@@ -120,13 +137,11 @@ def test_a_window_with_motion_is_refused_then_a_still_one_accepted(ros_processes
         odom.publish(moving)
         imu.publish(_imu(stamp, 0.3 * math.sin(i / 20.0)))
 
-    def refused():
-        values = diagnostics_of(diagnostics, f'/{name}/calibration_node: gyro')
-        return values is not None and int(values['refused_windows']) >= 1
-    probe.spin_until(refused, 120, 'a refused window')
+    probe.spin_until(lambda: node.diagnosed('refused_windows', 1), 120, 'a refused window')
     assert not bias
-    assert 'static window refused' in processes.log(name)
-    assert 'moved' in processes.log(name) or 'not static' in processes.log(name)
+    log = node.processes.log(node.name)
+    assert 'static window refused' in log
+    assert 'moved' in log or 'not static' in log
     for i in range(260, 900):  # still: a later window (once the moving samples are out) passes
         imu.publish(_imu(start + i * step, 0.01))
     probe.spin_until(lambda: bias, 120, 'gyro_bias after a still window')
@@ -152,32 +167,16 @@ def test_a_turn_in_place_the_poles_show_is_refused_then_a_still_window_accepted(
         ros_processes, diagnostics_of):
     # Turning on the spot: no speed and a steady gyro rate, which the window's mean took
     # for bias. The detector's poles turn about the platform.
-    from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import PoseArray, Vector3Stamped
     from nav_msgs.msg import Odometry
-    from sensor_msgs.msg import Imu
 
-    from gyro_ekf.nodes import qos
-
-    processes, probe = ros_processes
-    name = 'calibration_turn'
-    processes.node('calibration_node', '-r', f'__ns:=/{name}', '-p', 'reliable_inputs:=true',
-                   '-p', 'window_length_s:=1.0', '-p', 'diagnostics_period_s:=0.1', name=name)
-    imu = probe.node.create_publisher(Imu, f'/{name}/imu', qos.LOSSLESS)
-    odom = probe.node.create_publisher(Odometry, f'/{name}/odom', qos.LOSSLESS)
-    poles = probe.node.create_publisher(PoseArray, f'/{name}/landmarks', qos.LOSSLESS)
-    bias = probe.subscribe(Vector3Stamped, f'/{name}/gyro_bias', qos.LATCHED)
-    diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics', qos.OUTPUT)
-    probe.spin_until(lambda: (imu.get_subscription_count() and odom.get_subscription_count()
-                              and poles.get_subscription_count()),
-                     60, 'the node on imu, odom and landmarks')
+    node = _Calibrating(ros_processes, diagnostics_of, 'calibration_turn')
+    imu, odom, poles, bias, probe = node.imu, node.odom, node.poles, node.bias, ros_processes[1]
     start = 1_800_000_000 * 10 ** 9
     step = 5_000_000  # IMU at 200 Hz, scans every 20th sample (10 Hz)
     turn = math.radians(0.5)
 
     def counted(n):
-        values = diagnostics_of(diagnostics, f'/{name}/calibration_node: gyro')
-        return values is not None and int(values['pole_messages']) >= n
+        return node.diagnosed('pole_messages', n)
     # The scans of the first 1.3 s first: two topics' messages may be served in any order.
     for i in range(0, 260, 20):
         poles.publish(_poles(start + i * step, turn * i * step * 1e-9))
@@ -188,12 +187,9 @@ def test_a_turn_in_place_the_poles_show_is_refused_then_a_still_window_accepted(
         odom.publish(still)
         imu.publish(_imu(start + i * step, 0.01 + turn))
 
-    def refused():
-        values = diagnostics_of(diagnostics, f'/{name}/calibration_node: gyro')
-        return values is not None and int(values['refused_windows']) >= 1
-    probe.spin_until(refused, 120, 'a refused window')
+    probe.spin_until(lambda: node.diagnosed('refused_windows', 1), 120, 'a refused window')
     assert not bias
-    log = processes.log(name)
+    log = node.processes.log(node.name)
     assert "static window refused: platform not static: its LiDAR 'laser' saw it turn +0.5" \
         in log, log
     # Still from here: a later window (once the turning samples are out) passes.
