@@ -19,6 +19,7 @@ window too.
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Iterable, Iterator, Sequence
 import dataclasses
 from dataclasses import dataclass
@@ -38,7 +39,7 @@ MAX_SCAN_TURN_RAD_S = 0.02 * DEG
 """The largest turn a LiDAR may see in a static window (beyond it, and beyond 3 sigmas of
 the fit, the window is refused): the project's bound on a final bias error, all of which a
 turn the gyro's mean takes for bias would use up. The real 2016 log's static start reads
-0.0001 deg/s."""
+-0.0003 deg/s."""
 
 POLE_LAG_S = 0.25
 """Live: a LiDAR whose last scan is older than this at the window's end lags the gyro."""
@@ -59,8 +60,9 @@ class ScanTurn:
     """How fast a LiDAR saw the platform turn in a window in which it stood still.
 
     Attributes:
-        rate_rad_s: the platform's yaw rate (counter-clockwise positive), rad/s.
-        sigma_rad_s: its standard error from the bearings' scatter about the fit, rad/s.
+        rate_rad_s: the platform's mean yaw rate over the window (counter-clockwise
+            positive): its net turn over the time between the window's ends, rad/s.
+        sigma_rad_s: its standard error from the bearings' scatter at those ends, rad/s.
         poles: poles followed through at least half the window's scans.
         scans: scans in the window.
         topic: the LiDAR's scan topic.
@@ -382,6 +384,10 @@ class StaticWindowCalibrator:
             stamps, points = self._poles.setdefault(sensor, ([], []))
             stamps.append(stamp_s)
             points.append(np.asarray(points_m, dtype=np.float64).reshape(-1, 2))
+            # Bounded with no gyro to start a window: none is older than a window and its wait.
+            old = bisect.bisect_left(stamps, stamp_s - self.config.window_length_s
+                                     - 2.0 * POLE_WAIT_S)
+            del stamps[:old], points[:old]
 
     def _drop_poles_before(self, stamp_s: float) -> None:
         for stamps, points in self._poles.values():

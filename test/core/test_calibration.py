@@ -187,3 +187,36 @@ def test_real_2016_log_static_start_is_still_by_its_lidar(shared_data, tmp_path)
               f'+- {math.degrees(turn.sigma_rad_s):.5f} deg/s, {turn.poles} poles')
         assert turn.poles == 5 and not turn.turning
         assert abs(math.degrees(turn.rate_rad_s)) < 0.001
+
+
+def _ring(turned_rad: float) -> np.ndarray:
+    """Three poles in the LiDAR's frame, seen from a platform turned by turned_rad."""
+    return np.array([[r * math.cos(b - turned_rad), r * math.sin(b - turned_rad)]
+                     for b, r in ((0.4, 5.0), (-0.9, 7.0), (2.0, 9.0))])
+
+
+def test_the_streaming_calibrator_waits_for_late_scans_and_refuses_a_turn():
+    # Live, a LiDAR's poles come after the gyro samples of their time (detection,
+    # transport): the window waits for its last scans, up to POLE_WAIT_S of gyro time.
+    from gyro_ekf.core.calibration import POLE_WAIT_S
+    turn = math.radians(0.3)
+    calibrator = StaticWindowCalibrator(CalibrationConfig(window_length_s=1.0))
+    for k in range(6):  # scans up to 0.5 s only
+        calibrator.add_poles('laser', 0.1 * k, _ring(turn * 0.1 * k))
+    results = [calibrator.add_imu(0.005 * i, (0.0, 0.0, 0.01 + turn)) for i in range(260)]
+    assert results == [None] * 260  # the window [0, 1] s waits for its last scans
+    for k in range(6, 11):
+        calibrator.add_poles('laser', 0.1 * k, _ring(turn * 0.1 * k))
+    with pytest.raises(CalibrationError, match="its LiDAR 'laser' saw it turn \\+0.3"):
+        calibrator.add_imu(1.3, (0.0, 0.0, 0.01 + turn))
+    assert calibrator.refusals == 1
+    # Still from here: the next window (1.3 s on) holds no turn; scans that never come
+    # are waited for no longer than POLE_WAIT_S.
+    for k in range(13, 20):  # to 1.9 s: the window's last 0.4 s never come
+        calibrator.add_poles('laser', 0.1 * k, _ring(turn * 1.3))
+    stamps = 1.3 + 0.005 * np.arange(1, int((1.0 + POLE_WAIT_S) / 0.005) + 2)
+    accepted = [calibrator.add_imu(float(t), (0.0, 0.0, 0.01)) for t in stamps]
+    assert accepted[-1] is not None and accepted[:-1] == [None] * (len(stamps) - 1)
+    (seen,) = accepted[-1].scan_turns
+    assert seen.topic == 'laser' and seen.poles == 3 and abs(seen.rate_rad_s) < 1e-9
+    assert accepted[-1].bias_rad_s[2] == pytest.approx(0.01)
