@@ -60,7 +60,7 @@ def is_bag(path: Path) -> bool:
 
 
 def stream_names(sources: list[Path]) -> dict[str, str]:
-    """Name where the gyro ('imu') and the speed ('speed') streams of the sources come from.
+    """Name where the gyro ('imu'), speed ('speed') and scan ('lidar') streams come from.
 
     For errors about a stream as a whole (a refused static window), which the core reports
     without a source: a bag and its topic, or the file of a log that holds the stream (the
@@ -73,6 +73,16 @@ def stream_names(sources: list[Path]) -> dict[str, str]:
         return {'imu': f"{sources[0]}: topic '{IMU_TOPIC}'",
                 'speed': f"{sources[0]}: topic '{ODOM_TOPIC}'"}
     return {stream: path.name for stream, path in stream_files(sources).items()}
+
+
+def stream_name(sources: list[Path], stream: str) -> str:
+    """Name where a stream came from: stream_names', or a LiDAR's ('lidar:<scan topic>')."""
+    topic = stream.removeprefix('lidar:')
+    if topic == stream:
+        return stream_names(sources)[stream]
+    if is_bag(sources[0]):
+        return f"{sources[0]}: topic '/{topic}'"
+    return stream_names(sources)['lidar']  # a log's file holding its scans
 
 
 def load_trip(sources: list[Path], skip_bad: bool = False) -> Trip:
@@ -114,8 +124,10 @@ def estimate_to_dict(estimate: BiasEstimate, axes_known: tuple[bool, bool, bool]
         'window_s': [estimate.window_start_s, estimate.window_end_s],
         # What each LiDAR that followed poles through the window saw the platform turn.
         'scan_turns': [{'topic': turn.topic, 'rate_deg_s': math.degrees(turn.rate_rad_s),
-                        'sigma_deg_s': math.degrees(turn.sigma_rad_s), 'poles': turn.poles,
-                        'scans': turn.scans} for turn in estimate.scan_turns],
+                        'sigma_deg_s': math.degrees(turn.sigma_rad_s),
+                        'ruled_out_beyond_deg_s': math.degrees(turn.ruled_out_rad_s),
+                        'poles': turn.poles, 'scans': turn.scans}
+                       for turn in estimate.scan_turns],
     }
 
 
@@ -147,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
         estimate = calibrate_trip(trip, config, use_speed=not args.ignore_speed,
                                   use_scans=not args.ignore_scans)
     except CalibrationError as err:
-        raise CalibrationError(f'{stream_names(args.source)[err.stream]}: {err}',
+        raise CalibrationError(f'{stream_name(args.source, err.stream)}: {err}',
                                err.stream) from None
     report = estimate_to_dict(estimate, trip.imu.axes_known)
     if args.json:
@@ -164,9 +176,10 @@ def run(args: argparse.Namespace) -> int:
         print(f'{axis:<5}{report["bias_deg_s"][i]:>14.4f}{report["sigma_deg_s"][i]:>15.4f}'
               f'{report["standard_error_deg_s"][i]:>17.4f}')
     for turn in report['scan_turns']:
-        print(f"LiDAR '{turn['topic']}': the platform turned {turn['rate_deg_s']:+.4f} "
-              f"+- {turn['sigma_deg_s']:.4f} deg/s ({turn['poles']} poles through "
-              f"{turn['scans']} scans): still")
+        print(f"LiDAR '{turn['topic']}': turned {turn['rate_deg_s']:+.4f} +- "
+              f"{turn['sigma_deg_s']:.4f} deg/s ({turn['poles']} poles through "
+              f"{turn['scans']} scans): no turn in place beyond "
+              f"{turn['ruled_out_beyond_deg_s']:.3f} deg/s, which the z bias would carry")
     if trip.scans and not report['scan_turns'] and not args.ignore_scans:
         print('LiDAR: no pole followed through the window; a turn in place is not checked')
     return 0

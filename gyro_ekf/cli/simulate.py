@@ -80,6 +80,9 @@ def check_options(args: argparse.Namespace) -> None:
     check_number('--static-turn-deg-s', args.static_turn_deg_s,
                  *field_bounds(SimulationConfig, 'static_turn_rad_s', math.radians(1.0)),
                  unit='deg/s')
+    if args.static_turn_deg_s and not args.static_s:
+        raise GyroEkfError('--static-turn-deg-s: the turn is made through the static window, '
+                           'and --static-s is 0')
     for which in ('lidar', 'lidar2'):
         check_number(f'--{which}-yaw-error-deg', getattr(args, f'{which}_yaw_error_deg'),
                      *field_bounds(SimulationConfig, f'{which}_yaw_error_rad',
@@ -126,6 +129,10 @@ def run(args: argparse.Namespace) -> int:
              'z bias %.3f deg/s', written, trip.name, trip.end_s, trip.static_duration_s,
              len(trip.scans[0].stamp_s), len(trip.scans), len(trip.landmarks),
              math.degrees(trip.true_gyro_bias_rad_s[2]))
+    if config.static_turn_rad_s:
+        log.info('%s: turning in place at %+g deg/s through the static window (%g deg in '
+                 'all), the odometry reading no speed', written,
+                 args.static_turn_deg_s, args.static_turn_deg_s * config.static_s)
     for (stated, true), scans in zip(config.lidar_mounts(), trip.scans):
         if true != stated:
             log.info('%s: true mount (%.4f m, %.4f m, %.3f deg), the bag states '

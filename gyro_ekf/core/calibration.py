@@ -41,6 +41,10 @@ the fit, the window is refused): the project's bound on a final bias error, all 
 turn the gyro's mean takes for bias would use up. The real 2016 log's static start reads
 -0.0003 deg/s."""
 
+LIVE_BEAM_STEP_RAD = 0.5 * DEG
+"""Live: the beam step the poles' turn is taken as quantised by (a PoseArray of poles carries
+none): the course LiDARs' 0.5 deg; a finer LiDAR is judged a little more cautiously."""
+
 POLE_LAG_S = 0.25
 """Live: a LiDAR whose last scan is older than this at the window's end lags the gyro."""
 
@@ -79,9 +83,18 @@ class ScanTurn:
         """Beyond MAX_SCAN_TURN_RAD_S and beyond 3 sigmas: the platform turned."""
         return abs(self.rate_rad_s) > max(MAX_SCAN_TURN_RAD_S, 3.0 * self.sigma_rad_s)
 
+    @property
+    def ruled_out_rad_s(self) -> float:
+        """The least turn rate this look rules out (3 sigmas beyond what it saw), rad/s.
 
-def pole_turn(stamp_s: Sequence[float], points_body_m: Sequence[FloatArray]
-              ) -> ScanTurn | None:
+        A window the LiDAR passes may still hold a turn up to this, which its bias would
+        carry: a short window or a coarse LiDAR rules out less.
+        """
+        return abs(self.rate_rad_s) + 3.0 * self.sigma_rad_s
+
+
+def pole_turn(stamp_s: Sequence[float], points_body_m: Sequence[FloatArray],
+              beam_step_rad: float = 0.0) -> ScanTurn | None:
     """Return the platform's mean turn rate from poles followed through scans at a stop.
 
     Seen from a platform turning in place, every pole's bearing in the body frame (about
@@ -93,9 +106,15 @@ def pole_turn(stamp_s: Sequence[float], points_body_m: Sequence[FloatArray]
     line's slope: what the gyro's mean takes for bias is the window's net turn over its
     length, and a turn that stops part way through the window counts for what it turned.
 
+    A pole's centre moves in steps of about half a beam (a beam joins or leaves its
+    returns), and at rest the same beams hit it scan after scan: averaging an end does not
+    take that step out, so each end's mean is taken as uncertain by at least a uniform half
+    step (a 0.5 deg beam and a 5-s window: about 0.01 deg/s of turn from five poles).
+
     Args:
         stamp_s: the scans' stamps, s.
         points_body_m: each scan's pole centres in the body frame, shape (k, 2), m.
+        beam_step_rad: the LiDAR's angle between beams (0: only the scatter counts).
 
     Returns:
         The turn, or None when no pole was followed through half the scans (nothing seen).
@@ -118,7 +137,7 @@ def pole_turn(stamp_s: Sequence[float], points_body_m: Sequence[FloatArray]
             bearings.append(math.atan2(y, x))
             taken.add(nearest)
     enough = max(5, len(stamp_s) // 2)
-    spans, turns, weights, scatter, free = [], [], [], 0.0, 0
+    spans, turns, counts, scatter, free = [], [], [], 0.0, 0
     for _, stamps, bearings in tracks:
         if len(stamps) < enough:
             continue
@@ -127,19 +146,21 @@ def pole_turn(stamp_s: Sequence[float], points_body_m: Sequence[FloatArray]
         ends = (slice(None, k), slice(-k, None))
         spans.append(t[ends[1]].mean() - t[ends[0]].mean())
         turns.append(b[ends[1]].mean() - b[ends[0]].mean())
-        weights.append(2.0 / k)
+        counts.append(k)
         for end in ends:
             scatter += float(np.sum((b[end] - b[end].mean()) ** 2))
             free += k - 1
-    span, turn, weight = np.asarray(spans), np.asarray(turns), np.asarray(weights)
+    span, turn = np.asarray(spans), np.asarray(turns)
     sxx = float(span @ span)
     if not spans or sxx <= 0.0:
         return None
     rate = -float(span @ turn) / sxx
-    # Each end's mean is as scattered as its bearings over k (the beams' quantisation at
-    # rest); a pole's turn has twice that over k.
+    # Each end's mean: its bearings' scatter over k, or the half-beam step's uniform
+    # variance where that is more; a pole's turn has twice it.
     variance = scatter / max(free, 1)
-    sigma = math.sqrt(variance * float(weight @ (span * span))) / sxx
+    step_variance = (0.5 * beam_step_rad) ** 2 / 12.0
+    turn_variance = 2.0 * np.maximum(variance / np.asarray(counts), step_variance)
+    sigma = math.sqrt(float(turn_variance @ (span * span))) / sxx
     return ScanTurn(rate, sigma, len(spans), len(stamp_s))
 
 
@@ -160,7 +181,8 @@ def scan_turn(scan: ScanSeries, start_s: float, end_s: float,
     points = [points_upright(p.points_sensor_m) if scan.upside_down else p.points_sensor_m
               for p in found]
     turn = pole_turn(scan.stamp_s[inside].tolist(),
-                     [sensor_to_map(_BODY, p, scan.mount) for p in points])
+                     [sensor_to_map(_BODY, p, scan.mount) for p in points],
+                     abs(scan.angle_increment_rad))
     return None if turn is None else dataclasses.replace(turn, topic=scan.topic)
 
 
@@ -280,7 +302,7 @@ def confirm_still(estimate: BiasEstimate, turns: Iterable[ScanTurn | None]) -> B
                 f'{math.degrees(turn.rate_rad_s):+.3f} deg/s (+-'
                 f'{math.degrees(turn.sigma_rad_s):.3f}, {turn.poles} poles through '
                 f'{turn.scans} scans), which the gyro\'s mean would take for bias (at most '
-                f'{math.degrees(MAX_SCAN_TURN_RAD_S):.3f} deg/s)')
+                f'{math.degrees(MAX_SCAN_TURN_RAD_S):.3f} deg/s)', stream=f'lidar:{turn.topic}')
     return dataclasses.replace(estimate, scan_turns=seen)
 
 
@@ -398,7 +420,8 @@ class StaticWindowCalibrator:
         """pole_turn of each LiDAR's scans stamped in [start_s, end_s]."""
         for sensor, (stamps, points) in self._poles.items():
             chosen = [k for k, stamp in enumerate(stamps) if start_s <= stamp <= end_s]
-            turn = pole_turn([stamps[k] for k in chosen], [points[k] for k in chosen])
+            turn = pole_turn([stamps[k] for k in chosen], [points[k] for k in chosen],
+                             LIVE_BEAM_STEP_RAD)
             yield None if turn is None else dataclasses.replace(turn, topic=sensor)
 
     def add_imu(self, stamp_s: float, rate_xyz_rad_s: tuple[float, float, float],

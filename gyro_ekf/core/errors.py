@@ -13,8 +13,9 @@ class CalibrationError(CoreError):
     """A static window was refused: too few samples, a gap, or motion.
 
     Attributes:
-        stream: the input the refusal is about, 'imu' (the gyro) or 'speed': the core
-            knows no file or topic, so the caller names the one that stream came from.
+        stream: the input the refusal is about, 'imu' (the gyro), 'speed' or
+            'lidar:<scan topic>' (a LiDAR that saw a turn): the core knows no file or topic,
+            so the caller names the one that stream came from.
     """
 
     def __init__(self, message: str, stream: str = 'imu'):

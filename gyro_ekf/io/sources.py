@@ -20,7 +20,7 @@ from gyro_ekf.io.errors import LogFormatError
 from gyro_ekf.io.matlab import detect_course_log, expand_paths, load_course_log
 from gyro_ekf.io.matlab._common import variable_names
 from gyro_ekf.io.matlab.aas2021 import MAP_VARIABLE
-from gyro_ekf.io.matlab.project2016 import IMU_VARIABLE, SPEED_VARIABLE
+from gyro_ekf.io.matlab.project2016 import IMU_VARIABLE, LASER_VARIABLE, SPEED_VARIABLE
 
 
 def load_log(paths: Sequence[Path | str], map_path: Path | str | None = None) -> Trip:
@@ -49,16 +49,18 @@ def stream_files(paths: Sequence[Path | str]) -> dict[str, Path]:
         paths: as load_checked_log takes them, once it has read them.
 
     Returns:
-        {'imu': the file holding the gyro, 'speed': the file holding the speed}.
+        {'imu': the file holding the gyro, 'speed': the file holding the speed, 'lidar':
+        the file holding the scans}.
     """
     inputs = [Path(p) for p in paths]
     trips = [p for p in _with_trip_files(inputs) if p.suffix == trip_file.SUFFIX]
     if trips:
-        return {'imu': trips[0], 'speed': trips[0]}
+        return {'imu': trips[0], 'speed': trips[0], 'lidar': trips[0]}
     files = detect_course_log(inputs, need_map=False).files
     # The 2021 event table and the simulated logs hold every stream in their one file.
     data = next(p for variable, p in files.items() if variable != MAP_VARIABLE)
-    return {'imu': files.get(IMU_VARIABLE, data), 'speed': files.get(SPEED_VARIABLE, data)}
+    return {'imu': files.get(IMU_VARIABLE, data), 'speed': files.get(SPEED_VARIABLE, data),
+            'lidar': files.get(LASER_VARIABLE, data)}
 
 
 def load_checked_log(paths: Sequence[Path | str], map_path: Path | str | None = None,

@@ -329,7 +329,8 @@ class CalibrationNode(Node):
             f'{axis} {math.degrees(b):+.4f} deg/s (sigma {math.degrees(s):.4f})'
             for axis, b, s, k in zip(_AXES, result.bias_rad_s, result.sigma_rad_s, known) if k)
         seen = ''.join(f"; LiDAR '{turn.topic}' saw a turn of "
-                       f'{math.degrees(turn.rate_rad_s):+.4f} deg/s ({turn.poles} poles): still'
+                       f'{math.degrees(turn.rate_rad_s):+.4f} deg/s ({turn.poles} poles): none '
+                       f'beyond {math.degrees(turn.ruled_out_rad_s):.3f} deg/s'
                        for turn in result.scan_turns)
         self.get_logger().info(
             f'gyro bias from {result.n_samples} samples over '

@@ -190,6 +190,11 @@ def test_calibrate_says_it_takes_one_bag_at_a_time(capsys):
      '--lidar2-yaw-error-deg: must be within [-180, 180] deg, got -200'),
     (['--static-s', 'nan'], '--static-s: nan is not a finite number'),
     (['--static-s', '-1'], '--static-s: must be within [0, 100000] s, got -1'),
+    (['--static-turn-deg-s', '40'],
+     '--static-turn-deg-s: must be within [-28.6479, 28.6479] deg/s, got 40'),
+    # A turn through no static window was no turn at all, with exit 0.
+    (['--static-s', '0', '--static-turn-deg-s', '1'],
+     '--static-turn-deg-s: the turn is made through the static window, and --static-s is 0'),
 ])
 def test_simulate_names_the_option_in_its_own_unit(tmp_path, capsys, argv, words):
     _fails(capsys, ['simulate', '-o', str(tmp_path / 's'), *argv],

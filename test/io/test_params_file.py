@@ -353,3 +353,20 @@ def test_a_lidar_time_offset_takes_each_scan_at_its_stamp_less_it():
     assert np.array_equal(moved_scan.stamp_s, scan.stamp_s)
     assert np.allclose(moved_scan2.stamp_s, scan2.stamp_s - 0.025, rtol=0.0, atol=1e-12)
     assert moved_scan2.mount == scan2.mount and moved_scan2.topic == 'scan2'
+
+
+def test_a_start_pose_the_bags_message_states_to_the_last_bits_is_no_disagreement(caplog):
+    # A helper found "the params file sets initial_pose (0 m, 0 m, 1.5708 rad), but the
+    # bag's /initialpose message states (0 m, 0 m, 1.5708 rad)": the yaw the message's
+    # quaternion gives back differs from the file's in its last bits.
+    from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+    from gyro_ekf.io.params_file import with_initial_pose
+    trip = dataclasses.replace(simulate_trip(SimulationConfig(duration_s=2.0, static_s=2.0)),
+                               initial_pose=np.array([0.0, 0.0, math.pi / 2 + 1e-12]))
+    params = read_params_text('/**:\n  ros__parameters:\n    initial_pose: {x_m: 0.0, '
+                              'y_m: 0.0, yaw_rad: 1.5707963267948966}\n')
+    assert with_initial_pose(trip, params, stated_by_message=True) is trip
+    assert not [r for r in caplog.records if r.levelname == 'WARNING']
+    moved = dataclasses.replace(params, initial_pose=(0.0, 0.0, 1.6))
+    assert with_initial_pose(trip, moved, stated_by_message=True) is trip
+    assert [r for r in caplog.records if 'initial_pose' in r.getMessage()]
