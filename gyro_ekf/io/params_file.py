@@ -53,6 +53,7 @@ import difflib
 import logging
 import math
 from pathlib import Path
+import re
 from typing import Any
 
 import numpy as np
@@ -117,6 +118,20 @@ def is_gyro_ekf_parameter(name: str) -> bool:
     if name.startswith(('lidar.', 'initial_pose.')) or name == 'landmarks_file':
         return True
     return any(name in names for names in NODE_ONLY_PARAMETERS.values())
+
+
+class _RosLoader(yaml.SafeLoader):
+    """YAML as ROS 2 reads a params file: `1e-3` and `1.0e3` are numbers.
+
+    PyYAML follows YAML 1.1, where a float needs a dot and a signed exponent, so it read
+    `gyro_noise_rad_s: 1e-3` as text and `run` refused it while the nodes took 0.001.
+    """
+
+
+_RosLoader.add_implicit_resolver(
+    'tag:yaml.org,2002:float',
+    re.compile(r'^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$'),
+    list('-+0123456789.'))
 
 
 @dataclass(frozen=True, slots=True)
@@ -194,7 +209,7 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
         ParamsFileError: not YAML, not the params-file layout, or a bad value.
     """
     try:
-        tree = yaml.safe_load(text)
+        tree = yaml.load(text, Loader=_RosLoader)
     except yaml.YAMLError as err:
         raise ParamsFileError(f'{source}: not valid YAML: {one_line(err)}') from None
     if tree is None:

@@ -370,3 +370,15 @@ def test_a_start_pose_the_bags_message_states_to_the_last_bits_is_no_disagreemen
     moved = dataclasses.replace(params, initial_pose=(0.0, 0.0, 1.6))
     assert with_initial_pose(trip, moved, stated_by_message=True) is trip
     assert [r for r in caplog.records if 'initial_pose' in r.getMessage()]
+
+
+def test_a_float_written_with_an_exponent_is_a_number_as_the_nodes_read_it():
+    # PyYAML (YAML 1.1) read `1e-3` as text, and `run` refused "must be a number, got
+    # '1e-3'" where the nodes (ROS's parser) took 0.001.
+    params = read_params_text('/**:\n  ros__parameters:\n    gyro_noise_rad_s: 1e-3\n'
+                              '    speed_noise_m_s: 1.0e-2\n    gate_probability: 9.5E-1\n'
+                              '    range_noise_m: .5e-1\n    map_frame: 1e3x\n')
+    assert (params.ekf.gyro_noise_rad_s, params.ekf.speed_noise_m_s,
+            params.ekf.gate_probability, params.ekf.range_noise_m) == (0.001, 0.01, 0.95, 0.05)
+    assert read_params_text('/**:\n  ros__parameters:\n    min_samples: 60\n'
+                            ).calibration.min_samples == 60  # an integer stays one
