@@ -50,6 +50,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 import difflib
+import fnmatch
 import logging
 import math
 from pathlib import Path
@@ -80,6 +81,17 @@ _FIELD_OWNER = {f.name: group for group, kind in _CONFIG_TYPES.items()
                 for f in dataclasses.fields(kind)}
 _OPTIONS = frozenset(f.name for f in dataclasses.fields(RunOptions))
 _LIMITS = frozenset(f.name for f in dataclasses.fields(InputLimits))
+_GROUP_NODE = {'ekf': 'ekf_node', 'calibration': 'calibration_node',
+               'detector': 'landmark_detector_node'}
+"""The node that declares each config group's fields (RunOptions: the EKF node)."""
+
+NODE_LIMITS = {
+    'ekf_node': ('max_yaw_rate_rad_s', 'max_speed_m_s', 'max_stamp_jump_s', 'max_coordinate_m',
+                 'max_mount_offset_m', 'max_angle_rad', 'quaternion_norm_tolerance'),
+    'calibration_node': ('max_yaw_rate_rad_s', 'max_speed_m_s', 'max_stamp_jump_s'),
+}
+"""The InputLimits fields each node checks (declares as limits.*); `run` checks them all."""
+
 _KNOWN = sorted(set(_FIELD_OWNER) | _OPTIONS | {f'limits.{name}' for name in _LIMITS}
                 | {'path_length'})
 """Every name `run` reads (besides lidar.*, initial_pose.* and landmarks_file): a name in a
@@ -186,10 +198,27 @@ def _flatten(tree: dict[str, Any], prefix: str = '') -> dict[str, Any]:
     return flat
 
 
-def _is_pipeline_section(key: str) -> bool:
-    if key in ('/**', '**'):
-        return True
-    return key.rstrip('/').rsplit('/', 1)[-1] in PIPELINE_NODES
+def _section_nodes(key: str) -> tuple[str, ...]:
+    """The pipeline nodes a section applies to, as rclpy matches it (namespaces aside).
+
+    `/**`, `/*` and `/robot1/**` name every node, `/**/ekf_*` the EKF node by its pattern,
+    `/robot1/ekf_node` that node in any namespace (a run has none).
+    """
+    last = key.rstrip('/').rsplit('/', 1)[-1]
+    return tuple(node for node in PIPELINE_NODES if fnmatch.fnmatchcase(node, last))
+
+
+def _declared_by(name: str) -> tuple[str, ...] | None:
+    """The pipeline nodes that declare a name `run` reads; None for run's own (a duration)."""
+    group, _, short = name.rpartition('.')
+    if group == 'limits':
+        return tuple(node for node, used in NODE_LIMITS.items() if short in used) or None
+    if group and not name.startswith(('lidar.', 'initial_pose.')):
+        return None
+    if group or short in _OPTIONS or short in ('path_length', 'landmarks_file'):
+        return ('ekf_node',)
+    owner = _FIELD_OWNER.get(short)
+    return None if owner is None else (_GROUP_NODE[owner],)
 
 
 def _require_finite(source: str, name: str, value: Any) -> None:
@@ -217,8 +246,9 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
     if not isinstance(tree, dict):
         raise ParamsFileError(f'{source}: expected a mapping of node names to '
                               f'{{ros__parameters: ...}}, found {type(tree).__name__}')
-    # Wildcard sections first, so node sections override them.
-    sections = sorted(tree.items(), key=lambda item: 0 if item[0] in ('/**', '**') else 1)
+    # Sections of every node first, so a node's own overrides them.
+    sections = sorted(tree.items(), key=lambda item: 0 if len(_section_nodes(str(item[0])))
+                      == len(PIPELINE_NODES) else 1)
     values: dict[str, dict[str, Any]] = {group: {} for group in _CONFIG_TYPES}
     options: dict[str, Any] = {}
     lidar_values: dict[str, Any] = {}
@@ -229,7 +259,8 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
     sidecar_names: list[str] = []
     read = 0
     for node, body in sections:
-        if not _is_pipeline_section(str(node)):
+        nodes = _section_nodes(str(node))
+        if not nodes:
             near = difflib.get_close_matches(str(node).rstrip('/').rsplit('/', 1)[-1],
                                              PIPELINE_NODES, n=1, cutoff=0.8)
             if near:
@@ -243,6 +274,15 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
             raise ParamsFileError(f"{source}: section {node!r} has no 'ros__parameters' "
                                   'mapping')
         for name, value in _flatten(body['ros__parameters']).items():
+            owners = _declared_by(name)
+            if owners is not None and not set(owners) & set(nodes):
+                # As the nodes take it: a node section's name is that node's, and rclpy
+                # drops one it does not declare (run used it, and the section order decided
+                # between two nodes' values).
+                log.warning('%s: %s: %r is not a parameter of %s (it is %s\'s: set it in '
+                            'that section or /**); ignored', source, node, name,
+                            ' or '.join(nodes), ' and '.join(owners))
+                continue
             if name.startswith('lidar.'):
                 lidar_values[name[len('lidar.'):]] = value
                 continue

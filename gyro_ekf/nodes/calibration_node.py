@@ -52,6 +52,7 @@ from gyro_ekf.core.same_stamp import describe_repeat, DUPLICATE, Repeat, SAME_ST
 from gyro_ekf.core.stamp_gate import StampGate
 from gyro_ekf.core.types import BiasEstimate
 from gyro_ekf.core.validation import rate_problem, speed_problem
+from gyro_ekf.io.params_file import NODE_LIMITS
 from gyro_ekf.nodes import qos, wire
 from gyro_ekf.nodes.conversions import (axes_known, bias_message, corrected_imu, drop_reason,
                                         finite, imu_rates, odometry_speed, stamp_ns,
@@ -65,7 +66,7 @@ _FIELDS = {'imu': ('angular_velocity', 'angular_velocity_covariance'),
            'odom': ('twist.twist.linear.x',)}
 """The message fields of each input's values the window takes, in their order."""
 
-LIMITS_USED = ('max_yaw_rate_rad_s', 'max_speed_m_s', 'max_stamp_jump_s')
+LIMITS_USED = NODE_LIMITS['calibration_node']
 """The InputLimits fields this node checks (declared as limits.*)."""
 
 REMOVED_PARAMETERS = {

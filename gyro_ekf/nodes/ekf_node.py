@@ -171,6 +171,7 @@ from gyro_ekf.core.validation import coordinate_problem, duplicate_landmark_prob
 from gyro_ekf.errors import GyroEkfError
 from gyro_ekf.io import messages
 from gyro_ekf.io.landmarks_file import read_landmarks_file
+from gyro_ekf.io.params_file import NODE_LIMITS
 from gyro_ekf.nodes import qos, visuals, wire
 from gyro_ekf.nodes.conversions import (drop_reason, EstimateMessages, odometry_speed,
                                         online_corrected_imu, points_of, pose_and_covariance,
@@ -232,8 +233,7 @@ RESTART_AFTER_LATE = 20
 """Consecutive messages LOOP_JUMP_S behind the filter, from every active input, that reset
 it: one input that lags only loses its late messages."""
 
-LIMITS_USED = ('max_yaw_rate_rad_s', 'max_speed_m_s', 'max_stamp_jump_s', 'max_coordinate_m',
-               'max_mount_offset_m', 'max_angle_rad', 'quaternion_norm_tolerance')
+LIMITS_USED = NODE_LIMITS['ekf_node']
 """The InputLimits fields this node checks (declared as limits.*)."""
 
 REMOVED_PARAMETERS = {

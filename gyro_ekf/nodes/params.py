@@ -148,6 +148,15 @@ def report_ignored(node: Node, removed: Mapping[str, str]) -> list[str]:
         if name in node._parameters or name in removed:
             continue
         group, _, short = name.rpartition('.')
+        topic = group.removeprefix('lidar.')
+        if topic != group and 'lidar.topics' in node._parameters:
+            topics = list(node.get_parameter('lidar.topics').value or [])
+            if topic not in topics:
+                # Not a misspelt lidar.<listed topic>.*: a LiDAR left out of the list.
+                node.get_logger().warn(f'parameter {name!r}: {topic!r} is not one of '
+                                       f'lidar.topics {topics}; ignored')
+                given.append(name)
+                continue
         if group and short in node._parameters:
             # `ekf.gyro_noise_rad_s`, or `gyro_noise_rad_s` nested under `ekf:` in a file.
             close = [short]

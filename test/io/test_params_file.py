@@ -14,7 +14,7 @@ from gyro_ekf.cli.main import main
 from gyro_ekf.io.bag_reader import read_bag
 from gyro_ekf.io.errors import ParamsFileError
 from gyro_ekf.io.params_file import read_params_file, read_params_text
-from gyro_ekf.core.config import EkfConfig, RunOptions
+from gyro_ekf.core.config import DetectorConfig, EkfConfig, InputLimits, RunOptions
 
 TEXT = """
 /**:
@@ -382,3 +382,37 @@ def test_a_float_written_with_an_exponent_is_a_number_as_the_nodes_read_it():
             params.ekf.gate_probability, params.ekf.range_noise_m) == (0.001, 0.01, 0.95, 0.05)
     assert read_params_text('/**:\n  ros__parameters:\n    min_samples: 60\n'
                             ).calibration.min_samples == 60  # an integer stays one
+
+
+def test_a_name_in_another_nodes_section_is_ignored_as_that_node_ignores_it(caplog):
+    # `run` took every name from every pipeline section, so the section order chose
+    # between the calibration node's window and one written under ekf_node (which no node
+    # reads), and a gate under landmark_detector_node was used, which the nodes drop.
+    params = read_params_text(
+        'calibration_node: {ros__parameters: {window_length_s: 4.0}}\n'
+        'ekf_node: {ros__parameters: {window_length_s: 3.0, max_width_m: 0.06}}\n'
+        'landmark_detector_node: {ros__parameters: {gate_probability: 0.5, '
+        'limits.max_speed_m_s: 9.0}}\n', 's.yaml')
+    assert params.calibration.window_length_s == 4.0
+    assert params.detector.max_width_m == DetectorConfig().max_width_m
+    assert params.ekf.gate_probability == EkfConfig().gate_probability
+    assert params.limits.max_speed_m_s == InputLimits().max_speed_m_s
+    assert [r.getMessage() for r in caplog.records if r.levelname == 'WARNING'] == [
+        "s.yaml: ekf_node: 'window_length_s' is not a parameter of ekf_node (it is "
+        "calibration_node's: set it in that section or /**); ignored",
+        "s.yaml: ekf_node: 'max_width_m' is not a parameter of ekf_node (it is "
+        "landmark_detector_node's: set it in that section or /**); ignored",
+        "s.yaml: landmark_detector_node: 'gate_probability' is not a parameter of "
+        "landmark_detector_node (it is ekf_node's: set it in that section or /**); ignored",
+        "s.yaml: landmark_detector_node: 'limits.max_speed_m_s' is not a parameter of "
+        "landmark_detector_node (it is ekf_node and calibration_node's: set it in that "
+        "section or /**); ignored"]
+
+
+@pytest.mark.parametrize('section', ['/*', '/robot1/**', '/**/ekf_*', '/robot1/ekf_node'])
+def test_a_section_rclpy_matches_to_the_ekf_node_is_read(section):
+    # `/*` and the like were skipped without a word whenever another section was there;
+    # rclpy gives them to every node (or the one they match).
+    params = read_params_text(f'"{section}":\n  ros__parameters:\n    gate_probability: 0.6\n'
+                              'calibration_node:\n  ros__parameters:\n    min_samples: 60\n')
+    assert params.ekf.gate_probability == 0.6 and params.calibration.min_samples == 60

@@ -216,6 +216,14 @@ def test_the_params_file_readers_list_of_node_parameters_is_what_the_nodes_decla
         assert own == set(params_file.NODE_ONLY_PARAMETERS[name]), name
     # What `run` reads, a node declares: but for the bag's longest duration, run's alone.
     assert run_reads - set().union(*declared.values()) == {'limits.max_duration_s'}
+    # And the node each name's section must be, for `run` to take it as that node does.
+    for name, names in declared.items():
+        for read in names & (run_reads | {'landmarks_file'}) | {
+                n for n in names if n.startswith(('lidar.', 'initial_pose.'))}:
+            assert name in params_file._declared_by(read), (name, read)
+    for read in run_reads:
+        for name in params_file._declared_by(read) or ():
+            assert read in declared[name], (read, name)
     assert not params_file.is_gyro_ekf_parameter('frame_prefix')
 
 
@@ -341,7 +349,8 @@ def test_a_misspelt_parameter_is_warned_about_naming_the_one_meant(ros_env, tmp_
     typo.write_text('/**:\n  ros__parameters:\n    gyro_noize_rad_s: 0.02\n'
                     '    window_length_s: 2.0\nekf_node:\n  ros__parameters:\n'
                     '    gate_probabilty: 0.9\n    publish_every_n: 2\n'
-                    '    ekf:\n      speed_noise_m_s: 0.5\n    frame_prefix: robot\n')
+                    '    ekf:\n      speed_noise_m_s: 0.5\n    frame_prefix: robot\n'
+                    '    lidar:\n      topics: [scan]\n      scan2: {x_m: -0.4}\n')
     stderr = _run_until_logged(ros_env, tmp_path, 'ekf_node', ['--params-file', str(typo)],
                                'EKF ready')
     assert stderr.count("parameter 'gyro_noize_rad_s' is not a parameter of this node "
@@ -356,6 +365,9 @@ def test_a_misspelt_parameter_is_warned_about_naming_the_one_meant(ros_env, tmp_
     assert stderr.count('is not a parameter of this node') == 3, stderr
     assert stderr.count("parameter 'frame_prefix' is not a parameter of any gyro_ekf node; "
                         'ignored') == 1, stderr
+    # A LiDAR left out of lidar.topics: not "did you mean 'lidar.scan.x_m'?".
+    assert stderr.count("parameter 'lidar.scan2.x_m': 'scan2' is not one of lidar.topics "
+                        "['scan']; ignored") == 1, stderr
     assert 'window_length_s' not in stderr
     assert 'Traceback' not in stderr
 
