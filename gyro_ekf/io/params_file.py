@@ -199,7 +199,7 @@ def _flatten(tree: dict[str, Any], prefix: str = '') -> dict[str, Any]:
 
 
 def _section_nodes(key: str) -> tuple[str, ...]:
-    """The pipeline nodes a section applies to, as rclpy matches it (namespaces aside).
+    """Return the pipeline nodes a section applies to, as rclpy matches it (not namespaces).
 
     `/**`, `/*` and `/robot1/**` name every node, `/**/ekf_*` the EKF node by its pattern,
     `/robot1/ekf_node` that node in any namespace (a run has none).
@@ -209,7 +209,7 @@ def _section_nodes(key: str) -> tuple[str, ...]:
 
 
 def _declared_by(name: str) -> tuple[str, ...] | None:
-    """The pipeline nodes that declare a name `run` reads; None for run's own (a duration)."""
+    """Return the pipeline nodes declaring a name `run` reads; None: run's own (a duration)."""
     group, _, short = name.rpartition('.')
     if group == 'limits':
         return tuple(node for node, used in NODE_LIMITS.items() if short in used) or None
