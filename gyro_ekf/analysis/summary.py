@@ -250,7 +250,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
     stats = run.result.stats
     figures = health.RunFigures(
         # Excluded LiDARs' detections have their own reason, not the share's.
-        detections=int(stats.detections - stats.excluded),
+        detections=int(stats.detections - stats.excluded), excluded=int(stats.excluded),
         matched=int(stats.outcomes.get('matched', 0)),
         updates=int(stats.updates), nis_mean=summary['nis']['mean'],
         longest_gap_s=longest, start_gap_s=start_gap, sensors=sensors, dropped=dropped,

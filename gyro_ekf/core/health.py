@@ -655,6 +655,8 @@ class RunFigures:
     Attributes:
         detections: poles detected by LiDARs while admitted (excluded ones have their
             own reason).
+        excluded: poles detected by LiDARs while excluded (none of them applied): counted
+            in the share when every LiDAR was excluded in turn, so none held the pose.
         matched: detections MATCHED (applied).
         updates: landmark updates applied.
         nis_mean: mean NIS of the updates (nan without).
@@ -745,6 +747,7 @@ class RunFigures:
     converted_from: str = ''
     final_bias_rad_s: float = math.nan
     unmapped: int = 0
+    excluded: int = 0
     gate_starved: int = 0
     input_gaps_s: dict[str, float] = field(default_factory=dict)
     input_gap_limit_s: float = math.inf
@@ -1038,6 +1041,19 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
                 f'scans that matched it to none, {pole["matched"]} where the map has it: '
                 f'the pole moved, or the map has it wrong; '
                 f'set it there in the map')
+        excluded = [s for s in figures.sensors if s['exclusions']]
+        if (figures.excluded and excluded and len(excluded) == len(figures.sensors)
+                and share >= VERDICT_FAILED_ASSOCIATION_SHARE):
+            # Each LiDAR's exclusions leave its detections out of the share, and when all
+            # were excluded in turn the share left is of no one LiDAR's keeping: over all
+            # of them, a lost pose shows (a helper's: 37.5 %, 1.3 m off, said degraded).
+            whole = near + figures.excluded
+            if figures.matched / whole < VERDICT_FAILED_ASSOCIATION_SHARE:
+                add(FAILED, f'{figures.matched / whole:.1%} of all detections associated, '
+                    f'below {VERDICT_FAILED_ASSOCIATION_SHARE:.0%}: every LiDAR was '
+                    'excluded in turn (' + ', '.join(
+                        f'{s["name"]} {s["excluded_s"]:.1f} s' for s in excluded)
+                    + '), so none held the pose throughout')
         if share < VERDICT_FAILED_ASSOCIATION_SHARE:
             add(FAILED, f'{share:.1%} {which} associated, below '
                 f'{VERDICT_FAILED_ASSOCIATION_SHARE:.0%}')

@@ -911,7 +911,7 @@ class EkfNode(Node):
         inputs = {name: loss.report() for name, loss in self.driver.input_loss.items()}
         figures = health.RunFigures(
             # Excluded LiDARs' detections have their own reason, not the share's.
-            detections=stats.detections - stats.excluded,
+            detections=stats.detections - stats.excluded, excluded=stats.excluded,
             matched=stats.outcomes.get('matched', 0), updates=stats.updates,
             nis_mean=stats.mean_nis,
             longest_gap_s=max(stats.longest_gap_s, since or 0.0), start_gap_s=start_gap,
