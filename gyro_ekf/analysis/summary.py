@@ -263,6 +263,8 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         # The driver's counters to the trip's last stamp, as the EKF node's verdict has
         # them to its newest one (core/input_loss.py).
         input_gaps_s=silences(run.result.input_loss or {}, run.trip.end_s),
+        input_late_s={name: float(series.stamp_s[0]) - run.trip.start_s for name, series in (
+            ('gyro', run.trip.imu), ('odometry', run.trip.speed)) if len(series.stamp_s)},
         input_gap_limit_s=run.config.max_prediction_step_s,
         bias_openings=int(stats.bias_openings), gate_starved=int(stats.gate_starved),
         bias_largest_opening_rad_s=float(stats.bias_largest_opening_rad_s),

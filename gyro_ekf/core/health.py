@@ -93,6 +93,10 @@ start's information), so the test leans to silence: over 75 scenes of every clas
 bias change (stress seeds 0, 31 and 32, 60-120 s) the largest was 1.84; a slow ramp that
 the bias watch's blocks never saw (seed 31 at 90 s, bias_ramp #12, 0.045 deg/s per minute,
 ending 0.028 deg/s off with the verdict ok) reads 3.1."""
+
+VERDICT_MAX_LATE_START_S = 1.0
+"""Offline: the latest an input stream's first sample may come after the trip's first message."""
+
 VERDICT_MAX_BIAS_SIGMA_RAD_S = math.radians(0.01)
 """A final bias sigma above 0.01 deg/s: the run did not pin the bias down (degraded); at twice
 its sigma it may be beyond the 0.02 deg/s the project holds itself to. The figure the
@@ -683,6 +687,8 @@ class RunFigures:
             'odometry'), s.
         input_gap_limit_s: the longest prediction step (``max_prediction_step_s``): a
             stream silent for longer had its last value held over a gap.
+        input_late_s: how long after the trip's first message each input stream's first
+            sample came ('gyro', 'odometry'), s (offline: a live node starts with them).
         bias_openings: times the LiDARs saw the heading drift and the bias was re-opened
             (DriverStats.bias_openings, core/bias_watch.py).
         bias_largest_opening_rad_s: the largest bias change such a drift implied, rad/s.
@@ -751,6 +757,7 @@ class RunFigures:
     gate_starved: int = 0
     input_gaps_s: dict[str, float] = field(default_factory=dict)
     input_gap_limit_s: float = math.inf
+    input_late_s: dict[str, float] = field(default_factory=dict)
     bias_openings: int = 0
     bias_largest_opening_rad_s: float = 0.0
     bias_wander_held: int = 0
@@ -1154,6 +1161,14 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
                     'its last value was held over the gap with the noise of one sample')
             add(DEGRADED, f'{stream} silent for {gap:.2f} s, longer than the longest '
                 f'prediction step {figures.input_gap_limit_s:g} s: {held}')
+    for stream, late in figures.input_late_s.items():
+        if late > VERDICT_MAX_LATE_START_S:
+            # Its silence before its first sample, which the gaps between samples miss (a
+            # helper's 2016 log with its speed stamps 30 s on: "gyro silent" alone was said).
+            add(DEGRADED, f'{stream}: its first sample came {late:.2f} s after the trip\'s '
+                f'first message, later than {VERDICT_MAX_LATE_START_S:g} s: until then the '
+                f'filter had no {"yaw rate" if stream == "gyro" else "speed"} (a stream '
+                'recorded late, or stamped by another clock than the others)')
     for stream, loss in figures.input_loss.items():
         if loss['share'] < VERDICT_MIN_RECEIVED_SHARE:
             # The filter held the last value across each lost sample: estimates go on,

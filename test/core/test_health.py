@@ -435,3 +435,17 @@ def test_a_pose_lost_while_every_lidar_was_excluded_in_turn_is_failed():
     reason = summary['health']['reasons'][0]
     assert reason.startswith('46.9% of all detections associated, below 50%: every LiDAR '
                              'was excluded in turn (scan 25.4 s, scan2 22.4 s)'), reason
+
+
+def test_an_input_stream_that_starts_late_is_said():
+    # A helper moved the 2016 log's speed stamps 30 s on: the verdict named the gyro
+    # silent at the end and nothing said the odometry was missing for the first 30 s.
+    from gyro_ekf.core.validation import InputReport
+    trip = simulate_trip(SimulationConfig(duration_s=30.0), seed=2)
+    trip = dataclasses.replace(trip, speed=_without(trip.speed, 0.0, 2.5))
+    reasons = summarize(run_trip(trip), InputReport(source='late'))['health']['reasons']
+    late = [r for r in reasons if r.startswith('odometry: its first sample came')]
+    assert late == ["odometry: its first sample came 2.51 s after the trip's first message, "
+                    'later than 1 s: until then the filter had no speed (a stream recorded '
+                    'late, or stamped by another clock than the others)'], reasons
+    assert not [r for r in reasons if r.startswith('gyro: its first sample')]
