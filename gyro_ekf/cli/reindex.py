@@ -24,16 +24,35 @@ HELP = ('rebuild the metadata.yaml and MCAP summary of a bag cut short (e.g. its
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add this command's arguments."""
     parser.add_argument('bag', type=Path, metavar='BAG', help='rosbag2 folder with one .mcap')
+    parser.add_argument('--drop-damaged', action='store_true',
+                        help='rebuild a bag whose footer is in place but a chunk of which is '
+                        'damaged (a CRC mismatch), leaving that chunk and its messages out')
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the command; returns the exit code."""
     from gyro_ekf.io.reindex import reindex
 
+    from gyro_ekf.io.bag_info import verify_bag
+    from gyro_ekf.io.errors import BagError
+
     result = reindex(args.bag)
     if not result.wrote_metadata:
-        print(f'{args.bag}: nothing to do (metadata.yaml and the .mcap footer are in place)')
-        return 0
+        # In place is not whole: a chunk damaged inside a bag with its footer (a flipped
+        # byte) was "nothing to do" here while `info` and `run` refused the bag.
+        try:
+            verify_bag(args.bag)
+        except BagError as err:
+            if not args.drop_damaged:
+                raise BagError(f'{err}; the bag\'s footer and metadata.yaml are in place, '
+                               'so reindex leaves it as it is: `gyro-ekf reindex --drop-'
+                               'damaged` rebuilds it without the damaged chunk (its messages '
+                               'are lost, the others kept)') from None
+            result = reindex(args.bag, drop_damaged=True)
+        else:
+            print(f'{args.bag}: nothing to do (metadata.yaml and the .mcap footer are in '
+                  'place, and every chunk reads whole)')
+            return 0
     written = 'a new .mcap and metadata.yaml' if result.rewrote_mcap else 'metadata.yaml'
     left = [f'the damaged chunk at offset {chunk.offset} ({chunk.size} bytes: '
             f'{chunk.reason})' for chunk in result.damaged]
@@ -66,5 +85,5 @@ def sidecar_note(bag: Path) -> str:
         return ''
     return (f'{sidecar_path(bag)}: written with a bag of {params.bag.describe()}; {bag} now '
             f'has {found.describe()}: run, info and replay refuse the pair. If the file is '
-            "this trip's (the bag lost its tail), delete its trip.bag entries to use it "
-            'unchecked')
+            "this trip's (the bag lost some of its messages), delete its trip.bag entries to "
+            'use it unchecked')

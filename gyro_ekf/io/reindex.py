@@ -171,11 +171,13 @@ def _recover(mcap: Path, data: bytes, end: int, whole: bool
                 end = at
 
 
-def reindex(path: Path | str) -> ReindexResult:
+def reindex(path: Path | str, drop_damaged: bool = False) -> ReindexResult:
     """Rebuild the summary of a bag's .mcap cut short and its metadata.yaml, in place.
 
     Args:
         path: the bag folder (holding one .mcap file).
+        drop_damaged: rebuild a whole file too, leaving out its damaged chunks (whose
+            messages are lost); without it, damage in a whole file is refused.
 
     Returns:
         What was recovered and written; nothing is written when the bag needs nothing
@@ -195,9 +197,10 @@ def reindex(path: Path | str) -> ReindexResult:
         raise BagError(f'{path}: expected one .mcap file to reindex, found {len(mcaps)}')
     mcap = mcaps[0]
     # An empty file needs no reindex only in the sense that reindex cannot help: said below.
-    if needs_reindex(path) is None and mcap.stat().st_size:
+    if not drop_damaged and needs_reindex(path) is None and mcap.stat().st_size:
         return ReindexResult(mcap, 0, 0, 0, False, False)
-    complete = _has_footer(mcap)
+    # A whole file rebuilt to leave its damaged chunks out is written anew, as a cut one.
+    complete = _has_footer(mcap) and not drop_damaged
     try:
         data = mcap.read_bytes()
     except OSError as err:
@@ -223,7 +226,7 @@ def reindex(path: Path | str) -> ReindexResult:
         raise BagError(f'{path}: cannot write the reindexed bag: {err}') from None
     finally:
         shutil.rmtree(aside, ignore_errors=True)
-    return ReindexResult(mcap, count, len(found), 0 if complete else len(data) - end,
+    return ReindexResult(mcap, count, len(found), 0 if complete or whole else len(data) - end,
                          not complete, True, tuple(damaged))
 
 
