@@ -154,7 +154,9 @@ def _against_lidars(signs: dict[str, dict[str, Any]]) -> str:
     """Return the row of what the gyro and odometry read against each LiDAR's scans.
 
     The gyro's reading per radian the scans turn most voted for (votes), and the odometry's
-    metres per metre they show (core/turn_sign.py).
+    metres per metre they show (core/turn_sign.py): coarse checks of a sign or a unit, read
+    from pairs of scans (the odometry's scale itself is the online odometry row's; a helper
+    read `x1.022` for an exact encoder as a 2 % error).
     """
     if not signs:
         return 'not measured (no two scans with two poles while turning)'
@@ -163,7 +165,7 @@ def _against_lidars(signs: dict[str, dict[str, Any]]) -> str:
          if lidar['votes'] else f"{name}: gyro x0 ({lidar.get('unseen_turns', 0)} turns "
          'unseen), ')
         + ('odometry not measured' if lidar['speed_ratio'] is None
-           else f"odometry x{lidar['speed_ratio']:.3f}")
+           else f"odometry about x{lidar['speed_ratio']:.2f} (a sign and unit check)")
         for name, lidar in signs.items())
 
 
