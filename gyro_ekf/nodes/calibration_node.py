@@ -5,8 +5,9 @@ max_speed_m_s in the window refuses it) and the pole topics `landmark_topics` (d
 [`landmarks`], geometry_msgs/PoseArray from landmark_detector_node: poles that turn about
 the platform through the window refuse it, core.calibration.confirm_still; a turn in place
 shows no speed and a steady gyro rate, which the mean would take for bias). Collects the
-static window (by default the first
-5 s of IMU messages) in the core's StaticWindowCalibrator. On success it publishes
+static window (by default the first 5 s of IMU messages) in the core's
+StaticWindowCalibrator, waiting up to POLE_WAIT_S of gyro time for a LiDAR's late scans.
+On success it publishes
 `gyro_bias` (geometry_msgs/Vector3Stamped, rad/s; reliable, transient local, so a late
 subscriber still gets it), logs the bias in deg/s with the noise sigma per axis, and from
 then on republishes every IMU message on `imu/corrected` with the bias removed. A refused
