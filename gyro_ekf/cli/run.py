@@ -174,6 +174,18 @@ def _spikes(spikes: dict[str, dict[str, Any]] | None) -> str:
     return ', '.join(f"{name} {figures['spikes']}" for name, figures in (spikes or {}).items())
 
 
+def _heading_widened(odometry: dict | None) -> str:
+    """Return the row of how much the first LiDAR's yaw widens the reported heading.
+
+    The LiDAR that defines the body frame holds the heading to its mount, so the heading is
+    known no better than that mount's yaw (core/body_frame.py, heading_spread).
+    """
+    widened = 0.0 if odometry is None else odometry.get('heading_widened_deg', 0.0)
+    if not widened:
+        return 'no (its yaw taken as stated)'
+    return f'+-{widened:.3f} (its mount\'s yaw known no better)'
+
+
 def _speed_noise(noise: dict[str, Any]) -> str:
     """Return the row of the odometry's noise taken from its own spread (learn_speed_noise)."""
     if not noise['widened_samples']:
@@ -216,6 +228,8 @@ def _table(summary: dict[str, Any]) -> str:
              ('odometry noise from its own spread', _speed_noise(summary['speed_noise'])),
              ('gyro and odometry against the LiDARs\' scans',
               _against_lidars(summary['turn_signs'])),
+             ('heading widened for the first LiDAR\'s yaw (deg)',
+              _heading_widened(summary['online_odometry'])),
              ('mapped poles elsewhere', ', '.join(
                  f"{pole['index']} at ({pole['seen_xy_m'][0]:.3f}, {pole['seen_xy_m'][1]:.3f})"
                  for pole in summary['map_poles_elsewhere']) or 'none'),
@@ -351,9 +365,11 @@ def run(args: argparse.Namespace) -> int:
             # mount shows here.
             summary['mounts'] = {used.topic: {
                 'stated': {'x_m': stated.mount.x_m, 'y_m': stated.mount.y_m,
-                           'yaw_deg': math.degrees(stated.mount.yaw_rad)},
+                           'yaw_deg': math.degrees(stated.mount.yaw_rad),
+                           'yaw_sigma_deg': math.degrees(stated.yaw_sigma_rad)},
                 'used': {'x_m': used.mount.x_m, 'y_m': used.mount.y_m,
-                         'yaw_deg': math.degrees(used.mount.yaw_rad)}}
+                         'yaw_deg': math.degrees(used.mount.yaw_rad),
+                         'yaw_sigma_deg': math.degrees(used.yaw_sigma_rad)}}
                 for stated, used in zip(trip.scans, result.trip.scans)}
             processed_s = time.perf_counter() - began
             summary['timing'] = {'read_s': read_s, 'run_and_outputs_s': processed_s - read_s,

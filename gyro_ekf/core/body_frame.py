@@ -36,6 +36,12 @@ The evidence:
 - **The odometry's path fit** of the first LiDAR's offset (its last clean fit): near 0
   under A, ``-d`` under B, Gaussian with the fit's sigma.
 
+**The heading.** Every LiDAR update holds the heading to the yaw of the LiDAR that defines
+the body frame, so the heading is known no better than that yaw: the reported heading's
+variance gains what is known of it (``heading_spread``, ``with_heading``: the params
+file's ``lidar.<topic>.yaw_sigma_rad``, the sigma of a turn the odometry made, or what its
+path fit reads beyond its noise), outside the filter's P like the mixture's terms.
+
 The odometry's move of the first LiDAR's mount ends the mixture (it decided), as does a
 yaw change of the other LiDAR (another error than an offset) or a third LiDAR (not
 modelled). A hand-over of the body frame at the start check swaps the two roles: it rests
@@ -58,8 +64,8 @@ from gyro_ekf.core.types import FloatArray, LidarMount
 Offset = tuple[float, float, float, float, float, float]
 """A LiDAR's offset off a mount, fitted at a stop: x m, y m, covariance xx, xy, yy m^2, dof."""
 
-Shift = tuple[float, float, float, float, float]
-"""The mixture's move of the pose: x m, y m (body frame), covariance xx, xy, yy m^2."""
+Shift = tuple[float, float, float, float, float, float]
+"""The reported pose's move: x m, y m (body frame), covariance xx, xy, yy m^2, yaw rad^2."""
 
 
 def stop_offset(theta: FloatArray, covariance: FloatArray, used: int, scans: int,
@@ -129,7 +135,7 @@ def mixture_shift(d: tuple[float, float], other_right: float) -> Shift:
     dx, dy = d
     spread = other_right * (1.0 - other_right)
     return (other_right * dx, other_right * dy,
-            spread * dx * dx, spread * dx * dy, spread * dy * dy)
+            spread * dx * dx, spread * dx * dy, spread * dy * dy, 0.0)
 
 
 def disagreement_spread(d: tuple[float, float]) -> Shift:
@@ -153,15 +159,55 @@ def disagreement_spread(d: tuple[float, float]) -> Shift:
     mixture's term it stays out of the filter's P.
     """
     dx, dy = d
-    return (0.0, 0.0, dx * dx, dx * dy, dy * dy)
+    return (0.0, 0.0, dx * dx, dx * dy, dy * dy, 0.0)
+
+
+def heading_spread(yaw_rad: float, sigma_rad: float) -> float:
+    """Return the heading variance a body-frame LiDAR's yaw read off leaves, rad^2.
+
+    The odometry's path fit reads how far the LiDAR that defines the body frame turns the
+    heading off the direction the odometry moves in (``core/odometry_online.py``: ``e``,
+    with ``sigma``, the fit's and the heading's own). Under the change limits (a 0.05 deg
+    turn, beyond 3 sigmas) the mount stays, and every LiDAR update holds the heading ``e``
+    off, however small its variance: the map agrees with the LiDAR, whatever its mount.
+    Such a mount is not rare: ``calibrate-mounts`` on a trip with no static start writes
+    the first LiDAR's yaw from such fits, a few hundredths of a degree off (simulated seed
+    6, a LiDAR 2 deg off: written 1.974 deg, and `run` with the file held the heading
+    0.02-0.06 deg off with a sigma of 0.012: NEES share 0.69, verdict ok). The driver takes
+    the larger of this and the mount's own sigma (``OdometryTracker.heading_variance``).
+
+    ``E[e^2] = delta^2 + sigma^2`` for a mount ``delta`` off, so ``e^2 - sigma^2`` is what
+    the covariance lacks. Only a fit read beyond ``READ_OFF_SIGMAS`` of its sigma counts
+    (as a disagreement of two LiDARs does): a third of the fits of an exact mount read
+    beyond one sigma, and each widened a heading the filter already holds loosely (a
+    second LiDAR 0.5 deg off beside an exact first, 60 s moving: NEES share 0.911 -> 0.897,
+    its share below the band 8.5 -> 9.9 %). Like the mixture's terms it stays out of the
+    filter's P (the LiDARs can never shrink it).
+    """
+    if not abs(yaw_rad) > READ_OFF_SIGMAS * sigma_rad:
+        return 0.0
+    return yaw_rad * yaw_rad - sigma_rad * sigma_rad
+
+
+READ_OFF_SIGMAS = 2.0
+"""How many of its sigmas a path fit must read a body-frame yaw off to widen the heading."""
+
+
+def with_heading(shift: Shift | None, variance: float) -> Shift | None:
+    """Return ``shift`` with ``variance`` (rad^2) added to its heading's; None if nothing."""
+    if not variance > 0.0:
+        return shift
+    x, y, xx, xy, yy, yaw = shift if shift is not None else (0.0,) * 6
+    return (x, y, xx, xy, yy, yaw + variance)
 
 
 def shift_estimates(states: FloatArray, covariances: FloatArray, shift: Shift) -> None:
-    """Move estimate rows by the mixture, in place: states (n, >=3), covariances (n, k, k).
+    """Move estimate rows by the shift, in place: states (n, >=3), covariances (n, k, k).
 
-    The position moves by ``R(yaw) s`` and its covariance gains ``R(yaw) C R(yaw)^T``.
+    The position moves by ``R(yaw) s`` and its covariance gains ``R(yaw) C R(yaw)^T``; the
+    heading's variance gains the shift's.
     """
-    sx, sy, cxx, cxy, cyy = shift
+    sx, sy, cxx, cxy, cyy, cyaw = shift
     yaw = states[:, 2]
     c, s = np.cos(yaw), np.sin(yaw)
     states[:, 0] += c * sx - s * sy
@@ -175,3 +221,4 @@ def shift_estimates(states: FloatArray, covariances: FloatArray, shift: Shift) -
     covariances[:, 0, 1] += a * s + b * c
     covariances[:, 1, 0] += a * s + b * c
     covariances[:, 1, 1] += e * s + f * c
+    covariances[:, 2, 2] += cyaw

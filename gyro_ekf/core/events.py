@@ -44,7 +44,7 @@ from gyro_ekf.core.association import (AssociationOutcome, AssociationResult,
 from gyro_ekf.core.bias_rate import BiasRate
 from gyro_ekf.core.bias_watch import BiasWatch
 from gyro_ekf.core.body_frame import (Offset, Shift, disagreement_spread, mixture_shift,
-                                      other_right_share, shift_estimates)
+                                      other_right_share, shift_estimates, with_heading)
 from gyro_ekf.core.config import DetectorConfig, EkfConfig
 from gyro_ekf.core.ekf import GyroBiasEkf
 from gyro_ekf.core.errors import CoreError, TimeWentBackwardsError
@@ -118,6 +118,10 @@ class EventDriver:
             (core/health.py).
         last_transition: the last exclusion or readmission on_detections caused, or None.
         sensor_names: display name per mount for health reports (kept across resets).
+        mount_yaw_sigmas: how well each stated mount's yaw is known, rad, by stated mount
+            (``lidar.<topic>.yaw_sigma_rad``; 0 when not given). The reported heading's
+            variance gains that of the LiDAR that defines the body frame
+            (``core/body_frame.py``, ``heading_spread``); kept across resets.
         zero_rate: whether zero-rate updates are being applied now (standing still).
         mounts: the online mount estimators of the LiDARs given to ``track_mounts``
             (core/mount_online.py); a LiDAR's observations are taken with its mount in use.
@@ -188,6 +192,7 @@ class EventDriver:
         self._path_yaw = 0.0
         self.last_transition: Transition | None = None
         self.sensor_names: dict[LidarMount, str] = {}
+        self.mount_yaw_sigmas: dict[LidarMount, float] = {}
         self.stamp_s: float | None = None
         self.speed_m_s = 0.0
         self.rate_rad_s: float | None = None
@@ -721,7 +726,11 @@ class EventDriver:
         ``_on_detections``.
         """
         report = self._on_detections(stamp_s, points_sensor_m, mount, sensor)
-        self.frame_shift = self._frame_shift()
+        stated = self.mount_yaw_sigmas.get(self._body_key, 0.0)
+        widened = self.odometry.heading_variance(stated)
+        # While an exact start pose is held, the heading is that pose's, not the LiDAR's.
+        self.frame_shift = with_heading(self._frame_shift(),
+                                        0.0 if self.held_start.held else widened)
         return report
 
     def _frame_shift(self) -> Shift | None:

@@ -111,7 +111,7 @@ from typing import Any
 import numpy as np
 
 from gyro_ekf.core.angles import wrap_scalar
-from gyro_ekf.core.body_frame import Offset, stop_offset
+from gyro_ekf.core.body_frame import Offset, heading_spread, stop_offset
 from gyro_ekf.core.mount_calibration import MIN_DETECTIONS, MountSettings
 from gyro_ekf.core.mount_online import fit_window
 from gyro_ekf.core.types import FloatArray, LidarMount
@@ -299,6 +299,10 @@ class OdometryTracker:
         self._window_start_s = -math.inf
         self.offset_m = (0.0, 0.0)
         self.yaw_rad = 0.0
+        # How well the turn in use is known: the last turn's sigma, rad (0: none made).
+        self.yaw_sigma_rad = 0.0
+        # The reported heading's widening last asked for (heading_variance), rad.
+        self.heading_widened_rad = 0.0
         self.offset_applied = 0
         self.scale = 1.0
         self.scale_sigma = 0.0
@@ -321,7 +325,7 @@ class OdometryTracker:
         at its stated mount, fits use only the poses it holds, the start check ends.
         """
         self.offset_m = (0.0, 0.0)
-        self.yaw_rad = 0.0
+        self.yaw_rad = self.yaw_sigma_rad = 0.0
         self.offset_applied = 0
         self._window_start_s = stamp_s
         self._start_pose = None
@@ -376,17 +380,17 @@ class OdometryTracker:
         return (self._dropped + len(self._samples) // _SAMPLE, self._dx, self._dy,
                 self._distance, self._last_fit_s, self.scale, self.scale_sigma, self.fit,
                 self.applied, self.fits, self._window_start_s, self.offset_m, self.yaw_rad,
-                self.offset_applied, (self._start_pose, len(self._start_points),
-                                      self._start_scans, self._start_first_s, self.start_fit,
-                                      self.start_alone, self.start_offset),
+                self.yaw_sigma_rad, self.heading_widened_rad, self.offset_applied,
+                (self._start_pose, len(self._start_points), self._start_scans,
+                 self._start_first_s, self.start_fit, self.start_alone, self.start_offset),
                 self._walk_fit, self._gap_end_s, self.turn_vouched)
 
     def restore(self, saved: tuple) -> None:
         """Put back a state from ``save``."""
         (end, self._dx, self._dy, self._distance, self._last_fit_s, self.scale,
          self.scale_sigma, self.fit, self.applied, self.fits, self._window_start_s,
-         self.offset_m, self.yaw_rad, self.offset_applied, start, self._walk_fit,
-         self._gap_end_s, self.turn_vouched) = saved
+         self.offset_m, self.yaw_rad, self.yaw_sigma_rad, self.heading_widened_rad,
+         self.offset_applied, start, self._walk_fit, self._gap_end_s, self.turn_vouched) = saved
         (self._start_pose, points, self._start_scans, self._start_first_s,
          self.start_fit, self.start_alone, self.start_offset) = start
         del self._start_points[points:]
@@ -511,6 +515,8 @@ class OdometryTracker:
         """Move the first LiDAR's mount in use by a start check's (x, y, _, yaw, _)."""
         self.offset_m = (self.offset_m[0] + moved[0], self.offset_m[1] + moved[1])
         self.yaw_rad += moved[3]
+        if moved[3]:
+            self.yaw_sigma_rad = moved[4]
         self.offset_applied += 1
 
     def observe(self, stamp_s: float, pose: Sequence[float], heading_variance: float,
@@ -644,6 +650,9 @@ class OdometryTracker:
         dyaw = self.fit.yaw_rad if turned else 0.0
         self.offset_m = (self.offset_m[0] + dx, self.offset_m[1] + dy)
         self.yaw_rad += dyaw
+        if turned:
+            # The heading's own error is in e as well, for the mount it turned.
+            self.yaw_sigma_rad = self.fit.yaw_sigma_with_heading
         self.offset_applied += 1
         self._window_start_s = stamp_s
         return (dx, dy, max(self.fit.offset_sigma_m) if offset else 0.0, dyaw,
@@ -675,6 +684,31 @@ class OdometryTracker:
                 or fit.stamp_s <= self._window_start_s):
             return None
         return fit.offset_m[0], fit.offset_m[1], max(fit.offset_sigma_m)
+
+    def heading_variance(self, stated_sigma_rad: float) -> float:
+        """Return what the reported heading's variance gains from the first LiDAR's yaw, rad^2.
+
+        The larger of how well its mount in use is known (the last turn's sigma, or
+        ``stated_sigma_rad``, the stated mount's, while none was made) and what the last
+        clean fit of the window in progress reads it off beyond the fit's noise
+        (``body_frame.heading_spread``). See ``core/body_frame.py``. Kept as
+        ``heading_widened_rad`` (its root) for the report.
+        """
+        sigma = self.yaw_sigma_rad if self.yaw_rad else stated_sigma_rad
+        fit = self.window_fit()
+        read = 0.0 if fit is None else heading_spread(fit.yaw_rad, fit.yaw_sigma_with_heading)
+        variance = max(sigma * sigma, read)
+        self.heading_widened_rad = math.sqrt(variance)
+        return variance
+
+    def window_fit(self) -> OdometryFit | None:
+        """Return the last clean fit of the window in progress (of the mount in use), or None.
+
+        A fit from before the window started again is of a mount or body frame that is no
+        more.
+        """
+        fit = self.clean_fit()
+        return None if fit is None or fit.stamp_s <= self._window_start_s else fit
 
     def yaw_found(self) -> bool:
         """Whether the last fit turns the first LiDAR clearly off the odometry's direction."""
@@ -710,6 +744,8 @@ class OdometryTracker:
             'first_lidar_offset_in_use_x_m': self.offset_m[0],
             'first_lidar_offset_in_use_y_m': self.offset_m[1],
             'first_lidar_yaw_in_use_deg': math.degrees(self.yaw_rad),
+            'first_lidar_yaw_in_use_sigma_deg': math.degrees(self.yaw_sigma_rad),
+            'heading_widened_deg': math.degrees(self.heading_widened_rad),
             'first_lidar_offset_applied': self.offset_applied,
             'first_lidar_start_check': self.start_fit,
             'estimate': None if fit is None else {

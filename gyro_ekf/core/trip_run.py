@@ -294,6 +294,8 @@ def drive_trip(trip: Trip, driver: EventDriver,
     # A LiDAR stated at the first one's mount shares its key (health, rest counts): untracked.
     driver.track_mounts((scan.mount, scan.topic) for scan in trip.scans[1:]
                         if scan.mount != trip.scans[0].mount)
+    driver.mount_yaw_sigmas.update((scan.mount, scan.yaw_sigma_rad) for scan in trip.scans
+                                   if scan.yaw_sigma_rad)
     n = len(trip.imu.stamp_s)
     arrays = estimate_arrays(n) if into is None else into
     if len(arrays.stamp_s) != n:

@@ -115,6 +115,10 @@ class ScanSeries:
             (models.points_less_range), the ranges themselves left as recorded.
         upside_down: mounted upside down (``lidar.<topic>.upside_down`` of a params file):
             its poles are mirrored into an upright LiDAR's frame (models.points_upright).
+        yaw_sigma_rad: how well its mount's yaw is known, rad (``lidar.<topic>.yaw_sigma_rad``
+            of a params file, as calibrate-mounts writes a yaw it fitted against the
+            odometry; 0 as recorded: the stated yaw is taken as exact). While it defines
+            the body frame the reported heading's variance gains it (core/body_frame.py).
     """
 
     stamp_s: FloatArray
@@ -129,6 +133,7 @@ class ScanSeries:
     frame_id: str = 'laser'
     range_offset_m: float = 0.0
     upside_down: bool = False
+    yaw_sigma_rad: float = 0.0
 
     @property
     def beam_count(self) -> int:

@@ -181,6 +181,18 @@ def range_offset_problem(offset_m: float) -> str | None:
     return value_problem(offset_m, MAX_RANGE_OFFSET_M, 'm')
 
 
+MAX_YAW_SIGMA_RAD = math.radians(15.0)
+"""Largest sigma a LiDAR's mount yaw may be stated with (`lidar.<topic>.yaw_sigma_rad`):
+as far as calibrate-mounts searches; beyond it the mount is not known at all."""
+
+
+def yaw_sigma_problem(sigma_rad: float) -> str | None:
+    """Why a LiDAR's stated yaw sigma (rad, `lidar.<topic>.yaw_sigma_rad`) is refused."""
+    if sigma_rad < 0.0:
+        return f'{sigma_rad:g} rad is negative (a sigma)'
+    return value_problem(sigma_rad, MAX_YAW_SIGMA_RAD, 'rad')
+
+
 def angle_problem(angle_rad: float, limits: InputLimits = LIMITS) -> str | None:
     """Why a stated angle (rad; an initial or mount yaw) is refused, or None."""
     return value_problem(angle_rad, limits.max_angle_rad, 'rad')

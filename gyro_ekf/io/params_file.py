@@ -30,10 +30,13 @@ gyro's, as a run's verdict measures it (core/time_offset.py), and
 `lidar.<topic>.range_offset_m` (optional too) how much its ranges read long, as a run's
 verdict measures it against the map (its poles are moved that much toward it), and
 `lidar.<topic>.upside_down` (true or false) a LiDAR mounted upside down (half a turn about
-its x axis: its poles are mirrored into an upright one's frame); the EKF node declares all
-three. `with_lidar_mounts` puts them on a trip's scans, overriding the mounts the bag
-states for those topics, taking each scan at its stamp less the offset and giving each
-its range offset and whether it is upside down.
+its x axis: its poles are mirrored into an upright one's frame), and
+`lidar.<topic>.yaw_sigma_rad` (optional) how well its yaw is known (calibrate-mounts writes
+it for a first LiDAR's yaw it fitted against the odometry; the LiDAR that defines the body
+frame widens the reported heading by it); the EKF node declares all four.
+`with_lidar_mounts` puts them on a trip's scans, overriding the mounts the bag states for
+those topics, taking each scan at its stamp less the offset and giving each its range
+offset, whether it is upside down and its yaw's sigma.
 
 The map file is read as the EKF node declares it, `landmarks_file` (a path from the working
 folder): `with_landmarks_file` gives a trip that map instead of the bag's (`gyro-ekf run`
@@ -68,7 +71,8 @@ from gyro_ekf.core.errors import CoreError
 from gyro_ekf.core.stamps import NS_PER_S, ns_at, seconds_since
 from gyro_ekf.core.types import LidarMount, Trip
 from gyro_ekf.core.validation import (initial_pose_problem, mount_problem,
-                                      range_offset_problem, time_offset_problem)
+                                      range_offset_problem, time_offset_problem,
+                                      yaw_sigma_problem)
 
 log = logging.getLogger(__name__)
 
@@ -164,6 +168,8 @@ class PipelineParams:
             `lidar.<topic>.range_offset_m`).
         lidars_upside_down: scan topics of LiDARs mounted upside down (the file's
             `lidar.<topic>.upside_down: true`).
+        lidar_yaw_sigmas: scan topic -> how well its mount's yaw is known, rad (the file's
+            `lidar.<topic>.yaw_sigma_rad`).
         limits: the plausible input ranges (``limits.*``, as the nodes take them).
         initial_pose: (x m, y m, yaw rad) in `map` the file sets, or None.
         landmarks_file: the map file the file sets (`landmarks_file`, the EKF node's
@@ -181,6 +187,7 @@ class PipelineParams:
     lidar_time_offsets: dict[str, float] = field(default_factory=dict)
     lidar_range_offsets: dict[str, float] = field(default_factory=dict)
     lidars_upside_down: frozenset[str] = frozenset()
+    lidar_yaw_sigmas: dict[str, float] = field(default_factory=dict)
     limits: InputLimits = field(default_factory=InputLimits)
     initial_pose: tuple[float, float, float] | None = None
     landmarks_file: str | None = None
@@ -341,13 +348,15 @@ def read_params_text(text: str, source: str = 'parameters') -> PipelineParams:
         input_limits = make_config(InputLimits, limits, source=source)
     except CoreError as err:
         raise ParamsFileError(str(err)) from None
-    mounts, time_offsets, range_offsets, upside_down = _lidar_mounts(lidar_values, source)
+    mounts, (time_offsets, range_offsets, yaw_sigmas), upside_down = _lidar_mounts(
+        lidar_values, source)
     return PipelineParams(
         ekf=built['ekf'], calibration=built['calibration'], detector=built['detector'],
         explicit={**{group: tuple(sorted(v)) for group, v in values.items()},
                   'options': tuple(sorted(options))},
         options=run_options, lidars=mounts, lidar_time_offsets=time_offsets,
         lidar_range_offsets=range_offsets, lidars_upside_down=upside_down,
+        lidar_yaw_sigmas=yaw_sigmas,
         limits=input_limits, initial_pose=_initial_pose(pose_values, source, input_limits),
         landmarks_file=landmarks_file, path_length=path_length)
 
@@ -447,16 +456,17 @@ def _initial_pose(values: dict[str, Any], source: str, limits: InputLimits
 
 
 _LIDAR_KEYS = ('frame_id', 'x_m', 'y_m', 'yaw_rad', 'time_offset_s', 'range_offset_m',
-               'upside_down')
+               'upside_down', 'yaw_sigma_rad')
 """What `lidar.<topic>.*` holds, as the EKF node declares it (nodes/params.py)."""
 
 
 def _lidar_mounts(values: dict[str, Any], source: str
-                  ) -> tuple[dict[str, tuple[str | None, LidarMount]], dict[str, float],
-                             dict[str, float], frozenset[str]]:
-    """Mounts, time and range offsets, LiDARs upside down, from the `lidar.*` names."""
+                  ) -> tuple[dict[str, tuple[str | None, LidarMount]],
+                             tuple[dict[str, float], dict[str, float], dict[str, float]],
+                             frozenset[str]]:
+    """Mounts, (time offsets, range offsets, yaw sigmas), LiDARs upside down: `lidar.*`."""
     if not values:
-        return {}, {}, {}, frozenset()
+        return {}, ({}, {}, {}), frozenset()
     topics = values.get('topics')
     if not isinstance(topics, list) or not all(isinstance(t, str) and t for t in topics):
         raise ParamsFileError(f"{source}: parameter 'lidar.topics' must be a list of scan "
@@ -481,6 +491,7 @@ def _lidar_mounts(values: dict[str, Any], source: str
     mounts: dict[str, tuple[str | None, LidarMount]] = {}
     offsets: dict[str, float] = {}
     ranges: dict[str, float] = {}
+    yaw_sigmas: dict[str, float] = {}
     flipped: set[str] = set()
     for topic in topics:
         upside_down = values.get(f'{topic}.upside_down', False)
@@ -490,7 +501,8 @@ def _lidar_mounts(values: dict[str, Any], source: str
         if upside_down:
             flipped.add(topic)
         for key, found, problem_of in (('time_offset_s', offsets, time_offset_problem),
-                                       ('range_offset_m', ranges, range_offset_problem)):
+                                       ('range_offset_m', ranges, range_offset_problem),
+                                       ('yaw_sigma_rad', yaw_sigmas, yaw_sigma_problem)):
             name = f'lidar.{topic}.{key}'
             offset = values.get(f'{topic}.{key}')
             if offset is not None:
@@ -499,7 +511,8 @@ def _lidar_mounts(values: dict[str, Any], source: str
                 if problem:
                     raise ParamsFileError(f"{source}: parameter '{name}': {problem}")
         if not any(f'{topic}.{key}' in values for key in ('x_m', 'y_m', 'yaw_rad')) and (
-                topic in offsets or topic in ranges or f'{topic}.upside_down' in values):
+                topic in offsets or topic in ranges or topic in yaw_sigmas
+                or f'{topic}.upside_down' in values):
             continue  # the offsets alone: the bag's mount stays
         numbers = []
         for key in ('x_m', 'y_m', 'yaw_rad'):
@@ -517,7 +530,7 @@ def _lidar_mounts(values: dict[str, Any], source: str
             raise ParamsFileError(f"{source}: parameter 'lidar.{topic}.frame_id' must be a "
                                   f'string, got {frame!r}')
         mounts[topic] = (frame, LidarMount(*numbers))
-    return mounts, offsets, ranges, frozenset(flipped)
+    return mounts, (offsets, ranges, yaw_sigmas), frozenset(flipped)
 
 
 def stamps_less(stamp_s: np.ndarray, offset_s: float) -> np.ndarray:
@@ -538,7 +551,7 @@ def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
     logged and skipped (the file may serve several bags).
     """
     if not (params.lidars or params.lidar_time_offsets or params.lidar_range_offsets
-            or params.lidars_upside_down):
+            or params.lidars_upside_down or params.lidar_yaw_sigmas):
         return trip
     scans = []
     for series in trip.scans:
@@ -563,12 +576,17 @@ def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
         if upside_down:
             log.info("%s: LiDAR '%s' mounted upside down (the params file's upside_down): "
                      "its poles mirrored into an upright one's frame", trip.name, series.topic)
+        yaw_sigma = params.lidar_yaw_sigmas.get(series.topic, series.yaw_sigma_rad)
+        if yaw_sigma:
+            log.info("%s: LiDAR '%s' yaw known to +-%.4f deg (the params file's "
+                     'yaw_sigma_rad)', trip.name, series.topic, math.degrees(yaw_sigma))
         scans.append(dataclasses.replace(series, mount=mount, stamp_s=stamps,
                                          frame_id=frame or series.frame_id,
                                          range_offset_m=range_offset,
-                                         upside_down=upside_down))
+                                         upside_down=upside_down, yaw_sigma_rad=yaw_sigma))
     for topic in sorted((set(params.lidars) | set(params.lidar_time_offsets)
-                         | set(params.lidar_range_offsets) | params.lidars_upside_down)
+                         | set(params.lidar_range_offsets) | params.lidars_upside_down
+                         | set(params.lidar_yaw_sigmas))
                         - {s.topic for s in trip.scans}):
         log.warning("%s: the params file sets LiDAR '%s', which has no scans in this trip; "
                     'ignored', trip.name, topic)

@@ -69,8 +69,10 @@ use may be off: the position random walk it adds), `odometry_first_lidar_offset_
 and `odometry_first_lidar_yaw_{deg,found}` of the last fit,
 `odometry_first_lidar_offset_{in_use_x_m,in_use_y_m,applied}`,
 `odometry_first_lidar_yaw_in_use_deg` and `odometry_first_lidar_turn_vouched_{deg,by}`: a
-first turn another LiDAR's confirmed stated mount vouched against), and each LiDAR's range
-and bearing noise in use, measured online (core/noise_online.py:
+first turn another LiDAR's confirmed stated mount vouched against;
+`odometry_heading_widened_deg`, how much the published heading is widened for that
+LiDAR's yaw: core/body_frame.py), and each LiDAR's range and bearing noise in use,
+measured online (core/noise_online.py:
 `lidar_<topic>_{range_noise_m,bearing_noise_deg}` in use,
 `lidar_<topic>_measured_{range_noise_m,bearing_noise_deg}`, `_noise_measured` (in use),
 `_noise_updates`), and each LiDAR's stamps against the gyro's, measured from its headings
@@ -337,6 +339,9 @@ class EkfNode(Node):
         self.driver = EventDriver(self.config, landmarks=landmarks, pose=sidecar.initial_pose)
         # Health reports name each LiDAR by its scan topic, as summary.json does.
         self.driver.sensor_names = {mount: topic for topic, (_, mount) in sidecar.lidars.items()}
+        # How well each mount's yaw is known: the body frame's widens the heading reported.
+        self.driver.mount_yaw_sigmas = {mount: sidecar.yaw_sigmas[topic] for topic, (_, mount)
+                                        in sidecar.lidars.items() if sidecar.yaw_sigmas.get(topic)}
         # Every LiDAR but the first has its mount estimated online (core/mount_online.py).
         lidars = [(mount, topic) for topic, (_, mount) in sidecar.lidars.items()]
         self.driver.track_mounts(lidar for lidar in lidars[1:] if lidar[0] != lidars[0][0])
@@ -1239,6 +1244,8 @@ def _odometry_values(report: dict) -> dict[str, str]:
             'first_lidar_yaw_deg': figure('first_lidar_yaw_deg', 3),
             'first_lidar_yaw_found': str(report['first_lidar_yaw_found']).lower(),
             'first_lidar_yaw_in_use_deg': f'{report["first_lidar_yaw_in_use_deg"]:.3f}',
+            # How much the published heading's sigma is widened for that LiDAR's yaw.
+            'heading_widened_deg': f'{report["heading_widened_deg"]:.4f}',
             # The last first turn another LiDAR vouched against: its yaw and that LiDAR.
             'first_lidar_turn_vouched_deg': '' if vouched is None
             else f'{vouched["yaw_deg"]:.3f}',

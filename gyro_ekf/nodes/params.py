@@ -33,7 +33,7 @@ from gyro_ekf.core.config import config_fields, ConfigT, make_config
 from gyro_ekf.core.config import STATED_NOISE_FIELDS as NOISE_FIELDS
 from gyro_ekf.core.time_offset import MAX_TIME_OFFSET_S
 from gyro_ekf.core.types import FloatArray, LidarMount, NoiseFigures
-from gyro_ekf.core.validation import InputReport, MAX_RANGE_OFFSET_M
+from gyro_ekf.core.validation import InputReport, MAX_RANGE_OFFSET_M, MAX_YAW_SIGMA_RAD
 from gyro_ekf.io.params_file import is_gyro_ekf_parameter
 from gyro_ekf.io.sidecar import CONVERTED_KEYS, CONVERTED_PARAMETER, converted_report
 
@@ -188,6 +188,8 @@ class SidecarParams:
             (`lidar.<topic>.range_offset_m`, 0 unless given).
         upside_down: scan topics of LiDARs mounted upside down
             (`lidar.<topic>.upside_down`).
+        yaw_sigmas: scan topic -> how well its mount's yaw is known, rad
+            (`lidar.<topic>.yaw_sigma_rad`, 0 unless given).
         noise: stated noise figures (None = not stated).
         converted: what `gyro-ekf convert --skip-bad` dropped from the log the bag was
             written from (`trip.dropped_when_converted`: source, samples_dropped per stream,
@@ -202,6 +204,7 @@ class SidecarParams:
     time_offsets: dict[str, float] = field(default_factory=dict)
     range_offsets: dict[str, float] = field(default_factory=dict)
     upside_down: frozenset[str] = frozenset()
+    yaw_sigmas: dict[str, float] = field(default_factory=dict)
 
     def topic_for_frame(self, frame_id: str) -> str | None:
         """Scan topic of the LiDAR whose frame is frame_id, or None when no LiDAR has it."""
@@ -236,7 +239,7 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
         node: the node.
         lidars: declare `lidar.topics` and
             `lidar.<topic>.{frame_id,x_m,y_m,yaw_rad,time_offset_s,range_offset_m,
-            upside_down}`.
+            upside_down,yaw_sigma_rad}`.
         noise: declare `noise.{gyro_rad_s,speed_m_s,range_m,bearing_rad}` (0 = not stated)
             and `noise.landmark_m` (negative = not stated: 0 states an exact map).
         pose: declare `initial_pose.{x_m,y_m,yaw_rad}`.
@@ -261,14 +264,16 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
     mounts: dict[str, tuple[str, LidarMount]] = {}
     offsets: dict[str, float] = {}
     ranges: dict[str, float] = {}
+    yaw_sigmas: dict[str, float] = {}
     flipped: set[str] = set()
     if lidars:
         names = declare(node, 'lidar.topics', Parameter.Type.STRING_ARRAY,
                         'Scan topics of the LiDARs; each has lidar.<topic>.frame_id, its '
                         'mount lidar.<topic>.{x_m,y_m,yaw_rad} in base_link, how late its '
                         'scans are stamped, lidar.<topic>.time_offset_s, how long its '
-                        'ranges read, lidar.<topic>.range_offset_m, and whether it is mounted '
-                        'upside down, lidar.<topic>.upside_down')
+                        'ranges read, lidar.<topic>.range_offset_m, whether it is mounted '
+                        'upside down, lidar.<topic>.upside_down, and how well its yaw is '
+                        'known, lidar.<topic>.yaw_sigma_rad')
         for topic in names:
             frame = declare(node, f'lidar.{topic}.frame_id', topic,
                             f'frame_id of the scans on {topic!r} (and of their landmarks)')
@@ -292,6 +297,12 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
                        'poles are mirrored into an upright LiDAR\'s frame; the verdict says '
                        'when it turns the other way from the gyro)'):
                 flipped.add(topic)
+            yaw_sigmas[topic] = float(declare(
+                node, f'lidar.{topic}.yaw_sigma_rad', 0.0,
+                f'How well the yaw of {topic!r} is known (1 sigma; 0 = exact, as stated). '
+                'While it defines the body frame (the first LiDAR) the reported heading '
+                'is widened by it; calibrate-mounts writes it for a yaw it fitted against '
+                'the odometry', 'rad', 0.0, MAX_YAW_SIGMA_RAD))
     figures = NoiseFigures()
     if noise:
         stated = {}
@@ -310,7 +321,8 @@ def declare_sidecar(node: Node, lidars: bool = True, noise: bool = True,
             stated[key] = value if value > 0.0 else None
         figures = NoiseFigures(**stated)
     return SidecarParams(int(zero_ns), np.array(initial, dtype=np.float64), mounts, figures,
-                         _declare_converted(node), offsets, ranges, frozenset(flipped))
+                         _declare_converted(node), offsets, ranges, frozenset(flipped),
+                         yaw_sigmas)
 
 
 CONVERTED_DESCRIPTIONS = {

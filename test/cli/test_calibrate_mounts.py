@@ -188,6 +188,43 @@ def test_a_lone_lidar_off_its_mount_gets_the_mount_the_odometry_shows_written(
     assert after['ground_truth']['position_rmse_m'] <= 0.02
 
 
+def test_a_first_lidar_yaw_fitted_against_the_odometry_is_written_with_its_sigma(
+        tmp_path, capsys):
+    # No static start, both LiDARs off: the first one's yaw comes from the odometry's path
+    # fits alone (written 1.974 deg for 2), and the second one's is fitted along its path.
+    # Both are then off alike and agree with the map; the heading held 0.03 deg off with a
+    # sigma of 0.012 (NEES share 0.69, verdict ok) until the file said how well that yaw
+    # is known.
+    bag = _simulate(tmp_path, 6, '--static-s', '0', '--second-lidar', '--lidar-yaw-error-deg',
+                    '2', '--lidar2-yaw-error-deg', '-4', duration_s=60)
+    params = tmp_path / 'p.yaml'
+    capsys.readouterr()
+    assert main(['-q', 'calibrate-mounts', str(bag), '-o', str(params)]) == 0
+    row = _row(capsys.readouterr().out, 'scan')
+    assert row[2] == '+-' and ' '.join(row[-4:]) == 'moved against the odometry'
+    lidar = yaml.safe_load(params.read_text())['/**']['ros__parameters']['lidar']
+    sigma = lidar['scan']['yaw_sigma_rad']
+    assert float(row[3]) == pytest.approx(math.degrees(sigma), abs=0.001)
+    # Within 3 sigmas of the truth, and no wider than the search's steps.
+    assert abs(math.degrees(lidar['scan']['yaw_rad']) - 2.0) <= 3.0 * math.degrees(sigma)
+    assert 0.0 < math.degrees(sigma) < 0.2
+    after = _run(bag, tmp_path / 'after', '--params-file', str(params))
+    assert after['mounts']['scan']['used']['yaw_sigma_deg'] == pytest.approx(
+        math.degrees(sigma))
+    assert after['online_odometry']['heading_widened_deg'] >= math.degrees(sigma) - 1e-9
+    truth = after['ground_truth']
+    assert truth['nees_share_in_band'] >= 0.9
+    assert truth['position_rmse_m'] <= 0.02
+    # The same mounts taken as exact: the covariance claims a heading the mounts do not give.
+    del lidar['scan']['yaw_sigma_rad']
+    exact = tmp_path / 'exact.yaml'
+    exact.write_text(yaml.safe_dump({'/**': {'ros__parameters': {'lidar': lidar}}}))
+    taken = _run(bag, tmp_path / 'exact', '--params-file', str(exact))
+    assert taken['ground_truth']['nees_share_in_band'] < 0.9
+    assert taken['ground_truth']['heading_rmse_deg'] == pytest.approx(
+        truth['heading_rmse_deg'])
+
+
 def test_a_bag_without_a_map_gets_one_line(tmp_path, capsys):
     trip = simulate_trip(SimulationConfig(duration_s=10.0, second_lidar=True), seed=34)
     no_map = write_trip_bag(dataclasses.replace(trip, landmarks=LandmarkMap(

@@ -10,8 +10,8 @@ import pytest
 from gyro_ekf.analysis.offline import effective_config, run_trip
 from gyro_ekf.analysis.stress import stress_trip
 from gyro_ekf.analysis.summary import summarize
-from gyro_ekf.core.body_frame import (disagreement_spread, mixture_shift, other_right_share,
-                                      shift_estimates)
+from gyro_ekf.core.body_frame import (disagreement_spread, heading_spread, mixture_shift,
+                                      other_right_share, shift_estimates, with_heading)
 from gyro_ekf.core.events import EventDriver
 from gyro_ekf.core.trip_run import drive_trip
 from gyro_ekf.core.types import LidarMount
@@ -194,7 +194,34 @@ def test_a_lidar_handed_over_and_read_off_leaves_the_covariance_as_it_is():
     assert tracker.handed_over_s is not None and tracker.used == tracker.stated
     assert tracker.watched_read_off_m is not None
     assert tracker.noise_scale == 9.0
-    assert (tracker.widened_m, driver.frame_shift) == (None, None)
+    # The position as it is (the heading may be widened by the body frame's yaw: below).
+    assert tracker.widened_m is None
+    assert driver.frame_shift is None or driver.frame_shift[:5] == (0.0,) * 5
+
+
+@pytest.mark.parametrize('yaw, sigma, expected', [
+    (0.0, 0.001, 0.0), (0.0005, 0.001, 0.0), (0.0015, 0.001, 0.0), (-0.002, 0.001, 0.0),
+    (-0.003, 0.001, 8e-6), (0.002, 0.0, 4e-6)])
+def test_a_body_frame_yaw_read_off_adds_what_it_reads_beyond_its_noise(yaw, sigma, expected):
+    # E[e^2] = delta^2 + sigma^2; a fit within 2 sigmas adds nothing.
+    assert heading_spread(yaw, sigma) == pytest.approx(expected, abs=1e-18)
+
+
+def test_the_heading_widening_adds_to_the_heading_alone_and_to_any_mixture():
+    rng = np.random.default_rng(6)
+    states = rng.normal(size=(3, 4))
+    A = 0.01 * rng.normal(size=(3, 4, 4))
+    covariances = A @ np.transpose(A, (0, 2, 1))
+    before_states, before_cov = states.copy(), covariances.copy()
+    assert with_heading(None, 0.0) is None
+    shift_estimates(states, covariances, with_heading(None, 4e-6))
+    np.testing.assert_array_equal(states, before_states)
+    added = covariances - before_cov
+    np.testing.assert_allclose(added[:, 2, 2], 4e-6, rtol=1e-12)
+    added[:, 2, 2] = 0.0
+    np.testing.assert_array_equal(added, 0.0)
+    mixed = with_heading(mixture_shift(D, 0.5), 4e-6)
+    assert mixed[:5] == mixture_shift(D, 0.5)[:5] and mixed[5] == 4e-6
 
 
 def _driver(trip):

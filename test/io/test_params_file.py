@@ -197,8 +197,8 @@ def test_a_lidar_name_run_does_not_read_is_warned_about(caplog):
         '      scan2: {x_m: -0.4, y_m: 0.0, yaw_rad: 3.1}\n', 'p.yaml')
     assert [r.getMessage() for r in caplog.records if r.levelname == 'WARNING'] == [
         "p.yaml: 'lidar.scan.yaw_deg' is not a parameter (a LiDAR's are frame_id, x_m, y_m, "
-        "yaw_rad, time_offset_s, range_offset_m, upside_down: did you mean 'yaw_rad'?); "
-        "ignored",
+        "yaw_rad, time_offset_s, range_offset_m, upside_down, yaw_sigma_rad: did you mean "
+        "'yaw_rad'?); ignored",
         "p.yaml: lidar.scan2.x_m, lidar.scan2.y_m, lidar.scan2.yaw_rad: 'scan2' is not one of "
         "lidar.topics ['scan']; ignored"]
     assert list(params.lidars) == ['scan']
@@ -339,6 +339,32 @@ def test_a_lidar_range_offset_is_read_checked_and_moves_its_poles():
     # 2.9 cm when 3 cm long, and as the exact trip's with the offset given.
     assert np.median(off) > np.median(exact) + 0.01
     assert np.median(corrected) == pytest.approx(np.median(exact), abs=0.001)
+
+
+def test_a_lidar_yaw_sigma_is_read_checked_and_widens_the_heading_reported():
+    from gyro_ekf.analysis.offline import run_trip
+    from gyro_ekf.core.simulator import SimulationConfig, simulate_trip
+    from gyro_ekf.io.params_file import with_lidar_mounts
+
+    head = '/**:\n  ros__parameters:\n    lidar:\n      topics: [scan]\n'
+    params = read_params_text(head + '      scan: {yaw_sigma_rad: 0.001}\n')
+    assert params.lidar_yaw_sigmas == {'scan': 0.001} and not params.lidars
+    with pytest.raises(ParamsFileError, match=r"'lidar.scan.yaw_sigma_rad': -0.001 rad is "
+                                              r'negative \(a sigma\)'):
+        read_params_text(head + '      scan: {yaw_sigma_rad: -0.001}\n')
+    with pytest.raises(ParamsFileError, match=r"'lidar.scan.yaw_sigma_rad': \|1\| rad exceeds"):
+        read_params_text(head + '      scan: {yaw_sigma_rad: 1.0}\n')
+    trip = simulate_trip(SimulationConfig(duration_s=20.0), 0)
+    given = with_lidar_mounts(trip, params)
+    assert given.scans[0].yaw_sigma_rad == 0.001 and trip.scans[0].yaw_sigma_rad == 0.0
+    # The first LiDAR defines the body frame: the heading is known no better than its yaw.
+    plain, widened = (run_trip(t).result for t in (trip, given))
+    np.testing.assert_array_equal(widened.estimates.state, plain.estimates.state)
+    last = widened.estimates.covariance[-1] - plain.estimates.covariance[-1]
+    assert last[2, 2] >= 0.001 ** 2 - 1e-15
+    last[2, 2] = 0.0
+    np.testing.assert_array_equal(last, 0.0)
+    assert widened.odometry.report()['heading_widened_deg'] >= math.degrees(0.001) - 1e-12
 
 
 def test_a_lidar_time_offset_takes_each_scan_at_its_stamp_less_it():

@@ -5,7 +5,9 @@ test_ekf_node_time_offset.py, whose ranges read 3 cm long, and whose LiDAR is mo
 upside down (its beams in reverse order); here the EKF node is given what a verdict
 measures, and `gyro-ekf run` the same in a params file. Both take each scan 30 ms before
 its stamp, its poles 3 cm nearer (`range_offset_m`) and mirrored into an upright LiDAR's
-frame (`upside_down`), measure what is left near zero and say nothing of it.
+frame (`upside_down`), measure what is left near zero and say nothing of it. Its yaw is
+given a sigma (`yaw_sigma_rad`, small beside the heading's own): both widen the heading
+they report by it alike.
 
 In its own module, so its processes run in their own ROS domain next to nobody else's.
 """
@@ -13,6 +15,7 @@ In its own module, so its processes run in their own ROS domain next to nobody e
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -23,6 +26,7 @@ pytestmark = pytest.mark.ros
 
 OFFSET_S = 0.03
 RANGE_OFFSET_M = 0.03
+YAW_SIGMA_RAD = 0.0001
 
 
 @pytest.fixture(scope='module')
@@ -43,11 +47,13 @@ def corrected_run(ros_processes, tmp_path_factory):
     params = folder / 'offset.yaml'
     params.write_text('/**:\n  ros__parameters:\n    lidar:\n      topics: [scan]\n'
                       f'      scan: {{time_offset_s: {OFFSET_S}, '
-                      f'range_offset_m: {RANGE_OFFSET_M}, upside_down: true}}\n')
+                      f'range_offset_m: {RANGE_OFFSET_M}, upside_down: true, '
+                      f'yaw_sigma_rad: {YAW_SIGMA_RAD}}}\n')
     return run_and_replay(ros_processes, late, folder,
                           ekf_args=('-p', f'lidar.scan.time_offset_s:={OFFSET_S}',
                                     '-p', f'lidar.scan.range_offset_m:={RANGE_OFFSET_M}',
-                                    '-p', 'lidar.scan.upside_down:=true'),
+                                    '-p', 'lidar.scan.upside_down:=true',
+                                    '-p', f'lidar.scan.yaw_sigma_rad:={YAW_SIGMA_RAD}'),
                           run_args=('--params-file', str(params)))
 
 
@@ -68,3 +74,7 @@ def test_node_takes_the_scans_less_the_offset_as_the_offline_run_does(corrected_
     # The ranges too: the range innovations' mean as near zero as an exact LiDAR's.
     whiteness = offline['health']['lidars'][0]['whiteness']
     assert abs(whiteness['range_mean_m']) < 0.003, whiteness
+    # The heading widened by the yaw's sigma (or more, by what the path fit reads), alike.
+    widened = offline['online_odometry']['heading_widened_deg']
+    assert widened >= math.degrees(YAW_SIGMA_RAD) - 1e-12
+    assert values['odometry_heading_widened_deg'] == f'{widened:.4f}'
