@@ -144,25 +144,30 @@ class CalibrationNode(Node):
                                      qos.sensor_input(lossless), raw=True)
         else:
             self.create_subscription(Imu, topics.IMU, self._on_imu, qos.sensor_input(lossless))
-        for name in pole_topics:
-            self.create_subscription(PoseArray, name,
-                                     lambda message, name=name: self._on_poles(message, name),
-                                     qos.sensor_input(lossless))
+        self._pole_topics = list(pole_topics)
+        self._pole_subs: list = []
         self._use_odom = use_odom
-        self._odom_qos = qos.sensor_input(lossless)
+        self._witness_qos = qos.sensor_input(lossless)
         self._odom_sub = None
-        self._subscribe_odom()
+        self._subscribe_witnesses()
         self.create_service(Trigger, '~/recalibrate', self._on_recalibrate)
         self.create_timer(period, self._publish_diagnostics)
         self.get_logger().info(
             f'collecting a {self.config.window_length_s:g} s static window from '
             f'{self.resolve_topic_name(topics.IMU)}')
 
-    def _subscribe_odom(self) -> None:
+    def _subscribe_witnesses(self) -> None:
+        """Subscribe to the window's witnesses: the poles, and the speed if used."""
+        if not self._pole_subs:
+            self._pole_subs = [
+                self.create_subscription(PoseArray, name,
+                                         lambda message, name=name: self._on_poles(message, name),
+                                         self._witness_qos)
+                for name in self._pole_topics]
         if self._use_odom and self._odom_sub is None:
             self._odom_sub = self.create_subscription(
                 Odometry, topics.ODOM,
-                self._on_odom_bytes if self._serialized else self._on_odom, self._odom_qos,
+                self._on_odom_bytes if self._serialized else self._on_odom, self._witness_qos,
                 raw=self._serialized)
 
     def _usable(self, ns: int, problem: str | None) -> bool:
@@ -323,6 +328,10 @@ class CalibrationNode(Node):
             # Speed only matters while collecting; stop paying for its callbacks.
             self.destroy_subscription(self._odom_sub)
             self._odom_sub = None
+        for subscription in self._pole_subs:
+            # Nor do the poles (a LiDAR's scans come 10-40 times a second).
+            self.destroy_subscription(subscription)
+        self._pole_subs = []
         stamp, frame_id, _ = message
         self._bias_pub.publish(bias_message(to_stamp(stamp_ns(stamp)), frame_id,
                                             result.bias_rad_s))
@@ -353,7 +362,7 @@ class CalibrationNode(Node):
         self._window_from_s = None
         self._gate.clear()
         self._same_stamp.clear()
-        self._subscribe_odom()
+        self._subscribe_witnesses()
         self.get_logger().info(f'{why}: collecting a new static window')
 
     def _publish_diagnostics(self) -> None:

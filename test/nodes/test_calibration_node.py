@@ -203,3 +203,6 @@ def test_a_turn_in_place_the_poles_show_is_refused_then_a_still_window_accepted(
         imu.publish(_imu(start + i * step, 0.01))
     probe.spin_until(lambda: bias, 120, 'gyro_bias after a still window')
     assert bias[0].vector.z == pytest.approx(0.01, abs=1e-9)
+    # Calibrated, the node no longer takes the poles (nor pays for their messages).
+    probe.spin_until(lambda: poles.get_subscription_count() == 0, 120,
+                     'the pole subscription to go once calibrated')
