@@ -81,7 +81,7 @@ def predict(s: list[float], p: list[float], speed_m_s: float, rate_rad_s: float,
 def innovation_terms(s: list[float], p: list[float], landmark_x_m: float,
                      landmark_y_m: float, mount: LidarMount, range_var: float,
                      cross_var: float, bearing_var: float, landmark_var_m2: float,
-                     noise_scale: float) -> tuple:
+                     noise_scale: float, full: bool = True) -> tuple:
     """Compute h, H, R, P H^T and S of one landmark (what an update and the gate share).
 
     As ``models.observe_with_jacobian``, ``models.observation_noise`` (R = the sensor's
@@ -91,7 +91,9 @@ def innovation_terms(s: list[float], p: list[float], landmark_x_m: float,
     Returns:
         (range, bearing (not wrapped)), H's range row and bearing row over (x, y, yaw)
         (its bias and wander columns are zero), P H^T's range and bearing columns, (R00,
-        R11) and S as (s00, s01, s11).
+        R11) and S as (s00, s01, s11). Not ``full`` (the gate's): (range, bearing) and S
+        alone, the same numbers; P H^T's bias and wander rows are left out (the gate tries
+        every landmark on every scan, and S does not need them).
 
     Raises:
         ZeroDivisionError: the landmark is at the sensor (no bearing).
@@ -119,19 +121,21 @@ def innovation_terms(s: list[float], p: list[float], landmark_x_m: float,
     a_x = p_x_x * hr_x + p_x_y * hr_y + p_x_yaw * hr_yaw
     a_y = p_x_y * hr_x + p_y_y * hr_y + p_y_yaw * hr_yaw
     a_yaw = p_x_yaw * hr_x + p_y_yaw * hr_y + p_yaw_yaw * hr_yaw
-    a_b = p_x_b * hr_x + p_y_b * hr_y + p_yaw_b * hr_yaw
-    a_c = p_x_c * hr_x + p_y_c * hr_y + p_yaw_c * hr_yaw
     b_x = p_x_x * hb_x + p_x_y * hb_y + p_x_yaw * hb_yaw
     b_y = p_x_y * hb_x + p_y_y * hb_y + p_y_yaw * hb_yaw
     b_yaw = p_x_yaw * hb_x + p_y_yaw * hb_y + p_yaw_yaw * hb_yaw
+    h = (r, math.atan2(dy, dx) - yaw - mount.yaw_rad)
+    S = (hr_x * a_x + hr_y * a_y + hr_yaw * a_yaw + rr,
+         hr_x * b_x + hr_y * b_y + hr_yaw * b_yaw + cross_var * noise_scale,
+         hb_x * b_x + hb_y * b_y + hb_yaw * b_yaw + rb)
+    if not full:
+        return h, S
+    a_b = p_x_b * hr_x + p_y_b * hr_y + p_yaw_b * hr_yaw
+    a_c = p_x_c * hr_x + p_y_c * hr_y + p_yaw_c * hr_yaw
     b_b = p_x_b * hb_x + p_y_b * hb_y + p_yaw_b * hb_yaw
     b_c = p_x_c * hb_x + p_y_c * hb_y + p_yaw_c * hb_yaw
-    return ((r, math.atan2(dy, dx) - yaw - mount.yaw_rad),
-            (hr_x, hr_y, hr_yaw, hb_x, hb_y, hb_yaw),
-            (a_x, a_y, a_yaw, a_b, a_c, b_x, b_y, b_yaw, b_b, b_c), (rr, rb),
-            (hr_x * a_x + hr_y * a_y + hr_yaw * a_yaw + rr,
-             hr_x * b_x + hr_y * b_y + hr_yaw * b_yaw + cross_var * noise_scale,
-             hb_x * b_x + hb_y * b_y + hb_yaw * b_yaw + rb))
+    return (h, (hr_x, hr_y, hr_yaw, hb_x, hb_y, hb_yaw),
+            (a_x, a_y, a_yaw, a_b, a_c, b_x, b_y, b_yaw, b_b, b_c), (rr, rb), S)
 
 
 def inverse(s00: float, s01: float, s11: float) -> tuple[float, float, float]:

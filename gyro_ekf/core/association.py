@@ -296,8 +296,9 @@ def _mahalanobis_rows(z: list[list[float]], packed_row: list[float], R: FloatArr
     at_sensor = False
     for lx, ly in landmarks:
         try:
-            (range_m, bearing), _, _, _, (s00, s01, s11) = kernel.innovation_terms(
-                pose, p, lx, ly, mount, r_range, r_cross, r_bearing, landmark_var_m2, 1.0)
+            (range_m, bearing), (s00, s01, s11) = kernel.innovation_terms(
+                pose, p, lx, ly, mount, r_range, r_cross, r_bearing, landmark_var_m2, 1.0,
+                full=False)
         except ZeroDivisionError:
             # A landmark at the sensor has no bearing: nothing can match it (NaN, then inf).
             at_sensor = True

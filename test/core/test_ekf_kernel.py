@@ -91,6 +91,10 @@ def test_h_H_R_and_S_equal_the_textbook(mount):
         (r, bearing), rows, pht, (rr, rb), (s00, s01, s11) = kernel.innovation_terms(
             s, _packed(P), *landmark, mount, sensor[0, 0], sensor[0, 1], sensor[1, 1],
             map_var, scale)
+        # The gate's short form: the same h and S, to the bit.
+        assert kernel.innovation_terms(
+            s, _packed(P), *landmark, mount, sensor[0, 0], sensor[0, 1], sensor[1, 1],
+            map_var, scale, full=False) == ((r, bearing), (s00, s01, s11))
         h, H = models.observe_with_jacobian(np.array(s), landmark, mount)
         _equal(r, h[0])
         _equal_angle(bearing, h[1])
