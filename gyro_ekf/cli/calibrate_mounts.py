@@ -301,10 +301,15 @@ def _yaw_sigma(odometry: object, series: object, taken: bool = True) -> float:
     """Return how well the yaw a run of the first LiDAR alone ends on is known, rad.
 
     The odometry's path fits (core/odometry_online.py) are all that place it. The run's
-    last clean fit of its mount in use reads it ``e`` off with sigma ``s`` (the fit's and
-    the heading's): ``hypot(e, s)``, its sigma when the two agree and their disagreement
-    when not (as the scale's sigma is taken, ``OdometryTracker.walk_density``). With no
-    such fit, the sigma of the run's last turn, or of the yaw it started on (``series``).
+    last clean fit of its mount in use reads it ``e`` off with sigma ``s``: ``hypot(e,
+    s)``, its sigma when the two agree and their disagreement when not (as the scale's
+    sigma is taken, ``OdometryTracker.walk_density``). ``s`` is the fit's own: the
+    filter's heading error over the window is in ``e`` already, and with it in ``s`` too
+    (``OdometryFit.yaw_sigma_with_heading``) the written yaws of 71 simulated trips lay
+    within 1.1 sigmas of the truth, 90 % within one: too wide, and a trip whose yaw came
+    out right had its NEES share fall below the band (0.883 and 0.895 on two of them; 0.907
+    and 0.916 with the fit's own, errors of 0.4-1.6 of it on 7 trips). With no such fit,
+    the sigma of the run's last turn, or of the yaw it started on (``series``).
     A turn the run made that is not ``taken`` into the yaw written leaves it that much
     further off. Written with the yaw (``lidar.<topic>.yaw_sigma_rad``): the heading a run
     reports is known no better (a 2-deg mount of a trip with no static start, written
@@ -316,7 +321,7 @@ def _yaw_sigma(odometry: object, series: object, taken: bool = True) -> float:
     turn = 0.0 if taken else odometry.yaw_rad
     fit = odometry.window_fit()
     if fit is not None:
-        return math.hypot(turn + fit.yaw_rad, fit.yaw_sigma_with_heading)
+        return math.hypot(turn + fit.yaw_rad, fit.yaw_sigma_rad)
     sigma = odometry.yaw_sigma_rad if odometry.yaw_rad else series.yaw_sigma_rad
     return math.hypot(turn, sigma)
 

@@ -651,8 +651,9 @@ class OdometryTracker:
         self.offset_m = (self.offset_m[0] + dx, self.offset_m[1] + dy)
         self.yaw_rad += dyaw
         if turned:
-            # The heading's own error is in e as well, for the mount it turned.
-            self.yaw_sigma_rad = self.fit.yaw_sigma_with_heading
+            # How well the turn placed the mount: the fit's own sigma, as P gets it (the
+            # heading's own error is in P already).
+            self.yaw_sigma_rad = self.fit.yaw_sigma_rad
         self.offset_applied += 1
         self._window_start_s = stamp_s
         return (dx, dy, max(self.fit.offset_sigma_m) if offset else 0.0, dyaw,

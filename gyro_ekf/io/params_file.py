@@ -505,6 +505,10 @@ def _lidar_mounts(values: dict[str, Any], source: str
                                        ('yaw_sigma_rad', yaw_sigmas, yaw_sigma_problem)):
             name = f'lidar.{topic}.{key}'
             offset = values.get(f'{topic}.{key}')
+            if offset is None and f'{topic}.{key}' in values:
+                # YAML's null (or an empty value): not 0, and never dropped in silence.
+                raise ParamsFileError(f"{source}: parameter '{name}' must be a number, got "
+                                      'null')
             if offset is not None:
                 found[topic] = _number(source, name, offset)
                 problem = problem_of(found[topic])
@@ -579,7 +583,10 @@ def with_lidar_mounts(trip: Trip, params: PipelineParams) -> Trip:
         yaw_sigma = params.lidar_yaw_sigmas.get(series.topic, series.yaw_sigma_rad)
         if yaw_sigma:
             log.info("%s: LiDAR '%s' yaw known to +-%.4f deg (the params file's "
-                     'yaw_sigma_rad)', trip.name, series.topic, math.degrees(yaw_sigma))
+                     'yaw_sigma_rad): %s', trip.name, series.topic, math.degrees(yaw_sigma),
+                     'the heading reported is known no better' if series is trip.scans[0]
+                     else 'it widens the heading only if this LiDAR comes to define the '
+                     'body frame (the first one does)')
         scans.append(dataclasses.replace(series, mount=mount, stamp_s=stamps,
                                          frame_id=frame or series.frame_id,
                                          range_offset_m=range_offset,

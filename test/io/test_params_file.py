@@ -354,6 +354,11 @@ def test_a_lidar_yaw_sigma_is_read_checked_and_widens_the_heading_reported():
         read_params_text(head + '      scan: {yaw_sigma_rad: -0.001}\n')
     with pytest.raises(ParamsFileError, match=r"'lidar.scan.yaw_sigma_rad': \|1\| rad exceeds"):
         read_params_text(head + '      scan: {yaw_sigma_rad: 1.0}\n')
+    # A null is neither 0 nor left out in silence (nor is an offset's).
+    for key in ('yaw_sigma_rad', 'time_offset_s', 'range_offset_m'):
+        with pytest.raises(ParamsFileError, match=rf"'lidar.scan.{key}' must be a number, "
+                                                  'got null'):
+            read_params_text(head + f'      scan: {{{key}: null}}\n')
     trip = simulate_trip(SimulationConfig(duration_s=20.0), 0)
     given = with_lidar_mounts(trip, params)
     assert given.scans[0].yaw_sigma_rad == 0.001 and trip.scans[0].yaw_sigma_rad == 0.0
