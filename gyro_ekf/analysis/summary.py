@@ -222,6 +222,8 @@ def summarize(run: OfflineRun, input_report: InputReport | None = None) -> dict[
     summary['map_poles_elsewhere'] = run.result.map_poles or []
     # Whether each LiDAR's scans turn the way the gyro does (core/turn_sign.py).
     summary['turn_signs'] = {lidar['name']: lidar for lidar in run.result.turn_signs or ()}
+    # Stops the odometry called still while a LiDAR's poles turned (core/rest_turn.py).
+    summary['rest_turns'] = run.result.rest_turns or []
     summary['ground_truth'] = None
     if trip.ground_truth is not None:
         summary['ground_truth'] = _truth_summary(run, last_half)
@@ -289,6 +291,7 @@ def _health(run: OfflineRun, summary: dict[str, Any], start: float, end: float
         stamp_jitter=run.result.stamp_jitter or [],
         map_poles=run.result.map_poles or [],
         turn_signs=run.result.turn_signs or [],
+        rest_turns=run.result.rest_turns or [],
         final_bias_sigma_rad_s=summary['online_bias']['final_sigma_rad_s'],
         start_bias=stats.first_stop)
     return {**health.verdict(figures), 'lidars': sensors,

@@ -53,6 +53,7 @@ from gyro_ekf.core.gyro_scale import GyroScaleWatch
 from gyro_ekf.core.gyro_wander import GyroWander, block_allowed
 from gyro_ekf.core.input_loss import InputLoss
 from gyro_ekf.core.input_frozen import FrozenWatch
+from gyro_ekf.core.rest_turn import RestTurnWatch
 from gyro_ekf.core.input_spikes import SpikeGate
 from gyro_ekf.core.map_poles import MapPoleWatch
 from gyro_ekf.core.turn_sign import TurnSignCheck
@@ -211,10 +212,13 @@ class EventDriver:
         # Detections matched and left beside their poles, over the recovery delay: a
         # filter its own gate starves is re-associated by distance (core/gate_starved.py).
         self._gate = GateStarvation(self.config.recovery_after_s)
+        # What the LiDARs saw of each stop with zero-rate updates (core/rest_turn.py).
+        self.rest_turns = RestTurnWatch()
         self._end_stop()
 
     def _end_stop(self) -> None:
-        """Forget the stop (moving, or not known to stand still)."""
+        """Forget the stop (moving, or not known to stand still), once its scans are judged."""
+        self.rest_turns.close(self.stamp_s)
         # Stamp of the speed sample the stop began with, and the running mean and sum of
         # squared deviations (Welford) of the stop's gyro samples.
         self._stop_since_s: float | None = None
@@ -278,6 +282,7 @@ class EventDriver:
         self._first_scan_s = None
         self._gate.clear()
         self._rest_updates = {}
+        self.rest_turns = RestTurnWatch()
         self._end_stop()
 
     def _new_spike_gates(self) -> None:
@@ -333,7 +338,8 @@ class EventDriver:
                 self.speed_variance, self.rate_variance, self._first_scan_s,
                 dict(self._rest_updates), self.health.save(),
                 (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2,
-                 self._stop_blocks.copy(), self.zero_rate, self.held_start.copy()),
+                 self._stop_blocks.copy(), self.zero_rate, self.held_start.copy(),
+                 self.rest_turns.save()),
                 self.mounts.save(),
                 (self.bias_watch.copy(), self.bias_rate.copy(),
                  (self._block_bias, self._block_bias_variance),
@@ -402,7 +408,8 @@ class EventDriver:
         self.ekf.odometry_walk = self.odometry.walk_density(self.speed_m_s)
         self.mounts.restore(mounts)
         (self._stop_since_s, self._stop_n, self._stop_mean, self._stop_m2, stop_blocks,
-         self.zero_rate, held_start) = stop
+         self.zero_rate, held_start, rest_turns) = stop
+        self.rest_turns.restore(rest_turns)
         self._stop_blocks = stop_blocks.copy()
         self.held_start = held_start.copy()
         self._rest_updates = dict(rest_updates)
@@ -883,6 +890,9 @@ class EventDriver:
             self.turn_signs.scan(key, sensor, stamp_s, points, mount, self._turned,
                                  self.stats.first_stop_bias_rad_s or 0.0,
                                  self._measured_speed_m_s)
+        if self.zero_rate and detected:
+            # The gyro's rate taken for bias: what the poles say of a turn (rest_turn.py).
+            self.rest_turns.add(sensor, stamp_s, points, mount)
         if not self._landmark_xy or not detected:  # no map, an empty one, or no poles
             return ObservationReport(stamp_s, points, prior, mount, None, _NO_NIS)
         # Plain floats from here: a scan has a handful of poles, and numpy's per-call cost
@@ -1107,6 +1117,13 @@ class EventDriver:
         """Return each LiDAR's time offset figures (``TimeOffsetWatch.report``) with its name."""
         return [{'name': self.health.sensor(key).name, **watch.report()}
                 for key, watch in self.time_offsets.items()]
+
+    def rest_turn_report(self) -> list[dict]:
+        """Return the stops whose poles turned while zero-rate updates held them still.
+
+        Those ended and the one under way (core/rest_turn.py).
+        """
+        return self.rest_turns.report(self.stamp_s)
 
     def turn_sign_report(self) -> list[dict]:
         """Return per LiDAR what the gyro and odometry read against it (core/turn_sign.py)."""

@@ -731,6 +731,8 @@ class RunFigures:
         turn_signs: per LiDAR, what the gyro reads per radian its scans turn and the
             odometry per metre they show the platform went (EventDriver.turn_sign_report(),
             core/turn_sign.py).
+        rest_turns: the stops the odometry called still while a LiDAR's poles turned
+            (EventDriver.rest_turn_report(), core/rest_turn.py).
         start_bias: (end s, bias rad/s, sigma rad/s) of the first stop's zero-rate updates
             (DriverStats.first_stop_*), or None (no stop learnt the bias).
         scans: LiDAR scans processed.
@@ -786,6 +788,7 @@ class RunFigures:
     stamp_jitter: list[dict[str, Any]] = field(default_factory=list)
     map_poles: list[dict[str, Any]] = field(default_factory=list)
     turn_signs: list[dict[str, Any]] = field(default_factory=list)
+    rest_turns: list[dict[str, Any]] = field(default_factory=list)
 
 
 VERDICT_UPRIGHT_ASSOCIATION_SHARE = 0.5
@@ -1020,6 +1023,13 @@ def verdict(figures: RunFigures) -> dict[str, Any]:
     reasons.extend(_gross_scale_reasons(figures))
     reasons.extend(_turn_sign_reasons(figures))
     reasons.extend(_frozen_reasons(figures.gyro_frozen))
+    for turn in figures.rest_turns:
+        # The cause of what follows it (a bias off, innovations not white): said first.
+        add(DEGRADED, f'the platform turned in place at {turn["rate_deg_s"]:+.3f} deg/s '
+            f'(+-{turn["sigma_deg_s"]:.3f}) from {turn["start_s"]:.1f} to {turn["end_s"]:.1f} '
+            f's while the odometry read it still: LiDAR {turn["lidar"]}\'s {turn["poles"]} '
+            f'poles turned about it, and the filter took that turn for gyro bias there (its '
+            f'zero-rate updates at a stop)')
     if figures.detections and figures.updates == 0:
         add(FAILED, f'no landmark update in {figures.start_gap_s:.1f} s although '
             f'{figures.detections} poles were detected')

@@ -237,6 +237,8 @@ class TripRun:
             (FrozenWatch.report, core/input_frozen.py).
         scan_loss: per LiDAR (its name), the scans received and those its stamps imply
             were lost (InputLoss.report).
+        rest_turns: the stops whose poles turned while zero-rate updates held them still
+            (EventDriver.rest_turn_report, core/rest_turn.py).
     """
 
     estimates: Estimates
@@ -256,6 +258,7 @@ class TripRun:
     turn_signs: list[dict] | None = None
     gyro_frozen: dict | None = None
     scan_loss: dict | None = None
+    rest_turns: list[dict] | None = None
 
 
 def _variances(values: FloatArray | None, n: int) -> list[float | None]:
@@ -415,4 +418,5 @@ def drive_trip(trip: Trip, driver: EventDriver,
                    {name: gate.report() for name, gate in driver.input_spikes.items()},
                    driver.stamp_jitter_report(), driver.map_poles_report(),
                    driver.turn_sign_report(), driver.gyro_frozen.report(),
-                   {name: loss.report() for name, loss in driver.scan_loss.items()})
+                   {name: loss.report() for name, loss in driver.scan_loss.items()},
+                   driver.rest_turn_report())

@@ -947,6 +947,7 @@ class EkfNode(Node):
             stamp_jitter=self.driver.stamp_jitter_report(),
             map_poles=self.driver.map_poles_report(),
             turn_signs=self.driver.turn_sign_report(),
+            rest_turns=self.driver.rest_turn_report(),
             input_loss=inputs,
             scan_loss={name: loss.report() for name, loss in self.driver.scan_loss.items()},
             input_spikes={name: gate.report()
