@@ -904,8 +904,12 @@ def verdict_reasons(mounts: list[dict[str, Any]], others: list[str],
             continue
         # Moved, whatever its size now: a mount moved beyond the limits and refined back
         # under them (4.3 mm off its stated mount) still says the LiDARs disagreed.
+        # The moves said too: a mount moved twice may end inside the limits (a helper read
+        # "off ... by x +0.0 cm, y +0.0 cm, yaw +0.00 deg" as a contradiction).
+        moves = report.get('applied', 0)
         text = (f'LiDAR {report["name"]} mount estimated online is off its stated mount by '
-                f'x {100.0 * dx:+.1f} cm, y {100.0 * dy:+.1f} cm, yaw {dyaw:+.2f} deg (limits '
+                f'x {100.0 * dx:+.1f} cm, y {100.0 * dy:+.1f} cm, yaw {dyaw:+.2f} deg at the '
+                f'end, after {moves} move(s) during the run (limits '
                 f'{100.0 * settings.min_offset_change_m:g} cm, '
                 f'{math.degrees(settings.min_yaw_correction_rad):g} deg): either '
                 f'{report["name"]} or {first} ')
