@@ -733,11 +733,11 @@ class EventDriver:
         ``_on_detections``.
         """
         report = self._on_detections(stamp_s, points_sensor_m, mount, sensor)
-        stated = self.mount_yaw_sigmas.get(self._body_key, 0.0)
-        widened = self.odometry.heading_variance(stated)
-        # While an exact start pose is held, the heading is that pose's, not the LiDAR's.
-        self.frame_shift = with_heading(self._frame_shift(),
-                                        0.0 if self.held_start.held else widened)
+        # While an exact start pose is held, the heading is that pose's, not the LiDAR's
+        # (nor is it reported widened).
+        widened = 0.0 if self.held_start.held else self.odometry.heading_variance(
+            self.mount_yaw_sigmas.get(self._body_key, 0.0))
+        self.frame_shift = with_heading(self._frame_shift(), widened)
         return report
 
     def _frame_shift(self) -> Shift | None:

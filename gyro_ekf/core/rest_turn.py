@@ -60,13 +60,10 @@ class RestTurnWatch:
         """Start with no stop and nothing found."""
         self.turns: list[dict[str, Any]] = []
         self._scans: dict[str, list[tuple[float, FloatArray, LidarMount]]] = {}
-        self._since_s: float | None = None
 
     def add(self, sensor: str, stamp_s: float, points_sensor_m: FloatArray,
             mount: LidarMount) -> None:
         """Keep a scan's poles (sensor frame, its mount in use) taken during zero-rate updates."""
-        if self._since_s is None:
-            self._since_s = stamp_s
         scans = self._scans.setdefault(sensor, [])
         scans.append((stamp_s, points_sensor_m, mount))
         if len(scans) >= 2 * MAX_STOP_SCANS:
@@ -76,7 +73,7 @@ class RestTurnWatch:
     def close(self, stamp_s: float | None) -> None:
         """End the stop at ``stamp_s``: judge what each LiDAR saw, then forget it."""
         self.turns.extend(self._judge(stamp_s))
-        self._scans, self._since_s = {}, None
+        self._scans = {}
 
     def report(self, stamp_s: float | None = None) -> list[dict[str, Any]]:
         """Return the stops judged turning and the stop under way if it turns (JSON-ready).
@@ -107,11 +104,10 @@ class RestTurnWatch:
     def save(self) -> tuple:
         """Return the state in O(LiDARs): the lists are only appended to (or replaced)."""
         return ((self.turns, len(self.turns)),
-                {name: (scans, len(scans)) for name, scans in self._scans.items()},
-                self._since_s)
+                {name: (scans, len(scans)) for name, scans in self._scans.items()})
 
     def restore(self, saved: tuple) -> None:
         """Put back a state from ``save``."""
-        (turns, n), scans, self._since_s = saved
+        (turns, n), scans = saved
         self.turns = turns[:n]
         self._scans = {name: entries[:n] for name, (entries, n) in scans.items()}
