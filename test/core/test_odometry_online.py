@@ -217,6 +217,35 @@ def test_after_a_turn_a_path_fit_refines_the_yaw_below_the_first_limit():
     assert tracker.yaw_found()
 
 
+def test_a_yaw_turned_alone_leaves_the_offset_to_its_first_limit():
+    # An offset read under the 1 cm limit at 5 sigmas: once an offset was moved, a
+    # refinement; after a turn of the yaw alone, no offset was proven yet, and the path
+    # fits' offsets scatter more than their sigmas say.
+    tracker = OdometryTracker()
+    tracker.fit = OdometryFit(stamp_s=70.0, scale=1.0, scale_sigma=0.0005,
+                              offset_m=(-0.0052, 0.0004), offset_sigma_m=(0.001, 0.001),
+                              yaw_rad=0.0, yaw_sigma_rad=math.radians(0.005),
+                              heading_sigma_rad=math.radians(0.02), rms_m=0.002,
+                              samples=300, distance_m=23.0)
+    tracker.yaw_rad, tracker.offset_applied = math.radians(-0.216), 1
+    assert not tracker.offset_found()
+    tracker.offset_m = (0.012, 0.0)
+    assert tracker.offset_found()
+
+
+def test_a_lone_lidar_turned_on_a_moving_start_keeps_its_exact_offset():
+    # Stress seed 52, found by a helper: a lone LiDAR 0.2 deg off, no static start. Its
+    # run turned the yaw at 35 s, then moved the exact mount 5.2 mm in x at 70 s (a fit
+    # read -5.2 +- 1.0 mm; the next +6.1 +- 1.4), and calibrate-mounts wrote that offset:
+    # its file's run held the pose 5 mm off, NEES share 0.77, verdict ok.
+    trip = simulate_trip(SimulationConfig(duration_s=90.0, static_s=0.0,
+                                          lidar_yaw_error_rad=math.radians(-0.2)), 52)
+    odometry = summarize(run_trip(trip))['online_odometry']
+    assert odometry['first_lidar_yaw_in_use_deg'] == pytest.approx(-0.2, abs=0.03)
+    assert (odometry['first_lidar_offset_in_use_x_m'],
+            odometry['first_lidar_offset_in_use_y_m']) == (0.0, 0.0)
+
+
 def test_a_first_turn_is_judged_with_the_headings_sigma():
     # Stress seed 20, mount_yaw 36: a first LiDAR 0.084 deg off read at -0.081 deg, sigma
     # 0.005 deg, with the heading's 0.019 deg: 4.3 sigmas, beyond the 0.05 deg limit.
