@@ -799,9 +799,22 @@ def midpoint_yaw(before_rad: float, after_rad: float) -> float:
     return before_rad + 0.5 * wrap_scalar(after_rad - before_rad)
 
 
+MAX_HEADING_WIDENED_RAD = math.radians(0.1)
+"""A reported heading widened beyond 0.1 deg for the first LiDAR's yaw makes a run degraded.
+
+Every pose rests on that yaw: 0.1 deg lays a pole 10 m off 1.7 cm aside, near the 2 cm the
+project holds its positions to. ``calibrate-mounts`` writes 0.008-0.038 deg for the yaws it
+measures; a hand-written ``yaw_sigma_rad`` of 0.005-0.2 rad was taken as stated and the
+verdict said ok (NEES share 0.82, the heading far inside its claimed sigma).
+"""
+
+
 def verdict_reasons(report: dict[str, Any] | None, first: list[str],
                     settings: OdometrySettings | None = None) -> list[str]:
-    """Return a sentence for a speed scale in use off 1, and one for a first-LiDAR offset.
+    """Return the sentences of the odometry's and the first LiDAR's findings.
+
+    One for a speed scale in use off 1, one for a first-LiDAR offset, and one for a heading
+    widened beyond ``MAX_HEADING_WIDENED_RAD`` at the end.
 
     Args:
         report: ``OdometryTracker.report()`` (summary.json's online_odometry), or None.
@@ -844,4 +857,11 @@ def verdict_reasons(report: dict[str, Any] | None, first: list[str],
             reasons[-1] += (f' (not turned: LiDAR {vouched["by"]}, its stated mount confirmed, '
                             f'agrees with it, so both would be off alike, as on one bracket '
                             f'turned on the body)')
+    widened = report.get('heading_widened_deg') or 0.0
+    if widened > math.degrees(MAX_HEADING_WIDENED_RAD):
+        reasons.append(
+            f'the heading is known only to +-{widened:.3f} deg (1 sigma) at the end, more '
+            f'than {math.degrees(MAX_HEADING_WIDENED_RAD):g} deg: LiDAR {name} defines the '
+            f'body frame and its yaw is known no better (its lidar.<topic>.yaw_sigma_rad, '
+            f'or what the odometry reads it off); gyro-ekf calibrate-mounts measures it')
     return reasons

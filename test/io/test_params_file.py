@@ -370,6 +370,15 @@ def test_a_lidar_yaw_sigma_is_read_checked_and_widens_the_heading_reported():
     last[2, 2] = 0.0
     np.testing.assert_array_equal(last, 0.0)
     assert widened.odometry.report()['heading_widened_deg'] >= math.degrees(0.001) - 1e-12
+    # A heading known only to 0.29 deg (a hand-written sigma) is said; 0.057 deg is not.
+    from gyro_ekf.analysis.summary import summarize
+    loose = with_lidar_mounts(trip, read_params_text(head + '      scan: {yaw_sigma_rad: '
+                                                            '0.005}\n'))
+    said = 'the heading is known only to +-0.286 deg (1 sigma) at the end, more than 0.1 deg'
+    reasons = [summarize(run_trip(t))['health']['reasons'] for t in (given, loose)]
+    assert not any(said[:30] in r for r in reasons[0])
+    assert any(r.startswith(said) and 'LiDAR scan defines the body frame' in r
+               for r in reasons[1])
 
 
 def test_a_lidar_time_offset_takes_each_scan_at_its_stamp_less_it():
