@@ -60,6 +60,9 @@ class RestTurnWatch:
         """Start with no stop and nothing found."""
         self.turns: list[dict[str, Any]] = []
         self._scans: dict[str, list[tuple[float, FloatArray, LidarMount]]] = {}
+        # The open stop's last judgement per LiDAR: its scan list (the object), how many
+        # scans and up to which stamp it held then, and the turn found (or None).
+        self._judged: dict[str, tuple[list, int, float, dict[str, Any] | None]] = {}
 
     def add(self, sensor: str, stamp_s: float, points_sensor_m: FloatArray,
             mount: LidarMount) -> None:
@@ -72,33 +75,34 @@ class RestTurnWatch:
 
     def close(self, stamp_s: float | None) -> None:
         """End the stop at ``stamp_s``: judge what each LiDAR saw, then forget it."""
-        self.turns.extend(self._judge(stamp_s))
-        self._scans = {}
+        for sensor, scans in self._scans.items():
+            turn = _judge(sensor, scans)
+            if turn is not None:
+                self.turns.append(turn if stamp_s is None else {**turn, 'end_s': stamp_s})
+        self._scans, self._judged = {}, {}
 
     def report(self, stamp_s: float | None = None) -> list[dict[str, Any]]:
         """Return the stops judged turning and the stop under way if it turns (JSON-ready).
 
-        Each: lidar (its name), start_s and end_s (the stop's scans), rate_deg_s (the net
-        turn rate its poles showed, counter-clockwise positive), sigma_deg_s, poles
-        (followed through half the scans), scans.
+        Each: lidar (its name), start_s and end_s (the stop's scans; the stop under way's
+        ends at ``stamp_s`` when given), rate_deg_s (the net turn rate its poles showed,
+        counter-clockwise positive), sigma_deg_s, poles (followed through half the scans),
+        scans. The stop under way is judged again only once its scans run ``MIN_STOP_S``
+        past the last judgement (the EKF node asks at every diagnostics tick, and a long
+        stop's 512-1024 scans took some 20 ms each time), so what it says of it may lag
+        by as much.
         """
-        return self.turns + self._judge(stamp_s)
-
-    def _judge(self, stamp_s: float | None) -> list[dict[str, Any]]:
-        found = []
+        found = list(self.turns)
         for sensor, scans in self._scans.items():
-            if len(scans) < MIN_STOP_SCANS or scans[-1][0] - scans[0][0] < MIN_STOP_S:
+            if not scans:
                 continue
-            turn = pole_turn([scan[0] for scan in scans],
-                             [sensor_to_map(_BODY, points, mount) for _, points, mount in scans],
-                             LIVE_BEAM_STEP_RAD)
-            if turn is None or not turn.turning:
-                continue
-            found.append({'lidar': sensor, 'start_s': scans[0][0],
-                          'end_s': scans[-1][0] if stamp_s is None else stamp_s,
-                          'rate_deg_s': math.degrees(turn.rate_rad_s),
-                          'sigma_deg_s': math.degrees(turn.sigma_rad_s),
-                          'poles': turn.poles, 'scans': turn.scans})
+            judged = self._judged.get(sensor)
+            if (judged is None or judged[0] is not scans or len(scans) < judged[1]
+                    or scans[-1][0] - judged[2] >= MIN_STOP_S):
+                judged = self._judged[sensor] = (scans, len(scans), scans[-1][0],
+                                                 _judge(sensor, scans))
+            if judged[3] is not None:
+                found.append(judged[3] if stamp_s is None else {**judged[3], 'end_s': stamp_s})
         return found
 
     def save(self) -> tuple:
@@ -110,4 +114,21 @@ class RestTurnWatch:
         """Put back a state from ``save``."""
         (turns, n), scans = saved
         self.turns = turns[:n]
+        # New lists: a judgement of the old ones is not theirs (report compares objects).
         self._scans = {name: entries[:n] for name, (entries, n) in scans.items()}
+
+
+def _judge(sensor: str, scans: list[tuple[float, FloatArray, LidarMount]]
+           ) -> dict[str, Any] | None:
+    """Return what one LiDAR's scans of a stop say of a turn (``report``'s entry), or None."""
+    if len(scans) < MIN_STOP_SCANS or scans[-1][0] - scans[0][0] < MIN_STOP_S:
+        return None
+    turn = pole_turn([scan[0] for scan in scans],
+                     [sensor_to_map(_BODY, points, mount) for _, points, mount in scans],
+                     LIVE_BEAM_STEP_RAD)
+    if turn is None or not turn.turning:
+        return None
+    return {'lidar': sensor, 'start_s': scans[0][0], 'end_s': scans[-1][0],
+            'rate_deg_s': math.degrees(turn.rate_rad_s),
+            'sigma_deg_s': math.degrees(turn.sigma_rad_s),
+            'poles': turn.poles, 'scans': turn.scans}

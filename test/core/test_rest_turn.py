@@ -70,6 +70,48 @@ def test_save_and_restore_put_the_stop_back():
     assert watch.turns == []
 
 
+def test_the_stop_under_way_is_judged_again_every_2_s_of_scans(monkeypatch):
+    # The EKF node asks at every 1-Hz diagnostics tick; a long stop's judgement costs some
+    # 20 ms, so it is kept until the scans run MIN_STOP_S past it.
+    from gyro_ekf.core import rest_turn
+    calls = []
+
+    def counted(*args):
+        calls.append(args[0][-1])
+        return pole_turn(*args)
+
+    pole_turn = rest_turn.pole_turn
+    monkeypatch.setattr(rest_turn, 'pole_turn', counted)
+    watch = RestTurnWatch()
+    reports = []
+    for second in range(20):
+        _stop(watch, 0.3, 1.0, start_s=float(second), seed=second)
+        reports.append(watch.report(second + 1.0))
+    # Judged from the first report whose scans span 2 s (0-2.9 s), then once they run 2 s
+    # past the last judgement (asked each second: 2 s after it, or 3 by rounding).
+    spacing = np.diff(calls)
+    assert calls[0] == 2.9 and 7 <= len(calls) <= 9
+    assert np.all((spacing > 1.99) & (spacing < 3.01))
+    # Found once judged, its end the stamp asked about.
+    assert [len(found) for found in reports] == [0, 0] + [1] * 18
+    assert reports[-1][0]['end_s'] == 20.0 and reports[-2][0]['end_s'] == 19.0
+    # A restored stop is judged anew: the judgement of the scans it let go is not its.
+    saved = watch.save()
+    watch.restore(saved)
+    judged = len(calls)
+    assert watch.report(20.0) == reports[-1] and len(calls) == judged + 1
+    still = RestTurnWatch()
+    _stop(still, 0.0, 3.0)
+    before = still.save()
+    _stop(still, 1.0, 3.0, start_s=3.0, seed=1)
+    assert still.report(6.0)
+    still.restore(before)
+    assert still.report(3.0) == []
+    # The stop's close judges it whole, whatever was kept.
+    watch.close(20.5)
+    assert watch.turns[0]['end_s'] == 20.5 and watch.turns[0]['scans'] >= 190
+
+
 def test_a_long_stop_is_kept_thinned_end_to_end():
     watch = RestTurnWatch()
     _stop(watch, 0.1, 150.0)  # 1500 scans, over the 1024 kept
