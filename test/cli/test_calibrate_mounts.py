@@ -225,6 +225,29 @@ def test_a_first_lidar_yaw_fitted_against_the_odometry_is_written_with_its_sigma
         truth['heading_rmse_deg'])
 
 
+def test_a_first_lidar_offset_under_the_move_limit_is_written_not_passed_on(
+        tmp_path, capsys):
+    # A helper's probe: the first LiDAR 1.1 cm off, moving from the start, an exact second
+    # one. The run on the first alone read it at -9.5 mm, under the 1 cm it moves a mount
+    # by, so the path the second was fitted along was off as much: the second was written
+    # 1 cm off, the two agreed, and the file's run held the pose 1 cm off (NEES share 0.06,
+    # verdict ok).
+    bag = _simulate(tmp_path, 2621, '--static-s', '0', '--second-lidar', '--lidar-offset-m',
+                    '-0.0112', '-0.0011', '--lidar2-yaw-error-deg', '4.309')
+    params = tmp_path / 'p.yaml'
+    capsys.readouterr()
+    assert main(['-q', 'calibrate-mounts', str(bag), '-o', str(params)]) == 0
+    assert ' '.join(_row(capsys.readouterr().out, 'scan')[-4:]) == 'moved against the odometry'
+    lidar = yaml.safe_load(params.read_text())['/**']['ros__parameters']['lidar']
+    assert (lidar['scan']['x_m'], lidar['scan']['y_m']) == pytest.approx(
+        (0.46 - 0.0112, -0.0011), abs=0.002)
+    second = (lidar['scan2']['x_m'], lidar['scan2']['y_m'])
+    assert second == pytest.approx((0.46, 0.0), abs=0.002)
+    after = _run(bag, tmp_path / 'after', '--params-file', str(params))
+    assert after['health']['verdict'] == 'ok', after['health']['reasons']
+    assert after['ground_truth']['nees_share_in_band'] >= 0.9
+
+
 def test_a_bag_without_a_map_gets_one_line(tmp_path, capsys):
     trip = simulate_trip(SimulationConfig(duration_s=10.0, second_lidar=True), seed=34)
     no_map = write_trip_bag(dataclasses.replace(trip, landmarks=LandmarkMap(
